@@ -1,0 +1,168 @@
+"""The coupled robot + arm + friction plant (spec section 5): derivative, RK4 step, force sensor.
+
+The continuous state is ``PlantState``: joint angles ``q`` [rad], rates ``qd`` [rad/s],
+LuGre bristle states ``z`` [rad], and ``xi = int (x - x0) dt`` [m s] over the current
+control period (for the ``"interval_mean"`` acquisition; it integrates the deviation
+from ``x0`` so that a robot at rest accumulates an exact zero). Every field is a scalar,
+so under ``jax.vmap`` the batch is structure-of-arrays, one ``(B,)`` array per field.
+
+With ``x = x_h = x_r``, the hand force ``F_h = M_h xdd + B_h xd + K_h (x - x0)`` is
+substituted into ``M qdd + h + tau_f = J^T (F_u - F_h)`` and solved for ``qdd``::
+
+    (M + J^T M_h J) qdd = J^T (F_u - M_h Jd qd - B_h xd - K_h (x - x0)) - h - tau_f
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from .arm import ArmImpedance
+from .friction import LuGreParams, lugre
+from .robot import jacobian_from_trig, mass_matrix_entries
+from .tables import ELBOW_LINK_LENGTH as L_E
+from .tables import INERTIA_C2
+from .tables import SHOULDER_LINK_LENGTH as L_S
+
+
+class PlantState(NamedTuple):
+    """Continuous state, all scalars: ``q1, q2`` [rad], ``qd1, qd2`` [rad/s], ``z1, z2`` [rad],
+    ``xi1, xi2`` [m s]."""
+
+    q1: jnp.ndarray
+    q2: jnp.ndarray
+    qd1: jnp.ndarray
+    qd2: jnp.ndarray
+    z1: jnp.ndarray
+    z2: jnp.ndarray
+    xi1: jnp.ndarray
+    xi2: jnp.ndarray
+
+
+class PlantModel(NamedTuple):
+    """Per-trial constants of the plant derivative, all scalars (``(B,)`` under ``vmap``).
+
+    ``x0`` [m] is the equilibrium and ``cq0 = (cos q01, sin q01, cos q02, sin q02)`` the
+    trig of ``q0``: displacements ``x - x0`` are formed from trig differences, which are
+    exactly zero at ``q = q0`` whatever XLA's FMA contraction does to the fused
+    expressions. ``mh``, ``bh``, ``kh`` are the arm's ``(m11, m12, m21, m22)``;
+    ``friction`` the LuGre scalars.
+    """
+
+    x0: tuple
+    cq0: tuple
+    mh: tuple
+    bh: tuple
+    kh: tuple
+    friction: LuGreParams
+
+
+def _entries(m):
+    return (m[0, 0], m[0, 1], m[1, 0], m[1, 1])
+
+
+def plant_model(q0, x0, arm: ArmImpedance, friction: LuGreParams) -> PlantModel:
+    """Unpack trial parameters into the scalars the inner loop uses (hoisted out of it)."""
+    cq0 = (jnp.cos(q0[0]), jnp.sin(q0[0]), jnp.cos(q0[1]), jnp.sin(q0[1]))
+    return PlantModel((x0[0], x0[1]), cq0, _entries(arm.mass), _entries(arm.damping), _entries(arm.stiffness), friction)
+
+
+def rest_state(q0) -> PlantState:
+    """The robot at rest at ``q0`` with relaxed bristles."""
+    zero = jnp.zeros_like(q0[0])
+    return PlantState(q0[0], q0[1], zero, zero, zero, zero, zero, zero)
+
+
+def _dynamics(s: PlantState, fu, model: PlantModel):
+    """Joint accelerations and the pieces needed for the hand force, at command ``fu`` [N] ``(2,)``."""
+    c1, s1, c2, s2 = jnp.cos(s.q1), jnp.sin(s.q1), jnp.cos(s.q2), jnp.sin(s.q2)
+    # Angle-difference identities instead of cos/sin(q1 - q2): two fewer transcendentals
+    # per evaluation (they dominate the cost on CPU), error ~1e-16.
+    cos_d = c1 * c2 + s1 * s2
+    sin_d = s1 * c2 - c1 * s2
+    c10, s10, c20, s20 = model.cq0
+    ex = L_S * (c1 - c10) + L_E * (c2 - c20)  # x - x0, exactly 0 at q0
+    ey = L_S * (s1 - s10) + L_E * (s2 - s20)
+    j11, j12, j21, j22 = jacobian_from_trig(c1, s1, c2, s2)
+    m11, m12, m22 = mass_matrix_entries(cos_d)
+    mh11, mh12, mh21, mh22 = model.mh
+    bh11, bh12, bh21, bh22 = model.bh
+    kh11, kh12, kh21, kh22 = model.kh
+    qd1sq, qd2sq = s.qd1 * s.qd1, s.qd2 * s.qd2
+
+    xd = j11 * s.qd1 + j12 * s.qd2
+    yd = j21 * s.qd1 + j22 * s.qd2
+    jdqd_x = -L_S * c1 * qd1sq - L_E * c2 * qd2sq  # Jd qd
+    jdqd_y = -L_S * s1 * qd1sq - L_E * s2 * qd2sq
+
+    # Hand force without its J qdd part: M_h Jd qd + B_h xd + K_h (x - x0).
+    f0x = (mh11 * jdqd_x + mh12 * jdqd_y) + (bh11 * xd + bh12 * yd) + (kh11 * ex + kh12 * ey)
+    f0y = (mh21 * jdqd_x + mh22 * jdqd_y) + (bh21 * xd + bh22 * yd) + (kh21 * ex + kh22 * ey)
+    rx, ry = fu[0] - f0x, fu[1] - f0y
+
+    tau_f1, zd1 = lugre(s.qd1, s.z1, model.friction)
+    tau_f2, zd2 = lugre(s.qd2, s.z2, model.friction)
+    hc = INERTIA_C2 * sin_d
+    b1 = (j11 * rx + j21 * ry) - hc * qd2sq - tau_f1
+    b2 = (j12 * rx + j22 * ry) + hc * qd1sq - tau_f2
+
+    # A = M + J^T M_h J (not symmetric: M_h is not).
+    p11 = mh11 * j11 + mh12 * j21
+    p12 = mh11 * j12 + mh12 * j22
+    p21 = mh21 * j11 + mh22 * j21
+    p22 = mh21 * j12 + mh22 * j22
+    a11 = m11 + (j11 * p11 + j21 * p21)
+    a12 = m12 + (j11 * p12 + j21 * p22)
+    a21 = m12 + (j12 * p11 + j22 * p21)
+    a22 = m22 + (j12 * p12 + j22 * p22)
+    det = a11 * a22 - a12 * a21
+    qdd1 = (a22 * b1 - a12 * b2) / det
+    qdd2 = (a11 * b2 - a21 * b1) / det
+    deriv = PlantState(s.qd1, s.qd2, qdd1, qdd2, zd1, zd2, ex, ey)
+    jqdd = (j11 * qdd1 + j12 * qdd2, j21 * qdd1 + j22 * qdd2)
+    return deriv, (ex, ey), (xd, yd), (f0x, f0y), jqdd
+
+
+def plant_derivative(s: PlantState, fu, model: PlantModel) -> PlantState:
+    """Time derivative of the state under the Cartesian command ``fu`` [N] ``(2,)``."""
+    return _dynamics(s, fu, model)[0]
+
+
+def measure(s: PlantState, fu, model: PlantModel):
+    """Ideal sensors at state ``s`` while command ``fu`` acts: ``(x, xd, F_h)``, each ``(2,)``.
+
+    ``F_h`` [N] is the transducer force (the force on the hand), from the same
+    acceleration the plant integrates.
+    """
+    _, (ex, ey), (xd, yd), (f0x, f0y), (ax, ay) = _dynamics(s, fu, model)
+    mh11, mh12, mh21, mh22 = model.mh
+    fh = jnp.stack([(mh11 * ax + mh12 * ay) + f0x, (mh21 * ax + mh22 * ay) + f0y])
+    return jnp.stack([model.x0[0] + ex, model.x0[1] + ey]), jnp.stack([xd, yd]), fh
+
+
+def rk4_step(s: PlantState, fu, model: PlantModel, h) -> PlantState:
+    """One classical Runge-Kutta step of size ``h`` [s] with ``fu`` held constant."""
+
+    def f(state):
+        return plant_derivative(state, fu, model)
+
+    def axpy(a, k):
+        return jax.tree.map(lambda si, ki: si + a * ki, s, k)
+
+    k1 = f(s)
+    k2 = f(axpy(0.5 * h, k1))
+    k3 = f(axpy(0.5 * h, k2))
+    k4 = f(axpy(h, k3))
+    return jax.tree.map(lambda si, a, b, c, d: si + (h / 6.0) * (a + 2.0 * b + 2.0 * c + d), s, k1, k2, k3, k4)
+
+
+def integrate_period(s: PlantState, fu, model: PlantModel, *, period: float, substeps: int) -> PlantState:
+    """Advance ``s`` over one control period with ``substeps`` fixed RK4 steps (``lax.scan``)."""
+    h = period / substeps
+
+    def body(state, _):
+        return rk4_step(state, fu, model, h), None
+
+    return jax.lax.scan(body, s, None, length=substeps)[0]
