@@ -20,4 +20,12 @@ from .simulate import simulate as simulate
 from .simulate import stack_trials as stack_trials
 from .simulate import trial_params as trial_params
 
+from .estimate import Estimate as Estimate
+from .estimate import cross_spectral_matrix as cross_spectral_matrix
+from .estimate import estimate as estimate
+from .estimate import input_coherence as input_coherence
+from .metrics import accuracy as accuracy
+from .perturbation import perturbation as perturbation
+from .perturbation import perturbation_peak as perturbation_peak
+
 __version__ = "0.1.0"

@@ -59,4 +59,4 @@ def true_impedance(location, f):
     idx = jnp.asarray(location) - 1
     m, b, k = (jnp.asarray(_STACKED[n])[idx] for n in ("mass", "damping", "stiffness"))
     s = 2j * jnp.pi * jnp.asarray(f, dtype=jnp.float64)[:, None, None]
-    return m * s**2 + b * s + k
+    return m[None] * s**2 + b[None] * s + k[None]

@@ -213,7 +213,10 @@ def simulate(params: TrialParams, f_delta) -> SimResult:
     def control_period(carry, inputs):
         state, memory, diverged_at = carry
         k, fd = inputs
-        x, xd, fh = measure(state, memory.fu_prev, model)
+        # The barriers make each sample one materialised value: otherwise XLA may recompute
+        # it in several fusions whose FMA contraction differs (batched vs unbatched programs
+        # then disagree in the last bit of the outputs).
+        x, xd, fh = jax.lax.optimization_barrier(measure(state, memory.fu_prev, model))
         x_rec, fh_rec = record(state, x, xd, fh, memory)
         fu, new_memory = controller_step(
             params.controller,
@@ -227,6 +230,7 @@ def simulate(params: TrialParams, f_delta) -> SimResult:
             period=period,
             accel_estimate=params.accel_estimate,
         )
+        fu, new_memory = jax.lax.optimization_barrier((fu, new_memory))
         zero = jnp.zeros_like(state.xi1)
         new_state = integrate_period(state._replace(xi1=zero, xi2=zero), fu, model, period=period, substeps=substeps)
 

@@ -1,0 +1,80 @@
+"""Random force perturbations F_Delta (spec section 8): filtered uniform noise from a PRNG key.
+
+Per axis: i.i.d. uniform samples on [-1, 1] at 1 kHz, an 8th-order Butterworth low-pass
+(15 Hz, second-order sections from ``scipy.signal.butter``) applied causally, the first
+2 s of filter output discarded, then scaled so that ``max_k |F_Delta,k|`` equals the peak.
+Single-trial; batch over keys with ``jax.vmap``.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.signal
+
+from ._checks import as_float64, check_choice, check_int, is_concrete, require_x64
+from .tables import PERTURBATION_CUTOFF, PERTURBATION_ORDER, PERTURBATION_PEAKS, PERTURBATION_WARMUP, SAMPLE_RATE
+
+
+@functools.cache
+def butterworth_sos(order: int = PERTURBATION_ORDER, cutoff: float = PERTURBATION_CUTOFF, fs: float = SAMPLE_RATE):
+    """Low-pass Butterworth as second-order sections, ``(order/2, 6)`` NumPy float64."""
+    return scipy.signal.butter(order, cutoff, btype="low", fs=fs, output="sos")
+
+
+def sosfilt(sos, x):
+    """Causal filtering of ``x`` ``(N, C)`` along axis 0, zero initial state.
+
+    Transposed direct form II per section, the same recursion as ``scipy.signal.sosfilt``
+    (agreement to round-off). ``sos`` is ``(S, 6)`` with rows ``[b0, b1, b2, 1, a1, a2]``.
+    """
+    sos = jnp.asarray(sos, dtype=x.dtype)
+    zi0 = jnp.zeros((sos.shape[0], 2) + x.shape[1:], dtype=x.dtype)
+
+    def step(zi, xn):
+        new = []
+        for i in range(sos.shape[0]):
+            b0, b1, b2, _, a1, a2 = (sos[i, j] for j in range(6))
+            yn = b0 * xn + zi[i, 0]
+            new.append(jnp.stack([b1 * xn - a1 * yn + zi[i, 1], b2 * xn - a2 * yn]))
+            xn = yn
+        return jnp.stack(new), xn
+
+    return jax.lax.scan(step, zi0, x)[1]
+
+
+def perturbation_peak(level: int):
+    """Per-axis peak ``|F_Delta|`` [N] of perturbation level 1-3 (Table 3), shape ``(2,)``."""
+    check_choice("perturbation level", level, tuple(PERTURBATION_PEAKS))
+    return jnp.asarray(PERTURBATION_PEAKS[level], dtype=jnp.float64)
+
+
+def perturbation(
+    key, n_samples: int, peak, *, warmup: int = PERTURBATION_WARMUP, cutoff: float = PERTURBATION_CUTOFF
+):
+    """A perturbation record ``F_Delta`` [N], shape ``(n_samples, 2)`` float64, at 1 kHz.
+
+    Args:
+        key: a ``jax.random`` key; the same key always gives the same signal.
+        n_samples: record length (integer >= 1), one sample per 1 ms control period.
+        peak: per-axis peak [N], a scalar or ``(2,)`` (e.g. ``perturbation_peak(1)``).
+        warmup: filter start-up samples drawn and discarded (default 2000 = 2 s).
+        cutoff: Butterworth cut-off [Hz] (default 15).
+    """
+    require_x64("perturbation")
+    n_samples = check_int("n_samples", n_samples, minimum=1)
+    warmup = check_int("warmup", warmup, minimum=0)
+    peak = as_float64("peak", peak, where="perturbation")
+    if peak.shape not in ((), (2,)):
+        raise ValueError(f"peak must be a scalar or have shape (2,), got {peak.shape}")
+    if is_concrete(peak) and not np.all(np.asarray(peak) > 0):
+        raise ValueError(f"peak must be > 0 N, got {np.asarray(peak).tolist()}")
+    if not 0.0 < cutoff < SAMPLE_RATE / 2:
+        raise ValueError(f"cutoff must be in (0, {SAMPLE_RATE / 2}) Hz, got {cutoff}")
+    noise = jax.random.uniform(key, (warmup + n_samples, 2), dtype=jnp.float64, minval=-1.0, maxval=1.0)
+    filtered = sosfilt(butterworth_sos(cutoff=cutoff), noise)[warmup:]
+    scale = jnp.broadcast_to(peak, (2,)) / jnp.max(jnp.abs(filtered), axis=0)
+    return filtered * scale[None, :]

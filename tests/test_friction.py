@@ -1,0 +1,71 @@
+"""LuGre: steady sliding friction, pre-sliding stiffness, and the exact zero of level 0."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import armimp_jax as aj
+from armimp_jax.friction import steady_state_friction, stribeck
+
+
+@pytest.mark.parametrize("level", [1, 2])
+@pytest.mark.parametrize("v", [-0.2, -2e-3, 5e-4, 0.05])
+def test_constant_velocity_reaches_the_steady_friction(level, v):
+    p = aj.friction_params(level)
+    v = jnp.asarray(v)
+
+    # The bristle ODE relaxes with time constant g(v) / (sigma0 |v|): integrate 40 of them.
+    tau_z = float(stribeck(v, p)) / (float(p.sigma0) * abs(float(v)))
+    h = tau_z / 200
+
+    def step(z, _):  # RK4 on the bristle ODE at fixed velocity
+
+        def f(zz):
+            return aj.lugre(v, zz, p)[1]
+
+        k1 = f(z)
+        k2 = f(z + 0.5 * h * k1)
+        k3 = f(z + 0.5 * h * k2)
+        k4 = f(z + h * k3)
+        return z + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4), None
+
+    z, _ = jax.lax.scan(step, jnp.asarray(0.0), None, length=8000)
+    tau, zd = aj.lugre(v, z, p)
+    np.testing.assert_allclose(tau, steady_state_friction(v, p), rtol=1e-9)
+    np.testing.assert_allclose(tau, stribeck(v, p) * np.sign(v) + p.sigma2 * v, rtol=1e-9)
+    assert abs(float(zd)) < 1e-9 * abs(float(v))
+
+
+@pytest.mark.parametrize("level", [1, 2])
+def test_small_motions_see_the_bristle_stiffness(level):
+    """A 0.01 microradian oscillation stays in linear pre-sliding (|z| << g / sigma0 = 1.5e-5 rad):
+    tau ~ sigma0 q + (sigma1 + sigma2) qd; the bristle nonlinearity is ~sigma0 |z| / g = 0.07%."""
+    p = aj.friction_params(level)
+    amp, w, h = 1e-8, 2 * np.pi * 2.0, 1e-5
+    t = np.arange(0, 0.5, h)
+    q, qd = amp * np.sin(w * t), amp * w * np.cos(w * t)
+
+    def step(z, v):
+        zd = aj.lugre(v, z, p)[1]
+        return z + h * zd, aj.lugre(v, z, p)[0]
+
+    _, tau = jax.lax.scan(step, jnp.asarray(0.0), jnp.asarray(qd))
+    expected = float(p.sigma0) * q + (float(p.sigma1) + float(p.sigma2)) * qd
+    np.testing.assert_allclose(tau[1000:], expected[1000:], atol=3e-3 * np.abs(expected).max())
+
+
+def test_level_0_is_exactly_zero_with_finite_gradients():
+    p = aj.friction_params(0)
+    for v, z in [(0.0, 0.0), (0.3, 1e-3), (-1e-9, 0.0)]:
+        tau, zd = aj.lugre(jnp.asarray(v), jnp.asarray(z), p)
+        assert float(tau) == 0.0 and float(zd) == v
+        grads = jax.grad(lambda v_, z_, p_: aj.lugre(v_, z_, p_)[0] + aj.lugre(v_, z_, p_)[1], argnums=(0, 1, 2))(
+            jnp.asarray(v), jnp.asarray(z), p
+        )
+        assert all(np.all(np.isfinite(g)) for g in jax.tree.leaves(grads))
+
+
+def test_unknown_level_is_rejected():
+    with pytest.raises(ValueError, match="unknown friction level 3; allowed: 0, 1, 2"):
+        aj.friction_params(3)

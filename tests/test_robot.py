@@ -1,0 +1,78 @@
+"""Robot kinematics and the coupled dynamics against independent computations."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import armimp_jax as aj
+from armimp_jax import robot
+from armimp_jax.plant import PlantState, plant_derivative, plant_model
+from armimp_jax.tables import ROBOT_BASE, location_endpoint
+
+
+@pytest.mark.parametrize("location", [1, 2, 3, 4])
+def test_fk_inverts_ik_on_the_spec_branch(location):
+    x = jnp.asarray(location_endpoint(location))
+    q = robot.ik(x)
+    np.testing.assert_allclose(robot.fk(q), x, rtol=0, atol=1e-15)
+    assert 0.0 < float(q[0] - q[1]) < np.pi
+    assert robot.workspace_margin(q) >= 0.16
+
+
+def test_location_1_matches_the_spec():
+    q = robot.ik(jnp.asarray(location_endpoint(1)))
+    np.testing.assert_allclose(np.degrees(q), [-37.70, -128.69], atol=0.01)
+    np.testing.assert_allclose(robot.cartesian_inertia(q), [[1.447, 0.735], [0.735, 1.783]], atol=1e-3)
+    np.testing.assert_allclose(ROBOT_BASE, [-0.148729, 1.042452], atol=1e-6)
+
+
+def test_ik_rejects_unreachable_points():
+    with pytest.raises(ValueError, match="outside the robot's workspace"):
+        robot.ik(jnp.asarray(ROBOT_BASE + np.array([0.0, -2.0])))
+
+
+@pytest.mark.parametrize("q", [[-0.6, -2.2], [0.3, -1.0], [-1.2, -2.9]])
+def test_jacobian_is_derivative_of_fk(q):
+    q = jnp.asarray(q)
+    np.testing.assert_allclose(robot.jacobian(q), jax.jacfwd(robot.fk)(q), rtol=1e-14, atol=1e-15)
+
+
+@pytest.mark.parametrize("q", [[-0.6, -2.2], [0.3, -1.0], [2.0, 2.0]])
+def test_mass_matrix_is_symmetric_positive_definite_and_the_hessian_of_kinetic_energy(q):
+    q = jnp.asarray(q)
+    m = robot.mass_matrix(q)
+    np.testing.assert_array_equal(m, m.T)
+    assert np.all(np.linalg.eigvalsh(m) > 0)
+    np.testing.assert_allclose(jax.hessian(robot.kinetic_energy, argnums=1)(q, jnp.zeros(2)), m, rtol=1e-14)
+
+
+def _lagrangian_qdd(q, qd, z, fu, params):
+    """qdd from Euler-Lagrange of the kinetic energy plus the arm, written independently."""
+    dT_dqd = jax.grad(robot.kinetic_energy, argnums=1)
+    m = jax.jacfwd(dT_dqd, argnums=1)(q, qd)
+    h = jax.jacfwd(dT_dqd, argnums=0)(q, qd) @ qd - jax.grad(robot.kinetic_energy, argnums=0)(q, qd)
+    j = robot.jacobian(q)
+    jd_qd = jax.jvp(robot.jacobian, (q,), (qd,))[1] @ qd
+    arm, fr = params.arm, params.friction
+    tau_f = jnp.stack([aj.lugre(qd[i], z[i], fr)[0] for i in range(2)])
+    x = robot.fk(q)
+    # M qdd + h + tau_f = J^T (F_u - F_h),  F_h = M_h (J qdd + Jd qd) + B_h J qd + K_h (x - x0)
+    lhs = m + j.T @ arm.mass @ j
+    rhs = j.T @ (fu - arm.mass @ jd_qd - arm.damping @ (j @ qd) - arm.stiffness @ (x - params.x0)) - h - tau_f
+    return jnp.linalg.solve(lhs, rhs)
+
+
+@pytest.mark.parametrize("friction_level", [0, 2])
+@pytest.mark.parametrize("location", [1, 3])
+def test_coupled_acceleration_matches_lagrangian(friction_level, location):
+    p = aj.trial_params("pd", friction_level, location)
+    q = p.q0 + jnp.array([0.01, -0.02])
+    qd = jnp.array([0.3, -0.5])
+    z = jnp.array([2e-6, -5e-6])
+    fu = jnp.array([1.5, -2.0])
+    s = PlantState(q[0], q[1], qd[0], qd[1], z[0], z[1], 0.0, 0.0)
+    d = plant_derivative(s, fu, plant_model(p.q0, p.x0, p.arm, p.friction))
+    expected = _lagrangian_qdd(q, qd, z, fu, p)
+    np.testing.assert_allclose([d.qd1, d.qd2], expected, rtol=1e-11, atol=1e-12)
+    np.testing.assert_allclose([d.xi1, d.xi2], robot.fk(q) - p.x0, rtol=1e-12, atol=1e-16)
