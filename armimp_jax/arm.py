@@ -54,9 +54,14 @@ def true_impedance(location, f):
     """
     if is_concrete(location):
         loc = np.asarray(location)
-        if loc.ndim != 0 or not all(int(v) in LOCATIONS for v in np.atleast_1d(loc)) or not np.all(loc == np.round(loc)):
+        if loc.ndim != 0 or not np.issubdtype(loc.dtype, np.integer) or int(loc) not in LOCATIONS:
             raise ValueError(f"unknown arm location {location!r}; allowed: 1, 2, 3, 4")
     idx = jnp.asarray(location) - 1
-    m, b, k = (jnp.asarray(_STACKED[n])[idx] for n in ("mass", "damping", "stiffness"))
+    arm = ArmImpedance(*(jnp.asarray(_STACKED[n])[idx] for n in ("mass", "damping", "stiffness")))
+    return impedance_response(arm, f)
+
+
+def impedance_response(arm: ArmImpedance, f):
+    """``M s^2 + B s + K`` at ``s = j 2 pi f`` for ``f`` [Hz] ``(F,)``: ``(F, 2, 2)`` complex [N/m]."""
     s = 2j * jnp.pi * jnp.asarray(f, dtype=jnp.float64)[:, None, None]
-    return m[None] * s**2 + b[None] * s + k[None]
+    return arm.mass[None] * s**2 + arm.damping[None] * s + arm.stiffness[None]

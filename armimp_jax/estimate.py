@@ -95,11 +95,11 @@ def coherences(g, inputs, output):
     gyy = jnp.real(g[:, output, output])
     mult = jnp.real(jnp.einsum("fi,fij,fj->f", jnp.conj(guy), _inv2(guu), guy)) / gyy
     partial = []
-    for j, l in ((inputs[0], inputs[1]), (inputs[1], inputs[0])):
-        gll = jnp.real(g[:, l, l])
-        gjj_l = jnp.real(g[:, j, j]) - jnp.real(g[:, j, l] * g[:, l, j]) / gll
-        gjy_l = g[:, j, output] - g[:, j, l] * g[:, l, output] / gll
-        gyy_l = gyy - jnp.real(g[:, output, l] * g[:, l, output]) / gll
+    for j, o in ((inputs[0], inputs[1]), (inputs[1], inputs[0])):  # o: the other input, removed
+        goo = jnp.real(g[:, o, o])
+        gjj_l = jnp.real(g[:, j, j]) - jnp.real(g[:, j, o] * g[:, o, j]) / goo
+        gjy_l = g[:, j, output] - g[:, j, o] * g[:, o, output] / goo
+        gyy_l = gyy - jnp.real(g[:, output, o] * g[:, o, output]) / goo
         partial.append(jnp.abs(gjy_l) ** 2 / (gjj_l * gyy_l))
     return mult, jnp.stack(partial, axis=-1)
 

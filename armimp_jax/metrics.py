@@ -29,5 +29,10 @@ def largest_singular_value(a):
 def accuracy(Z, f, location):
     """``(phi_T, phi_ij)`` [N/m] of the estimate ``Z`` ``(F, 2, 2)`` on bins ``f`` ``(F,)`` [Hz]
     for arm ``location`` (1-4, int or traced int). ``phi_T`` scalar, ``phi_ij`` ``(2, 2)``."""
-    err = true_impedance(location, f) - Z
+    return impedance_error(Z, true_impedance(location, f))
+
+
+def impedance_error(Z, Z_true):
+    """``(phi_T, phi_ij)`` [N/m] of ``Z`` against ``Z_true``, both ``(F, 2, 2)`` complex."""
+    err = Z_true - Z
     return jnp.mean(largest_singular_value(err)), jnp.mean(jnp.abs(err), axis=0)

@@ -27,6 +27,7 @@ from .control import (
     ACCEL_ESTIMATES,
     CONTROLLERS,
     ControllerGains,
+    ControllerMemory,
     controller_gains,
     controller_init,
     controller_step,
@@ -182,19 +183,32 @@ def check_perturbation(f_delta, *, where: str):
     return arr
 
 
-def simulate(params: TrialParams, f_delta) -> SimResult:
-    """Simulate one trial driven by the perturbation ``f_delta`` ``(N, 2)`` [N].
+class SimCarry(NamedTuple):
+    """Loop state between control periods: the plant state at ``t_k``, the controller memory,
+    and ``diverged_at`` (int32, -1 while the trial is sound). ``k`` is the next sample index."""
 
-    Per sample ``k``: (1) measure ``x_k``, ``xd_k`` and ``F_h,k`` (with ``F_u,k-1`` still
-    acting), (2) compute ``F_u,k``, (3) integrate to ``t_k+1`` with ``F_u,k`` held.
-    Pure and single-trial; ``jax.vmap(simulate)`` batches it, ``jax.grad`` flows through
-    every float leaf of ``params`` and through ``f_delta``.
-    """
-    require_x64("simulate")
-    if not isinstance(params, TrialParams):
-        raise ValueError(f"params must be TrialParams (from trial_params), got {type(params).__name__}")
-    f_delta = check_perturbation(f_delta, where="simulate")
-    n = f_delta.shape[0]
+    plant: PlantState
+    memory: ControllerMemory
+    diverged_at: jnp.ndarray
+    k: jnp.ndarray
+
+
+def simulate_init(params: TrialParams) -> SimCarry:
+    """The loop state of a trial at ``t_0``: robot at rest at ``q0``, relaxed bristles."""
+    return SimCarry(
+        rest_state(params.q0),
+        controller_init(params.x0, params.gains),
+        jnp.asarray(-1, dtype=jnp.int32),
+        jnp.asarray(0, dtype=jnp.int32),
+    )
+
+
+def simulate_chunk(params: TrialParams, carry: SimCarry, f_delta) -> tuple[SimCarry, SimResult]:
+    """Run the samples ``f_delta`` ``(n, 2)`` [N] from ``carry``; returns the new carry and
+    the ``n`` recorded rows. Chaining chunks gives bitwise the same numbers as one call of
+    ``simulate`` (used for progress reporting and resumable long runs)."""
+    require_x64("simulate_chunk")
+    f_delta = check_perturbation(f_delta, where="simulate_chunk")
     period, substeps = params.period, params.substeps
     model = plant_model(params.q0, params.x0, params.arm, params.friction)
     x0 = params.x0
@@ -210,25 +224,16 @@ def simulate(params: TrialParams, f_delta) -> SimResult:
         )
         return xbar, fbar
 
-    def control_period(carry, inputs):
-        state, memory, diverged_at = carry
-        k, fd = inputs
+    def control_period(carry: SimCarry, fd):
+        state, memory, diverged_at, k = carry
         # The barriers make each sample one materialised value: otherwise XLA may recompute
         # it in several fusions whose FMA contraction differs (batched vs unbatched programs
         # then disagree in the last bit of the outputs).
         x, xd, fh = jax.lax.optimization_barrier(measure(state, memory.fu_prev, model))
         x_rec, fh_rec = record(state, x, xd, fh, memory)
         fu, new_memory = controller_step(
-            params.controller,
-            x,
-            xd,
-            fd,
-            fh,
-            memory,
-            x0,
-            params.gains,
-            period=period,
-            accel_estimate=params.accel_estimate,
+            params.controller, x, xd, fd, fh, memory, x0, params.gains,
+            period=period, accel_estimate=params.accel_estimate,
         )
         fu, new_memory = jax.lax.optimization_barrier((fu, new_memory))
         zero = jnp.zeros_like(state.xi1)
@@ -242,10 +247,21 @@ def simulate(params: TrialParams, f_delta) -> SimResult:
         frozen = diverged_at >= 0
         keep = jax.tree.map(lambda new, old: jnp.where(frozen, old, new), (new_state, new_memory), (state, memory))
         out = (x_rec, xd, fh_rec, fu, jnp.stack([state.q1, state.q2]), jnp.stack([state.z1, state.z2]))
-        return (*keep, diverged_at), out
+        return SimCarry(*keep, diverged_at, k + 1), out
 
-    carry0 = (rest_state(params.q0), controller_init(x0, params.gains), jnp.asarray(-1, dtype=jnp.int32))
-    (_, _, diverged_at), (x, xd, fh, fu, q, z) = jax.lax.scan(
-        control_period, carry0, (jnp.arange(n, dtype=jnp.int32), f_delta)
-    )
-    return SimResult(x, xd, fh, fu, q, z, diverged_at >= 0, diverged_at)
+    carry, (x, xd, fh, fu, q, z) = jax.lax.scan(control_period, carry, f_delta)
+    return carry, SimResult(x, xd, fh, fu, q, z, carry.diverged_at >= 0, carry.diverged_at)
+
+
+def simulate(params: TrialParams, f_delta) -> SimResult:
+    """Simulate one trial driven by the perturbation ``f_delta`` ``(N, 2)`` [N].
+
+    Per sample ``k``: (1) measure ``x_k``, ``xd_k`` and ``F_h,k`` (with ``F_u,k-1`` still
+    acting), (2) compute ``F_u,k``, (3) integrate to ``t_k+1`` with ``F_u,k`` held.
+    Pure and single-trial; ``jax.vmap(simulate)`` batches it, ``jax.grad`` flows through
+    every float leaf of ``params`` and through ``f_delta``.
+    """
+    require_x64("simulate")
+    if not isinstance(params, TrialParams):
+        raise ValueError(f"params must be TrialParams (from trial_params), got {type(params).__name__}")
+    return simulate_chunk(params, simulate_init(params), f_delta)[1]

@@ -1,0 +1,152 @@
+"""Benchmark: simulation throughput, seconds per 50 s trial, and the estimator's cost.
+
+Fixed inputs (seeded perturbations, IMBIC, friction levels and locations cycled), compile
+time measured apart, ``block_until_ready``, median of repeats. Prints a Markdown table
+and writes it (and JSON) under ``--out``.
+
+    python sweeps/bench_simulate.py [--repeats 3] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import platform
+import statistics
+import time
+
+from armimp_jax.runtime import configure
+
+N_DEVICES = configure()
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+import armimp_jax as aj  # noqa: E402
+from armimp_jax import sweep  # noqa: E402
+
+
+def batch_inputs(b, n, substeps, controller="imbic"):
+    params = aj.stack_trials(
+        [aj.trial_params(controller, i % 3, 1 + i % 4, substeps=substeps) for i in range(b)]
+    )
+    keys = jax.random.split(jax.random.PRNGKey(0), b)
+    f_delta = jax.vmap(lambda k: aj.perturbation(k, n, aj.perturbation_peak(1)))(keys)
+    return params, f_delta
+
+
+def timed(fn, repeats):
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn())
+    first = time.perf_counter() - t0
+    runs = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        runs.append(time.perf_counter() - t0)
+    return first, statistics.median(runs)
+
+
+def bench_simulation(batches, devices_list, seconds, substeps, repeats):
+    rows = []
+    n = int(seconds * 1000)
+    for n_dev in devices_list:
+        mesh = sweep.make_mesh(jax.devices()[:n_dev])
+        for b in batches:
+            params, f_delta = batch_inputs(b, n, substeps)
+            (p_s, f_s), _ = sweep.shard_batch((params, f_delta), mesh)
+            fn = jax.jit(jax.vmap(aj.simulate))
+            t0 = time.perf_counter()
+            compiled = fn.lower(p_s, f_s).compile()
+            compile_s = time.perf_counter() - t0
+            _, run_s = timed(lambda compiled=compiled, p_s=p_s, f_s=f_s: compiled(p_s, f_s), repeats)
+            substeps_total = b * n * substeps
+            rows.append(
+                dict(devices=n_dev, batch=b, record_s=seconds, substeps=substeps, compile_s=compile_s,
+                     run_s=run_s, msubsteps_per_s=substeps_total / run_s / 1e6,
+                     s_per_50s_trial=run_s / b * (50.0 / seconds))
+            )
+            print(f"  sim devices={n_dev} batch={b:3d}: {rows[-1]['msubsteps_per_s']:.2f} M substeps/s, "
+                  f"{rows[-1]['s_per_50s_trial']:.2f} s per 50 s trial (compile {compile_s:.1f} s)", flush=True)
+    return rows
+
+
+def bench_full_trial(b, substeps):
+    """A real 50 s batch, all devices, in 5 s chunks (one compile), one run."""
+    params, f_delta = batch_inputs(b, 50_000, substeps)
+    sweep.simulate_batch(params, np.asarray(f_delta)[:, :5000], chunk_samples=5000)  # compile
+    t0 = time.perf_counter()
+    sweep.simulate_batch(params, f_delta, chunk_samples=5000)
+    wall = time.perf_counter() - t0
+    return dict(batch=b, devices=N_DEVICES, wall_s=wall, s_per_trial=wall / b)
+
+
+def bench_estimator(batches, repeats, n=50_000):
+    rows = []
+    for b in batches:
+        keys = jax.random.split(jax.random.PRNGKey(1), 3 * b)
+        sig = jax.random.normal(keys[0], (b, n, 6))
+        f_delta, x, fh = sig[..., :2], sig[..., 2:4], sig[..., 4:]
+        ours = jax.jit(jax.vmap(lambda a, c, d: aj.estimate(a, c, d).Z))
+
+        def ref_csd(a, c, d):  # all 36 pairs through jax.scipy.signal.csd, then the same H1 algebra
+            s = jnp.concatenate([a, c, d], axis=1)
+            _, g = jax.scipy.signal.csd(s[:, :, None], s[:, None, :], fs=1000.0, nperseg=8192, noverlap=6144,
+                                        axis=0)
+            return g[1:123]
+
+        theirs = jax.jit(jax.vmap(ref_csd))
+        for name, fn in (("armimp_jax.estimate", ours), ("jax.scipy.signal.csd (spectra only)", theirs)):
+            t0 = time.perf_counter()
+            compiled = fn.lower(f_delta, x, fh).compile()
+            compile_s = time.perf_counter() - t0
+            mem = compiled.memory_analysis()
+            temp = getattr(mem, "temp_size_in_bytes", float("nan")) / 2**20
+            _, run_s = timed(lambda compiled=compiled: compiled(f_delta, x, fh), repeats)
+            rows.append(dict(method=name, batch=b, run_s=run_s, compile_s=compile_s, temp_mib=temp,
+                             input_mib=3 * f_delta.nbytes / 2**20))
+            print(f"  est {name} batch={b}: {run_s:.3f} s, temp {temp:.0f} MiB (compile {compile_s:.1f} s)",
+                  flush=True)
+    return rows
+
+
+def markdown(sim, full, est):
+    lines = ["| devices | batch | M substeps/s | s per 50 s trial (from 5 s) | compile s |", "|---|---|---|---|---|"]
+    lines += [f"| {r['devices']} | {r['batch']} | {r['msubsteps_per_s']:.2f} | {r['s_per_50s_trial']:.2f} | "
+              f"{r['compile_s']:.1f} |" for r in sim]
+    if full:
+        lines += ["", f"Measured 50 s batch: {full['batch']} trials on {full['devices']} device(s) in "
+                      f"{full['wall_s']:.1f} s = **{full['s_per_trial']:.2f} s per 50 s trial**."]
+    lines += ["", "| estimator (50 s records) | batch | run s | XLA temp MiB | inputs MiB |", "|---|---|---|---|---|"]
+    lines += [f"| {r['method']} | {r['batch']} | {r['run_s']:.3f} | {r['temp_mib']:.0f} | {r['input_mib']:.0f} |"
+              for r in est]
+    return "\n".join(lines)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--substeps", type=int, default=100)
+    ap.add_argument("--quick", action="store_true", help="tiny sizes, to check the script runs")
+    ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/bench"))
+    args = ap.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    if args.quick:
+        sim = bench_simulation([1, 4], sorted({1, N_DEVICES}), 0.5, 10, 1)
+        full, est = None, []
+    else:
+        sim = bench_simulation([1, 24, 96], sorted({1, N_DEVICES}), 5.0, args.substeps, args.repeats)
+        full = bench_full_trial(24, args.substeps)
+        est = bench_estimator([24, 96], args.repeats)
+    env = dict(jax=jax.__version__, devices=N_DEVICES, backend=jax.default_backend(),
+               cpu=platform.processor() or platform.machine(), python=platform.python_version())
+    table = markdown(sim, full, est)
+    print("\n" + table + f"\n\n{env}")
+    (args.out / "bench_simulate.md").write_text(table + f"\n\n{env}\n")
+    (args.out / "bench_simulate.json").write_text(json.dumps(dict(env=env, sim=sim, full=full, est=est), indent=1))
+
+
+if __name__ == "__main__":
+    main()
