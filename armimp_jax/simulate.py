@@ -34,7 +34,7 @@ from .control import (
     matvec,
 )
 from .friction import LuGreParams, friction_params
-from .plant import PlantState, integrate_period, measure, plant_model, rest_state
+from .plant import KERNELS, PlantState, integrate_period, measure, plant_model, rest_state
 from .robot import fk, ik
 from .tables import CONTROL_PERIOD, DEFAULT_MHAT, DEFAULT_SUBSTEPS, location_endpoint
 
@@ -51,7 +51,8 @@ class TrialParams:
     Leaves (float64, may be tracers): ``q0`` ``(2,)`` [rad] and ``x0`` ``(2,)`` [m], the
     equilibrium (``x0 = fk(q0)``); ``arm`` (``ArmImpedance``); ``friction``
     (``LuGreParams``); ``gains`` (``ControllerGains``, holding ``mhat``). Static:
-    ``controller``, ``substeps``, ``acquisition``, ``accel_estimate``, ``period`` [s].
+    ``controller``, ``substeps``, ``acquisition``, ``accel_estimate``, ``period`` [s],
+    ``kernel``.
     """
 
     q0: jnp.ndarray
@@ -64,19 +65,20 @@ class TrialParams:
     acquisition: str = "instant"
     accel_estimate: str = "velocity"
     period: float = CONTROL_PERIOD
+    kernel: str = "fast"
 
     @property
     def mhat(self):
         return self.gains.mhat
 
     def static_fields(self) -> tuple:
-        return (self.controller, self.substeps, self.acquisition, self.accel_estimate, self.period)
+        return (self.controller, self.substeps, self.acquisition, self.accel_estimate, self.period, self.kernel)
 
 
 jax.tree_util.register_dataclass(
     TrialParams,
     data_fields=["q0", "x0", "arm", "friction", "gains"],
-    meta_fields=["controller", "substeps", "acquisition", "accel_estimate", "period"],
+    meta_fields=["controller", "substeps", "acquisition", "accel_estimate", "period", "kernel"],
 )
 
 
@@ -104,6 +106,7 @@ def trial_params(
     substeps: int = DEFAULT_SUBSTEPS,
     acquisition: str = "instant",
     accel_estimate: str = "velocity",
+    kernel: str = "fast",
 ) -> TrialParams:
     """Parameters of one trial.
 
@@ -118,6 +121,9 @@ def trial_params(
             means over the period ending at ``t_k``).
         accel_estimate: IMBIC's acceleration estimate, ``"velocity"`` (default,
             ``(xd_k - xd_k-1)/L``) or ``"position"`` (second difference of ``x``).
+        kernel: ``"fast"`` (default: ``cos/sin`` carried through the RK4 stages by
+            small-angle rotations) or ``"reference"`` (evaluated at every stage). They
+            agree to round-off; see ``plant.integrate_period``.
     """
     require_x64("trial_params")
     check_choice("controller", controller, CONTROLLERS)
@@ -126,6 +132,7 @@ def trial_params(
     substeps = check_int("substeps (RK4 steps per control period)", substeps, minimum=1)
     check_choice("acquisition", acquisition, ACQUISITIONS)
     check_choice("accel_estimate", accel_estimate, ACCEL_ESTIMATES)
+    check_choice("kernel", kernel, KERNELS)
     mhat = check_mhat(DEFAULT_MHAT if mhat is None else mhat)
     q0 = ik(jnp.asarray(location_endpoint(location)))
     x0 = fk(q0)
@@ -139,6 +146,7 @@ def trial_params(
         substeps=substeps,
         acquisition=acquisition,
         accel_estimate=accel_estimate,
+        kernel=kernel,
     )
 
 
@@ -229,7 +237,7 @@ def simulate_chunk(params: TrialParams, carry: SimCarry, f_delta) -> tuple[SimCa
         # The barriers make each sample one materialised value: otherwise XLA may recompute
         # it in several fusions whose FMA contraction differs (batched vs unbatched programs
         # then disagree in the last bit of the outputs).
-        x, xd, fh = jax.lax.optimization_barrier(measure(state, memory.fu_prev, model))
+        x, xd, fh = jax.lax.optimization_barrier(measure(*jax.lax.optimization_barrier((state, memory.fu_prev)), model))
         x_rec, fh_rec = record(state, x, xd, fh, memory)
         fu, new_memory = controller_step(
             params.controller, x, xd, fd, fh, memory, x0, params.gains,
@@ -237,7 +245,8 @@ def simulate_chunk(params: TrialParams, carry: SimCarry, f_delta) -> tuple[SimCa
         )
         fu, new_memory = jax.lax.optimization_barrier((fu, new_memory))
         zero = jnp.zeros_like(state.xi1)
-        new_state = integrate_period(state._replace(xi1=zero, xi2=zero), fu, model, period=period, substeps=substeps)
+        new_state = integrate_period(state._replace(xi1=zero, xi2=zero), fu, model, period=period, substeps=substeps,
+                                     kernel=params.kernel)
 
         finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(leaf)) for leaf in jax.tree.leaves((new_state, fu))]))
         in_range = (jnp.abs(new_state.q1 - params.q0[0]) < DIVERGENCE_ANGLE) & (

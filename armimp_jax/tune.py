@@ -1,0 +1,241 @@
+"""Gradient-based tuning of IMBIC's gain ``Mhat``: parameterisation, loss, gradients, optimiser loop.
+
+``phi_T`` is differentiated through the whole pipeline (RK4 scan -> Welch -> ``Z`` ->
+``phi_T``) with respect to ``Mhat``. ``Mhat`` is parameterised so it is always symmetric
+positive definite: ``"diagonal"`` uses ``log`` of the two diagonal entries, ``"full"`` a
+Cholesky factor with log-diagonal (3 numbers). The loss is the mean ``phi_T`` over a
+training batch (plus, optionally, a weight times the mean ``phi_ij``).
+
+Two gradient modes: ``"forward"`` (``jax.jacfwd``: one tangent per parameter, memory of
+a few primal runs) and ``"reverse"`` (``jax.grad`` through the scan with ``jax.checkpoint``
+on every control period and RK4 substep, so the tape holds one carry per period). Both
+are exact; ``bench_gradient.py`` measures them.
+
+``tune`` runs optax with a divergence guard: a step that lands on an ``Mhat`` whose
+simulation diverges (flag, NaN or inf) is rejected, the step size is halved, and the
+rejection is logged; an unstable *start* is shrunk towards small ``Mhat`` (which
+time-delay estimation tolerates) until it is stable.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import pathlib
+import time
+from collections.abc import Callable
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from .arm import impedance_response
+from .estimate import estimate
+from .metrics import impedance_error
+from .simulate import TrialParams, simulate
+from .sweep import Welch
+
+PARAMETERISATIONS = ("diagonal", "full")
+
+
+def mhat_from_theta(theta, parameterisation: str):
+    """``Mhat`` [kg] ``(2, 2)``, symmetric positive definite, from the unconstrained ``theta``."""
+    if parameterisation == "diagonal":
+        return jnp.diag(jnp.exp(theta))
+    lower = jnp.array([[jnp.exp(theta[0]), 0.0], [theta[1], jnp.exp(theta[2])]])
+    return lower @ lower.T
+
+
+def theta_from_mhat(mhat, parameterisation: str):
+    """Inverse of ``mhat_from_theta`` (``mhat`` must be SPD; diagonal keeps only the diagonal)."""
+    mhat = np.asarray(mhat, dtype=float)
+    if parameterisation == "diagonal":
+        if np.any(np.diag(mhat) <= 0):
+            raise ValueError(f"Mhat diagonal must be positive, got {np.diag(mhat).tolist()}")
+        return jnp.log(jnp.asarray(np.diag(mhat)))
+    try:
+        lower = np.linalg.cholesky(mhat)
+    except np.linalg.LinAlgError:
+        raise ValueError(f"Mhat must be symmetric positive definite, got {mhat.tolist()}") from None
+    return jnp.array([np.log(lower[0, 0]), lower[1, 0], np.log(lower[1, 1])])
+
+
+def with_mhat(params: TrialParams, mhat) -> TrialParams:
+    """``params`` (single or stacked) with IMBIC's gain replaced by ``mhat`` ``(2, 2)``."""
+    batch_shape = params.gains.kp.shape[:-2]
+    return dataclasses.replace(params, gains=params.gains._replace(mhat=jnp.broadcast_to(mhat, batch_shape + (2, 2))))
+
+
+class LossAux(NamedTuple):
+    """Per-trial diagnostics of a loss evaluation: ``phi_T`` ``(B,)`` and divergence flags ``(B,)``."""
+
+    phi_T: jnp.ndarray
+    diverged: jnp.ndarray
+
+
+def trial_loss(params: TrialParams, f_delta, welch: Welch, phi_ij_weight: float = 0.0):
+    """``phi_T`` (+ weight x mean ``phi_ij``) of one trial, and its divergence flag."""
+    sim = simulate(params, f_delta)
+    est = estimate(f_delta, sim.x, sim.fh, fs=welch.fs, nperseg=welch.nperseg, noverlap=welch.noverlap,
+                   fmax=welch.fmax)
+    phi_t, phi_ij = impedance_error(est.Z, impedance_response(params.arm, est.f))
+    return phi_t + phi_ij_weight * jnp.mean(phi_ij), (phi_t, sim.diverged)
+
+
+def batch_loss(theta, params: TrialParams, f_delta, *, parameterisation: str, welch: Welch,
+               phi_ij_weight: float = 0.0):
+    """Mean loss over a stacked batch as a pure function of ``theta``; returns ``(loss, LossAux)``."""
+    p = with_mhat(params, mhat_from_theta(theta, parameterisation))
+    losses, (phi_t, diverged) = jax.vmap(trial_loss, in_axes=(0, 0, None, None))(p, f_delta, welch, phi_ij_weight)
+    return jnp.mean(losses), LossAux(phi_t, diverged)
+
+
+def value_and_grad_fn(*, parameterisation: str, welch: Welch, phi_ij_weight: float = 0.0, mode: str = "forward"):
+    """A jitted ``(theta, params, f_delta) -> ((loss, aux), grad)`` in the chosen mode."""
+    if mode not in ("forward", "reverse"):
+        raise ValueError(f"unknown gradient mode {mode!r}; allowed: 'forward', 'reverse'")
+
+    def loss(theta, params, f_delta):
+        return batch_loss(theta, params, f_delta, parameterisation=parameterisation, welch=welch,
+                          phi_ij_weight=phi_ij_weight)
+
+    if mode == "reverse":
+        return jax.jit(jax.value_and_grad(loss, has_aux=True))
+
+    def fwd(theta, params, f_delta):
+        # One tangent per parameter, vmapped: the primal does not depend on the tangent,
+        # so vmap computes it once; memory stays that of a few primal runs.
+        def tangent(v):
+            return jax.jvp(lambda t: loss(t, params, f_delta), (theta,), (v,), has_aux=True)
+
+        values, grads, aux = jax.vmap(tangent)(jnp.eye(theta.shape[0]))
+        return (values[0], jax.tree.map(lambda a: a[0], aux)), grads
+
+    return jax.jit(fwd)
+
+
+@dataclasses.dataclass
+class TuneConfig:
+    parameterisation: str = "diagonal"
+    learning_rate: float = 0.1
+    iterations: int = 30
+    mode: str = "forward"
+    phi_ij_weight: float = 0.0
+    min_step_scale: float = 1e-3
+
+
+def _finite(*trees) -> bool:
+    return all(bool(np.all(np.isfinite(np.asarray(x)))) for x in jax.tree.leaves(trees))
+
+
+def tune(
+    theta0,
+    params: TrialParams,
+    f_delta,
+    welch: Welch,
+    config: TuneConfig,
+    *,
+    state: dict | None = None,
+    log: Callable[[dict], None] = print,
+    on_iteration: Callable[[dict], None] | None = None,
+    evaluate: Callable[[int, jnp.ndarray], dict] | None = None,
+    eval_every: int = 0,
+) -> dict:
+    """Descend the training loss from ``theta0`` with optax Adam and a divergence guard.
+
+    ``state`` (from a previous call's ``on_iteration``) resumes a run. Returns the final
+    state: ``theta``, ``mhat``, ``history`` (one record per iteration), optimiser state.
+    """
+    vg = value_and_grad_fn(parameterisation=config.parameterisation, welch=welch,
+                           phi_ij_weight=config.phi_ij_weight, mode=config.mode)
+    opt = optax.adam(config.learning_rate)
+
+    def evaluate_at(theta):
+        t0 = time.perf_counter()
+        (value, aux), grad = vg(theta, params, f_delta)
+        jax.block_until_ready(grad)
+        ok = _finite(value, grad) and not bool(np.any(np.asarray(aux.diverged)))
+        return ok, float(value), grad, aux, time.perf_counter() - t0
+
+    if state is None:
+        theta = jnp.asarray(theta0, dtype=jnp.float64)
+        ok, value, grad, aux, dt = evaluate_at(theta)
+        shrinks = 0
+        while not ok:  # an unstable start: shrink Mhat (small gains are stable for TDE)
+            shrinks += 1
+            if shrinks > 20:
+                raise RuntimeError("could not find a stable starting Mhat by shrinking it")
+            log(dict(event="start diverged", mhat=np.asarray(mhat_from_theta(theta, config.parameterisation)).tolist()))
+            theta = _shrink(theta, config.parameterisation)
+            ok, value, grad, aux, dt = evaluate_at(theta)
+        state = dict(iteration=0, theta=theta, opt_state=opt.init(theta), step_scale=1.0, history=[],
+                     value=value, grad=grad, rejected=0)
+        _record(state, config, value, grad, aux, dt, event="start")
+        log(state["history"][-1])
+    while state["iteration"] < config.iterations:
+        theta, grad = state["theta"], state["grad"]
+        updates, new_opt = opt.update(grad, state["opt_state"], theta)
+        proposal = theta + state["step_scale"] * updates
+        ok, value, new_grad, aux, dt = evaluate_at(proposal)
+        state["iteration"] += 1
+        if not ok:
+            state["step_scale"] *= 0.5
+            state["rejected"] += 1
+            rec = dict(iteration=state["iteration"], event="rejected: diverged or non-finite",
+                       mhat=np.asarray(mhat_from_theta(proposal, config.parameterisation)).tolist(),
+                       step_scale=state["step_scale"], time_s=dt)
+            state["history"].append(rec)
+            log(rec)
+            if state["step_scale"] < config.min_step_scale:
+                log(dict(event="stopping: step scale below minimum"))
+                break
+            continue
+        state.update(theta=proposal, opt_state=new_opt, value=value, grad=new_grad,
+                     step_scale=min(1.0, state["step_scale"] * 1.5))
+        _record(state, config, value, new_grad, aux, dt, event="step")
+        if evaluate is not None and eval_every and state["iteration"] % eval_every == 0:
+            state["history"][-1]["eval"] = evaluate(state["iteration"], proposal)
+        log(state["history"][-1])
+        if on_iteration is not None:
+            on_iteration(state)
+    return state
+
+
+def _shrink(theta, parameterisation):
+    """``theta`` of ``Mhat / 2``."""
+    if parameterisation == "diagonal":
+        return theta - math.log(2.0)
+    half = 0.5 * math.log(2.0)  # L -> L / sqrt(2)
+    return jnp.array([theta[0] - half, theta[1] / math.sqrt(2.0), theta[2] - half])
+
+
+def _record(state, config, value, grad, aux, dt, *, event):
+    state["history"].append(dict(
+        iteration=state["iteration"], event=event, loss=value, grad_norm=float(jnp.linalg.norm(grad)),
+        mhat=np.asarray(mhat_from_theta(state["theta"], config.parameterisation)).tolist(),
+        phi_T=np.asarray(aux.phi_T).tolist(), step_scale=state["step_scale"], time_s=dt,
+    ))
+
+
+def save_state(path: pathlib.Path, state: dict, config: TuneConfig) -> None:
+    """Everything needed to resume: theta, optimiser state leaves, history (JSON + NPZ)."""
+    leaves = jax.tree.leaves(state["opt_state"])
+    np.savez(path.with_suffix(".npz"), theta=np.asarray(state["theta"]), grad=np.asarray(state["grad"]),
+             **{f"opt_{i}": np.asarray(x) for i, x in enumerate(leaves)})
+    meta = {k: state[k] for k in ("iteration", "step_scale", "history", "value", "rejected")}
+    path.with_suffix(".json").write_text(json.dumps(dict(config=dataclasses.asdict(config), **meta), indent=1))
+
+
+def load_state(path: pathlib.Path, config: TuneConfig) -> dict:
+    meta = json.loads(path.with_suffix(".json").read_text())
+    with np.load(path.with_suffix(".npz")) as data:
+        theta = jnp.asarray(data["theta"])
+        template = optax.adam(config.learning_rate).init(theta)
+        leaves = [jnp.asarray(data[f"opt_{i}"]) for i in range(len(jax.tree.leaves(template)))]
+        opt_state = jax.tree.unflatten(jax.tree.structure(template), leaves)
+        grad = jnp.asarray(data["grad"])
+    return dict(theta=theta, opt_state=opt_state, grad=grad, **{k: meta[k] for k in
+                ("iteration", "step_scale", "history", "value", "rejected")})
