@@ -14,6 +14,7 @@ substituted into ``M qdd + h + tau_f = J^T (F_u - F_h)`` and solved for ``qdd``:
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -220,8 +221,10 @@ def integrate_period(s: PlantState, fu, model: PlantModel, *, period: float, sub
     """
     h = period / substeps
     if kernel == "reference":
-        return jax.lax.scan(lambda state, _: (rk4_step(state, fu, model, h), None), s, None, length=substeps)[0]
+        body = jax.checkpoint(lambda state, _: (rk4_step(state, fu, model, h), None), prevent_cse=False)
+        return jax.lax.scan(body, s, None, length=substeps)[0]
 
+    @functools.partial(jax.checkpoint, prevent_cse=False)  # reverse mode: keep only substep carries
     def body(carry, _):
         return rk4_step_rotating(*carry, fu, model, h), None
 

@@ -193,3 +193,26 @@ def all_figures(results, arrays, out: pathlib.Path) -> list[pathlib.Path]:
         ablation_figure(results, out / "ablation_acquisition.png"),
     ]
     return [p for p in made if p is not None]
+
+
+def loss_curve(history: list[dict], path: pathlib.Path):
+    """Training loss per accepted step (and held-out phi_T where evaluated); rejected steps marked."""
+    steps = [h for h in history if "loss" in h]
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ax.plot([h["iteration"] for h in steps], [h["loss"] for h in steps], "o-", label="training loss (mean phi_T)")
+    rejected = [h["iteration"] for h in history if str(h.get("event", "")).startswith("rejected")]
+    if rejected:
+        ax.plot(rejected, [steps[0]["loss"]] * len(rejected), "rx", label="rejected step (diverged)")
+    evals = [h for h in steps if "eval" in h]
+    if evals:
+        ax.plot([h["iteration"] for h in evals], [h["eval"]["mean_phi_T"] for h in evals], "s--",
+                label="held-out phi_T (paper settings)")
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("[N/m]")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    ax.set_title("Tuning Mhat by gradient descent")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

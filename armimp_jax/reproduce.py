@@ -158,7 +158,7 @@ def run_reproduction(
     todo = [(c, s) for c, s in trials if not (out / "trials" / f"{trial_id(c, s)}.json").exists()]
     levels = sorted({c.perturbation for c in conditions})
     mesh = make_mesh()
-    n, per_trial = settings.n_samples, settings.n_samples * settings.substeps
+    per_trial = settings.n_samples * settings.substeps
     total, done_substeps, computed = len(todo) * per_trial, 0, []
     start = time.perf_counter()
     cache: dict[int, tuple] = {}

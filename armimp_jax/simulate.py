@@ -258,7 +258,9 @@ def simulate_chunk(params: TrialParams, carry: SimCarry, f_delta) -> tuple[SimCa
         out = (x_rec, xd, fh_rec, fu, jnp.stack([state.q1, state.q2]), jnp.stack([state.z1, state.z2]))
         return SimCarry(*keep, diverged_at, k + 1), out
 
-    carry, (x, xd, fh, fu, q, z) = jax.lax.scan(control_period, carry, f_delta)
+    # Checkpointing each period keeps reverse mode affordable (the tape holds one carry per
+    # period, the substeps are recomputed); it is inert when nothing is differentiated.
+    carry, (x, xd, fh, fu, q, z) = jax.lax.scan(jax.checkpoint(control_period, prevent_cse=False), carry, f_delta)
     return carry, SimResult(x, xd, fh, fu, q, z, carry.diverged_at >= 0, carry.diverged_at)
 
 

@@ -1,10 +1,11 @@
-"""Benchmark: simulation throughput, seconds per 50 s trial, and the estimator's cost.
+"""Benchmark: simulation throughput, scaling over devices, the numba baseline, the estimator.
 
 Fixed inputs (seeded perturbations, IMBIC, friction levels and locations cycled), compile
-time measured apart, ``block_until_ready``, median of repeats. Prints a Markdown table
-and writes it (and JSON) under ``--out``.
+time measured apart, ``block_until_ready``, median of repeats. Entry-point settings as
+every script uses them (``runtime.configure``: float64, one XLA device per core, the
+small-loop option). Prints Markdown tables and writes them (and JSON) under ``--out``.
 
-    python sweeps/bench_simulate.py [--repeats 3] [--quick]
+    python sweeps/bench_simulate.py [--repeats 3] [--quick] [--no-numba]
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import json
 import pathlib
 import platform
 import statistics
+import sys
 import time
 
 from armimp_jax.runtime import configure
@@ -28,9 +30,9 @@ import armimp_jax as aj  # noqa: E402
 from armimp_jax import sweep  # noqa: E402
 
 
-def batch_inputs(b, n, substeps, controller="imbic"):
+def batch_inputs(b, n, substeps, controller="imbic", kernel="fast"):
     params = aj.stack_trials(
-        [aj.trial_params(controller, i % 3, 1 + i % 4, substeps=substeps) for i in range(b)]
+        [aj.trial_params(controller, i % 3, 1 + i % 4, substeps=substeps, kernel=kernel) for i in range(b)]
     )
     keys = jax.random.split(jax.random.PRNGKey(0), b)
     f_delta = jax.vmap(lambda k: aj.perturbation(k, n, aj.perturbation_peak(1)))(keys)
@@ -49,27 +51,27 @@ def timed(fn, repeats):
     return first, statistics.median(runs)
 
 
-def bench_simulation(batches, devices_list, seconds, substeps, repeats):
+def bench_simulation(configs, seconds, substeps, repeats):
+    """``configs``: (kernel, devices, batch) triples."""
     rows = []
     n = int(seconds * 1000)
-    for n_dev in devices_list:
+    for kernel, n_dev, b in configs:
         mesh = sweep.make_mesh(jax.devices()[:n_dev])
-        for b in batches:
-            params, f_delta = batch_inputs(b, n, substeps)
-            (p_s, f_s), _ = sweep.shard_batch((params, f_delta), mesh)
-            fn = jax.jit(jax.vmap(aj.simulate))
-            t0 = time.perf_counter()
-            compiled = fn.lower(p_s, f_s).compile()
-            compile_s = time.perf_counter() - t0
-            _, run_s = timed(lambda compiled=compiled, p_s=p_s, f_s=f_s: compiled(p_s, f_s), repeats)
-            substeps_total = b * n * substeps
-            rows.append(
-                dict(devices=n_dev, batch=b, record_s=seconds, substeps=substeps, compile_s=compile_s,
-                     run_s=run_s, msubsteps_per_s=substeps_total / run_s / 1e6,
-                     s_per_50s_trial=run_s / b * (50.0 / seconds))
-            )
-            print(f"  sim devices={n_dev} batch={b:3d}: {rows[-1]['msubsteps_per_s']:.2f} M substeps/s, "
-                  f"{rows[-1]['s_per_50s_trial']:.2f} s per 50 s trial (compile {compile_s:.1f} s)", flush=True)
+        params, f_delta = batch_inputs(b, n, substeps, kernel=kernel)
+        (p_s, f_s), _ = sweep.shard_batch((params, f_delta), mesh)
+        fn = jax.jit(jax.vmap(aj.simulate))
+        t0 = time.perf_counter()
+        compiled = fn.lower(p_s, f_s).compile()
+        compile_s = time.perf_counter() - t0
+        _, run_s = timed(lambda compiled=compiled, p_s=p_s, f_s=f_s: compiled(p_s, f_s), repeats)
+        substeps_total = b * n * substeps
+        rows.append(
+            dict(kernel=kernel, devices=n_dev, batch=b, record_s=seconds, substeps=substeps, compile_s=compile_s,
+                 run_s=run_s, msubsteps_per_s=substeps_total / run_s / 1e6,
+                 s_per_50s_trial=run_s / b * (50.0 / seconds))
+        )
+        print(f"  sim {kernel} devices={n_dev} batch={b:3d}: {rows[-1]['msubsteps_per_s']:.2f} M substeps/s, "
+              f"{rows[-1]['s_per_50s_trial']:.2f} s per 50 s trial (compile {compile_s:.1f} s)", flush=True)
     return rows
 
 
@@ -81,6 +83,34 @@ def bench_full_trial(b, substeps):
     sweep.simulate_batch(params, f_delta, chunk_samples=5000)
     wall = time.perf_counter() - t0
     return dict(batch=b, devices=N_DEVICES, wall_s=wall, s_per_trial=wall / b)
+
+
+def bench_numba(b, seconds, substeps, repeats):
+    """The hand-written scalar loop, one trajectory per core (numba prange), same inputs."""
+    import numba
+
+    sys.path.insert(0, str(pathlib.Path(__file__).parent))
+    import numba_baseline
+
+    params, f_delta = batch_inputs(b, int(seconds * 1000), substeps, kernel="reference")
+    f_np = np.asarray(f_delta)
+    t0 = time.perf_counter()
+    numba_baseline.run(params, f_np[:, :10])
+    compile_s = time.perf_counter() - t0
+    runs = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        x, _ = numba_baseline.run(params, f_np)
+        runs.append(time.perf_counter() - t0)
+    run_s = statistics.median(runs)
+    ref = np.asarray(jax.jit(jax.vmap(aj.simulate))(params, f_delta).x)
+    agree = float(np.abs(x - ref).max() / np.abs(ref - ref[:, :1]).max())
+    total = b * f_np.shape[1] * substeps
+    row = dict(threads=numba.get_num_threads(), batch=b, run_s=run_s, compile_s=compile_s,
+               msubsteps_per_s=total / run_s / 1e6, rel_diff_vs_jax=agree)
+    print(f"  numba {row['threads']} threads batch={b}: {row['msubsteps_per_s']:.2f} M substeps/s "
+          f"(agrees with JAX to {agree:.1e})", flush=True)
+    return row
 
 
 def bench_estimator(batches, repeats, n=50_000):
@@ -112,10 +142,22 @@ def bench_estimator(batches, repeats, n=50_000):
     return rows
 
 
-def markdown(sim, full, est):
-    lines = ["| devices | batch | M substeps/s | s per 50 s trial (from 5 s) | compile s |", "|---|---|---|---|---|"]
-    lines += [f"| {r['devices']} | {r['batch']} | {r['msubsteps_per_s']:.2f} | {r['s_per_50s_trial']:.2f} | "
-              f"{r['compile_s']:.1f} |" for r in sim]
+def markdown(sim, full, est, numba_row=None):
+    lines = ["| kernel | devices | batch | M substeps/s | s per 50 s trial (from 5 s) | compile s |",
+             "|---|---|---|---|---|---|"]
+    lines += [f"| {r['kernel']} | {r['devices']} | {r['batch']} | {r['msubsteps_per_s']:.2f} | "
+              f"{r['s_per_50s_trial']:.3f} | {r['compile_s']:.1f} |" for r in sim]
+    by = {(r["kernel"], r["devices"], r["batch"]): r["msubsteps_per_s"] for r in sim}
+    scal = [f"batch {b}: {by[('fast', 2, b)] / by[('fast', 1, b)]:.2f}x" for (k, d, b) in by
+            if k == "fast" and d == 1 and ("fast", 2, b) in by]
+    if scal:
+        lines += ["", "Scaling from 1 to 2 devices (fast kernel): " + ", ".join(scal) + "."]
+    if numba_row:
+        best = max(v for (k, d, b), v in by.items() if k == "fast" and (b >= 24 or len(by) < 9))
+        lines += ["", f"numba baseline ({numba_row['threads']} threads, one trajectory per core, batch "
+                      f"{numba_row['batch']}): {numba_row['msubsteps_per_s']:.2f} M substeps/s; best JAX at batch >= 24 "
+                      f"is {best / numba_row['msubsteps_per_s']:.1f}x that. numba agrees with JAX to "
+                      f"{numba_row['rel_diff_vs_jax']:.1e} (relative, x)."]
     if full:
         lines += ["", f"Measured 50 s batch: {full['batch']} trials on {full['devices']} device(s) in "
                       f"{full['wall_s']:.1f} s = **{full['s_per_trial']:.2f} s per 50 s trial**."]
@@ -130,22 +172,27 @@ def main():
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--substeps", type=int, default=100)
     ap.add_argument("--quick", action="store_true", help="tiny sizes, to check the script runs")
+    ap.add_argument("--no-numba", action="store_true", help="skip the numba baseline")
     ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/bench"))
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
+    devs = sorted({1, N_DEVICES})
     if args.quick:
-        sim = bench_simulation([1, 4], sorted({1, N_DEVICES}), 0.5, 10, 1)
+        sim = bench_simulation([(k, d, b) for k in ("fast", "reference") for d in devs for b in (1, 4)], 0.5, 10, 1)
         full, est = None, []
+        numba_row = None if args.no_numba else bench_numba(4, 0.5, 10, 1)
     else:
-        sim = bench_simulation([1, 24, 96], sorted({1, N_DEVICES}), 5.0, args.substeps, args.repeats)
+        configs = [("fast", d, b) for d in devs for b in (1, 24, 96, 256)] + [("reference", d, 24) for d in devs]
+        sim = bench_simulation(configs, 5.0, args.substeps, args.repeats)
         full = bench_full_trial(24, args.substeps)
+        numba_row = None if args.no_numba else bench_numba(24, 2.0, args.substeps, args.repeats)
         est = bench_estimator([24, 96], args.repeats)
     env = dict(jax=jax.__version__, devices=N_DEVICES, backend=jax.default_backend(),
                cpu=platform.processor() or platform.machine(), python=platform.python_version())
-    table = markdown(sim, full, est)
+    table = markdown(sim, full, est, numba_row)
     print("\n" + table + f"\n\n{env}")
     (args.out / "bench_simulate.md").write_text(table + f"\n\n{env}\n")
-    (args.out / "bench_simulate.json").write_text(json.dumps(dict(env=env, sim=sim, full=full, est=est), indent=1))
+    (args.out / "bench_simulate.json").write_text(json.dumps(dict(env=env, sim=sim, full=full, numba=numba_row, est=est), indent=1))
 
 
 if __name__ == "__main__":
