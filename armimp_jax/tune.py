@@ -39,6 +39,7 @@ from .simulate import TrialParams, simulate
 from .sweep import Welch
 
 PARAMETERISATIONS = ("diagonal", "full")
+MAX_START_SHRINKS = 8  # an unstable start is halved at most this often (a factor of 256)
 
 
 def mhat_from_theta(theta, parameterisation: str):
@@ -166,8 +167,11 @@ def tune(
         shrinks = 0
         while not ok:  # an unstable start: shrink Mhat (small gains are stable for TDE)
             shrinks += 1
-            if shrinks > 20:
-                raise RuntimeError("could not find a stable starting Mhat by shrinking it")
+            if shrinks > MAX_START_SHRINKS:
+                raise RuntimeError(
+                    f"no stable starting Mhat after halving it {MAX_START_SHRINKS} times (now "
+                    f"{np.asarray(mhat_from_theta(theta, config.parameterisation)).tolist()} kg): the training "
+                    "trials diverge for another reason, e.g. too few RK4 substeps for the LuGre bristles")
             log(dict(event="start diverged", mhat=np.asarray(mhat_from_theta(theta, config.parameterisation)).tolist()))
             theta = _shrink(theta, config.parameterisation)
             ok, value, grad, aux, dt = evaluate_at(theta)

@@ -107,3 +107,20 @@ def test_divergence_guard_on_unstable_start_and_on_unstable_steps(tmp_path):
 def test_unknown_mode_is_rejected():
     with pytest.raises(ValueError, match="unknown gradient mode 'central'"):
         tune.value_and_grad_fn(parameterisation="diagonal", welch=WELCH, mode="central")
+
+
+def test_tune_script_quick_produces_its_outputs(tmp_path):
+    import json
+    import pathlib
+    import subprocess
+    import sys
+
+    root = pathlib.Path(__file__).resolve().parents[1]
+    proc = subprocess.run([sys.executable, str(root / "sweeps" / "tune_mhat.py"), "--quick", "--iterations", "2",
+                           "--compare", "0.25", "--out", str(tmp_path)], capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr
+    mhat = np.array(json.loads((tmp_path / "mhat.json").read_text())["mhat"])
+    assert mhat.shape == (2, 2) and np.all(np.linalg.eigvalsh(mhat) > 0)
+    for name in ("loss_curve.png", "comparison.md", "comparison.json", "tune_state.json", "tune_state.npz"):
+        assert (tmp_path / name).stat().st_size > 0, name
+    assert "| tuned |" in (tmp_path / "comparison.md").read_text()
