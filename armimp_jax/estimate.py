@@ -44,8 +44,14 @@ def hann(n: int):
     return 0.5 - 0.5 * jnp.cos(2.0 * jnp.pi * jnp.arange(n) / n)
 
 
-def cross_spectral_matrix(signals, *, fs: float = SAMPLE_RATE, nperseg: int = WELCH_NPERSEG,
-                          noverlap: int = WELCH_NOVERLAP, nbins: int | None = None):
+def cross_spectral_matrix(
+    signals,
+    *,
+    fs: float = SAMPLE_RATE,
+    nperseg: int = WELCH_NPERSEG,
+    noverlap: int = WELCH_NOVERLAP,
+    nbins: int | None = None,
+):
     """Welch cross-spectral density matrix of all channel pairs.
 
     Args:
@@ -130,8 +136,16 @@ def n_bins(fmax: float, *, fs: float, nperseg: int) -> int:
     return int(fmax * nperseg / fs + 1e-9)
 
 
-def estimate(f_delta, x, fh, *, fs: float = SAMPLE_RATE, nperseg: int = WELCH_NPERSEG,
-             noverlap: int = WELCH_NOVERLAP, fmax: float = ESTIMATION_FMAX) -> Estimate:
+def estimate(
+    f_delta,
+    x,
+    fh,
+    *,
+    fs: float = SAMPLE_RATE,
+    nperseg: int = WELCH_NPERSEG,
+    noverlap: int = WELCH_NOVERLAP,
+    fmax: float = ESTIMATION_FMAX,
+) -> Estimate:
     """Estimate the arm impedance from a record (spec section 9, paper eq. 9).
 
     Args:
@@ -151,8 +165,9 @@ def estimate(f_delta, x, fh, *, fs: float = SAMPLE_RATE, nperseg: int = WELCH_NP
         raise ValueError(f"f_delta, x and fh must all have the same shape (N, 2); got {shapes}")
     check_welch(shapes[0][0], fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax)
     k = n_bins(fmax, fs=fs, nperseg=nperseg)
-    freqs, g = cross_spectral_matrix(jnp.concatenate(arrays, axis=1), fs=fs, nperseg=nperseg,
-                                     noverlap=noverlap, nbins=k + 1)
+    freqs, g = cross_spectral_matrix(
+        jnp.concatenate(arrays, axis=1), fs=fs, nperseg=nperseg, noverlap=noverlap, nbins=k + 1
+    )
     freqs, g = freqs[1:], g[1:]
     u, xs, fs_ = (0, 1), (2, 3), (4, 5)
     r, t = h1(g, u, xs), h1(g, u, fs_)
@@ -161,15 +176,26 @@ def estimate(f_delta, x, fh, *, fs: float = SAMPLE_RATE, nperseg: int = WELCH_NP
     cf = [coherences(g, u, c) for c in fs_]
     coh_inputs = jnp.abs(g[:, 0, 1]) ** 2 / jnp.real(g[:, 0, 0] * g[:, 1, 1])
     return Estimate(
-        f=freqs, R=r, T=t, Z=z,
-        coh_multiple_x=jnp.stack([m for m, _ in cx], -1), coh_partial_x=jnp.stack([p for _, p in cx], 1),
-        coh_multiple_fh=jnp.stack([m for m, _ in cf], -1), coh_partial_fh=jnp.stack([p for _, p in cf], 1),
+        f=freqs,
+        R=r,
+        T=t,
+        Z=z,
+        coh_multiple_x=jnp.stack([m for m, _ in cx], -1),
+        coh_partial_x=jnp.stack([p for _, p in cx], 1),
+        coh_multiple_fh=jnp.stack([m for m, _ in cf], -1),
+        coh_partial_fh=jnp.stack([p for _, p in cf], 1),
         coh_inputs=coh_inputs,
     )
 
 
-def input_coherence(f_delta, *, fs: float = SAMPLE_RATE, nperseg: int = WELCH_NPERSEG,
-                    noverlap: int = WELCH_NOVERLAP, fmax: float = ESTIMATION_FMAX):
+def input_coherence(
+    f_delta,
+    *,
+    fs: float = SAMPLE_RATE,
+    nperseg: int = WELCH_NPERSEG,
+    noverlap: int = WELCH_NOVERLAP,
+    fmax: float = ESTIMATION_FMAX,
+):
     """Maximum ordinary coherence between the two perturbation axes over ``0 < f <= fmax``.
 
     The paper kept it below 0.4; report it with every trial. Scalar; vmappable.

@@ -36,8 +36,9 @@ class Condition:
         return f"{self.experiment}-L{self.location}-F{self.friction}-P{self.perturbation}{acq}"
 
 
-def paper_conditions(*, ablation: bool = True, locations=(1, 2, 3, 4), frictions=(0, 1, 2),
-                     perturbations=(1, 2, 3)) -> list[Condition]:
+def paper_conditions(
+    *, ablation: bool = True, locations=(1, 2, 3, 4), frictions=(0, 1, 2), perturbations=(1, 2, 3)
+) -> list[Condition]:
     """Section II (PD, location 1, friction x perturbation) and section III (IMBIC,
     locations x friction, perturbation 1); with ``ablation`` the same again with the
     ``"interval_mean"`` acquisition."""
@@ -86,13 +87,13 @@ def trial_metrics(f, Z, est_arrays: dict, location: int) -> dict:
 CLAIM_RULES = {
     "a": "PD, friction 0: median multiple coherence (x and F_h) >= 0.95, and phi_T <= 10% of mean ||Z_h||",
     "b": "PD, friction 1-2: min multiple coherence of x below 2 Hz <= 0.5; phi_T >= 5x the frictionless value; "
-         "mean phase error >= 20 deg",
+    "mean phase error >= 20 deg",
     "c": "PD, friction 1 and 2 each: phi_T at perturbation level 3 >= 2/3 of its value at level 1 "
-         "(partly: at one friction level)",
+    "(partly: at one friction level)",
     "d": "IMBIC: min multiple coherence of x over 0-15 Hz > 0.9 at every friction level and location "
-         "(partly: median > 0.9)",
+    "(partly: median > 0.9)",
     "e": "IMBIC, friction 1-2: phi_T <= 2x the frictionless IMBIC value; and <= 20% of PD's at the same friction "
-         "(location 1, perturbation 1)",
+    "(location 1, perturbation 1)",
     "f": "IMBIC: for each friction level, max/min of phi_T over the four locations <= 2 (partly: <= 4)",
 }
 
@@ -141,8 +142,11 @@ def evaluate_claims(summary: dict) -> list[Claim]:
     if pd0:
         coh = min(min(m["coh_multiple_x_median"], m["coh_multiple_fh_median"]) for m in pd0)
         rel = max(m["rel_error"] for m in pd0)
-        add("a", f"median multiple coherence >= {coh:.3f}; phi_T = {100 * rel:.1f}% of mean ||Z_h|| (worst level)",
-            [coh >= 0.95, rel <= 0.10])
+        add(
+            "a",
+            f"median multiple coherence >= {coh:.3f}; phi_T = {100 * rel:.1f}% of mean ||Z_h|| (worst level)",
+            [coh >= 0.95, rel <= 0.10],
+        )
     else:
         add("a", "conditions missing", [])
 
@@ -153,18 +157,23 @@ def evaluate_claims(summary: dict) -> list[Claim]:
         base = {p: get("pd", 1, 0, p) for p in (1, 2, 3)}
         ratios = [m["phi_T"] / base[p]["phi_T"] for _, p, m in pdf if base.get(p)]
         phase = min(m["phase_error_deg"] for _, _, m in pdf)
-        add("b", f"min coherence below 2 Hz <= {coh_low:.2f}; phi_T {min(ratios):.1f}-{max(ratios):.1f}x "
-                 f"frictionless; phase error >= {phase:.0f} deg",
-            [coh_low <= 0.5, min(ratios) >= 5.0, phase >= 20.0])
+        add(
+            "b",
+            f"min coherence below 2 Hz <= {coh_low:.2f}; phi_T {min(ratios):.1f}-{max(ratios):.1f}x "
+            f"frictionless; phase error >= {phase:.0f} deg",
+            [coh_low <= 0.5, min(ratios) >= 5.0, phase >= 20.0],
+        )
     else:
         add("b", "conditions missing", [])
 
     pairs = [(fr, get("pd", 1, fr, 1), get("pd", 1, fr, 3)) for fr in (1, 2)]
     ratios_c = {fr: b["phi_T"] / a["phi_T"] for fr, a, b in pairs if a and b}
     if ratios_c:
-        add("c", "phi_T(level 3) / phi_T(level 1): " + ", ".join(f"{r:.2f} at friction {fr}" for fr, r in
-                                                                   ratios_c.items()),
-            [r >= 2 / 3 for r in ratios_c.values()])
+        add(
+            "c",
+            "phi_T(level 3) / phi_T(level 1): " + ", ".join(f"{r:.2f} at friction {fr}" for fr, r in ratios_c.items()),
+            [r >= 2 / 3 for r in ratios_c.values()],
+        )
     else:
         add("c", "conditions missing", [])
 
@@ -183,7 +192,9 @@ def evaluate_claims(summary: dict) -> list[Claim]:
     if ratios_e:
         e_parts.append(max(ratios_e) <= 2.0)
         e_text.append(f"IMBIC phi_T {min(ratios_e):.2f}-{max(ratios_e):.2f}x frictionless")
-    vs_pd = [im[(1, fr)]["phi_T"] / get("pd", 1, fr, 1)["phi_T"] for fr in (1, 2) if (1, fr) in im and get("pd", 1, fr, 1)]
+    vs_pd = [
+        im[(1, fr)]["phi_T"] / get("pd", 1, fr, 1)["phi_T"] for fr in (1, 2) if (1, fr) in im and get("pd", 1, fr, 1)
+    ]
     if vs_pd:
         e_parts.append(max(vs_pd) <= 0.2)
         e_text.append(f"{100 * max(vs_pd):.1f}% of PD's at most")
@@ -196,7 +207,11 @@ def evaluate_claims(summary: dict) -> list[Claim]:
             spreads.append(max(vals) / min(vals))
     if spreads:
         worst = max(spreads)
-        add("f", f"max/min phi_T over locations <= {worst:.2f}", [worst <= 2.0] if worst <= 2.0 else [False, worst <= 4.0])
+        add(
+            "f",
+            f"max/min phi_T over locations <= {worst:.2f}",
+            [worst <= 2.0] if worst <= 2.0 else [False, worst <= 4.0],
+        )
     else:
         add("f", "conditions missing", [])
     return claims

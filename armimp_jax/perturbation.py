@@ -52,9 +52,7 @@ def perturbation_peak(level: int):
     return jnp.asarray(PERTURBATION_PEAKS[level], dtype=jnp.float64)
 
 
-def perturbation(
-    key, n_samples: int, peak, *, warmup: int = PERTURBATION_WARMUP, cutoff: float = PERTURBATION_CUTOFF
-):
+def perturbation(key, n_samples: int, peak, *, warmup: int = PERTURBATION_WARMUP, cutoff: float = PERTURBATION_CUTOFF):
     """A perturbation record ``F_Delta`` [N], shape ``(n_samples, 2)`` float64, at 1 kHz.
 
     Args:

@@ -96,7 +96,9 @@ def rotate(t: Trig, d1, d2) -> Trig:
 
     def cs(d):
         d2_ = d * d
-        return 1.0 - d2_ * (0.5 - d2_ * (1.0 / 24 - d2_ / 720)), d * (1.0 - d2_ * (1.0 / 6 - d2_ * (1.0 / 120 - d2_ / 5040)))
+        return 1.0 - d2_ * (0.5 - d2_ * (1.0 / 24 - d2_ / 720)), d * (
+            1.0 - d2_ * (1.0 / 6 - d2_ * (1.0 / 120 - d2_ / 5040))
+        )
 
     cd1, sd1 = cs(d1)
     cd2, sd2 = cs(d2)
@@ -210,8 +212,9 @@ def rk4_step_rotating(s: PlantState, trig: Trig, fu, model: PlantModel, h) -> tu
 KERNELS = ("fast", "reference")
 
 
-def integrate_period(s: PlantState, fu, model: PlantModel, *, period: float, substeps: int,
-                     kernel: str = "fast") -> PlantState:
+def integrate_period(
+    s: PlantState, fu, model: PlantModel, *, period: float, substeps: int, kernel: str = "fast"
+) -> PlantState:
     """Advance ``s`` over one control period with ``substeps`` fixed RK4 steps (``lax.scan``).
 
     ``kernel="reference"`` evaluates ``cos/sin`` at every RK4 stage (``rk4_step``);

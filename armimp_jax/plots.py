@@ -27,7 +27,11 @@ def _pick(results, arrays, *, experiment, location, perturbation, acquisition="i
     for t in results["trials"]:
         c = t["condition"]
         if (c["experiment"], c["location"], c["perturbation"], c["acquisition"], t["seed"]) == (
-            experiment, location, perturbation, acquisition, seed
+            experiment,
+            location,
+            perturbation,
+            acquisition,
+            seed,
         ):
             out[c["friction"]] = arrays[t["id"]]
     return dict(sorted(out.items()))
@@ -62,8 +66,7 @@ def bode_figure(results, arrays, path: pathlib.Path, *, experiment: str, locatio
     return path
 
 
-def coherence_figure(results, arrays, path: pathlib.Path, *, experiment: str, location: int = 1,
-                     perturbation: int = 1):
+def coherence_figure(results, arrays, path: pathlib.Path, *, experiment: str, location: int = 1, perturbation: int = 1):
     """Multiple and partial coherences of the position outputs, per friction level."""
     picked = _pick(results, arrays, experiment=experiment, location=location, perturbation=perturbation)
     if not picked:
@@ -135,16 +138,24 @@ def phi_bars(results, path: pathlib.Path, *, experiment: str):
                 else:
                     vals.append(c["phi_ij"][sel[0]][sel[1]])
                     errs.append(c["phi_ij_sd"][sel[0]][sel[1]])
-            ax.bar(np.arange(len(groups)) + (m_i - (len(members) - 1) / 2) * width, vals, width, yerr=errs,
-                   label=f"{mlabel} {m}", capsize=2)
+            ax.bar(
+                np.arange(len(groups)) + (m_i - (len(members) - 1) / 2) * width,
+                vals,
+                width,
+                yerr=errs,
+                label=f"{mlabel} {m}",
+                capsize=2,
+            )
         ax.set_xticks(range(len(groups)), [str(g) for g in groups])
         ax.set_xlabel(glabel)
         ax.set_yscale("log")
         ax.set_title(name.replace("phi_", "$\\phi_{") + "}$" if name != "phi_T" else "$\\phi_T$")
     axes[0].set_ylabel("[N/m]")
     axes[0].legend(fontsize=8)
-    fig.suptitle(("PD, location 1" if experiment == "pd" else "IMBIC, perturbation level 1")
-                 + ": accuracy of the impedance estimate (lower is better)")
+    fig.suptitle(
+        ("PD, location 1" if experiment == "pd" else "IMBIC, perturbation level 1")
+        + ": accuracy of the impedance estimate (lower is better)"
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -158,8 +169,9 @@ def ablation_figure(results, path: pathlib.Path):
         cond = c["condition"]
         if cond["acquisition"] != "instant":
             continue
-        twin = next((d for d in results["conditions"] if d["condition"] == dict(cond, acquisition="interval_mean")),
-                    None)
+        twin = next(
+            (d for d in results["conditions"] if d["condition"] == dict(cond, acquisition="interval_mean")), None
+        )
         if twin is not None:
             label = f"{cond['experiment'].upper()} L{cond['location']} F{cond['friction']} P{cond['perturbation']}"
             rows.append((label, c["phi_T"], twin["phi_T"]))
@@ -205,8 +217,12 @@ def loss_curve(history: list[dict], path: pathlib.Path):
         ax.plot(rejected, [steps[0]["loss"]] * len(rejected), "rx", label="rejected step (diverged)")
     evals = [h for h in steps if "eval" in h]
     if evals:
-        ax.plot([h["iteration"] for h in evals], [h["eval"]["mean_phi_T"] for h in evals], "s--",
-                label="held-out phi_T (paper settings)")
+        ax.plot(
+            [h["iteration"] for h in evals],
+            [h["eval"]["mean_phi_T"] for h in evals],
+            "s--",
+            label="held-out phi_T (paper settings)",
+        )
     ax.set_xlabel("iteration")
     ax.set_ylabel("[N/m]")
     ax.legend()

@@ -85,8 +85,9 @@ def draw_perturbations(settings: ReproSettings, seed: int, levels) -> tuple[dict
         coh = float(input_coherence(sig[levels[0]], fs=w.fs, nperseg=w.nperseg, noverlap=w.noverlap, fmax=w.fmax))
         if settings.max_input_coherence is None or coh < settings.max_input_coherence:
             return sig, coh, attempt
-    raise RuntimeError(f"seed {seed}: no perturbation with input coherence < {settings.max_input_coherence} "
-                       "in 100 draws")
+    raise RuntimeError(
+        f"seed {seed}: no perturbation with input coherence < {settings.max_input_coherence} in 100 draws"
+    )
 
 
 def _write_atomic(path: pathlib.Path, write: Callable[[pathlib.Path], None]) -> None:
@@ -114,9 +115,17 @@ def versions() -> dict:
 
     from . import __version__
 
-    return dict(armimp_jax=__version__, jax=jax.__version__, jaxlib=jaxlib.__version__, numpy=np.__version__,
-                scipy=scipy.__version__, matplotlib=matplotlib.__version__, python=platform.python_version(),
-                backend=jax.default_backend(), devices=jax.device_count())
+    return dict(
+        armimp_jax=__version__,
+        jax=jax.__version__,
+        jaxlib=jaxlib.__version__,
+        numpy=np.__version__,
+        scipy=scipy.__version__,
+        matplotlib=matplotlib.__version__,
+        python=platform.python_version(),
+        backend=jax.default_backend(),
+        devices=jax.device_count(),
+    )
 
 
 def prepare_output(out: pathlib.Path, settings: ReproSettings, *, resume: bool) -> None:
@@ -176,11 +185,19 @@ def run_reproduction(
         if stop_after_batches is not None and b_index >= stop_after_batches:
             break
         t_batch = time.perf_counter()
-        params = stack_trials([
-            trial_params(c.controller, c.friction, c.location, mhat=settings.mhat * np.eye(2),
-                         substeps=settings.substeps, acquisition=c.acquisition)
-            for c, _ in batch
-        ])
+        params = stack_trials(
+            [
+                trial_params(
+                    c.controller,
+                    c.friction,
+                    c.location,
+                    mhat=settings.mhat * np.eye(2),
+                    substeps=settings.substeps,
+                    acquisition=c.acquisition,
+                )
+                for c, _ in batch
+            ]
+        )
         f_delta = np.stack([signals(s)[0][c.perturbation] for c, s in batch])
         base_done = done_substeps
 
@@ -189,8 +206,16 @@ def run_reproduction(
             elapsed = time.perf_counter() - start
             rate = now / elapsed if elapsed > 0 else 0.0
             if progress is not None:
-                progress(dict(done=now, total=total, trials_done=len(computed), trials_total=len(todo),
-                              elapsed_s=elapsed, eta_s=(total - now) / rate if rate > 0 else float("nan")))
+                progress(
+                    dict(
+                        done=now,
+                        total=total,
+                        trials_done=len(computed),
+                        trials_total=len(todo),
+                        elapsed_s=elapsed,
+                        eta_s=(total - now) / rate if rate > 0 else float("nan"),
+                    )
+                )
 
         sim = simulate_batch(params, f_delta, mesh=mesh, chunk_samples=int(chunk_seconds * 1000), progress=on_chunk)
         outcome = assess_batch(params, f_delta, sim, settings.welch, mesh=mesh)
@@ -202,11 +227,21 @@ def run_reproduction(
             _, coh, attempt = signals(s)
             tid = trial_id(c, s)
             _save_npz(out / "trials" / f"{tid}.npz", est)
-            _save_json(out / "trials" / f"{tid}.json", dict(
-                id=tid, condition=dataclasses.asdict(c), seed=s, perturbation_attempt=attempt,
-                input_coherence_max=coh, diverged=bool(sim.diverged[i]), diverged_at=int(sim.diverged_at[i]),
-                batch_wall_s=wall, batch_size=len(batch), metrics=metrics,
-            ))
+            _save_json(
+                out / "trials" / f"{tid}.json",
+                dict(
+                    id=tid,
+                    condition=dataclasses.asdict(c),
+                    seed=s,
+                    perturbation_attempt=attempt,
+                    input_coherence_max=coh,
+                    diverged=bool(sim.diverged[i]),
+                    diverged_at=int(sim.diverged_at[i]),
+                    batch_wall_s=wall,
+                    batch_size=len(batch),
+                    metrics=metrics,
+                ),
+            )
             computed.append(tid)
     return computed
 

@@ -240,13 +240,22 @@ def simulate_chunk(params: TrialParams, carry: SimCarry, f_delta) -> tuple[SimCa
         x, xd, fh = jax.lax.optimization_barrier(measure(*jax.lax.optimization_barrier((state, memory.fu_prev)), model))
         x_rec, fh_rec = record(state, x, xd, fh, memory)
         fu, new_memory = controller_step(
-            params.controller, x, xd, fd, fh, memory, x0, params.gains,
-            period=period, accel_estimate=params.accel_estimate,
+            params.controller,
+            x,
+            xd,
+            fd,
+            fh,
+            memory,
+            x0,
+            params.gains,
+            period=period,
+            accel_estimate=params.accel_estimate,
         )
         fu, new_memory = jax.lax.optimization_barrier((fu, new_memory))
         zero = jnp.zeros_like(state.xi1)
-        new_state = integrate_period(state._replace(xi1=zero, xi2=zero), fu, model, period=period, substeps=substeps,
-                                     kernel=params.kernel)
+        new_state = integrate_period(
+            state._replace(xi1=zero, xi2=zero), fu, model, period=period, substeps=substeps, kernel=params.kernel
+        )
 
         finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(leaf)) for leaf in jax.tree.leaves((new_state, fu))]))
         in_range = (jnp.abs(new_state.q1 - params.q0[0]) < DIVERGENCE_ANGLE) & (

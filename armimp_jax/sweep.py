@@ -57,8 +57,7 @@ class TrialOutcome(NamedTuple):
 
 def assess(params: TrialParams, f_delta, sim: SimResult, welch: Welch = Welch()) -> TrialOutcome:
     """Estimate the impedance from a simulated record and score it against the trial's arm."""
-    est = estimate(f_delta, sim.x, sim.fh, fs=welch.fs, nperseg=welch.nperseg, noverlap=welch.noverlap,
-                   fmax=welch.fmax)
+    est = estimate(f_delta, sim.x, sim.fh, fs=welch.fs, nperseg=welch.nperseg, noverlap=welch.noverlap, fmax=welch.fmax)
     phi_t, phi_ij = impedance_error(est.Z, impedance_response(params.arm, est.f))
     return TrialOutcome(phi_t, phi_ij, jnp.max(est.coh_inputs), sim.diverged, sim.diverged_at, est)
 
@@ -138,8 +137,10 @@ def simulate_batch(
         pieces.append(to_host(out, b))
         if progress is not None:
             progress(min((i + 1) * chunk, n), n, time.perf_counter() - start)
-    fields = {name: np.concatenate([getattr(p, name) for p in pieces], axis=1)[:, :n] for name in
-              ("x", "xd", "fh", "fu", "q", "z")}
+    fields = {
+        name: np.concatenate([getattr(p, name) for p in pieces], axis=1)[:, :n]
+        for name in ("x", "xd", "fh", "fu", "q", "z")
+    }
     # diverged_at is sticky across chunks; a blow-up inside the zero padding does not count
     first = np.where(pieces[-1].diverged_at > n, -1, pieces[-1].diverged_at)
     return SimResult(**fields, diverged=first >= 0, diverged_at=first)
@@ -148,8 +149,9 @@ def simulate_batch(
 _assess = jax.jit(jax.vmap(assess, in_axes=(0, 0, 0, None)), static_argnums=3)
 
 
-def assess_batch(params: TrialParams, f_delta, sim: SimResult, welch: Welch = Welch(), *,
-                 mesh: Mesh | None = None) -> TrialOutcome:
+def assess_batch(
+    params: TrialParams, f_delta, sim: SimResult, welch: Welch = Welch(), *, mesh: Mesh | None = None
+) -> TrialOutcome:
     """``assess`` over a batch (NumPy in, NumPy out), sharded like ``simulate_batch``."""
     mesh = make_mesh() if mesh is None else mesh
     welch.check(np.shape(f_delta)[1])

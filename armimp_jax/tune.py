@@ -80,14 +80,12 @@ class LossAux(NamedTuple):
 def trial_loss(params: TrialParams, f_delta, welch: Welch, phi_ij_weight: float = 0.0):
     """``phi_T`` (+ weight x mean ``phi_ij``) of one trial, and its divergence flag."""
     sim = simulate(params, f_delta)
-    est = estimate(f_delta, sim.x, sim.fh, fs=welch.fs, nperseg=welch.nperseg, noverlap=welch.noverlap,
-                   fmax=welch.fmax)
+    est = estimate(f_delta, sim.x, sim.fh, fs=welch.fs, nperseg=welch.nperseg, noverlap=welch.noverlap, fmax=welch.fmax)
     phi_t, phi_ij = impedance_error(est.Z, impedance_response(params.arm, est.f))
     return phi_t + phi_ij_weight * jnp.mean(phi_ij), (phi_t, sim.diverged)
 
 
-def batch_loss(theta, params: TrialParams, f_delta, *, parameterisation: str, welch: Welch,
-               phi_ij_weight: float = 0.0):
+def batch_loss(theta, params: TrialParams, f_delta, *, parameterisation: str, welch: Welch, phi_ij_weight: float = 0.0):
     """Mean loss over a stacked batch as a pure function of ``theta``; returns ``(loss, LossAux)``."""
     p = with_mhat(params, mhat_from_theta(theta, parameterisation))
     losses, (phi_t, diverged) = jax.vmap(trial_loss, in_axes=(0, 0, None, None))(p, f_delta, welch, phi_ij_weight)
@@ -100,8 +98,9 @@ def value_and_grad_fn(*, parameterisation: str, welch: Welch, phi_ij_weight: flo
         raise ValueError(f"unknown gradient mode {mode!r}; allowed: 'forward', 'reverse'")
 
     def loss(theta, params, f_delta):
-        return batch_loss(theta, params, f_delta, parameterisation=parameterisation, welch=welch,
-                          phi_ij_weight=phi_ij_weight)
+        return batch_loss(
+            theta, params, f_delta, parameterisation=parameterisation, welch=welch, phi_ij_weight=phi_ij_weight
+        )
 
     if mode == "reverse":
         return jax.jit(jax.value_and_grad(loss, has_aux=True))
@@ -123,7 +122,7 @@ class TuneConfig:
     parameterisation: str = "diagonal"
     learning_rate: float = 0.1
     iterations: int = 30
-    mode: str = "forward"
+    mode: str = "reverse"
     phi_ij_weight: float = 0.0
     min_step_scale: float = 1e-3
 
@@ -150,8 +149,9 @@ def tune(
     ``state`` (from a previous call's ``on_iteration``) resumes a run. Returns the final
     state: ``theta``, ``mhat``, ``history`` (one record per iteration), optimiser state.
     """
-    vg = value_and_grad_fn(parameterisation=config.parameterisation, welch=welch,
-                           phi_ij_weight=config.phi_ij_weight, mode=config.mode)
+    vg = value_and_grad_fn(
+        parameterisation=config.parameterisation, welch=welch, phi_ij_weight=config.phi_ij_weight, mode=config.mode
+    )
     opt = optax.adam(config.learning_rate)
 
     def evaluate_at(theta):
@@ -171,12 +171,21 @@ def tune(
                 raise RuntimeError(
                     f"no stable starting Mhat after halving it {MAX_START_SHRINKS} times (now "
                     f"{np.asarray(mhat_from_theta(theta, config.parameterisation)).tolist()} kg): the training "
-                    "trials diverge for another reason, e.g. too few RK4 substeps for the LuGre bristles")
+                    "trials diverge for another reason, e.g. too few RK4 substeps for the LuGre bristles"
+                )
             log(dict(event="start diverged", mhat=np.asarray(mhat_from_theta(theta, config.parameterisation)).tolist()))
             theta = _shrink(theta, config.parameterisation)
             ok, value, grad, aux, dt = evaluate_at(theta)
-        state = dict(iteration=0, theta=theta, opt_state=opt.init(theta), step_scale=1.0, history=[],
-                     value=value, grad=grad, rejected=0)
+        state = dict(
+            iteration=0,
+            theta=theta,
+            opt_state=opt.init(theta),
+            step_scale=1.0,
+            history=[],
+            value=value,
+            grad=grad,
+            rejected=0,
+        )
         _record(state, config, value, grad, aux, dt, event="start")
         log(state["history"][-1])
     while state["iteration"] < config.iterations:
@@ -188,17 +197,26 @@ def tune(
         if not ok:
             state["step_scale"] *= 0.5
             state["rejected"] += 1
-            rec = dict(iteration=state["iteration"], event="rejected: diverged or non-finite",
-                       mhat=np.asarray(mhat_from_theta(proposal, config.parameterisation)).tolist(),
-                       step_scale=state["step_scale"], time_s=dt)
+            rec = dict(
+                iteration=state["iteration"],
+                event="rejected: diverged or non-finite",
+                mhat=np.asarray(mhat_from_theta(proposal, config.parameterisation)).tolist(),
+                step_scale=state["step_scale"],
+                time_s=dt,
+            )
             state["history"].append(rec)
             log(rec)
             if state["step_scale"] < config.min_step_scale:
                 log(dict(event="stopping: step scale below minimum"))
                 break
             continue
-        state.update(theta=proposal, opt_state=new_opt, value=value, grad=new_grad,
-                     step_scale=min(1.0, state["step_scale"] * 1.5))
+        state.update(
+            theta=proposal,
+            opt_state=new_opt,
+            value=value,
+            grad=new_grad,
+            step_scale=min(1.0, state["step_scale"] * 1.5),
+        )
         _record(state, config, value, new_grad, aux, dt, event="step")
         if evaluate is not None and eval_every and state["iteration"] % eval_every == 0:
             state["history"][-1]["eval"] = evaluate(state["iteration"], proposal)
@@ -217,18 +235,29 @@ def _shrink(theta, parameterisation):
 
 
 def _record(state, config, value, grad, aux, dt, *, event):
-    state["history"].append(dict(
-        iteration=state["iteration"], event=event, loss=value, grad_norm=float(jnp.linalg.norm(grad)),
-        mhat=np.asarray(mhat_from_theta(state["theta"], config.parameterisation)).tolist(),
-        phi_T=np.asarray(aux.phi_T).tolist(), step_scale=state["step_scale"], time_s=dt,
-    ))
+    state["history"].append(
+        dict(
+            iteration=state["iteration"],
+            event=event,
+            loss=value,
+            grad_norm=float(jnp.linalg.norm(grad)),
+            mhat=np.asarray(mhat_from_theta(state["theta"], config.parameterisation)).tolist(),
+            phi_T=np.asarray(aux.phi_T).tolist(),
+            step_scale=state["step_scale"],
+            time_s=dt,
+        )
+    )
 
 
 def save_state(path: pathlib.Path, state: dict, config: TuneConfig) -> None:
     """Everything needed to resume: theta, optimiser state leaves, history (JSON + NPZ)."""
     leaves = jax.tree.leaves(state["opt_state"])
-    np.savez(path.with_suffix(".npz"), theta=np.asarray(state["theta"]), grad=np.asarray(state["grad"]),
-             **{f"opt_{i}": np.asarray(x) for i, x in enumerate(leaves)})
+    np.savez(
+        path.with_suffix(".npz"),
+        theta=np.asarray(state["theta"]),
+        grad=np.asarray(state["grad"]),
+        **{f"opt_{i}": np.asarray(x) for i, x in enumerate(leaves)},
+    )
     meta = {k: state[k] for k in ("iteration", "step_scale", "history", "value", "rejected")}
     path.with_suffix(".json").write_text(json.dumps(dict(config=dataclasses.asdict(config), **meta), indent=1))
 
@@ -241,8 +270,12 @@ def load_state(path: pathlib.Path, config: TuneConfig) -> dict:
         leaves = [jnp.asarray(data[f"opt_{i}"]) for i in range(len(jax.tree.leaves(template)))]
         opt_state = jax.tree.unflatten(jax.tree.structure(template), leaves)
         grad = jnp.asarray(data["grad"])
-    return dict(theta=theta, opt_state=opt_state, grad=grad, **{k: meta[k] for k in
-                ("iteration", "step_scale", "history", "value", "rejected")})
+    return dict(
+        theta=theta,
+        opt_state=opt_state,
+        grad=grad,
+        **{k: meta[k] for k in ("iteration", "step_scale", "history", "value", "rejected")},
+    )
 
 
 TRAIN_SEED_OFFSET = 100  # training and held-out perturbation seeds never overlap
@@ -254,8 +287,9 @@ def seed_perturbations(base_seed: int, seeds, n_samples: int, level: int = 1):
     from .perturbation import perturbation, perturbation_peak
 
     key = jax.random.PRNGKey(base_seed)
-    return np.stack([np.asarray(perturbation(jax.random.fold_in(key, s), n_samples, perturbation_peak(level)))
-                     for s in seeds])
+    return np.stack(
+        [np.asarray(perturbation(jax.random.fold_in(key, s), n_samples, perturbation_peak(level))) for s in seeds]
+    )
 
 
 def training_batch(frictions, locations, seeds, *, seconds: float, substeps: int, base_seed: int = 0):
@@ -273,8 +307,18 @@ def training_batch(frictions, locations, seeds, *, seconds: float, substeps: int
     return stack_trials(params), jnp.asarray(np.stack(f_delta))
 
 
-def heldout_phi(mhats: dict, *, frictions=(0, 1, 2), locations=(1, 2, 3, 4), seeds=(0, 1), seconds: float = 50.0,
-                substeps: int = 100, welch: Welch = Welch(), base_seed: int = 0, batch_size: int = 24) -> dict:
+def heldout_phi(
+    mhats: dict,
+    *,
+    frictions=(0, 1, 2),
+    locations=(1, 2, 3, 4),
+    seeds=(0, 1),
+    seconds: float = 50.0,
+    substeps: int = 100,
+    welch: Welch = Welch(),
+    base_seed: int = 0,
+    batch_size: int = 24,
+) -> dict:
     """``phi_T`` of each candidate ``Mhat`` on held-out seeds at the given settings.
 
     Returns ``{name: array (len(frictions), len(locations), len(seeds))}`` plus
@@ -293,8 +337,9 @@ def heldout_phi(mhats: dict, *, frictions=(0, 1, 2), locations=(1, 2, 3, 4), see
         bad = False
         for start in range(0, len(cells), batch_size):
             chunk = cells[start : start + batch_size]
-            params = stack_trials([trial_params("imbic", fr, loc, mhat=np.asarray(mhat), substeps=substeps)
-                                   for fr, loc, _ in chunk])
+            params = stack_trials(
+                [trial_params("imbic", fr, loc, mhat=np.asarray(mhat), substeps=substeps) for fr, loc, _ in chunk]
+            )
             f_delta = np.stack([signals[i] for _, _, i in chunk])
             sim = simulate_batch(params, f_delta, chunk_samples=min(n, 10_000))
             res = assess_batch(params, f_delta, sim, welch)
@@ -312,16 +357,22 @@ def comparison_markdown(table: dict, mhat, *, locations, evals: dict, seeds) -> 
     names = [k for k in table if not k.startswith("_")]
     frictions = range(next(iter(table[n] for n in names)).shape[0])
     w = evals["welch"]
-    lines = [f"Held-out phi_T [N/m] (seeds {list(seeds)} offset {HELDOUT_SEED_OFFSET}, {evals['seconds']:g} s, "
-             f"{evals['substeps']} substeps, nperseg {w.nperseg}); tuned Mhat = "
-             f"{np.round(np.asarray(mhat), 4).tolist()} kg", "",
-             "| Mhat | " + " | ".join(f"F{f} L{loc}" for f in frictions for loc in locations) + " | mean |",
-             "|---|" + "---|" * (len(frictions) * len(locations) + 1)]
+    lines = [
+        f"Held-out phi_T [N/m] (seeds {list(seeds)} offset {HELDOUT_SEED_OFFSET}, {evals['seconds']:g} s, "
+        f"{evals['substeps']} substeps, nperseg {w.nperseg}); tuned Mhat = "
+        f"{np.round(np.asarray(mhat), 4).tolist()} kg",
+        "",
+        "| Mhat | " + " | ".join(f"F{f} L{loc}" for f in frictions for loc in locations) + " | mean |",
+        "|---|" + "---|" * (len(frictions) * len(locations) + 1),
+    ]
     for n in names:
         cells = table[n].mean(axis=2)
         flag = " (diverged)" if n in table["_diverged"] else ""
-        lines.append(f"| {n}{flag} | " + " | ".join(f"{cells[f, i]:.0f}" for f in frictions
-                                                    for i in range(len(locations))) + f" | {table[n].mean():.1f} |")
+        lines.append(
+            f"| {n}{flag} | "
+            + " | ".join(f"{cells[f, i]:.0f}" for f in frictions for i in range(len(locations)))
+            + f" | {table[n].mean():.1f} |"
+        )
     best = min(names, key=lambda n: table[n].mean())
     lines += ["", f"Lowest mean phi_T: **{best}**."]
     return "\n".join(lines) + "\n"

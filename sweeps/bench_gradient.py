@@ -21,10 +21,10 @@ import time
 MODES = ("primal", "forward-diagonal", "forward-full", "reverse-diagonal", "reverse-full")
 
 
-def child(mode, seconds, substeps, repeats):
+def child(mode, seconds, substeps, repeats, hoist=True):
     from armimp_jax.runtime import configure
 
-    configure(host_devices=1)
+    configure(host_devices=1, hoist_small_loops=hoist)
     import jax
     import numpy as np
 
@@ -49,8 +49,14 @@ def child(mode, seconds, substeps, repeats):
         out = jax.block_until_ready(compiled(theta, params, f_delta))
         runs.append(time.perf_counter() - t0)
     grad = None if mode == "primal" else np.asarray(out[1]).tolist()
-    return dict(mode=mode, compile_s=compile_s, run_s=statistics.median(runs), xla_temp_mib=temp,
-                peak_rss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, grad=grad)
+    return dict(
+        mode=mode,
+        compile_s=compile_s,
+        run_s=statistics.median(runs),
+        xla_temp_mib=temp,
+        peak_rss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        grad=grad,
+    )
 
 
 def main():
@@ -59,26 +65,50 @@ def main():
     ap.add_argument("--substeps", type=int, default=100)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--child", choices=MODES)
+    ap.add_argument("--no-hoist", action="store_true", help="without the XLA small-loop option")
+    ap.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES))
     ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/bench"))
     args = ap.parse_args()
     if args.child:
-        print(json.dumps(child(args.child, args.seconds, args.substeps, args.repeats)))
+        print(json.dumps(child(args.child, args.seconds, args.substeps, args.repeats, hoist=not args.no_hoist)))
         return
     rows = []
-    for mode in MODES:
-        proc = subprocess.run([sys.executable, __file__, "--child", mode, "--seconds", str(args.seconds),
-                               "--substeps", str(args.substeps), "--repeats", str(args.repeats)],
-                              capture_output=True, text=True)
+    for mode in args.modes:
+        proc = subprocess.run(
+            [
+                sys.executable,
+                __file__,
+                "--child",
+                mode,
+                "--seconds",
+                str(args.seconds),
+                "--substeps",
+                str(args.substeps),
+                "--repeats",
+                str(args.repeats),
+            ]
+            + (["--no-hoist"] if args.no_hoist else []),
+            capture_output=True,
+            text=True,
+        )
         if proc.returncode != 0:
             sys.exit(proc.stderr)
         rows.append(json.loads(proc.stdout.strip().splitlines()[-1]))
         print(f"  {mode}: {rows[-1]['run_s']:.2f} s, peak RSS {rows[-1]['peak_rss_mib']:.0f} MiB", flush=True)
     primal = rows[0]["run_s"]
-    lines = [f"One trial, {args.seconds:g} s record, {args.substeps} substeps, friction 2, location 1:", "",
-             "| mode | run s | x forward simulation | compile s | XLA temp MiB | peak RSS MiB |",
-             "|---|---|---|---|---|---|"]
-    lines += [f"| {r['mode']} | {r['run_s']:.2f} | {r['run_s'] / primal:.2f} | {r['compile_s']:.1f} | "
-              f"{r['xla_temp_mib']:.0f} | {r['peak_rss_mib']:.0f} |" for r in rows]
+    hoist = "without" if args.no_hoist else "with"
+    lines = [
+        f"One trial, {args.seconds:g} s record, {args.substeps} substeps, friction 2, location 1, "
+        f"{hoist} the XLA small-loop option:",
+        "",
+        "| mode | run s | x forward simulation | compile s | XLA temp MiB | peak RSS MiB |",
+        "|---|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| {r['mode']} | {r['run_s']:.2f} | {r['run_s'] / primal:.2f} | {r['compile_s']:.1f} | "
+        f"{r['xla_temp_mib']:.0f} | {r['peak_rss_mib']:.0f} |"
+        for r in rows
+    ]
     table = "\n".join(lines)
     print("\n" + table)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -66,12 +66,23 @@ def bench_simulation(configs, seconds, substeps, repeats):
         _, run_s = timed(lambda compiled=compiled, p_s=p_s, f_s=f_s: compiled(p_s, f_s), repeats)
         substeps_total = b * n * substeps
         rows.append(
-            dict(kernel=kernel, devices=n_dev, batch=b, record_s=seconds, substeps=substeps, compile_s=compile_s,
-                 run_s=run_s, msubsteps_per_s=substeps_total / run_s / 1e6,
-                 s_per_50s_trial=run_s / b * (50.0 / seconds))
+            dict(
+                kernel=kernel,
+                devices=n_dev,
+                batch=b,
+                record_s=seconds,
+                substeps=substeps,
+                compile_s=compile_s,
+                run_s=run_s,
+                msubsteps_per_s=substeps_total / run_s / 1e6,
+                s_per_50s_trial=run_s / b * (50.0 / seconds),
+            )
         )
-        print(f"  sim {kernel} devices={n_dev} batch={b:3d}: {rows[-1]['msubsteps_per_s']:.2f} M substeps/s, "
-              f"{rows[-1]['s_per_50s_trial']:.2f} s per 50 s trial (compile {compile_s:.1f} s)", flush=True)
+        print(
+            f"  sim {kernel} devices={n_dev} batch={b:3d}: {rows[-1]['msubsteps_per_s']:.2f} M substeps/s, "
+            f"{rows[-1]['s_per_50s_trial']:.2f} s per 50 s trial (compile {compile_s:.1f} s)",
+            flush=True,
+        )
     return rows
 
 
@@ -106,10 +117,19 @@ def bench_numba(b, seconds, substeps, repeats):
     ref = np.asarray(jax.jit(jax.vmap(aj.simulate))(params, f_delta).x)
     agree = float(np.abs(x - ref).max() / np.abs(ref - ref[:, :1]).max())
     total = b * f_np.shape[1] * substeps
-    row = dict(threads=numba.get_num_threads(), batch=b, run_s=run_s, compile_s=compile_s,
-               msubsteps_per_s=total / run_s / 1e6, rel_diff_vs_jax=agree)
-    print(f"  numba {row['threads']} threads batch={b}: {row['msubsteps_per_s']:.2f} M substeps/s "
-          f"(agrees with JAX to {agree:.1e})", flush=True)
+    row = dict(
+        threads=numba.get_num_threads(),
+        batch=b,
+        run_s=run_s,
+        compile_s=compile_s,
+        msubsteps_per_s=total / run_s / 1e6,
+        rel_diff_vs_jax=agree,
+    )
+    print(
+        f"  numba {row['threads']} threads batch={b}: {row['msubsteps_per_s']:.2f} M substeps/s "
+        f"(agrees with JAX to {agree:.1e})",
+        flush=True,
+    )
     return row
 
 
@@ -123,8 +143,7 @@ def bench_estimator(batches, repeats, n=50_000):
 
         def ref_csd(a, c, d):  # all 36 pairs through jax.scipy.signal.csd, then the same H1 algebra
             s = jnp.concatenate([a, c, d], axis=1)
-            _, g = jax.scipy.signal.csd(s[:, :, None], s[:, None, :], fs=1000.0, nperseg=8192, noverlap=6144,
-                                        axis=0)
+            _, g = jax.scipy.signal.csd(s[:, :, None], s[:, None, :], fs=1000.0, nperseg=8192, noverlap=6144, axis=0)
             return g[1:123]
 
         theirs = jax.jit(jax.vmap(ref_csd))
@@ -135,35 +154,57 @@ def bench_estimator(batches, repeats, n=50_000):
             mem = compiled.memory_analysis()
             temp = getattr(mem, "temp_size_in_bytes", float("nan")) / 2**20
             _, run_s = timed(lambda compiled=compiled: compiled(f_delta, x, fh), repeats)
-            rows.append(dict(method=name, batch=b, run_s=run_s, compile_s=compile_s, temp_mib=temp,
-                             input_mib=3 * f_delta.nbytes / 2**20))
-            print(f"  est {name} batch={b}: {run_s:.3f} s, temp {temp:.0f} MiB (compile {compile_s:.1f} s)",
-                  flush=True)
+            rows.append(
+                dict(
+                    method=name,
+                    batch=b,
+                    run_s=run_s,
+                    compile_s=compile_s,
+                    temp_mib=temp,
+                    input_mib=3 * f_delta.nbytes / 2**20,
+                )
+            )
+            print(f"  est {name} batch={b}: {run_s:.3f} s, temp {temp:.0f} MiB (compile {compile_s:.1f} s)", flush=True)
     return rows
 
 
 def markdown(sim, full, est, numba_row=None):
-    lines = ["| kernel | devices | batch | M substeps/s | s per 50 s trial (from 5 s) | compile s |",
-             "|---|---|---|---|---|---|"]
-    lines += [f"| {r['kernel']} | {r['devices']} | {r['batch']} | {r['msubsteps_per_s']:.2f} | "
-              f"{r['s_per_50s_trial']:.3f} | {r['compile_s']:.1f} |" for r in sim]
+    lines = [
+        "| kernel | devices | batch | M substeps/s | s per 50 s trial (from 5 s) | compile s |",
+        "|---|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| {r['kernel']} | {r['devices']} | {r['batch']} | {r['msubsteps_per_s']:.2f} | "
+        f"{r['s_per_50s_trial']:.3f} | {r['compile_s']:.1f} |"
+        for r in sim
+    ]
     by = {(r["kernel"], r["devices"], r["batch"]): r["msubsteps_per_s"] for r in sim}
-    scal = [f"batch {b}: {by[('fast', 2, b)] / by[('fast', 1, b)]:.2f}x" for (k, d, b) in by
-            if k == "fast" and d == 1 and ("fast", 2, b) in by]
+    scal = [
+        f"batch {b}: {by[('fast', 2, b)] / by[('fast', 1, b)]:.2f}x"
+        for (k, d, b) in by
+        if k == "fast" and d == 1 and ("fast", 2, b) in by
+    ]
     if scal:
         lines += ["", "Scaling from 1 to 2 devices (fast kernel): " + ", ".join(scal) + "."]
     if numba_row:
         best = max(v for (k, d, b), v in by.items() if k == "fast" and (b >= 24 or len(by) < 9))
-        lines += ["", f"numba baseline ({numba_row['threads']} threads, one trajectory per core, batch "
-                      f"{numba_row['batch']}): {numba_row['msubsteps_per_s']:.2f} M substeps/s; best JAX at batch >= 24 "
-                      f"is {best / numba_row['msubsteps_per_s']:.1f}x that. numba agrees with JAX to "
-                      f"{numba_row['rel_diff_vs_jax']:.1e} (relative, x)."]
+        lines += [
+            "",
+            f"numba baseline ({numba_row['threads']} threads, one trajectory per core, batch "
+            f"{numba_row['batch']}): {numba_row['msubsteps_per_s']:.2f} M substeps/s; best JAX at batch >= 24 "
+            f"is {best / numba_row['msubsteps_per_s']:.1f}x that. numba agrees with JAX to "
+            f"{numba_row['rel_diff_vs_jax']:.1e} (relative, x).",
+        ]
     if full:
-        lines += ["", f"Measured 50 s batch: {full['batch']} trials on {full['devices']} device(s) in "
-                      f"{full['wall_s']:.1f} s = **{full['s_per_trial']:.2f} s per 50 s trial**."]
+        lines += [
+            "",
+            f"Measured 50 s batch: {full['batch']} trials on {full['devices']} device(s) in "
+            f"{full['wall_s']:.1f} s = **{full['s_per_trial']:.2f} s per 50 s trial**.",
+        ]
     lines += ["", "| estimator (50 s records) | batch | run s | XLA temp MiB | inputs MiB |", "|---|---|---|---|---|"]
-    lines += [f"| {r['method']} | {r['batch']} | {r['run_s']:.3f} | {r['temp_mib']:.0f} | {r['input_mib']:.0f} |"
-              for r in est]
+    lines += [
+        f"| {r['method']} | {r['batch']} | {r['run_s']:.3f} | {r['temp_mib']:.0f} | {r['input_mib']:.0f} |" for r in est
+    ]
     return "\n".join(lines)
 
 
@@ -187,12 +228,19 @@ def main():
         full = bench_full_trial(24, args.substeps)
         numba_row = None if args.no_numba else bench_numba(24, 2.0, args.substeps, args.repeats)
         est = bench_estimator([24, 96], args.repeats)
-    env = dict(jax=jax.__version__, devices=N_DEVICES, backend=jax.default_backend(),
-               cpu=platform.processor() or platform.machine(), python=platform.python_version())
+    env = dict(
+        jax=jax.__version__,
+        devices=N_DEVICES,
+        backend=jax.default_backend(),
+        cpu=platform.processor() or platform.machine(),
+        python=platform.python_version(),
+    )
     table = markdown(sim, full, est, numba_row)
     print("\n" + table + f"\n\n{env}")
     (args.out / "bench_simulate.md").write_text(table + f"\n\n{env}\n")
-    (args.out / "bench_simulate.json").write_text(json.dumps(dict(env=env, sim=sim, full=full, numba=numba_row, est=est), indent=1))
+    (args.out / "bench_simulate.json").write_text(
+        json.dumps(dict(env=env, sim=sim, full=full, numba=numba_row, est=est), indent=1)
+    )
 
 
 if __name__ == "__main__":

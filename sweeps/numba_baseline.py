@@ -100,19 +100,62 @@ def simulate_one(imbic, q0, x0, mh, bh, kh, fr, kp, kv, minv, mhat, f_delta, sub
 @njit(parallel=True, cache=True)
 def simulate_many(imbic, q0, x0, mh, bh, kh, fr, kp, kv, minv, mhat, f_delta, substeps, period, x_out, fh_out):
     for b in prange(f_delta.shape[0]):
-        simulate_one(imbic, q0[b], x0[b], mh[b], bh[b], kh[b], fr[b], kp[b], kv[b], minv[b], mhat[b], f_delta[b],
-                     substeps, period, x_out[b], fh_out[b])
+        simulate_one(
+            imbic,
+            q0[b],
+            x0[b],
+            mh[b],
+            bh[b],
+            kh[b],
+            fr[b],
+            kp[b],
+            kv[b],
+            minv[b],
+            mhat[b],
+            f_delta[b],
+            substeps,
+            period,
+            x_out[b],
+            fh_out[b],
+        )
 
 
 def run(params, f_delta):
     """Run stacked ``TrialParams`` (one controller) through the numba loop; returns ``(x, fh)``."""
     # copies: arrays viewed from JAX are read-only, a different numba type (a recompile)
-    p = {k: np.array(v, dtype=np.float64, order="C") for k, v in dict(
-        q0=params.q0, x0=params.x0, mh=params.arm.mass, bh=params.arm.damping, kh=params.arm.stiffness,
-        fr=np.stack([np.asarray(leaf) for leaf in params.friction], axis=-1), kp=params.gains.kp,
-        kv=params.gains.kv, minv=params.gains.m_rd_inv, mhat=params.gains.mhat).items()}
+    p = {
+        k: np.array(v, dtype=np.float64, order="C")
+        for k, v in dict(
+            q0=params.q0,
+            x0=params.x0,
+            mh=params.arm.mass,
+            bh=params.arm.damping,
+            kh=params.arm.stiffness,
+            fr=np.stack([np.asarray(leaf) for leaf in params.friction], axis=-1),
+            kp=params.gains.kp,
+            kv=params.gains.kv,
+            minv=params.gains.m_rd_inv,
+            mhat=params.gains.mhat,
+        ).items()
+    }
     f_delta = np.array(f_delta, dtype=np.float64, order="C")
     x, fh = np.empty_like(f_delta), np.empty_like(f_delta)
-    simulate_many(params.controller == "imbic", p["q0"], p["x0"], p["mh"], p["bh"], p["kh"], p["fr"], p["kp"],
-                  p["kv"], p["minv"], p["mhat"], f_delta, params.substeps, params.period, x, fh)
+    simulate_many(
+        params.controller == "imbic",
+        p["q0"],
+        p["x0"],
+        p["mh"],
+        p["bh"],
+        p["kh"],
+        p["fr"],
+        p["kp"],
+        p["kv"],
+        p["minv"],
+        p["mhat"],
+        f_delta,
+        params.substeps,
+        params.period,
+        x,
+        fh,
+    )
     return x, fh

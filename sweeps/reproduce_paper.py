@@ -46,8 +46,11 @@ def parse(argv):
 
 
 def check_choices(args):
-    for name, values, allowed in (("location", args.locations, (1, 2, 3, 4)), ("friction", args.frictions, (0, 1, 2)),
-                                  ("perturbation", args.perturbations, (1, 2, 3))):
+    for name, values, allowed in (
+        ("location", args.locations, (1, 2, 3, 4)),
+        ("friction", args.frictions, (0, 1, 2)),
+        ("perturbation", args.perturbations, (1, 2, 3)),
+    ):
         bad = [v for v in values if v not in allowed]
         if bad:
             raise ValueError(f"unknown {name} level(s) {bad}; allowed: {', '.join(map(str, allowed))}")
@@ -57,11 +60,18 @@ def check_choices(args):
 
 def settings_from(args, repro):
     base = repro.QUICK if args.quick else repro.ReproSettings()
-    overrides = {k: getattr(args, k) for k in ("seconds", "substeps", "nperseg", "noverlap")
-                 if getattr(args, k) is not None}
-    return dataclasses.replace(base, seeds=args.seeds, base_seed=args.base_seed, mhat=args.mhat,
-                               ablation=not args.no_ablation, max_input_coherence=args.max_input_coherence,
-                               **overrides)
+    overrides = {
+        k: getattr(args, k) for k in ("seconds", "substeps", "nperseg", "noverlap") if getattr(args, k) is not None
+    }
+    return dataclasses.replace(
+        base,
+        seeds=args.seeds,
+        base_seed=args.base_seed,
+        mhat=args.mhat,
+        ablation=not args.no_ablation,
+        max_input_coherence=args.max_input_coherence,
+        **overrides,
+    )
 
 
 class ProgressBar:
@@ -77,8 +87,10 @@ class ProgressBar:
         eta = p["eta_s"]
         eta_s = f"{int(eta // 60)}:{int(eta % 60):02d}" if eta == eta else "?"
         bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
-        self.stream.write(f"\r[{bar}] {100 * frac:5.1f}%  trials {p['trials_done']}/{p['trials_total']}  "
-                          f"elapsed {p['elapsed_s']:.0f} s  ETA {eta_s}  ")
+        self.stream.write(
+            f"\r[{bar}] {100 * frac:5.1f}%  trials {p['trials_done']}/{p['trials_total']}  "
+            f"elapsed {p['elapsed_s']:.0f} s  ETA {eta_s}  "
+        )
         self.stream.flush()
 
 
@@ -112,14 +124,27 @@ def main(argv=None):
         out = args.out or pathlib.Path("results/paper-quick" if args.quick else "results/paper")
     settings.validate()
     repro.prepare_output(out, settings, resume=bool(args.resume))
-    conditions = paper_conditions(ablation=settings.ablation, locations=tuple(args.locations),
-                                  frictions=tuple(args.frictions), perturbations=tuple(args.perturbations))
-    print(f"{len(conditions)} conditions x {settings.seeds} seed(s), {settings.seconds:g} s records, "
-          f"{settings.substeps} substeps -> {out}", flush=True)
+    conditions = paper_conditions(
+        ablation=settings.ablation,
+        locations=tuple(args.locations),
+        frictions=tuple(args.frictions),
+        perturbations=tuple(args.perturbations),
+    )
+    print(
+        f"{len(conditions)} conditions x {settings.seeds} seed(s), {settings.seconds:g} s records, "
+        f"{settings.substeps} substeps -> {out}",
+        flush=True,
+    )
     start = time.perf_counter()
     try:
-        repro.run_reproduction(settings, out, conditions=conditions, batch_size=args.batch_size,
-                               chunk_seconds=min(5.0, settings.seconds), progress=ProgressBar())
+        repro.run_reproduction(
+            settings,
+            out,
+            conditions=conditions,
+            batch_size=args.batch_size,
+            chunk_seconds=min(5.0, settings.seconds),
+            progress=ProgressBar(),
+        )
     except KeyboardInterrupt:
         sys.stderr.write("\ninterrupted: finished trials are saved\n")
         _, path = finish(repro, plots, report, out, complete=False)

@@ -82,8 +82,9 @@ print(json.dumps(dict(devices=mesh.size, seen=n, x=r.x.tolist(), fh=r.fh.tolist(
 
 def _run_sharded(n_devices):
     env = dict(os.environ, XLA_FLAGS="")
-    proc = subprocess.run([sys.executable, "-c", SHARDED, str(n_devices)], capture_output=True, text=True,
-                          env=env, cwd=ROOT, timeout=600)
+    proc = subprocess.run(
+        [sys.executable, "-c", SHARDED, str(n_devices)], capture_output=True, text=True, env=env, cwd=ROOT, timeout=600
+    )
     assert proc.returncode == 0, proc.stderr
     return json.loads(proc.stdout.strip().splitlines()[-1])
 

@@ -13,14 +13,20 @@ from armimp_jax.paper import Condition, evaluate_claims, paper_conditions
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "reproduce_paper.py"
-FIGURES = ["fig2_pd_bode.png", "fig3_pd_coherence.png", "fig4_pd_phi.png", "fig7_imbic_bode.png",
-           "fig8_imbic_coherence.png", "fig9_imbic_phi.png", "ablation_acquisition.png"]
+FIGURES = [
+    "fig2_pd_bode.png",
+    "fig3_pd_coherence.png",
+    "fig4_pd_phi.png",
+    "fig7_imbic_bode.png",
+    "fig8_imbic_coherence.png",
+    "fig9_imbic_phi.png",
+    "ablation_acquisition.png",
+]
 TINY = repro.ReproSettings(seconds=2.2, substeps=4, nperseg=512, noverlap=384)
 
 
 def run_script(*args):
-    return subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, cwd=ROOT,
-                          timeout=900)
+    return subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, cwd=ROOT, timeout=900)
 
 
 @pytest.fixture(scope="module")
@@ -83,8 +89,9 @@ def test_resume_computes_only_missing_trials_with_identical_numbers(tmp_path):
 def test_resume_refuses_different_settings(tmp_path):
     repro.prepare_output(tmp_path, TINY, resume=False)
     with pytest.raises(ValueError, match="differ from these"):
-        repro.prepare_output(tmp_path, repro.ReproSettings(seconds=3.0, substeps=4, nperseg=512, noverlap=384),
-                             resume=True)
+        repro.prepare_output(
+            tmp_path, repro.ReproSettings(seconds=3.0, substeps=4, nperseg=512, noverlap=384), resume=True
+        )
 
 
 @pytest.mark.parametrize(
@@ -104,8 +111,15 @@ def test_bad_arguments_fail_before_simulating(args, message):
 
 
 def _metrics(phi, *, coh_low=0.99, coh_high=0.99, coh_med=0.99, rel=0.02, phase=2.0):
-    return dict(phi_T=phi, rel_error=rel, phase_error_deg=phase, coh_multiple_x_min_low=coh_low,
-                coh_multiple_x_min_high=coh_high, coh_multiple_x_median=coh_med, coh_multiple_fh_median=coh_med)
+    return dict(
+        phi_T=phi,
+        rel_error=rel,
+        phase_error_deg=phase,
+        coh_multiple_x_min_low=coh_low,
+        coh_multiple_x_min_high=coh_high,
+        coh_multiple_x_median=coh_med,
+        coh_multiple_fh_median=coh_med,
+    )
 
 
 def _synthetic(paper_like: bool):
@@ -122,8 +136,9 @@ def _synthetic(paper_like: bool):
             if paper_like:
                 s[Condition("imbic", "imbic", loc, fr, 1)] = _metrics(200.0 + 20 * fr + 10 * loc, coh_low=0.95)
             else:
-                s[Condition("imbic", "imbic", loc, fr, 1)] = _metrics(200.0 * loc**2 * (1 + 5 * fr), coh_low=0.3,
-                                                                     coh_med=0.5)
+                s[Condition("imbic", "imbic", loc, fr, 1)] = _metrics(
+                    200.0 * loc**2 * (1 + 5 * fr), coh_low=0.3, coh_med=0.5
+                )
     return s
 
 

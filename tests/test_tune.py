@@ -32,8 +32,10 @@ def test_gradient_matches_finite_differences_at_friction_0_and_2(short_batch):
     assert np.all(np.isfinite(jac)) and np.all(jac != 0)
     f = jax.jit(_per_trial_losses)
     eps = 1e-3
-    fd = np.stack([(f(theta + eps * e, params, f_delta) - f(theta - eps * e, params, f_delta)) / (2 * eps)
-                   for e in jnp.eye(2)], axis=1)
+    fd = np.stack(
+        [(f(theta + eps * e, params, f_delta) - f(theta - eps * e, params, f_delta)) / (2 * eps) for e in jnp.eye(2)],
+        axis=1,
+    )
     np.testing.assert_allclose(jac, fd, rtol=2e-5)
 
 
@@ -73,8 +75,9 @@ def test_short_tuning_run_lowers_the_loss_from_a_poor_start():
     params, f_delta = tune.training_batch((2,), (1,), (0,), seconds=1.6, substeps=4)
     config = tune.TuneConfig(learning_rate=0.3, iterations=4)
     logs = []
-    state = tune.tune(tune.theta_from_mhat(1.5 * np.eye(2), "diagonal"), params, f_delta, WELCH, config,
-                      log=logs.append)
+    state = tune.tune(
+        tune.theta_from_mhat(1.5 * np.eye(2), "diagonal"), params, f_delta, WELCH, config, log=logs.append
+    )
     losses = [h["loss"] for h in state["history"] if "loss" in h]
     assert len(losses) >= 3 and losses[-1] < losses[0]
     assert np.all(np.diag(tune.mhat_from_theta(state["theta"], "diagonal")) < 1.5)
@@ -85,15 +88,23 @@ def test_divergence_guard_on_unstable_start_and_on_unstable_steps(tmp_path):
     logs = []
     # an unstable start (far above 2 M_x): shrunk until stable, and said so
     config = tune.TuneConfig(learning_rate=0.1, iterations=1)
-    state = tune.tune(tune.theta_from_mhat(40.0 * np.eye(2), "diagonal"), params, f_delta, WELCH, config,
-                      log=logs.append)
+    state = tune.tune(
+        tune.theta_from_mhat(40.0 * np.eye(2), "diagonal"), params, f_delta, WELCH, config, log=logs.append
+    )
     assert any(r.get("event") == "start diverged" for r in logs)
     assert np.isfinite(state["value"])
     # steps that land on unstable gains (a deliberately huge ascent step) are rejected, not taken
     logs.clear()
     config = tune.TuneConfig(learning_rate=-6.0, iterations=2)
-    state = tune.tune(tune.theta_from_mhat(0.3 * np.eye(2), "diagonal"), params, f_delta, WELCH, config,
-                      log=logs.append, on_iteration=lambda st: tune.save_state(tmp_path / "s", st, config))
+    state = tune.tune(
+        tune.theta_from_mhat(0.3 * np.eye(2), "diagonal"),
+        params,
+        f_delta,
+        WELCH,
+        config,
+        log=logs.append,
+        on_iteration=lambda st: tune.save_state(tmp_path / "s", st, config),
+    )
     rejected = [r for r in logs if str(r.get("event", "")).startswith("rejected")]
     assert rejected and state["rejected"] >= 1 and state["step_scale"] < 1.0
     assert np.all(np.isfinite(np.asarray(state["theta"]))) and np.isfinite(state["value"])
@@ -116,8 +127,22 @@ def test_tune_script_quick_produces_its_outputs(tmp_path):
     import sys
 
     root = pathlib.Path(__file__).resolve().parents[1]
-    proc = subprocess.run([sys.executable, str(root / "sweeps" / "tune_mhat.py"), "--quick", "--iterations", "2",
-                           "--compare", "0.25", "--out", str(tmp_path)], capture_output=True, text=True, timeout=900)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(root / "sweeps" / "tune_mhat.py"),
+            "--quick",
+            "--iterations",
+            "2",
+            "--compare",
+            "0.25",
+            "--out",
+            str(tmp_path),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     assert proc.returncode == 0, proc.stderr
     mhat = np.array(json.loads((tmp_path / "mhat.json").read_text())["mhat"])
     assert mhat.shape == (2, 2) and np.all(np.linalg.eigvalsh(mhat) > 0)
