@@ -18,6 +18,15 @@ import numpy as np  # noqa: E402
 from .arm import true_impedance  # noqa: E402
 
 FRICTION_COLORS = {0: "tab:blue", 1: "tab:orange", 2: "tab:red"}
+
+
+def _save(fig, path: pathlib.Path) -> pathlib.Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 ELEMENTS = ((0, 0), (0, 1), (1, 0), (1, 1))
 
 
@@ -60,10 +69,7 @@ def bode_figure(results, arrays, path: pathlib.Path, *, experiment: str, locatio
     axes[0, 0].legend(fontsize=8)
     title = "PD" if experiment == "pd" else "IMBIC"
     fig.suptitle(f"{title}: true vs estimated arm impedance, location {location}, perturbation level {perturbation}")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def coherence_figure(results, arrays, path: pathlib.Path, *, experiment: str, location: int = 1, perturbation: int = 1):
@@ -93,10 +99,7 @@ def coherence_figure(results, arrays, path: pathlib.Path, *, experiment: str, lo
     axes[0, 0].legend(fontsize=8)
     title = "PD" if experiment == "pd" else "IMBIC"
     fig.suptitle(f"{title}: coherence of the position estimate, location {location}")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def _cond_table(results, experiment, acquisition="instant"):
@@ -156,10 +159,7 @@ def phi_bars(results, path: pathlib.Path, *, experiment: str):
         ("PD, location 1" if experiment == "pd" else "IMBIC, perturbation level 1")
         + ": accuracy of the impedance estimate (lower is better)"
     )
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def ablation_figure(results, path: pathlib.Path):
@@ -186,10 +186,7 @@ def ablation_figure(results, path: pathlib.Path):
     ax.set_ylabel("$\\phi_T$ [N/m]")
     ax.legend()
     ax.set_title("Ablation: how much of the error is the sampling of the force signal")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def all_figures(results, arrays, out: pathlib.Path) -> list[pathlib.Path]:
@@ -228,7 +225,4 @@ def loss_curve(history: list[dict], path: pathlib.Path):
     ax.legend()
     ax.grid(alpha=0.3)
     ax.set_title("Tuning Mhat by gradient descent")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
