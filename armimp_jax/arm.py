@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._checks import check_choice, is_concrete
-from .tables import ARM_LOCATIONS, location_endpoint
+from .tables import ARM_LOCATIONS
 
 
 class ArmImpedance(NamedTuple):
@@ -33,12 +33,6 @@ def arm_impedance(location: int) -> ArmImpedance:
     check_choice("arm location", location, LOCATIONS)
     loc = ARM_LOCATIONS[location]
     return ArmImpedance(*(jnp.asarray(m, dtype=jnp.float64) for m in (loc.mass, loc.damping, loc.stiffness)))
-
-
-def arm_endpoint(location: int):
-    """World-frame hand position [m], shape ``(2,)``, of arm location 1-4 (two-link formula)."""
-    check_choice("arm location", location, LOCATIONS)
-    return jnp.asarray(location_endpoint(location))
 
 
 _STACKED = {

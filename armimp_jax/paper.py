@@ -9,7 +9,7 @@ numbers.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -215,7 +215,3 @@ def evaluate_claims(summary: dict) -> list[Claim]:
     else:
         add("f", "conditions missing", [])
     return claims
-
-
-def claims_as_dicts(claims: list[Claim]) -> list[dict]:
-    return [asdict(c) for c in claims]

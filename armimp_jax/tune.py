@@ -32,6 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from ._checks import check_choice
 from .arm import impedance_response
 from .estimate import estimate
 from .metrics import impedance_error
@@ -94,8 +95,8 @@ def batch_loss(theta, params: TrialParams, f_delta, *, parameterisation: str, we
 
 def value_and_grad_fn(*, parameterisation: str, welch: Welch, phi_ij_weight: float = 0.0, mode: str = "forward"):
     """A jitted ``(theta, params, f_delta) -> ((loss, aux), grad)`` in the chosen mode."""
-    if mode not in ("forward", "reverse"):
-        raise ValueError(f"unknown gradient mode {mode!r}; allowed: 'forward', 'reverse'")
+    check_choice("gradient mode", mode, ("forward", "reverse"))
+    check_choice("parameterisation", parameterisation, PARAMETERISATIONS)
 
     def loss(theta, params, f_delta):
         return batch_loss(

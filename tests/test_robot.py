@@ -52,6 +52,7 @@ def _lagrangian_qdd(q, qd, z, fu, params):
     dT_dqd = jax.grad(robot.kinetic_energy, argnums=1)
     m = jax.jacfwd(dT_dqd, argnums=1)(q, qd)
     h = jax.jacfwd(dT_dqd, argnums=0)(q, qd) @ qd - jax.grad(robot.kinetic_energy, argnums=0)(q, qd)
+    np.testing.assert_allclose(robot.velocity_torque(q, qd), h, rtol=1e-12, atol=1e-15)
     j = robot.jacobian(q)
     jd_qd = jax.jvp(robot.jacobian, (q,), (qd,))[1] @ qd
     arm, fr = params.arm, params.friction

@@ -115,9 +115,11 @@ def test_divergence_guard_on_unstable_start_and_on_unstable_steps(tmp_path):
     assert again["iteration"] == state["iteration"] and again["history"] == state["history"]
 
 
-def test_unknown_mode_is_rejected():
-    with pytest.raises(ValueError, match="unknown gradient mode 'central'"):
+def test_unknown_mode_and_parameterisation_are_rejected():
+    with pytest.raises(ValueError, match="unknown gradient mode 'central'; allowed: 'forward', 'reverse'"):
         tune.value_and_grad_fn(parameterisation="diagonal", welch=WELCH, mode="central")
+    with pytest.raises(ValueError, match="unknown parameterisation 'lower'; allowed: 'diagonal', 'full'"):
+        tune.value_and_grad_fn(parameterisation="lower", welch=WELCH)
 
 
 def test_tune_script_quick_produces_its_outputs(tmp_path):
