@@ -33,11 +33,9 @@ import numpy as np
 import optax
 
 from ._checks import check_choice
-from .arm import impedance_response
-from .estimate import estimate
-from .metrics import impedance_error
-from .simulate import TrialParams, simulate
-from .sweep import Welch
+from .perturbation import perturbation, perturbation_peak
+from .simulate import TrialParams, simulate, stack_trials, trial_params
+from .sweep import Welch, assess, assess_batch, simulate_batch
 
 PARAMETERISATIONS = ("diagonal", "full")
 MAX_START_SHRINKS = 8  # an unstable start is halved at most this often (a factor of 256)
@@ -80,10 +78,8 @@ class LossAux(NamedTuple):
 
 def trial_loss(params: TrialParams, f_delta, welch: Welch, phi_ij_weight: float = 0.0):
     """``phi_T`` (+ weight x mean ``phi_ij``) of one trial, and its divergence flag."""
-    sim = simulate(params, f_delta)
-    est = estimate(f_delta, sim.x, sim.fh, fs=welch.fs, nperseg=welch.nperseg, noverlap=welch.noverlap, fmax=welch.fmax)
-    phi_t, phi_ij = impedance_error(est.Z, impedance_response(params.arm, est.f))
-    return phi_t + phi_ij_weight * jnp.mean(phi_ij), (phi_t, sim.diverged)
+    out = assess(params, f_delta, simulate(params, f_delta), welch)
+    return out.phi_T + phi_ij_weight * jnp.mean(out.phi_ij), (out.phi_T, out.diverged)
 
 
 def batch_loss(theta, params: TrialParams, f_delta, *, parameterisation: str, welch: Welch, phi_ij_weight: float = 0.0):
@@ -285,8 +281,6 @@ HELDOUT_SEED_OFFSET = 1000
 
 def seed_perturbations(base_seed: int, seeds, n_samples: int, level: int = 1):
     """``(len(seeds), n, 2)`` perturbations [N] from ``fold_in(PRNGKey(base_seed), seed)``."""
-    from .perturbation import perturbation, perturbation_peak
-
     key = jax.random.PRNGKey(base_seed)
     return np.stack(
         [np.asarray(perturbation(jax.random.fold_in(key, s), n_samples, perturbation_peak(level))) for s in seeds]
@@ -295,8 +289,6 @@ def seed_perturbations(base_seed: int, seeds, n_samples: int, level: int = 1):
 
 def training_batch(frictions, locations, seeds, *, seconds: float, substeps: int, base_seed: int = 0):
     """Stacked IMBIC ``TrialParams`` (friction x location x seed) and their perturbations."""
-    from .simulate import stack_trials, trial_params
-
     n = int(round(seconds * 1000))
     signals = seed_perturbations(base_seed, [TRAIN_SEED_OFFSET + s for s in seeds], n)
     params, f_delta = [], []
@@ -325,9 +317,6 @@ def heldout_phi(
     Returns ``{name: array (len(frictions), len(locations), len(seeds))}`` plus
     ``"_diverged"``: names whose runs diverged in any trial.
     """
-    from .simulate import stack_trials, trial_params
-    from .sweep import assess_batch, simulate_batch
-
     n = int(round(seconds * 1000))
     welch.check(n)
     signals = seed_perturbations(base_seed, [HELDOUT_SEED_OFFSET + s for s in seeds], n)
