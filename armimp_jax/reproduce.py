@@ -276,8 +276,9 @@ def condition_summary(metas: list[dict]) -> dict:
     return out
 
 
-def aggregate(out: pathlib.Path, *, complete: bool) -> dict:
-    """Write ``results.json`` and ``results.npz`` from the trial files; return the results dict."""
+def aggregate(out: pathlib.Path, *, complete: bool) -> tuple[dict, dict]:
+    """Write ``results.json`` and ``results.npz`` from the trial files; return the results dict
+    and the per-trial arrays (as ``load_results`` would read them back)."""
     metas, arrays = load_trials(out)
     run = json.loads((out / "run.json").read_text())
     summary = condition_summary(metas)
@@ -294,11 +295,10 @@ def aggregate(out: pathlib.Path, *, complete: bool) -> dict:
     _save_json(out / "results.json", results)
     ids = [m["id"] for m in metas]
     stacked = {"trial_ids": np.array(ids)}
-    for name in ESTIMATE_FIELDS:
-        if ids:
-            stacked[name] = np.stack([arrays[i][name] for i in ids])
+    if ids:
+        stacked |= {name: np.stack([arrays[i][name] for i in ids]) for name in ESTIMATE_FIELDS}
     _save_npz(out / "results.npz", stacked)
-    return results
+    return results, arrays
 
 
 def load_results(out: pathlib.Path) -> tuple[dict, dict]:

@@ -95,8 +95,7 @@ class ProgressBar:
 
 
 def finish(repro, plots, report, out, *, complete):
-    results = repro.aggregate(out, complete=complete)
-    _, arrays = repro.load_results(out)
+    results, arrays = repro.aggregate(out, complete=complete)
     figures = plots.all_figures(results, arrays, out)
     path = report.write_report(results, out, figures)
     return results, path
