@@ -110,6 +110,20 @@ def coherences(g, inputs, output):
     return mult, jnp.stack(partial, axis=-1)
 
 
+def band_spectra(signals, *, fs: float, nperseg: int, noverlap: int, fmax: float):
+    """Cross-spectral matrix of ``signals`` ``(N, C)`` on the bins ``0 < f <= fmax`` only
+    (validated): ``(freqs (F,), G (F, C, C))``."""
+    check_welch(signals.shape[0], fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax)
+    k = n_bins(fmax, fs=fs, nperseg=nperseg)
+    freqs, g = cross_spectral_matrix(signals, fs=fs, nperseg=nperseg, noverlap=noverlap, nbins=k + 1)
+    return freqs[1:], g[1:]
+
+
+def ordinary_coherence(g, a: int, b: int):
+    """Ordinary coherence ``|G_ab|^2 / (G_aa G_bb)`` ``(F,)`` of channels ``a`` and ``b``."""
+    return jnp.abs(g[:, a, b]) ** 2 / jnp.real(g[:, a, a] * g[:, b, b])
+
+
 class Estimate(NamedTuple):
     """Estimator output on the bins ``0 < f <= fmax``.
 
@@ -163,18 +177,13 @@ def estimate(
     shapes = [a.shape for a in arrays]
     if any(len(s) != 2 or s[1] != 2 for s in shapes) or len(set(shapes)) != 1:
         raise ValueError(f"f_delta, x and fh must all have the same shape (N, 2); got {shapes}")
-    check_welch(shapes[0][0], fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax)
-    k = n_bins(fmax, fs=fs, nperseg=nperseg)
-    freqs, g = cross_spectral_matrix(
-        jnp.concatenate(arrays, axis=1), fs=fs, nperseg=nperseg, noverlap=noverlap, nbins=k + 1
-    )
-    freqs, g = freqs[1:], g[1:]
+    freqs, g = band_spectra(jnp.concatenate(arrays, axis=1), fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax)
     u, xs, fs_ = (0, 1), (2, 3), (4, 5)
     r, t = h1(g, u, xs), h1(g, u, fs_)
     z = t @ _inv2(r)
     cx = [coherences(g, u, c) for c in xs]
     cf = [coherences(g, u, c) for c in fs_]
-    coh_inputs = jnp.abs(g[:, 0, 1]) ** 2 / jnp.real(g[:, 0, 0] * g[:, 1, 1])
+    coh_inputs = ordinary_coherence(g, 0, 1)
     return Estimate(
         f=freqs,
         R=r,
@@ -204,8 +213,5 @@ def input_coherence(
     f_delta = as_float64("f_delta", f_delta, where="input_coherence")
     if f_delta.ndim != 2 or f_delta.shape[1] != 2:
         raise ValueError(f"f_delta must have shape (N, 2), got {f_delta.shape}")
-    check_welch(f_delta.shape[0], fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax)
-    k = n_bins(fmax, fs=fs, nperseg=nperseg)
-    _, g = cross_spectral_matrix(f_delta, fs=fs, nperseg=nperseg, noverlap=noverlap, nbins=k + 1)
-    g = g[1:]
-    return jnp.max(jnp.abs(g[:, 0, 1]) ** 2 / jnp.real(g[:, 0, 0] * g[:, 1, 1]))
+    _, g = band_spectra(f_delta, fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax)
+    return jnp.max(ordinary_coherence(g, 0, 1))
