@@ -150,7 +150,7 @@ def run_reproduction(
     out: pathlib.Path,
     *,
     conditions: list[Condition] | None = None,
-    batch_size: int = 24,
+    batch_size: int = 48,
     chunk_seconds: float = 5.0,
     progress: Callable[[dict], None] | None = None,
     stop_after_batches: int | None = None,

@@ -3,15 +3,18 @@
 Fixed inputs (seeded perturbations, IMBIC, friction levels and locations cycled), compile
 time measured apart, ``block_until_ready``, median of repeats. Entry-point settings as
 every script uses them (``runtime.configure``: float64, one XLA device per core, the
-small-loop option). Prints Markdown tables and writes them (and JSON) under ``--out``.
+small-loop option, 512-bit vectors on AVX-512 hosts; ``--no-wide-vectors`` measures
+XLA's default width instead). Prints Markdown tables and writes them (and JSON) under
+``--out``.
 
-    python sweeps/bench_simulate.py [--repeats 3] [--quick] [--no-numba]
+    python sweeps/bench_simulate.py [--repeats 3] [--quick] [--no-numba] [--no-wide-vectors]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import pathlib
 import platform
 import statistics
@@ -20,7 +23,8 @@ import time
 
 from armimp_jax.runtime import configure
 
-N_DEVICES = configure()
+# configure() must run before JAX starts, so this one option is read before argparse.
+N_DEVICES = configure(vector_width=None if "--no-wide-vectors" in sys.argv else "auto")
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
@@ -58,7 +62,7 @@ def bench_simulation(configs, seconds, substeps, repeats):
     for kernel, n_dev, b in configs:
         mesh = sweep.make_mesh(jax.devices()[:n_dev])
         params, f_delta = batch_inputs(b, n, substeps, kernel=kernel)
-        (p_s, f_s), _ = sweep.shard_batch((params, f_delta), mesh)
+        (p_s, f_s), _ = sweep.shard_batch((params, f_delta), mesh)  # may pad: see sweep.CPU_LANES
         fn = jax.jit(jax.vmap(aj.simulate))
         t0 = time.perf_counter()
         compiled = fn.lower(p_s, f_s).compile()
@@ -70,6 +74,7 @@ def bench_simulation(configs, seconds, substeps, repeats):
                 kernel=kernel,
                 devices=n_dev,
                 batch=b,
+                padded_batch=int(p_s.q0.shape[0]),
                 record_s=seconds,
                 substeps=substeps,
                 compile_s=compile_s,
@@ -170,11 +175,11 @@ def bench_estimator(batches, repeats, n=50_000):
 
 def markdown(sim, full, est, numba_row=None):
     lines = [
-        "| kernel | devices | batch | M substeps/s | s per 50 s trial (from 5 s) | compile s |",
+        "| kernel | devices | batch (padded) | M substeps/s | s per 50 s trial (from 5 s) | compile s |",
         "|---|---|---|---|---|---|",
     ]
     lines += [
-        f"| {r['kernel']} | {r['devices']} | {r['batch']} | {r['msubsteps_per_s']:.2f} | "
+        f"| {r['kernel']} | {r['devices']} | {r['batch']} ({r['padded_batch']}) | {r['msubsteps_per_s']:.2f} | "
         f"{r['s_per_50s_trial']:.3f} | {r['compile_s']:.1f} |"
         for r in sim
     ]
@@ -214,6 +219,7 @@ def main():
     ap.add_argument("--substeps", type=int, default=100)
     ap.add_argument("--quick", action="store_true", help="tiny sizes, to check the script runs")
     ap.add_argument("--no-numba", action="store_true", help="skip the numba baseline")
+    ap.add_argument("--no-wide-vectors", action="store_true", help="XLA:CPU's default vector width")
     ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/bench"))
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -223,7 +229,7 @@ def main():
         full, est = None, []
         numba_row = None if args.no_numba else bench_numba(4, 0.5, 10, 1)
     else:
-        configs = [("fast", d, b) for d in devs for b in (1, 24, 96, 256)] + [("reference", d, 24) for d in devs]
+        configs = [("fast", d, b) for d in devs for b in (1, 24, 48, 96, 256)] + [("reference", d, 24) for d in devs]
         sim = bench_simulation(configs, 5.0, args.substeps, args.repeats)
         full = bench_full_trial(24, args.substeps)
         numba_row = None if args.no_numba else bench_numba(24, 2.0, args.substeps, args.repeats)
@@ -234,6 +240,7 @@ def main():
         backend=jax.default_backend(),
         cpu=platform.processor() or platform.machine(),
         python=platform.python_version(),
+        xla_flags=os.environ.get("XLA_FLAGS", ""),
     )
     table = markdown(sim, full, est, numba_row)
     print("\n" + table + f"\n\n{env}")

@@ -38,7 +38,7 @@ def parse(argv):
     ap.add_argument("--perturbations", type=int, nargs="+", default=[1, 2, 3], help="PD perturbation levels")
     ap.add_argument("--no-ablation", action="store_true", help="skip the interval-mean acquisition sweep")
     ap.add_argument("--max-input-coherence", type=float, help="redraw perturbations until below (paper: 0.4)")
-    ap.add_argument("--batch-size", type=int, default=24, help="trials per vmapped batch")
+    ap.add_argument("--batch-size", type=int, default=48, help="trials per vmapped batch")
     ap.add_argument("--out", type=pathlib.Path, help="output folder")
     ap.add_argument("--resume", type=pathlib.Path, metavar="DIR", help="continue an interrupted run in DIR")
     ap.add_argument("--replot", type=pathlib.Path, metavar="DIR", help="redraw figures and report from DIR")

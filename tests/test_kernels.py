@@ -69,7 +69,7 @@ def test_fast_kernel_agrees_with_reference_over_50_s(controller):
 SHARDED = """
 import json, sys
 from armimp_jax.runtime import configure
-n = configure(host_devices=2, hoist_small_loops=False)
+n = configure(host_devices=2, hoist_small_loops=False, vector_width=json.loads(sys.argv[2]))
 import jax, numpy as np, armimp_jax as aj
 from armimp_jax import sweep
 params = aj.stack_trials([aj.trial_params(c, f, 1 + f, substeps=5) for c in ["imbic"] for f in (0, 1, 2)])
@@ -80,10 +80,15 @@ print(json.dumps(dict(devices=mesh.size, seen=n, x=r.x.tolist(), fh=r.fh.tolist(
 """
 
 
-def _run_sharded(n_devices):
+def _run_sharded(n_devices, vector_width=None):
     env = dict(os.environ, XLA_FLAGS="")
     proc = subprocess.run(
-        [sys.executable, "-c", SHARDED, str(n_devices)], capture_output=True, text=True, env=env, cwd=ROOT, timeout=600
+        [sys.executable, "-c", SHARDED, str(n_devices), json.dumps(vector_width)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=ROOT,
+        timeout=600,
     )
     assert proc.returncode == 0, proc.stderr
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -99,3 +104,21 @@ def test_sharded_over_two_devices_equals_one_device():
     fd = jnp.stack([aj.perturbation(jax.random.PRNGKey(i), 600, 2.25) for i in range(3)])
     plain = jax.jit(jax.vmap(aj.simulate))(params, fd)
     np.testing.assert_array_equal(np.array(two["x"]), plain.x)
+
+
+def test_wide_vectors_change_no_bit():
+    # runtime.configure asks XLA:CPU for 512-bit vectors on AVX-512 hosts: the same
+    # elementwise arithmetic per lane, so the numbers must not move.
+    default, wide = _run_sharded(2), _run_sharded(2, 512)
+    for name in ("x", "fh", "fu"):
+        np.testing.assert_array_equal(np.array(default[name]), np.array(wide[name]))
+
+
+def test_per_device_batch_is_padded_to_whole_vectors():
+    from armimp_jax.sweep import padded_batch_size
+
+    assert padded_batch_size(24, 2, 8) == 32  # 12 per device -> 16
+    assert padded_batch_size(48, 2, 8) == 48
+    assert padded_batch_size(3, 2, 8) == 4  # small batches: only to the device count
+    assert padded_batch_size(17, 1, 8) == 24
+    assert padded_batch_size(24, 2, 1) == 24
