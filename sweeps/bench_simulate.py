@@ -231,7 +231,7 @@ def main():
     else:
         configs = [("fast", d, b) for d in devs for b in (1, 24, 48, 96, 256)] + [("reference", d, 24) for d in devs]
         sim = bench_simulation(configs, 5.0, args.substeps, args.repeats)
-        full = bench_full_trial(24, args.substeps)
+        full = bench_full_trial(48, args.substeps)
         numba_row = None if args.no_numba else bench_numba(24, 2.0, args.substeps, args.repeats)
         est = bench_estimator([24, 96], args.repeats)
     env = dict(
