@@ -24,7 +24,7 @@ def cpu_has_avx512() -> bool:
     """Whether the host CPU reports AVX-512F (read from ``/proc/cpuinfo``; False elsewhere)."""
     try:
         with open("/proc/cpuinfo") as f:
-            return any(line.startswith("flags") and " avx512f" in line for line in f)
+            return any(line.startswith("flags") and "avx512f" in line.split() for line in f)
     except OSError:
         return False
 

@@ -36,14 +36,22 @@ def test_rotation_is_exact_to_round_off():
 BOUND = 1e-9
 
 
-@pytest.mark.parametrize("controller", ["pd", "imbic"])
-def test_fast_kernel_agrees_with_reference(controller):
-    fd = aj.perturbation(jax.random.PRNGKey(4), 1500, aj.perturbation_peak(1))
+def _fast_and_reference(controller, n_samples, locations, **options):
+    """The same three trials (friction 0, 1, 2) run with each kernel, keyed by kernel name."""
+    fd = aj.perturbation(jax.random.PRNGKey(4), n_samples, aj.perturbation_peak(1))
     batched = jax.jit(jax.vmap(aj.simulate))
     runs = {}
     for kernel in ("fast", "reference"):
-        params = aj.stack_trials([aj.trial_params(controller, f, 1 + f, substeps=50, kernel=kernel) for f in (0, 1, 2)])
+        params = aj.stack_trials(
+            [aj.trial_params(controller, f, loc, kernel=kernel, **options) for f, loc in zip((0, 1, 2), locations)]
+        )
         runs[kernel] = batched(params, jnp.stack([fd] * 3))
+    return runs
+
+
+@pytest.mark.parametrize("controller", ["pd", "imbic"])
+def test_fast_kernel_agrees_with_reference(controller):
+    runs = _fast_and_reference(controller, 1500, (1, 2, 3), substeps=50)
     for name in ("x", "xd", "fh", "fu", "q"):
         a, b = np.asarray(getattr(runs["fast"], name)), np.asarray(getattr(runs["reference"], name))
         if name == "x":
@@ -55,12 +63,8 @@ def test_fast_kernel_agrees_with_reference(controller):
 @pytest.mark.slow
 @pytest.mark.parametrize("controller", ["pd", "imbic"])
 def test_fast_kernel_agrees_with_reference_over_50_s(controller):
-    fd = aj.perturbation(jax.random.PRNGKey(4), 50_000, aj.perturbation_peak(1))
-    batched = jax.jit(jax.vmap(aj.simulate))
-    xs = {}
-    for kernel in ("fast", "reference"):
-        params = aj.stack_trials([aj.trial_params(controller, f, 1, kernel=kernel) for f in (0, 1, 2)])
-        xs[kernel] = np.asarray(batched(params, jnp.stack([fd] * 3)).x)
+    runs = _fast_and_reference(controller, 50_000, (1, 1, 1))
+    xs = {kernel: np.asarray(r.x) for kernel, r in runs.items()}
     d = xs["fast"] - xs["reference"]
     scale = np.abs(xs["reference"] - xs["reference"][:, :1]).max(axis=(1, 2), keepdims=True)
     assert np.all(np.abs(d) <= BOUND * scale)
@@ -94,24 +98,28 @@ def _run_sharded(n_devices, vector_width=None):
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+def _plain_batch():
+    """The subprocess's batch, vmapped in this process (XLA's default vector width)."""
+    params = aj.stack_trials([aj.trial_params("imbic", f, 1 + f, substeps=5) for f in (0, 1, 2)])
+    fd = jnp.stack([aj.perturbation(jax.random.PRNGKey(i), 600, 2.25) for i in range(3)])
+    return jax.jit(jax.vmap(aj.simulate))(params, fd)
+
+
 def test_sharded_over_two_devices_equals_one_device():
     one, two = _run_sharded(1), _run_sharded(2)
     assert one["seen"] == 2 and one["devices"] == 1 and two["devices"] == 2
     for name in ("x", "fh", "fu"):
         np.testing.assert_array_equal(np.array(one[name]), np.array(two[name]))
     # ...and the chunked, sharded, padded batch equals a plain vmapped run here
-    params = aj.stack_trials([aj.trial_params("imbic", f, 1 + f, substeps=5) for f in (0, 1, 2)])
-    fd = jnp.stack([aj.perturbation(jax.random.PRNGKey(i), 600, 2.25) for i in range(3)])
-    plain = jax.jit(jax.vmap(aj.simulate))(params, fd)
-    np.testing.assert_array_equal(np.array(two["x"]), plain.x)
+    np.testing.assert_array_equal(np.array(two["x"]), _plain_batch().x)
 
 
 def test_wide_vectors_change_no_bit():
     # runtime.configure asks XLA:CPU for 512-bit vectors on AVX-512 hosts: the same
     # elementwise arithmetic per lane, so the numbers must not move.
-    default, wide = _run_sharded(2), _run_sharded(2, 512)
+    wide, plain = _run_sharded(2, 512), _plain_batch()
     for name in ("x", "fh", "fu"):
-        np.testing.assert_array_equal(np.array(default[name]), np.array(wide[name]))
+        np.testing.assert_array_equal(np.array(wide[name]), getattr(plain, name))
 
 
 def test_per_device_batch_is_padded_to_whole_vectors():
