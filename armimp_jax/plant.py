@@ -19,6 +19,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+from jax.ad_checkpoint import checkpoint_name
 
 from .arm import ArmImpedance
 from .friction import LuGreParams, lugre
@@ -89,26 +90,51 @@ def trig_of(s: PlantState) -> Trig:
     return Trig(jnp.cos(s.q1), jnp.sin(s.q1), jnp.cos(s.q2), jnp.sin(s.q2))
 
 
+@jax.custom_jvp
+def _small_angle_cos_sin(d):
+    d2 = d * d
+    return 1.0 - d2 * (0.5 - d2 * (1.0 / 24 - d2 / 720)), d * (1.0 - d2 * (1.0 / 6 - d2 * (1.0 / 120 - d2 / 5040)))
+
+
+@_small_angle_cos_sin.defjvp
+def _small_angle_cos_sin_jvp(primals, tangents):
+    # The derivatives of cos and sin, not of the truncated series (they differ by
+    # d^7/5040, far below round-off): 4% fewer operations in the backward loop body.
+    (d,), (t,) = primals, tangents
+    c, s = _small_angle_cos_sin(d)
+    return (c, s), (-s * t, c * t)
+
+
 def rotate(t: Trig, d1, d2) -> Trig:
     """``Trig`` of the angles advanced by ``d1``, ``d2`` [rad], by the angle-addition formulas
     with Taylor ``cos/sin`` of the increments (to ``d^6``, ``d^7``: exact to round-off for
     ``|d| < 0.03`` rad; an RK4 substep moves ~1e-6 rad). No transcendental is evaluated."""
 
-    def cs(d):
-        d2_ = d * d
-        return 1.0 - d2_ * (0.5 - d2_ * (1.0 / 24 - d2_ / 720)), d * (
-            1.0 - d2_ * (1.0 / 6 - d2_ * (1.0 / 120 - d2_ / 5040))
-        )
-
-    cd1, sd1 = cs(d1)
-    cd2, sd2 = cs(d2)
+    cd1, sd1 = _small_angle_cos_sin(d1)
+    cd2, sd2 = _small_angle_cos_sin(d2)
     return Trig(t.c1 * cd1 - t.s1 * sd1, t.s1 * cd1 + t.c1 * sd1, t.c2 * cd2 - t.s2 * sd2, t.s2 * cd2 + t.c2 * sd2)
 
 
-def _dynamics(s: PlantState, fu, model: PlantModel, trig: Trig | None = None):
+_SHARED = "armimp_shared_stage_value"
+
+
+def _sharer(one):
+    """``share(*values)`` for the ``"grad"`` kernel (identity when ``one`` is None).
+
+    XLA:CPU copies chains of cheap ops (add, mul, sin, cos) into every fusion that uses
+    them but never duplicates a division. ``x / one``, with ``one`` a runtime 1.0, is
+    exact and makes ``x`` one materialised value; the name lets the substep checkpoint
+    save it for the backward pass instead of recomputing the stage."""
+    if one is None:
+        return lambda *values: values
+    return lambda *values: tuple(checkpoint_name(v / one, _SHARED) for v in values)
+
+
+def _dynamics(s: PlantState, fu, model: PlantModel, trig: Trig | None = None, share=_sharer(None)):
     """Joint accelerations and the pieces needed for the hand force, at command ``fu`` [N] ``(2,)``.
 
-    ``trig`` (optional) supplies ``cos/sin`` of ``q``; by default they are evaluated."""
+    ``trig`` (optional) supplies ``cos/sin`` of ``q``; by default they are evaluated.
+    ``share`` (see ``_sharer``) marks the matrix and right-hand side of the solve."""
     c1, s1, c2, s2 = trig_of(s) if trig is None else trig
     # Angle-difference identities instead of cos/sin(q1 - q2): two fewer transcendentals
     # per evaluation (they dominate the cost on CPU), error ~1e-16.
@@ -139,6 +165,7 @@ def _dynamics(s: PlantState, fu, model: PlantModel, trig: Trig | None = None):
     hc = INERTIA_C2 * sin_d
     b1 = (j11 * rx + j21 * ry) - hc * qd2sq - tau_f1
     b2 = (j12 * rx + j22 * ry) + hc * qd1sq - tau_f2
+    b1, b2 = share(b1, b2)
 
     # A = M + J^T M_h J (not symmetric: M_h is not).
     p11 = mh11 * j11 + mh12 * j21
@@ -149,6 +176,7 @@ def _dynamics(s: PlantState, fu, model: PlantModel, trig: Trig | None = None):
     a12 = m12 + (j11 * p12 + j21 * p22)
     a21 = m12 + (j12 * p11 + j22 * p21)
     a22 = m22 + (j12 * p12 + j22 * p22)
+    a11, a12, a21, a22 = share(a11, a12, a21, a22)
     det = a11 * a22 - a12 * a21
     qdd1 = (a22 * b1 - a12 * b2) / det
     qdd2 = (a11 * b2 - a21 * b1) / det
@@ -190,16 +218,20 @@ def rk4_step(s: PlantState, fu, model: PlantModel, h) -> PlantState:
     return jax.tree.map(lambda si, a, b, c, d: si + (h / 6.0) * (a + 2.0 * b + 2.0 * c + d), s, k1, k2, k3, k4)
 
 
-def rk4_step_rotating(s: PlantState, trig: Trig, fu, model: PlantModel, h) -> tuple[PlantState, Trig]:
+def rk4_step_rotating(s: PlantState, trig: Trig, fu, model: PlantModel, h, *, one=None) -> tuple[PlantState, Trig]:
     """``rk4_step`` with the stage angles' ``cos/sin`` obtained by ``rotate`` from ``trig``
     (the values at ``s``) instead of 16 transcendental calls; returns the new state and
-    its ``Trig``. Same method, same stages; differs from ``rk4_step`` only by round-off."""
+    its ``Trig``. Same method, same stages; differs from ``rk4_step`` only by round-off.
+
+    ``one`` (a runtime 1.0, ``"grad"`` kernel): stage states, stage ``cos/sin`` and the
+    solve's matrix and right-hand side become shared values (``_sharer``)."""
+    share = _sharer(one)
 
     def f(state, t):
-        return _dynamics(state, fu, model, t)[0]
+        return _dynamics(state, fu, model, Trig(*share(*t)), share)[0]
 
     def stage(a, k):
-        return jax.tree.map(lambda si, ki: si + a * ki, s, k), rotate(trig, a * k.q1, a * k.q2)
+        return PlantState(*share(*(si + a * ki for si, ki in zip(s, k)))), rotate(trig, a * k.q1, a * k.q2)
 
     k1 = f(s, trig)
     k2 = f(*stage(0.5 * h, k1))
@@ -209,7 +241,7 @@ def rk4_step_rotating(s: PlantState, trig: Trig, fu, model: PlantModel, h) -> tu
     return jax.tree.map(jnp.add, s, incr), rotate(trig, incr.q1, incr.q2)
 
 
-KERNELS = ("fast", "reference")
+KERNELS = ("fast", "reference", "grad")
 
 
 def integrate_period(
@@ -220,15 +252,22 @@ def integrate_period(
     ``kernel="reference"`` evaluates ``cos/sin`` at every RK4 stage (``rk4_step``);
     ``"fast"`` evaluates them once per period and carries them through the substeps by
     small-angle rotations (``rk4_step_rotating``), re-seeded exactly every period so the
-    rotation's round-off cannot accumulate beyond one period.
+    rotation's round-off cannot accumulate beyond one period. ``"grad"`` is ``"fast"``
+    with the stage values shared (``_sharer``) and saved for reverse mode: about 2x
+    faster gradients, 10-20% slower batched forward runs; it agrees with ``"fast"`` to
+    round-off (fusion boundaries move, so FMA contraction differs).
     """
     h = period / substeps
     if kernel == "reference":
         body = jax.checkpoint(lambda state, _: (rk4_step(state, fu, model, h), None), prevent_cse=False)
         return jax.lax.scan(body, s, None, length=substeps)[0]
+    # Reverse mode keeps the substep carries (and, for "grad", the shared stage values).
+    # The runtime 1.0 comes from the state so that XLA cannot fold the divisions away.
+    one = jax.lax.stop_gradient(1.0 + 0.0 * s.q1) if kernel == "grad" else None
+    policy = jax.checkpoint_policies.save_only_these_names(_SHARED) if kernel == "grad" else None
 
-    @functools.partial(jax.checkpoint, prevent_cse=False)  # reverse mode: keep only substep carries
+    @functools.partial(jax.checkpoint, prevent_cse=False, policy=policy)
     def body(carry, _):
-        return rk4_step_rotating(*carry, fu, model, h), None
+        return rk4_step_rotating(*carry, fu, model, h, one=one), None
 
     return jax.lax.scan(body, (s, trig_of(s)), None, length=substeps)[0][0]

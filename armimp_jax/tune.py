@@ -9,7 +9,8 @@ training batch (plus, optionally, a weight times the mean ``phi_ij``).
 Two gradient modes: ``"forward"`` (``jax.jacfwd``: one tangent per parameter, memory of
 a few primal runs) and ``"reverse"`` (``jax.grad`` through the scan with ``jax.checkpoint``
 on every control period and RK4 substep, so the tape holds one carry per period). Both
-are exact; ``bench_gradient.py`` measures them.
+are exact; ``bench_gradient.py`` measures them. Training batches use the ``"grad"`` RK4
+kernel (``plant.integrate_period``), which halves the cost of reverse mode.
 
 ``tune`` runs optax with a divergence guard: a step that lands on an ``Mhat`` whose
 simulation diverges (flag, NaN or inf) is rejected, the step size is halved, and the
@@ -287,15 +288,19 @@ def seed_perturbations(base_seed: int, seeds, n_samples: int, level: int = 1):
     )
 
 
-def training_batch(frictions, locations, seeds, *, seconds: float, substeps: int, base_seed: int = 0):
-    """Stacked IMBIC ``TrialParams`` (friction x location x seed) and their perturbations."""
+def training_batch(
+    frictions, locations, seeds, *, seconds: float, substeps: int, base_seed: int = 0, kernel: str = "grad"
+):
+    """Stacked IMBIC ``TrialParams`` (friction x location x seed) and their perturbations.
+
+    ``kernel`` defaults to ``"grad"``, the RK4 kernel arranged for reverse mode."""
     n = int(round(seconds * 1000))
     signals = seed_perturbations(base_seed, [TRAIN_SEED_OFFSET + s for s in seeds], n)
     params, f_delta = [], []
     for fr in frictions:
         for loc in locations:
             for i, _ in enumerate(seeds):
-                params.append(trial_params("imbic", fr, loc, substeps=substeps))
+                params.append(trial_params("imbic", fr, loc, substeps=substeps, kernel=kernel))
                 f_delta.append(signals[i])
     return stack_trials(params), jnp.asarray(np.stack(f_delta))
 

@@ -1,8 +1,11 @@
 """Benchmark: d phi_T / d Mhat for one 50 s trial (paper settings), forward vs reverse mode.
 
-Each mode runs in its own process (clean peak memory): compile time apart, median of
-repeats with ``block_until_ready``; peak RSS from ``getrusage`` and XLA's own temporary
-buffer size. Reports time relative to the forward simulation (simulate + estimate + phi_T).
+Each (mode, RK4 kernel) pair runs in its own process: compile time apart, median of
+repeats with ``block_until_ready``; peak RSS (``getrusage``, taken before anything else
+is built in that process) and XLA's own temporary buffer size. Each process also times
+the forward simulation (simulate + estimate + phi_T, default ``"fast"`` kernel),
+alternating with its own runs, and reports the paired ratio. The gradients use
+``--kernels`` (default: ``"grad"``, the kernel the tuner uses; add ``fast`` to compare).
 
     python sweeps/bench_gradient.py [--seconds 50] [--substeps 100] [--repeats 3]
 """
@@ -10,6 +13,7 @@ buffer size. Reports time relative to the forward simulation (simulate + estimat
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import pathlib
 import resource
@@ -18,10 +22,11 @@ import subprocess
 import sys
 import time
 
-MODES = ("primal", "forward-diagonal", "forward-full", "reverse-diagonal", "reverse-full")
+MODES = ("primal", "reverse-diagonal", "reverse-full", "forward-diagonal", "forward-full")
+KERNELS = ("fast", "grad", "reference")
 
 
-def child(mode, seconds, substeps, repeats, hoist=True):
+def child(mode, kernel, seconds, substeps, repeats, hoist=True):
     from armimp_jax.runtime import configure
 
     configure(host_devices=1, hoist_small_loops=hoist)
@@ -31,30 +36,47 @@ def child(mode, seconds, substeps, repeats, hoist=True):
     from armimp_jax import tune
     from armimp_jax.sweep import Welch
 
-    params, f_delta = tune.training_batch((2,), (1,), (0,), seconds=seconds, substeps=substeps)
     welch = Welch() if seconds >= 8.192 else Welch(1024, 768)
     kind = "full" if mode.endswith("full") else "diagonal"
     theta = tune.theta_from_mhat(0.25 * np.eye(2), kind)
-    if mode == "primal":
-        fn = jax.jit(lambda t, p, f: tune.batch_loss(t, p, f, parameterisation=kind, welch=welch))
-    else:
-        fn = tune.value_and_grad_fn(parameterisation=kind, welch=welch, mode=mode.split("-")[0])
-    t0 = time.perf_counter()
-    compiled = fn.lower(theta, params, f_delta).compile()
-    compile_s = time.perf_counter() - t0
-    temp = compiled.memory_analysis().temp_size_in_bytes / 2**20
-    runs = []
-    for _ in range(repeats):
+
+    def build(mode, kernel):
+        params, f_delta = tune.training_batch((2,), (1,), (0,), seconds=seconds, substeps=substeps, kernel=kernel)
+        if mode == "primal":
+            fn = jax.jit(lambda t, p, f: tune.batch_loss(t, p, f, parameterisation=kind, welch=welch))
+        else:
+            fn = tune.value_and_grad_fn(parameterisation=kind, welch=welch, mode=mode.split("-")[0])
         t0 = time.perf_counter()
-        out = jax.block_until_ready(compiled(theta, params, f_delta))
-        runs.append(time.perf_counter() - t0)
+        compiled = fn.lower(theta, params, f_delta).compile()
+        return functools.partial(compiled, theta, params, f_delta), time.perf_counter() - t0, compiled
+
+    def timed(fn):
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(fn())
+        return time.perf_counter() - t0, out
+
+    target, compile_s, compiled = build(mode, kernel)
+    first_s, out = timed(target)
+    peak_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # before the baseline exists
+    # The forward simulation (fast kernel) is timed alternately with the target in this
+    # process, so that the shared host's drift hits both alike; the ratio is paired.
+    baseline = target if (mode, kernel) == ("primal", "fast") else build("primal", "fast")[0]
+    runs, base_runs = [], []
+    for _ in range(repeats):
+        runs.append(timed(target)[0])
+        base_runs.append(timed(baseline)[0])
     grad = None if mode == "primal" else np.asarray(out[1]).tolist()
     return dict(
         mode=mode,
+        kernel=kernel,
         compile_s=compile_s,
         run_s=statistics.median(runs),
-        xla_temp_mib=temp,
-        peak_rss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        forward_s=statistics.median(base_runs),
+        ratio=statistics.median(runs) / statistics.median(base_runs),
+        runs_s=runs,
+        forward_runs_s=base_runs,
+        xla_temp_mib=compiled.memory_analysis().temp_size_in_bytes / 2**20,
+        peak_rss_mib=peak_rss,
         grad=grad,
     )
 
@@ -65,21 +87,28 @@ def main():
     ap.add_argument("--substeps", type=int, default=100)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--child", choices=MODES)
+    ap.add_argument("--child-kernel", choices=KERNELS)
     ap.add_argument("--no-hoist", action="store_true", help="without the XLA small-loop option")
-    ap.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES))
+    ap.add_argument("--modes", nargs="+", choices=MODES[1:], default=list(MODES[1:]))
+    ap.add_argument("--kernels", nargs="+", choices=KERNELS, default=["grad"], help="RK4 kernels of the gradients")
     ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/bench"))
     args = ap.parse_args()
     if args.child:
-        print(json.dumps(child(args.child, args.seconds, args.substeps, args.repeats, hoist=not args.no_hoist)))
+        hoist = not args.no_hoist
+        print(json.dumps(child(args.child, args.child_kernel, args.seconds, args.substeps, args.repeats, hoist)))
         return
+    runs = [("primal", "fast")] + [("primal", k) for k in args.kernels if k != "fast"]
+    runs += [(mode, k) for k in args.kernels for mode in args.modes]
     rows = []
-    for mode in args.modes:
+    for mode, kernel in runs:
         proc = subprocess.run(
             [
                 sys.executable,
                 __file__,
                 "--child",
                 mode,
+                "--child-kernel",
+                kernel,
                 "--seconds",
                 str(args.seconds),
                 "--substeps",
@@ -94,19 +123,24 @@ def main():
         if proc.returncode != 0:
             sys.exit(proc.stderr)
         rows.append(json.loads(proc.stdout.strip().splitlines()[-1]))
-        print(f"  {mode}: {rows[-1]['run_s']:.2f} s, peak RSS {rows[-1]['peak_rss_mib']:.0f} MiB", flush=True)
-    primal = rows[0]["run_s"]
+        r = rows[-1]
+        print(
+            f"  {mode} ({kernel} kernel): {r['run_s']:.2f} s = {r['ratio']:.2f} x forward simulation "
+            f"({r['forward_s']:.2f} s), peak RSS {r['peak_rss_mib']:.0f} MiB",
+            flush=True,
+        )
     hoist = "without" if args.no_hoist else "with"
     lines = [
         f"One trial, {args.seconds:g} s record, {args.substeps} substeps, friction 2, location 1, "
         f"{hoist} the XLA small-loop option:",
         "",
-        "| mode | run s | x forward simulation | compile s | XLA temp MiB | peak RSS MiB |",
-        "|---|---|---|---|---|---|",
+        "| mode | kernel | run s | forward simulation s (same process) | x forward simulation | compile s "
+        "| XLA temp MiB | peak RSS MiB |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     lines += [
-        f"| {r['mode']} | {r['run_s']:.2f} | {r['run_s'] / primal:.2f} | {r['compile_s']:.1f} | "
-        f"{r['xla_temp_mib']:.0f} | {r['peak_rss_mib']:.0f} |"
+        f"| {r['mode']} | {r['kernel']} | {r['run_s']:.2f} | {r['forward_s']:.2f} | {r['ratio']:.2f} | "
+        f"{r['compile_s']:.1f} | {r['xla_temp_mib']:.0f} | {r['peak_rss_mib']:.0f} |"
         for r in rows
     ]
     table = "\n".join(lines)

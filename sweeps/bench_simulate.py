@@ -13,6 +13,7 @@ XLA's default width instead). Prints Markdown tables and writes them (and JSON) 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import pathlib
@@ -56,30 +57,43 @@ def timed(fn, repeats):
 
 
 def bench_simulation(configs, seconds, substeps, repeats):
-    """``configs``: (kernel, devices, batch) triples."""
-    rows = []
+    """``configs``: (kernel, devices, batch) triples.
+
+    All configurations are compiled and run once first; then the timed repeats go round
+    robin over them, so that the shared host's slow drift hits every configuration alike
+    (the scaling ratios compare runs taken minutes apart otherwise). Median of repeats."""
     n = int(seconds * 1000)
+    cases = []
     for kernel, n_dev, b in configs:
         mesh = sweep.make_mesh(jax.devices()[:n_dev])
         params, f_delta = batch_inputs(b, n, substeps, kernel=kernel)
         (p_s, f_s), _ = sweep.shard_batch((params, f_delta), mesh)  # may pad: see sweep.CPU_LANES
-        fn = jax.jit(jax.vmap(aj.simulate))
         t0 = time.perf_counter()
-        compiled = fn.lower(p_s, f_s).compile()
+        compiled = jax.jit(jax.vmap(aj.simulate)).lower(p_s, f_s).compile()
         compile_s = time.perf_counter() - t0
-        _, run_s = timed(lambda compiled=compiled, p_s=p_s, f_s=f_s: compiled(p_s, f_s), repeats)
-        substeps_total = b * n * substeps
+        jax.block_until_ready(compiled(p_s, f_s))
+        cases.append((kernel, n_dev, b, functools.partial(compiled, p_s, f_s), int(p_s.q0.shape[0]), compile_s))
+    times = [[] for _ in cases]
+    for _ in range(repeats):
+        for case, t in zip(cases, times):
+            t0 = time.perf_counter()
+            jax.block_until_ready(case[3]())
+            t.append(time.perf_counter() - t0)
+    rows = []
+    for (kernel, n_dev, b, _, padded, compile_s), t in zip(cases, times):
+        run_s = statistics.median(t)
         rows.append(
             dict(
                 kernel=kernel,
                 devices=n_dev,
                 batch=b,
-                padded_batch=int(p_s.q0.shape[0]),
+                padded_batch=padded,
                 record_s=seconds,
                 substeps=substeps,
                 compile_s=compile_s,
                 run_s=run_s,
-                msubsteps_per_s=substeps_total / run_s / 1e6,
+                runs_s=t,
+                msubsteps_per_s=b * n * substeps / run_s / 1e6,
                 s_per_50s_trial=run_s / b * (50.0 / seconds),
             )
         )

@@ -1,4 +1,4 @@
-"""The fast RK4 kernel against the reference one, and sharded against unsharded runs."""
+"""The fast and grad RK4 kernels against the reference one, and sharded against unsharded runs."""
 
 import json
 import os
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import armimp_jax as aj
-from armimp_jax.plant import Trig, rotate
+from armimp_jax.plant import KERNELS, Trig, rotate
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -36,12 +36,12 @@ def test_rotation_is_exact_to_round_off():
 BOUND = 1e-9
 
 
-def _fast_and_reference(controller, n_samples, locations, **options):
+def _kernel_runs(controller, n_samples, locations, **options):
     """The same three trials (friction 0, 1, 2) run with each kernel, keyed by kernel name."""
     fd = aj.perturbation(jax.random.PRNGKey(4), n_samples, aj.perturbation_peak(1))
     batched = jax.jit(jax.vmap(aj.simulate))
     runs = {}
-    for kernel in ("fast", "reference"):
+    for kernel in KERNELS:
         params = aj.stack_trials(
             [aj.trial_params(controller, f, loc, kernel=kernel, **options) for f, loc in zip((0, 1, 2), locations)]
         )
@@ -50,24 +50,25 @@ def _fast_and_reference(controller, n_samples, locations, **options):
 
 
 @pytest.mark.parametrize("controller", ["pd", "imbic"])
-def test_fast_kernel_agrees_with_reference(controller):
-    runs = _fast_and_reference(controller, 1500, (1, 2, 3), substeps=50)
-    for name in ("x", "xd", "fh", "fu", "q"):
-        a, b = np.asarray(getattr(runs["fast"], name)), np.asarray(getattr(runs["reference"], name))
-        if name == "x":
-            a, b = a - a[:, :1], b - b[:, :1]  # compare displacements, not the 0.4 m offset
-        scale = np.abs(b).max(axis=(1, 2), keepdims=True)
-        assert np.all(np.abs(a - b) <= BOUND * scale), (name, (np.abs(a - b) / scale).max())
+def test_fast_and_grad_kernels_agree_with_reference(controller):
+    runs = _kernel_runs(controller, 1500, (1, 2, 3), substeps=50)
+    for kernel in ("fast", "grad"):
+        for name in ("x", "xd", "fh", "fu", "q"):
+            a, b = np.asarray(getattr(runs[kernel], name)), np.asarray(getattr(runs["reference"], name))
+            if name == "x":
+                a, b = a - a[:, :1], b - b[:, :1]  # compare displacements, not the 0.4 m offset
+            scale = np.abs(b).max(axis=(1, 2), keepdims=True)
+            assert np.all(np.abs(a - b) <= BOUND * scale), (kernel, name, (np.abs(a - b) / scale).max())
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("controller", ["pd", "imbic"])
-def test_fast_kernel_agrees_with_reference_over_50_s(controller):
-    runs = _fast_and_reference(controller, 50_000, (1, 1, 1))
+def test_fast_and_grad_kernels_agree_with_reference_over_50_s(controller):
+    runs = _kernel_runs(controller, 50_000, (1, 1, 1))
     xs = {kernel: np.asarray(r.x) for kernel, r in runs.items()}
-    d = xs["fast"] - xs["reference"]
     scale = np.abs(xs["reference"] - xs["reference"][:, :1]).max(axis=(1, 2), keepdims=True)
-    assert np.all(np.abs(d) <= BOUND * scale)
+    for kernel in ("fast", "grad"):
+        assert np.all(np.abs(xs[kernel] - xs["reference"]) <= BOUND * scale), kernel
 
 
 SHARDED = """

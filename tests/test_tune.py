@@ -50,8 +50,22 @@ def test_forward_and_reverse_modes_agree(short_batch):
     np.testing.assert_array_equal(aux_f.phi_T, aux_r.phi_T)
 
 
-def test_no_nan_in_the_gradient_at_friction_0():
-    params = stack_trials([trial_params("imbic", 0, loc, substeps=3) for loc in (1, 3)])
+def test_grad_and_fast_kernels_give_the_same_gradient(short_batch):
+    # The tuner's "grad" kernel shares stage values for reverse mode; the maths is "fast"'s.
+    params, f_delta = short_batch
+    assert params.kernel == "grad"
+    fast = tune.training_batch((0, 2), (1,), (0,), seconds=1.6, substeps=4, kernel="fast")
+    vg = tune.value_and_grad_fn(parameterisation="diagonal", welch=WELCH, mode="reverse")
+    theta = tune.theta_from_mhat(0.4 * np.eye(2), "diagonal")
+    (v_g, _), g_g = vg(theta, params, f_delta)
+    (v_f, _), g_f = vg(theta, *fast)
+    np.testing.assert_allclose(v_g, v_f, rtol=1e-12)
+    np.testing.assert_allclose(g_g, g_f, rtol=1e-9)
+
+
+@pytest.mark.parametrize("kernel", ["fast", "grad"])
+def test_no_nan_in_the_gradient_at_friction_0(kernel):
+    params = stack_trials([trial_params("imbic", 0, loc, substeps=3, kernel=kernel) for loc in (1, 3)])
     f_delta = jnp.asarray(tune.seed_perturbations(0, [5, 6], 1200))
     vg = tune.value_and_grad_fn(parameterisation="diagonal", welch=Welch(512, 256), mode="reverse")
     (_, _), g = vg(jnp.log(jnp.array([0.25, 0.25])), params, f_delta)
