@@ -263,8 +263,10 @@ def integrate_period(
         return jax.lax.scan(body, s, None, length=substeps)[0]
     # Reverse mode keeps the substep carries (and, for "grad", the shared stage values).
     # The runtime 1.0 comes from the state so that XLA cannot fold the divisions away.
-    one = jax.lax.stop_gradient(1.0 + 0.0 * s.q1) if kernel == "grad" else None
-    policy = jax.checkpoint_policies.save_only_these_names(_SHARED) if kernel == "grad" else None
+    one, policy = None, None
+    if kernel == "grad":
+        one = jax.lax.stop_gradient(1.0 + 0.0 * s.q1)
+        policy = jax.checkpoint_policies.save_only_these_names(_SHARED)
 
     @functools.partial(jax.checkpoint, prevent_cse=False, policy=policy)
     def body(carry, _):
