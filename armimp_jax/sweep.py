@@ -12,6 +12,7 @@ call of ``simulate``.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable
@@ -118,7 +119,13 @@ def to_host(tree, size: int | None = None):
 
 
 _chunk = jax.jit(jax.vmap(simulate_chunk))
-_init = jax.jit(jax.vmap(simulate_init))
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _init(params: TrialParams, sharding: NamedSharding):
+    # Constrained like the carry that _chunk returns: otherwise XLA replicates the
+    # constant leaves and the second chunk compiles the loop a second time.
+    return jax.lax.with_sharding_constraint(jax.vmap(simulate_init)(params), sharding)
 
 
 def simulate_batch(
@@ -136,6 +143,8 @@ def simulate_batch(
         f_delta: ``(B, N, 2)`` perturbations [N].
         chunk_samples: samples per compiled chunk (default: all at once). The record is
             zero-padded to a whole number of chunks (after its end, so nothing changes).
+            Only one chunk of perturbation and output lives on the devices at a time,
+            and each chunk's output is copied to the host while the next one runs.
         progress: called as ``progress(done_samples, total_samples, elapsed_s)`` after
             every chunk.
 
@@ -149,20 +158,30 @@ def simulate_batch(
     chunk = n if chunk_samples is None else max(1, min(int(chunk_samples), n))
     n_chunks = math.ceil(n / chunk)
     f_padded = np.concatenate([f_delta, np.zeros((f_delta.shape[0], n_chunks * chunk - n, 2))], axis=1)
-    (params_s, f_s), b = shard_batch((params, f_padded), mesh)
-    carry = _init(params_s)
-    pieces, start = [], time.perf_counter()
-    for i in range(n_chunks):
-        carry, out = _chunk(params_s, carry, f_s[:, i * chunk : (i + 1) * chunk])
-        pieces.append(to_host(out, b))
+    params_s, b = shard_batch(params, mesh)
+    carry = _init(params_s, NamedSharding(mesh, P("batch")))
+    names = ("x", "xd", "fh", "fu", "q", "z")
+    fields = {name: np.empty((b, n, 2)) for name in names}  # filled chunk by chunk, no concatenation
+    start, running = time.perf_counter(), None
+
+    def collect(i, out):
+        host = to_host(out, b)
+        lo, hi = i * chunk, min((i + 1) * chunk, n)
+        for name in names:
+            fields[name][:, lo:hi] = getattr(host, name)[:, : hi - lo]
         if progress is not None:
-            progress(min((i + 1) * chunk, n), n, time.perf_counter() - start)
-    fields = {
-        name: np.concatenate([getattr(p, name) for p in pieces], axis=1)[:, :n]
-        for name in ("x", "xd", "fh", "fu", "q", "z")
-    }
+            progress(hi, n, time.perf_counter() - start)
+        return host
+
+    for i in range(n_chunks):
+        f_i, _ = shard_batch(f_padded[:, i * chunk : (i + 1) * chunk], mesh)
+        carry, out = _chunk(params_s, carry, f_i)  # dispatched asynchronously
+        if running is not None:
+            collect(*running)
+        running = (i, out)
+    last = collect(*running)
     # diverged_at is sticky across chunks; a blow-up inside the zero padding does not count
-    first = np.where(pieces[-1].diverged_at > n, -1, pieces[-1].diverged_at)
+    first = np.where(last.diverged_at > n, -1, last.diverged_at)
     return SimResult(**fields, diverged=first >= 0, diverged_at=first)
 
 
