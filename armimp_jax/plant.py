@@ -117,24 +117,50 @@ def rotate(t: Trig, d1, d2) -> Trig:
 
 _SHARED = "armimp_shared_stage_value"
 
+# Why the kernels mark stage values. XLA:CPU fuses each output of an RK4 stage into its
+# own single-output loop and copies chains of cheap operations (add, multiply, sin, cos)
+# into every fusion that uses them, so shared sub-expressions are recomputed many times
+# per substep. Two things stop the copying: a division (never duplicated), and being an
+# output of the loop (a value the loop returns is computed once and read by the rest).
+_DIVIDED = ("trig", "stage", "a", "b")  # "grad" kernel: x / one, saved for reverse mode
+_KEPT = ("trig", "b", "qdd")  # "batch" kernel: returned by the substep loop
+
 
 def _sharer(one):
-    """``share(*values)`` for the ``"grad"`` kernel (identity when ``one`` is None).
+    """``share(group, *values)`` for the ``"grad"`` kernel (identity when ``one`` is None).
 
-    XLA:CPU copies chains of cheap ops (add, mul, sin, cos) into every fusion that uses
-    them but never duplicates a division. ``x / one``, with ``one`` a runtime 1.0, is
-    exact and makes ``x`` one materialised value; the name lets the substep checkpoint
-    save it for the backward pass instead of recomputing the stage."""
+    Values of the groups in ``_DIVIDED`` become ``x / one``, with ``one`` a runtime 1.0:
+    exact, one materialised value each, named so that the substep checkpoint saves them
+    for the backward pass instead of recomputing the stage."""
     if one is None:
-        return lambda *values: values
-    return lambda *values: tuple(checkpoint_name(v / one, _SHARED) for v in values)
+        return lambda group, *values: values
+
+    def share(group, *values):
+        if group not in _DIVIDED:
+            return values
+        return tuple(checkpoint_name(v / one, _SHARED) for v in values)
+
+    return share
+
+
+def _keeper(kept: list):
+    """``share(group, *values)`` for the ``"batch"`` kernel: appends the values of the groups in
+    ``_KEPT`` to ``kept`` (which ``integrate_period`` returns from the substep loop)."""
+
+    def share(group, *values):
+        if group in _KEPT:
+            kept.extend(values)
+        return values
+
+    return share
 
 
 def _dynamics(s: PlantState, fu, model: PlantModel, trig: Trig | None = None, share=_sharer(None)):
     """Joint accelerations and the pieces needed for the hand force, at command ``fu`` [N] ``(2,)``.
 
     ``trig`` (optional) supplies ``cos/sin`` of ``q``; by default they are evaluated.
-    ``share`` (see ``_sharer``) marks the matrix and right-hand side of the solve."""
+    ``share`` (``_sharer`` or ``_keeper``) marks the solve's matrix ``"a"``, right-hand
+    side ``"b"`` and result ``"qdd"``."""
     c1, s1, c2, s2 = trig_of(s) if trig is None else trig
     # Angle-difference identities instead of cos/sin(q1 - q2): two fewer transcendentals
     # per evaluation (they dominate the cost on CPU), error ~1e-16.
@@ -165,7 +191,7 @@ def _dynamics(s: PlantState, fu, model: PlantModel, trig: Trig | None = None, sh
     hc = INERTIA_C2 * sin_d
     b1 = (j11 * rx + j21 * ry) - hc * qd2sq - tau_f1
     b2 = (j12 * rx + j22 * ry) + hc * qd1sq - tau_f2
-    b1, b2 = share(b1, b2)
+    b1, b2 = share("b", b1, b2)
 
     # A = M + J^T M_h J (not symmetric: M_h is not).
     p11 = mh11 * j11 + mh12 * j21
@@ -176,10 +202,11 @@ def _dynamics(s: PlantState, fu, model: PlantModel, trig: Trig | None = None, sh
     a12 = m12 + (j11 * p12 + j21 * p22)
     a21 = m12 + (j12 * p11 + j22 * p21)
     a22 = m22 + (j12 * p12 + j22 * p22)
-    a11, a12, a21, a22 = share(a11, a12, a21, a22)
+    a11, a12, a21, a22 = share("a", a11, a12, a21, a22)
     det = a11 * a22 - a12 * a21
     qdd1 = (a22 * b1 - a12 * b2) / det
     qdd2 = (a11 * b2 - a21 * b1) / det
+    qdd1, qdd2 = share("qdd", qdd1, qdd2)
     deriv = PlantState(s.qd1, s.qd2, qdd1, qdd2, zd1, zd2, ex, ey)
     jqdd = (j11 * qdd1 + j12 * qdd2, j21 * qdd1 + j22 * qdd2)
     return deriv, (ex, ey), (xd, yd), (f0x, f0y), jqdd
@@ -218,20 +245,20 @@ def rk4_step(s: PlantState, fu, model: PlantModel, h) -> PlantState:
     return jax.tree.map(lambda si, a, b, c, d: si + (h / 6.0) * (a + 2.0 * b + 2.0 * c + d), s, k1, k2, k3, k4)
 
 
-def rk4_step_rotating(s: PlantState, trig: Trig, fu, model: PlantModel, h, *, one=None) -> tuple[PlantState, Trig]:
+def rk4_step_rotating(s: PlantState, trig: Trig, fu, model: PlantModel, h, *, share=_sharer(None)):
     """``rk4_step`` with the stage angles' ``cos/sin`` obtained by ``rotate`` from ``trig``
     (the values at ``s``) instead of 16 transcendental calls; returns the new state and
     its ``Trig``. Same method, same stages; differs from ``rk4_step`` only by round-off.
 
-    ``one`` (a runtime 1.0, ``"grad"`` kernel): stage states, stage ``cos/sin`` and the
-    solve's matrix and right-hand side become shared values (``_sharer``)."""
-    share = _sharer(one)
+    ``share`` (``_sharer`` for the ``"grad"`` kernel, ``_keeper`` for ``"batch"``) marks
+    the stage ``cos/sin`` (``"trig"``), the stage states (``"stage"``) and, through
+    ``_dynamics``, the 2x2 solve of every stage."""
 
     def f(state, t):
-        return _dynamics(state, fu, model, Trig(*share(*t)), share)[0]
+        return _dynamics(state, fu, model, Trig(*share("trig", *t)), share)[0]
 
     def stage(a, k):
-        return PlantState(*share(*(si + a * ki for si, ki in zip(s, k)))), rotate(trig, a * k.q1, a * k.q2)
+        return PlantState(*share("stage", *(si + a * ki for si, ki in zip(s, k)))), rotate(trig, a * k.q1, a * k.q2)
 
     k1 = f(s, trig)
     k2 = f(*stage(0.5 * h, k1))
@@ -241,7 +268,7 @@ def rk4_step_rotating(s: PlantState, trig: Trig, fu, model: PlantModel, h, *, on
     return jax.tree.map(jnp.add, s, incr), rotate(trig, incr.q1, incr.q2)
 
 
-KERNELS = ("fast", "reference", "grad")
+KERNELS = ("fast", "reference", "grad", "batch")
 
 
 def integrate_period(
@@ -254,22 +281,52 @@ def integrate_period(
     small-angle rotations (``rk4_step_rotating``), re-seeded exactly every period so the
     rotation's round-off cannot accumulate beyond one period. ``"grad"`` is ``"fast"``
     with the stage values shared (``_sharer``) and saved for reverse mode: about 2x
-    faster gradients, 10-20% slower batched forward runs; it agrees with ``"fast"`` to
-    round-off (fusion boundaries move, so FMA contraction differs).
+    faster gradients, 10-20% slower batched forward runs. ``"batch"`` is ``"fast"`` with
+    stage values returned from the substep loop (``_keeper``): 5-20% faster batches on
+    XLA:CPU, but its last bits depend on the batch size (a trial run alone or in another
+    batch differs by ~1e-13 relative), where ``"fast"`` is bitwise independent of it.
+    All agree with ``"fast"`` to round-off (fusion boundaries move, so FMA contraction
+    differs).
     """
     h = period / substeps
     if kernel == "reference":
         body = jax.checkpoint(lambda state, _: (rk4_step(state, fu, model, h), None), prevent_cse=False)
         return jax.lax.scan(body, s, None, length=substeps)[0]
-    # Reverse mode keeps the substep carries (and, for "grad", the shared stage values).
-    # The runtime 1.0 comes from the state so that XLA cannot fold the divisions away.
-    one, policy = None, None
     if kernel == "grad":
-        one = jax.lax.stop_gradient(1.0 + 0.0 * s.q1)
+        # The runtime 1.0 comes from the state so that XLA cannot fold the divisions away.
+        # Reverse mode keeps the substep carries and the shared stage values.
+        share = _sharer(jax.lax.stop_gradient(1.0 + 0.0 * s.q1))
         policy = jax.checkpoint_policies.save_only_these_names(_SHARED)
 
-    @functools.partial(jax.checkpoint, prevent_cse=False, policy=policy)
-    def body(carry, _):
-        return rk4_step_rotating(*carry, fu, model, h, one=one), None
+        @functools.partial(jax.checkpoint, prevent_cse=False, policy=policy)
+        def body(carry, _):
+            return rk4_step_rotating(*carry, fu, model, h, share=share), None
 
-    return jax.lax.scan(body, (s, trig_of(s)), None, length=substeps)[0][0]
+        return jax.lax.scan(body, (s, trig_of(s)), None, length=substeps)[0][0]
+
+    if kernel == "fast":
+
+        @functools.partial(jax.checkpoint, prevent_cse=False)
+        def body(carry, _):
+            return rk4_step_rotating(*carry, fu, model, h), None
+
+        return jax.lax.scan(body, (s, trig_of(s)), None, length=substeps)[0][0]
+
+    def step_keeping(state, trig):
+        kept = []
+        new_state, new_trig = rk4_step_rotating(state, trig, fu, model, h, share=_keeper(kept))
+        return new_state, new_trig, tuple(kept)
+
+    # The "batch" kernel returns the kept stage values of the last substep from the loop
+    # (see _KEPT: 10-20% faster batches, bench_simulate.py). The exact no-op "+ 0 * sum"
+    # keeps JAX and XLA from dropping them as unused; a non-finite one makes the state
+    # NaN, which the simulation then flags as divergence.
+    n_kept = len(jax.eval_shape(step_keeping, s, trig_of(s))[2])
+    zero = jnp.zeros_like(s.q1)
+
+    @functools.partial(jax.checkpoint, prevent_cse=False)
+    def body_keeping(carry, _):
+        return step_keeping(*carry[:2]), None
+
+    state, _, kept = jax.lax.scan(body_keeping, (s, trig_of(s), (zero,) * n_kept), None, length=substeps)[0]
+    return state._replace(q1=state.q1 + 0.0 * sum(kept))

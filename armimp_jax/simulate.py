@@ -122,9 +122,11 @@ def trial_params(
         accel_estimate: IMBIC's acceleration estimate, ``"velocity"`` (default,
             ``(xd_k - xd_k-1)/L``) or ``"position"`` (second difference of ``x``).
         kernel: ``"fast"`` (default: ``cos/sin`` carried through the RK4 stages by
-            small-angle rotations), ``"reference"`` (evaluated at every stage) or
+            small-angle rotations), ``"reference"`` (evaluated at every stage),
             ``"grad"`` (``"fast"`` arranged for reverse-mode gradients: about 2x faster
-            ``jax.grad``, slower batched forward runs). They agree to round-off; see
+            ``jax.grad``, slower batched forward runs) or ``"batch"`` (``"fast"``
+            arranged for large CPU batches: 5-20% faster, but the last bits of a trial
+            depend on the batch it runs in). They agree to round-off; see
             ``plant.integrate_period``.
     """
     require_x64("trial_params")

@@ -105,14 +105,14 @@ def bench_simulation(configs, seconds, substeps, repeats):
     return rows
 
 
-def bench_full_trial(b, substeps):
+def bench_full_trial(b, substeps, kernel="fast"):
     """A real 50 s batch, all devices, in 5 s chunks (one compile), host copies included, one run."""
-    params, f_delta = batch_inputs(b, 50_000, substeps)
+    params, f_delta = batch_inputs(b, 50_000, substeps, kernel=kernel)
     sweep.simulate_batch(params, np.asarray(f_delta)[:, :10_000], chunk_samples=5000)  # compile, two chunks
     t0 = time.perf_counter()
     sweep.simulate_batch(params, f_delta, chunk_samples=5000)
     wall = time.perf_counter() - t0
-    return dict(batch=b, devices=N_DEVICES, wall_s=wall, s_per_trial=wall / b)
+    return dict(kernel=kernel, batch=b, devices=N_DEVICES, wall_s=wall, s_per_trial=wall / b)
 
 
 def bench_numba(b, seconds, substeps, repeats):
@@ -198,27 +198,32 @@ def markdown(sim, full, est, numba_row=None):
         for r in sim
     ]
     by = {(r["kernel"], r["devices"], r["batch"]): r["msubsteps_per_s"] for r in sim}
-    scal = [
-        f"batch {b}: {by[('fast', 2, b)] / by[('fast', 1, b)]:.2f}x"
-        for (k, d, b) in by
-        if k == "fast" and d == 1 and ("fast", 2, b) in by
-    ]
-    if scal:
-        lines += ["", "Scaling from 1 to 2 devices (fast kernel): " + ", ".join(scal) + "."]
+    for kernel in ("fast", "batch"):
+        scal = [
+            f"batch {b}: {by[(kernel, 2, b)] / by[(kernel, 1, b)]:.2f}x"
+            for (k, d, b) in by
+            if k == kernel and d == 1 and (kernel, 2, b) in by
+        ]
+        if scal:
+            lines += ["", f"Scaling from 1 to 2 devices ({kernel} kernel): " + ", ".join(scal) + "."]
     if numba_row:
-        best = max(v for (k, d, b), v in by.items() if k == "fast" and (b >= 24 or len(by) < 9))
+        best = {
+            kernel: max((v for (k, d, b), v in by.items() if k == kernel and (b >= 24 or len(by) < 9)), default=0.0)
+            for kernel in ("fast", "batch")
+        }
         lines += [
             "",
             f"numba baseline ({numba_row['threads']} threads, one trajectory per core, batch "
             f"{numba_row['batch']}): {numba_row['msubsteps_per_s']:.2f} M substeps/s; best JAX at batch >= 24 "
-            f"is {best / numba_row['msubsteps_per_s']:.1f}x that. numba agrees with JAX to "
+            f"is {best['fast'] / numba_row['msubsteps_per_s']:.1f}x that (fast kernel), "
+            f"{best['batch'] / numba_row['msubsteps_per_s']:.1f}x (batch kernel). numba agrees with JAX to "
             f"{numba_row['rel_diff_vs_jax']:.1e} (relative, x).",
         ]
-    if full:
+    for f in full or []:
         lines += [
             "",
-            f"Measured 50 s batch: {full['batch']} trials on {full['devices']} device(s) in "
-            f"{full['wall_s']:.1f} s = **{full['s_per_trial']:.2f} s per 50 s trial**.",
+            f"Measured 50 s batch ({f['kernel']} kernel): {f['batch']} trials on {f['devices']} device(s) in "
+            f"{f['wall_s']:.1f} s = **{f['s_per_trial']:.2f} s per 50 s trial**.",
         ]
     lines += ["", "| estimator (50 s records) | batch | run s | XLA temp MiB | inputs MiB |", "|---|---|---|---|---|"]
     lines += [
@@ -239,13 +244,15 @@ def main():
     args.out.mkdir(parents=True, exist_ok=True)
     devs = sorted({1, N_DEVICES})
     if args.quick:
-        sim = bench_simulation([(k, d, b) for k in ("fast", "reference") for d in devs for b in (1, 4)], 0.5, 10, 1)
+        kernels = ("fast", "batch", "reference")
+        sim = bench_simulation([(k, d, b) for k in kernels for d in devs for b in (1, 4)], 0.5, 10, 1)
         full, est = None, []
         numba_row = None if args.no_numba else bench_numba(4, 0.5, 10, 1)
     else:
-        configs = [("fast", d, b) for d in devs for b in (1, 24, 48, 96, 256)] + [("reference", d, 24) for d in devs]
+        configs = [("fast", d, b) for d in devs for b in (1, 24, 48, 96, 256)]
+        configs += [("batch", d, b) for d in devs for b in (24, 48, 96)] + [("reference", d, 24) for d in devs]
         sim = bench_simulation(configs, 5.0, args.substeps, args.repeats)
-        full = bench_full_trial(48, args.substeps)
+        full = [bench_full_trial(48, args.substeps, kernel) for kernel in ("fast", "batch")]
         numba_row = None if args.no_numba else bench_numba(24, 2.0, args.substeps, args.repeats)
         est = bench_estimator([24, 96], args.repeats)
     env = dict(

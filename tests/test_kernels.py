@@ -1,4 +1,4 @@
-"""The fast and grad RK4 kernels against the reference one, and sharded against unsharded runs."""
+"""The fast, grad and batch RK4 kernels against the reference one, and sharded against unsharded runs."""
 
 import json
 import os
@@ -50,9 +50,9 @@ def _kernel_runs(controller, n_samples, locations, **options):
 
 
 @pytest.mark.parametrize("controller", ["pd", "imbic"])
-def test_fast_and_grad_kernels_agree_with_reference(controller):
+def test_fast_grad_and_batch_kernels_agree_with_reference(controller):
     runs = _kernel_runs(controller, 1500, (1, 2, 3), substeps=50)
-    for kernel in ("fast", "grad"):
+    for kernel in ("fast", "grad", "batch"):
         for name in ("x", "xd", "fh", "fu", "q"):
             a, b = np.asarray(getattr(runs[kernel], name)), np.asarray(getattr(runs["reference"], name))
             if name == "x":
@@ -63,11 +63,11 @@ def test_fast_and_grad_kernels_agree_with_reference(controller):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("controller", ["pd", "imbic"])
-def test_fast_and_grad_kernels_agree_with_reference_over_50_s(controller):
+def test_fast_grad_and_batch_kernels_agree_with_reference_over_50_s(controller):
     runs = _kernel_runs(controller, 50_000, (1, 1, 1))
     xs = {kernel: np.asarray(r.x) for kernel, r in runs.items()}
     scale = np.abs(xs["reference"] - xs["reference"][:, :1]).max(axis=(1, 2), keepdims=True)
-    for kernel in ("fast", "grad"):
+    for kernel in ("fast", "grad", "batch"):
         assert np.all(np.abs(xs[kernel] - xs["reference"]) <= BOUND * scale), kernel
 
 

@@ -210,7 +210,7 @@ def test_vmap_over_mhat_inside_trial_params(batch_sim):
         (dict(mhat=np.array([[0.3, 0.0], [0.0, np.nan]])), "mhat must be a finite positive definite"),
         (dict(acquisition="oversampled"), "unknown acquisition 'oversampled'"),
         (dict(accel_estimate="kalman"), "unknown accel_estimate 'kalman'"),
-        (dict(kernel="gpu"), "unknown kernel 'gpu'; allowed: 'fast', 'reference', 'grad'"),
+        (dict(kernel="gpu"), "unknown kernel 'gpu'; allowed: 'fast', 'reference', 'grad', 'batch'"),
     ],
 )
 def test_bad_parameters_are_rejected(kwargs, message):
