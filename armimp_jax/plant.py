@@ -282,9 +282,10 @@ def integrate_period(
     rotation's round-off cannot accumulate beyond one period. ``"grad"`` is ``"fast"``
     with the stage values shared (``_sharer``) and saved for reverse mode: about 2x
     faster gradients, 10-20% slower batched forward runs. ``"batch"`` is ``"fast"`` with
-    stage values returned from the substep loop (``_keeper``): 5-20% faster batches on
-    XLA:CPU, but its last bits depend on the batch size (a trial run alone or in another
-    batch differs by ~1e-13 relative), where ``"fast"`` is bitwise independent of it.
+    stage values returned from the substep loop (``_keeper``): 9-20% faster at batch
+    24-96 on one XLA:CPU device in paired runs (not everywhere: see the README), but its
+    last bits depend on the batch (a trial run alone or in another batch differs by up
+    to ~3e-13 relative), where ``"fast"`` is bitwise independent of it.
     All agree with ``"fast"`` to round-off (fusion boundaries move, so FMA contraction
     differs).
     """
@@ -312,15 +313,18 @@ def integrate_period(
 
         return jax.lax.scan(body, (s, trig_of(s)), None, length=substeps)[0][0]
 
+    if kernel != "batch":
+        raise ValueError(f"unknown kernel {kernel!r}; allowed: {', '.join(map(repr, KERNELS))}")
+
     def step_keeping(state, trig):
         kept = []
         new_state, new_trig = rk4_step_rotating(state, trig, fu, model, h, share=_keeper(kept))
         return new_state, new_trig, tuple(kept)
 
     # The "batch" kernel returns the kept stage values of the last substep from the loop
-    # (see _KEPT: 10-20% faster batches, bench_simulate.py). The exact no-op "+ 0 * sum"
-    # keeps JAX and XLA from dropping them as unused; a non-finite one makes the state
-    # NaN, which the simulation then flags as divergence.
+    # (see _KEPT). The exact no-op "+ sum of 0 * value" keeps JAX and XLA from dropping
+    # them as unused; a non-finite one makes the state NaN, which the simulation then
+    # flags as divergence. stop_gradient: reverse mode does no work for them.
     n_kept = len(jax.eval_shape(step_keeping, s, trig_of(s))[2])
     zero = jnp.zeros_like(s.q1)
 
@@ -329,4 +333,4 @@ def integrate_period(
         return step_keeping(*carry[:2]), None
 
     state, _, kept = jax.lax.scan(body_keeping, (s, trig_of(s), (zero,) * n_kept), None, length=substeps)[0]
-    return state._replace(q1=state.q1 + 0.0 * sum(kept))
+    return state._replace(q1=state.q1 + jax.lax.stop_gradient(sum(0.0 * v for v in kept)))

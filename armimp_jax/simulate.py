@@ -125,8 +125,9 @@ def trial_params(
             small-angle rotations), ``"reference"`` (evaluated at every stage),
             ``"grad"`` (``"fast"`` arranged for reverse-mode gradients: about 2x faster
             ``jax.grad``, slower batched forward runs) or ``"batch"`` (``"fast"``
-            arranged for large CPU batches: 5-20% faster, but the last bits of a trial
-            depend on the batch it runs in). They agree to round-off; see
+            arranged for CPU batches: 9-20% faster at batch 24-96 in paired runs, but
+            the last bits of a trial depend on the batch it runs in). They agree to
+            round-off; see
             ``plant.integrate_period``.
     """
     require_x64("trial_params")

@@ -143,8 +143,9 @@ def simulate_batch(
         f_delta: ``(B, N, 2)`` perturbations [N].
         chunk_samples: samples per compiled chunk (default: all at once). The record is
             zero-padded to a whole number of chunks (after its end, so nothing changes).
-            Only one chunk of perturbation and output lives on the devices at a time,
-            and each chunk's output is copied to the host while the next one runs.
+            At most two chunks of perturbation and output live on the devices at a
+            time: each chunk's output is copied to the host while the next one runs
+            (in a single-process run; across hosts the gather waits for it).
         progress: called as ``progress(done_samples, total_samples, elapsed_s)`` after
             every chunk.
 
@@ -155,6 +156,8 @@ def simulate_batch(
     if f_delta.ndim != 3 or f_delta.shape[2] != 2:
         raise ValueError(f"f_delta must have shape (B, N, 2), got {f_delta.shape}")
     n = f_delta.shape[1]
+    if n < 1:
+        raise ValueError(f"f_delta must hold at least one sample per trial, got shape {f_delta.shape}")
     chunk = n if chunk_samples is None else max(1, min(int(chunk_samples), n))
     n_chunks = math.ceil(n / chunk)
     f_padded = np.concatenate([f_delta, np.zeros((f_delta.shape[0], n_chunks * chunk - n, 2))], axis=1)

@@ -11,6 +11,7 @@ import scipy.signal
 from helpers import tree_equal
 
 import armimp_jax as aj
+from armimp_jax import sweep
 from armimp_jax.plant import measure, plant_model, rest_state, rk4_step
 
 CONTROLLERS = ["pd", "imbic"]
@@ -229,6 +230,21 @@ def test_bad_perturbation_and_batches_are_rejected():
         aj.simulate(p, np.zeros((10, 2), dtype=np.float32))
     with pytest.raises(ValueError, match="must share controller"):
         aj.stack_trials([p, aj.trial_params("imbic", 0, 1, substeps=2)])
+    batch = aj.stack_trials([p])
+    with pytest.raises(ValueError, match=r"f_delta must have shape \(B, N, 2\), got \(1, 10\)"):
+        sweep.simulate_batch(batch, np.zeros((1, 10)))
+    for chunk in (None, 5):
+        with pytest.raises(ValueError, match=r"at least one sample per trial, got shape \(1, 0, 2\)"):
+            sweep.simulate_batch(batch, np.zeros((1, 0, 2)), chunk_samples=chunk)
+
+
+def test_integrate_period_rejects_unknown_kernels():
+    from armimp_jax.plant import integrate_period
+
+    p = aj.trial_params("pd", 0, 1, substeps=2)
+    model = plant_model(p.q0, p.x0, p.arm, p.friction)
+    with pytest.raises(ValueError, match="unknown kernel 'gpu'"):
+        integrate_period(rest_state(p.q0), jnp.zeros(2), model, period=1e-3, substeps=2, kernel="gpu")
 
 
 def test_float32_mode_is_refused():
