@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 from jax.ad_checkpoint import checkpoint_name
 
+from ._checks import check_choice
 from .arm import ArmImpedance
 from .friction import LuGreParams, lugre
 from .robot import jacobian_from_trig, mass_matrix_entries
@@ -289,32 +290,24 @@ def integrate_period(
     All agree with ``"fast"`` to round-off (fusion boundaries move, so FMA contraction
     differs).
     """
+    check_choice("kernel", kernel, KERNELS)
     h = period / substeps
     if kernel == "reference":
         body = jax.checkpoint(lambda state, _: (rk4_step(state, fu, model, h), None), prevent_cse=False)
         return jax.lax.scan(body, s, None, length=substeps)[0]
-    if kernel == "grad":
+    if kernel in ("fast", "grad"):
+        # Reverse mode keeps the substep carries (and, for "grad", the shared stage values).
         # The runtime 1.0 comes from the state so that XLA cannot fold the divisions away.
-        # Reverse mode keeps the substep carries and the shared stage values.
-        share = _sharer(jax.lax.stop_gradient(1.0 + 0.0 * s.q1))
-        policy = jax.checkpoint_policies.save_only_these_names(_SHARED)
+        share, policy = _sharer(None), None
+        if kernel == "grad":
+            share = _sharer(jax.lax.stop_gradient(1.0 + 0.0 * s.q1))
+            policy = jax.checkpoint_policies.save_only_these_names(_SHARED)
 
         @functools.partial(jax.checkpoint, prevent_cse=False, policy=policy)
         def body(carry, _):
             return rk4_step_rotating(*carry, fu, model, h, share=share), None
 
         return jax.lax.scan(body, (s, trig_of(s)), None, length=substeps)[0][0]
-
-    if kernel == "fast":
-
-        @functools.partial(jax.checkpoint, prevent_cse=False)
-        def body(carry, _):
-            return rk4_step_rotating(*carry, fu, model, h), None
-
-        return jax.lax.scan(body, (s, trig_of(s)), None, length=substeps)[0][0]
-
-    if kernel != "batch":
-        raise ValueError(f"unknown kernel {kernel!r}; allowed: {', '.join(map(repr, KERNELS))}")
 
     def step_keeping(state, trig):
         kept = []

@@ -127,8 +127,7 @@ def trial_params(
             ``jax.grad``, slower batched forward runs) or ``"batch"`` (``"fast"``
             arranged for CPU batches: 9-20% faster at batch 24-96 in paired runs, but
             the last bits of a trial depend on the batch it runs in). They agree to
-            round-off; see
-            ``plant.integrate_period``.
+            round-off; see ``plant.integrate_period``.
     """
     require_x64("trial_params")
     check_choice("controller", controller, CONTROLLERS)
