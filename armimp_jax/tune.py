@@ -10,7 +10,8 @@ Two gradient modes: ``"forward"`` (``jax.jacfwd``: one tangent per parameter, me
 a few primal runs) and ``"reverse"`` (``jax.grad`` through the scan with ``jax.checkpoint``
 on every control period and RK4 substep, so the tape holds one carry per period). Both
 are exact; ``bench_gradient.py`` measures them. Training batches use the ``"grad"`` RK4
-kernel (``plant.integrate_period``), which halves the cost of reverse mode.
+kernel (``plant.integrate_period``), which halves the cost of reverse mode, and are
+sharded over the devices (``place_batch``: one per core after ``runtime.configure``).
 
 ``tune`` runs optax with a divergence guard: a step that lands on an ``Mhat`` whose
 simulation diverges (flag, NaN or inf) is rejected, the step size is halved, and the
@@ -32,11 +33,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+from jax.sharding import NamedSharding, PartitionSpec
 
 from ._checks import check_choice
 from .perturbation import perturbation, perturbation_peak
 from .simulate import TrialParams, simulate, stack_trials, trial_params
-from .sweep import Welch, assess, assess_batch, simulate_batch
+from .sweep import Welch, assess, assess_batch, make_mesh, shard_batch, simulate_batch
 
 PARAMETERISATIONS = ("diagonal", "full")
 MAX_START_SHRINKS = 8  # an unstable start is halved at most this often (a factor of 256)
@@ -125,6 +127,24 @@ class TuneConfig:
     min_step_scale: float = 1e-3
 
 
+def place_batch(params: TrialParams, f_delta, mesh=None):
+    """Shard a stacked training batch's trial axis over ``mesh`` (a ``jax.sharding.Mesh``,
+    default every device, see ``sweep.make_mesh``), so that ``value_and_grad_fn`` runs on
+    every core (jit partitions the vmapped loss; the mean and the gradient are summed
+    across devices, so they may differ from a one-device run in the last bits).
+
+    The batch is not padded: padding repeats trials, which would re-weight the mean loss.
+    A batch that the device count does not divide stays unsharded. Returns ``(params,
+    f_delta, n_devices)`` with ``n_devices`` the number of devices the batch spans.
+    """
+    mesh = make_mesh() if mesh is None else mesh
+    n_trials = params.q0.shape[0]
+    if mesh.size == 1 or n_trials % mesh.size:
+        return params, f_delta, 1
+    (params, f_delta), _ = shard_batch((params, f_delta), mesh, lanes=1)
+    return params, f_delta, mesh.size
+
+
 def _finite(*trees) -> bool:
     return all(bool(np.all(np.isfinite(np.asarray(x)))) for x in jax.tree.leaves(trees))
 
@@ -141,12 +161,21 @@ def tune(
     on_iteration: Callable[[dict], None] | None = None,
     evaluate: Callable[[int, jnp.ndarray], dict] | None = None,
     eval_every: int = 0,
+    mesh=None,
 ) -> dict:
     """Descend the training loss from ``theta0`` with optax Adam and a divergence guard.
 
-    ``state`` (from a previous call's ``on_iteration``) resumes a run. Returns the final
-    state: ``theta``, ``mhat``, ``history`` (one record per iteration), optimiser state.
+    ``state`` (from a previous call's ``on_iteration``) resumes a run. The training batch
+    is sharded over ``mesh`` (default: every device) by ``place_batch``, and the first log
+    record says over how many devices. Returns the final state: ``theta``, ``mhat``,
+    ``history`` (one record per iteration), optimiser state.
     """
+    mesh = make_mesh() if mesh is None else mesh
+    params, f_delta, n_devices = place_batch(params, f_delta, mesh)
+    log(dict(event="training batch", trials=int(params.q0.shape[0]), devices=n_devices))
+    # theta replicated like the gradients that come back, so every step reuses the first
+    # compilation (a proposal built from them would otherwise differ in sharding: 23 s more)
+    replicated = NamedSharding(mesh, PartitionSpec()) if n_devices > 1 else None
     vg = value_and_grad_fn(
         parameterisation=config.parameterisation, welch=welch, phi_ij_weight=config.phi_ij_weight, mode=config.mode
     )
@@ -154,6 +183,8 @@ def tune(
 
     def evaluate_at(theta):
         t0 = time.perf_counter()
+        if replicated is not None:
+            theta = jax.device_put(theta, replicated)
         (value, aux), grad = vg(theta, params, f_delta)
         jax.block_until_ready(grad)
         ok = _finite(value, grad) and not bool(np.any(np.asarray(aux.diverged)))

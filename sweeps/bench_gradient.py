@@ -8,6 +8,10 @@ alternating with its own runs, and reports the paired ratio. The gradients use
 ``--kernels`` (default: ``"grad"``, the kernel the tuner uses; add ``fast`` to compare).
 
     python sweeps/bench_gradient.py [--seconds 50] [--substeps 100] [--repeats 3]
+
+``--training-batch`` also times one gradient of ``tune_mhat.py``'s default training batch
+(16 trials of 16 s at 20 substeps, nperseg 4096), on one device and sharded over every
+core by ``tune.place_batch``, alternating, in one process.
 """
 
 from __future__ import annotations
@@ -81,18 +85,55 @@ def child(mode, kernel, seconds, substeps, repeats, hoist=True):
     )
 
 
+def child_training(repeats):
+    from armimp_jax.runtime import configure
+
+    configure()
+    import jax
+    import numpy as np
+
+    from armimp_jax import tune
+    from armimp_jax.sweep import Welch
+
+    # tune_mhat.py's defaults: friction 1-2 x 4 locations x 2 seeds, 16 s, 20 substeps
+    params, f_delta = tune.training_batch((1, 2), (1, 2, 3, 4), (0, 1), seconds=16.0, substeps=20)
+    theta = tune.theta_from_mhat(0.25 * np.eye(2), "diagonal")
+    vg = tune.value_and_grad_fn(parameterisation="diagonal", welch=Welch(4096, 3072), mode="reverse")
+    built = []
+    for placed in ((params, f_delta, 1), tune.place_batch(params, f_delta)):
+        t0 = time.perf_counter()
+        compiled = vg.lower(theta, *placed[:2]).compile()
+        built.append((functools.partial(compiled, theta, *placed[:2]), placed[2], time.perf_counter() - t0))
+        jax.block_until_ready(built[-1][0]())
+    runs = [[] for _ in built]
+    for _ in range(repeats):
+        for (fn, _, _), times in zip(built, runs):
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn())
+            times.append(time.perf_counter() - t0)
+    n_trials = int(params.q0.shape[0])
+    return [
+        dict(trials=n_trials, devices=n, compile_s=c, run_s=statistics.median(t), runs_s=t)
+        for (_, n, c), t in zip(built, runs)
+    ]
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seconds", type=float, default=50.0)
     ap.add_argument("--substeps", type=int, default=100)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--child", choices=MODES)
+    ap.add_argument("--training-batch", action="store_true", help="also time the tuner's batch gradient")
+    ap.add_argument("--child", choices=MODES + ("training",))
     ap.add_argument("--child-kernel", choices=KERNELS)
     ap.add_argument("--no-hoist", action="store_true", help="without the XLA small-loop option")
     ap.add_argument("--modes", nargs="+", choices=MODES[1:], default=list(MODES[1:]))
     ap.add_argument("--kernels", nargs="+", choices=KERNELS, default=["grad"], help="RK4 kernels of the gradients")
     ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/bench"))
     args = ap.parse_args()
+    if args.child == "training":
+        print(json.dumps(child_training(args.repeats)))
+        return
     if args.child:
         hoist = not args.no_hoist
         print(json.dumps(child(args.child, args.child_kernel, args.seconds, args.substeps, args.repeats, hoist)))
@@ -143,6 +184,24 @@ def main():
         f"{r['compile_s']:.1f} | {r['xla_temp_mib']:.0f} | {r['peak_rss_mib']:.0f} |"
         for r in rows
     ]
+    if args.training_batch:
+        proc = subprocess.run(
+            [sys.executable, __file__, "--child", "training", "--repeats", str(args.repeats)],
+            capture_output=True,
+            text=True,
+        )
+        if proc.returncode != 0:
+            sys.exit(proc.stderr)
+        training = json.loads(proc.stdout.strip().splitlines()[-1])
+        rows.append(dict(training=training))
+        lines += [
+            "",
+            "Gradient of the tuner's training batch (tune_mhat.py defaults), one process:",
+            "",
+            "| trials | devices | run s | compile s |",
+            "|---|---|---|---|",
+        ]
+        lines += [f"| {r['trials']} | {r['devices']} | {r['run_s']:.2f} | {r['compile_s']:.1f} |" for r in training]
     table = "\n".join(lines)
     print("\n" + table)
     args.out.mkdir(parents=True, exist_ok=True)
