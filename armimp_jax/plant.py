@@ -270,10 +270,18 @@ def rk4_step_rotating(s: PlantState, trig: Trig, fu, model: PlantModel, h, *, sh
 
 
 KERNELS = ("fast", "reference", "grad", "batch")
+CHECKPOINTS = ("period", "substep")  # how the simulation checkpoints a period for reverse mode
 
 
 def integrate_period(
-    s: PlantState, fu, model: PlantModel, *, period: float, substeps: int, kernel: str = "fast"
+    s: PlantState,
+    fu,
+    model: PlantModel,
+    *,
+    period: float,
+    substeps: int,
+    kernel: str = "fast",
+    checkpoint: str = "period",
 ) -> PlantState:
     """Advance ``s`` over one control period with ``substeps`` fixed RK4 steps (``lax.scan``).
 
@@ -289,19 +297,28 @@ def integrate_period(
     to ~3e-13 relative), where ``"fast"`` is bitwise independent of it.
     All agree with ``"fast"`` to round-off (fusion boundaries move, so FMA contraction
     differs).
+
+    ``checkpoint`` says how the caller checkpoints the period (``simulate.trial_params``):
+    under ``"period"`` the ``"grad"`` kernel's substep checkpoint saves the shared stage
+    values, which the backward pass produces one period at a time; under ``"substep"``
+    (the period not checkpointed, every substep's carry on the tape) it saves nothing
+    else, since saving them for a whole record would take 64 values per substep.
     """
     check_choice("kernel", kernel, KERNELS)
+    check_choice("checkpoint", checkpoint, CHECKPOINTS)
     h = period / substeps
     if kernel == "reference":
         body = jax.checkpoint(lambda state, _: (rk4_step(state, fu, model, h), None), prevent_cse=False)
         return jax.lax.scan(body, s, None, length=substeps)[0]
     if kernel in ("fast", "grad"):
-        # Reverse mode keeps the substep carries (and, for "grad", the shared stage values).
+        # Reverse mode keeps the substep carries (and, for "grad" under period checkpoints,
+        # the shared stage values).
         # The runtime 1.0 comes from the state so that XLA cannot fold the divisions away.
         share, policy = _sharer(None), None
         if kernel == "grad":
             share = _sharer(jax.lax.stop_gradient(1.0 + 0.0 * s.q1))
-            policy = jax.checkpoint_policies.save_only_these_names(_SHARED)
+            if checkpoint == "period":
+                policy = jax.checkpoint_policies.save_only_these_names(_SHARED)
 
         @functools.partial(jax.checkpoint, prevent_cse=False, policy=policy)
         def body(carry, _):

@@ -7,11 +7,13 @@ Cholesky factor with log-diagonal (3 numbers). The loss is the mean ``phi_T`` ov
 training batch (plus, optionally, a weight times the mean ``phi_ij``).
 
 Two gradient modes: ``"forward"`` (``jax.jacfwd``: one tangent per parameter, memory of
-a few primal runs) and ``"reverse"`` (``jax.grad`` through the scan with ``jax.checkpoint``
-on every control period and RK4 substep, so the tape holds one carry per period). Both
-are exact; ``bench_gradient.py`` measures them. Training batches use the ``"grad"`` RK4
-kernel (``plant.integrate_period``), which halves the cost of reverse mode, and are
-sharded over the devices (``place_batch``: one per core after ``runtime.configure``).
+a few primal runs) and ``"reverse"`` (``jax.grad`` through the scan with ``jax.checkpoint``;
+the trials' ``checkpoint`` field says whether the tape holds one carry per control period
+or per RK4 substep). Both are exact; ``bench_gradient.py`` measures them. Training
+batches use the ``"grad"`` RK4 kernel (``plant.integrate_period``), which halves the cost
+of reverse mode, with a carry per substep on the tape (16-25% less time again in paired
+runs), and are sharded over the devices (``place_batch``: one per core after
+``runtime.configure``).
 
 ``tune`` runs optax with a divergence guard: a step that lands on an ``Mhat`` whose
 simulation diverges (flag, NaN or inf) is rejected, the step size is halved, and the
@@ -33,12 +35,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from jax.sharding import NamedSharding, PartitionSpec
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from ._checks import check_choice
 from .perturbation import perturbation, perturbation_peak
 from .simulate import TrialParams, simulate, stack_trials, trial_params
-from .sweep import Welch, assess, assess_batch, make_mesh, shard_batch, simulate_batch
+from .sweep import Welch, _batch_size, assess, assess_batch, make_mesh, shard_batch, simulate_batch, to_host
 
 PARAMETERISATIONS = ("diagonal", "full")
 MAX_START_SHRINKS = 8  # an unstable start is halved at most this often (a factor of 256)
@@ -127,22 +129,29 @@ class TuneConfig:
     min_step_scale: float = 1e-3
 
 
-def place_batch(params: TrialParams, f_delta, mesh=None):
-    """Shard a stacked training batch's trial axis over ``mesh`` (a ``jax.sharding.Mesh``,
-    default every device, see ``sweep.make_mesh``), so that ``value_and_grad_fn`` runs on
-    every core (jit partitions the vmapped loss; the mean and the gradient are summed
-    across devices, so they may differ from a one-device run in the last bits).
+def place_batch(params: TrialParams, f_delta, *, mesh: Mesh | None = None):
+    """Shard a stacked training batch's trial axis over the devices of ``mesh`` so that
+    ``value_and_grad_fn`` runs on every core: jit partitions the vmapped loss, and the mean
+    and the gradient are summed across devices (the last bits may differ from one device).
 
-    The batch is not padded: padding repeats trials, which would re-weight the mean loss.
-    A batch that the device count does not divide stays unsharded. Returns ``(params,
-    f_delta, n_devices)`` with ``n_devices`` the number of devices the batch spans.
+    Args:
+        params: stacked ``TrialParams``, leading axis ``B`` (``stack_trials``).
+        f_delta: perturbations ``(B, N, 2)`` [N].
+        mesh: a one-axis mesh named ``"batch"`` (``sweep.make_mesh``); default every device.
+
+    The batch is never padded: repeated trials would re-weight the mean loss. It spans the
+    largest number of the mesh's devices that divides ``B`` (16 trials on 6 devices: 4;
+    a prime ``B`` larger than the mesh: one device, where it is left as it is). Returns
+    ``(params, f_delta, mesh)``, the last the mesh the batch spans (``None`` if unsharded).
     """
     mesh = make_mesh() if mesh is None else mesh
-    n_trials = params.q0.shape[0]
-    if mesh.size == 1 or n_trials % mesh.size:
-        return params, f_delta, 1
+    n_trials = _batch_size((params, f_delta))
+    n_devices = max(d for d in range(1, mesh.size + 1) if n_trials % d == 0)
+    if n_devices == 1:
+        return params, f_delta, None
+    mesh = Mesh(mesh.devices.flat[:n_devices], mesh.axis_names)
     (params, f_delta), _ = shard_batch((params, f_delta), mesh, lanes=1)
-    return params, f_delta, mesh.size
+    return params, f_delta, mesh
 
 
 def _finite(*trees) -> bool:
@@ -161,7 +170,7 @@ def tune(
     on_iteration: Callable[[dict], None] | None = None,
     evaluate: Callable[[int, jnp.ndarray], dict] | None = None,
     eval_every: int = 0,
-    mesh=None,
+    mesh: Mesh | None = None,
 ) -> dict:
     """Descend the training loss from ``theta0`` with optax Adam and a divergence guard.
 
@@ -170,12 +179,11 @@ def tune(
     record says over how many devices. Returns the final state: ``theta``, ``mhat``,
     ``history`` (one record per iteration), optimiser state.
     """
-    mesh = make_mesh() if mesh is None else mesh
-    params, f_delta, n_devices = place_batch(params, f_delta, mesh)
-    log(dict(event="training batch", trials=int(params.q0.shape[0]), devices=n_devices))
+    params, f_delta, placed = place_batch(params, f_delta, mesh=mesh)
+    log(dict(event="training batch", trials=int(params.q0.shape[0]), devices=1 if placed is None else placed.size))
     # theta replicated like the gradients that come back, so every step reuses the first
     # compilation (a proposal built from them would otherwise differ in sharding: 23 s more)
-    replicated = NamedSharding(mesh, PartitionSpec()) if n_devices > 1 else None
+    replicated = None if placed is None else NamedSharding(placed, PartitionSpec())
     vg = value_and_grad_fn(
         parameterisation=config.parameterisation, welch=welch, phi_ij_weight=config.phi_ij_weight, mode=config.mode
     )
@@ -186,7 +194,7 @@ def tune(
         if replicated is not None:
             theta = jax.device_put(theta, replicated)
         (value, aux), grad = vg(theta, params, f_delta)
-        jax.block_until_ready(grad)
+        aux = to_host(aux)  # per trial, so sharded like the batch (across hosts too)
         ok = _finite(value, grad) and not bool(np.any(np.asarray(aux.diverged)))
         return ok, float(value), grad, aux, time.perf_counter() - t0
 
@@ -320,18 +328,29 @@ def seed_perturbations(base_seed: int, seeds, n_samples: int, level: int = 1):
 
 
 def training_batch(
-    frictions, locations, seeds, *, seconds: float, substeps: int, base_seed: int = 0, kernel: str = "grad"
+    frictions,
+    locations,
+    seeds,
+    *,
+    seconds: float,
+    substeps: int,
+    base_seed: int = 0,
+    kernel: str = "grad",
+    checkpoint: str = "substep",
 ):
     """Stacked IMBIC ``TrialParams`` (friction x location x seed) and their perturbations.
 
-    ``kernel`` defaults to ``"grad"``, the RK4 kernel arranged for reverse mode."""
+    ``kernel`` defaults to ``"grad"``, the RK4 kernel arranged for reverse mode, and
+    ``checkpoint`` to ``"substep"``: reverse mode keeps every substep's carry, 96 bytes per
+    trial-substep (``substeps`` x 96 kB per trial-second: 31 MB for a 16 s trial at 20
+    substeps); use ``"period"`` for batches that would not fit (see ``trial_params``)."""
     n = int(round(seconds * 1000))
     signals = seed_perturbations(base_seed, [TRAIN_SEED_OFFSET + s for s in seeds], n)
     params, f_delta = [], []
     for fr in frictions:
         for loc in locations:
             for i, _ in enumerate(seeds):
-                params.append(trial_params("imbic", fr, loc, substeps=substeps, kernel=kernel))
+                params.append(trial_params("imbic", fr, loc, substeps=substeps, kernel=kernel, checkpoint=checkpoint))
                 f_delta.append(signals[i])
     return stack_trials(params), jnp.asarray(np.stack(f_delta))
 

@@ -1,17 +1,19 @@
 """Benchmark: d phi_T / d Mhat for one 50 s trial (paper settings), forward vs reverse mode.
 
-Each (mode, RK4 kernel) pair runs in its own process: compile time apart, median of
+Each (mode, RK4 kernel, checkpoint) runs in its own process: compile time apart, median of
 repeats with ``block_until_ready``; peak RSS (``getrusage``, taken before anything else
 is built in that process) and XLA's own temporary buffer size. Each process also times
 the forward simulation (simulate + estimate + phi_T, default ``"fast"`` kernel),
 alternating with its own runs, and reports the paired ratio. The gradients use
-``--kernels`` (default: ``"grad"``, the kernel the tuner uses; add ``fast`` to compare).
+``--kernels`` (default: ``"grad"``, the kernel the tuner uses; add ``fast`` to compare) and
+``--checkpoints`` (default: ``"substep"``, the tuner's; add ``period`` to compare).
 
     python sweeps/bench_gradient.py [--seconds 50] [--substeps 100] [--repeats 3]
 
 ``--training-batch`` also times one gradient of ``tune_mhat.py``'s default training batch
-(16 trials of 16 s at 20 substeps, nperseg 4096), on one device and sharded over every
-core by ``tune.place_batch``, alternating, in one process.
+(16 trials of 16 s at 20 substeps, nperseg 4096) with each checkpoint, on one device and
+sharded over every core by ``tune.place_batch`` (theta replicated, as ``tune.tune`` does),
+alternating, in one process.
 """
 
 from __future__ import annotations
@@ -28,9 +30,10 @@ import time
 
 MODES = ("primal", "reverse-diagonal", "reverse-full", "forward-diagonal", "forward-full")
 KERNELS = ("fast", "grad", "reference")
+CHECKPOINTS = ("period", "substep")
 
 
-def child(mode, kernel, seconds, substeps, repeats, hoist=True):
+def child(mode, kernel, checkpoint, seconds, substeps, repeats, hoist=True):
     from armimp_jax.runtime import configure
 
     configure(host_devices=1, hoist_small_loops=hoist)
@@ -44,8 +47,10 @@ def child(mode, kernel, seconds, substeps, repeats, hoist=True):
     kind = "full" if mode.endswith("full") else "diagonal"
     theta = tune.theta_from_mhat(0.25 * np.eye(2), kind)
 
-    def build(mode, kernel):
-        params, f_delta = tune.training_batch((2,), (1,), (0,), seconds=seconds, substeps=substeps, kernel=kernel)
+    def build(mode, kernel, checkpoint):
+        params, f_delta = tune.training_batch(
+            (2,), (1,), (0,), seconds=seconds, substeps=substeps, kernel=kernel, checkpoint=checkpoint
+        )
         if mode == "primal":
             fn = jax.jit(lambda t, p, f: tune.batch_loss(t, p, f, parameterisation=kind, welch=welch))
         else:
@@ -59,12 +64,12 @@ def child(mode, kernel, seconds, substeps, repeats, hoist=True):
         out = jax.block_until_ready(fn())
         return time.perf_counter() - t0, out
 
-    target, compile_s, compiled = build(mode, kernel)
+    target, compile_s, compiled = build(mode, kernel, checkpoint)
     first_s, out = timed(target)
     peak_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # before the baseline exists
     # The forward simulation (fast kernel) is timed alternately with the target in this
     # process, so that the shared host's drift hits both alike; the ratio is paired.
-    baseline = target if (mode, kernel) == ("primal", "fast") else build("primal", "fast")[0]
+    baseline = target if (mode, kernel) == ("primal", "fast") else build("primal", "fast", "period")[0]
     runs, base_runs = [], []
     for _ in range(repeats):
         runs.append(timed(target)[0])
@@ -73,6 +78,7 @@ def child(mode, kernel, seconds, substeps, repeats, hoist=True):
     return dict(
         mode=mode,
         kernel=kernel,
+        checkpoint=checkpoint,
         compile_s=compile_s,
         run_s=statistics.median(runs),
         forward_s=statistics.median(base_runs),
@@ -85,36 +91,42 @@ def child(mode, kernel, seconds, substeps, repeats, hoist=True):
     )
 
 
-def child_training(repeats):
+def child_training(repeats, hoist=True):
+    """The tuner's default training batch: one gradient per (checkpoint, placement)."""
     from armimp_jax.runtime import configure
 
-    configure()
+    configure(hoist_small_loops=hoist)
     import jax
     import numpy as np
+    from jax.sharding import NamedSharding, PartitionSpec
 
     from armimp_jax import tune
     from armimp_jax.sweep import Welch
 
-    # tune_mhat.py's defaults: friction 1-2 x 4 locations x 2 seeds, 16 s, 20 substeps
-    params, f_delta = tune.training_batch((1, 2), (1, 2, 3, 4), (0, 1), seconds=16.0, substeps=20)
     theta = tune.theta_from_mhat(0.25 * np.eye(2), "diagonal")
     vg = tune.value_and_grad_fn(parameterisation="diagonal", welch=Welch(4096, 3072), mode="reverse")
     built = []
-    for placed in ((params, f_delta, 1), tune.place_batch(params, f_delta)):
-        t0 = time.perf_counter()
-        compiled = vg.lower(theta, *placed[:2]).compile()
-        built.append((functools.partial(compiled, theta, *placed[:2]), placed[2], time.perf_counter() - t0))
-        jax.block_until_ready(built[-1][0]())
+    for checkpoint in CHECKPOINTS:
+        # tune_mhat.py's defaults: friction 1-2 x 4 locations x 2 seeds, 16 s, 20 substeps
+        batch = tune.training_batch((1, 2), (1, 2, 3, 4), (0, 1), seconds=16.0, substeps=20, checkpoint=checkpoint)
+        for params, f_delta, mesh in (batch + (None,), tune.place_batch(*batch)):
+            t = theta if mesh is None else jax.device_put(theta, NamedSharding(mesh, PartitionSpec()))
+            n = 1 if mesh is None else mesh.size
+            t0 = time.perf_counter()
+            compiled = vg.lower(t, params, f_delta).compile()
+            compile_s = time.perf_counter() - t0
+            temp = compiled.memory_analysis().temp_size_in_bytes / 2**20
+            built.append((functools.partial(compiled, t, params, f_delta), checkpoint, n, compile_s, temp))
+            jax.block_until_ready(built[-1][0]())
     runs = [[] for _ in built]
     for _ in range(repeats):
-        for (fn, _, _), times in zip(built, runs):
+        for (fn, *_), times in zip(built, runs):
             t0 = time.perf_counter()
             jax.block_until_ready(fn())
             times.append(time.perf_counter() - t0)
-    n_trials = int(params.q0.shape[0])
     return [
-        dict(trials=n_trials, devices=n, compile_s=c, run_s=statistics.median(t), runs_s=t)
-        for (_, n, c), t in zip(built, runs)
+        dict(trials=16, checkpoint=c, devices=n, compile_s=cs, xla_temp_mib=temp, run_s=statistics.median(t), runs_s=t)
+        for (_, c, n, cs, temp), t in zip(built, runs)
     ]
 
 
@@ -126,87 +138,82 @@ def main():
     ap.add_argument("--training-batch", action="store_true", help="also time the tuner's batch gradient")
     ap.add_argument("--child", choices=MODES + ("training",))
     ap.add_argument("--child-kernel", choices=KERNELS)
+    ap.add_argument("--child-checkpoint", choices=CHECKPOINTS)
     ap.add_argument("--no-hoist", action="store_true", help="without the XLA small-loop option")
     ap.add_argument("--modes", nargs="+", choices=MODES[1:], default=list(MODES[1:]))
     ap.add_argument("--kernels", nargs="+", choices=KERNELS, default=["grad"], help="RK4 kernels of the gradients")
+    ap.add_argument(
+        "--checkpoints", nargs="+", choices=CHECKPOINTS, default=["substep"], help="reverse-mode tapes (trial_params)"
+    )
     ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/bench"))
     args = ap.parse_args()
+    hoist = not args.no_hoist
     if args.child == "training":
-        print(json.dumps(child_training(args.repeats)))
+        print(json.dumps(child_training(args.repeats, hoist)))
         return
     if args.child:
-        hoist = not args.no_hoist
-        print(json.dumps(child(args.child, args.child_kernel, args.seconds, args.substeps, args.repeats, hoist)))
-        return
-    runs = [("primal", "fast")] + [("primal", k) for k in args.kernels if k != "fast"]
-    runs += [(mode, k) for k in args.kernels for mode in args.modes]
-    rows = []
-    for mode, kernel in runs:
-        proc = subprocess.run(
-            [
-                sys.executable,
-                __file__,
-                "--child",
-                mode,
-                "--child-kernel",
-                kernel,
-                "--seconds",
-                str(args.seconds),
-                "--substeps",
-                str(args.substeps),
-                "--repeats",
-                str(args.repeats),
-            ]
-            + (["--no-hoist"] if args.no_hoist else []),
-            capture_output=True,
-            text=True,
+        result = child(
+            args.child, args.child_kernel, args.child_checkpoint, args.seconds, args.substeps, args.repeats, hoist
         )
+        print(json.dumps(result))
+        return
+
+    def run_child(*extra):
+        cmd = [sys.executable, __file__, *extra, "--repeats", str(args.repeats)] + (["--no-hoist"] if not hoist else [])
+        proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
             sys.exit(proc.stderr)
-        rows.append(json.loads(proc.stdout.strip().splitlines()[-1]))
-        r = rows[-1]
+        return json.loads(proc.stdout.strip().splitlines()[-1])
+
+    runs = [("primal", "fast", "period")] + [("primal", k, "period") for k in args.kernels if k != "fast"]
+    runs += [(mode, k, c) for k in args.kernels for c in args.checkpoints for mode in args.modes]
+    rows = []
+    for mode, kernel, checkpoint in runs:
+        r = run_child(
+            *("--child", mode, "--child-kernel", kernel, "--child-checkpoint", checkpoint),
+            *("--seconds", str(args.seconds), "--substeps", str(args.substeps)),
+        )
+        rows.append(r)
         print(
-            f"  {mode} ({kernel} kernel): {r['run_s']:.2f} s = {r['ratio']:.2f} x forward simulation "
-            f"({r['forward_s']:.2f} s), peak RSS {r['peak_rss_mib']:.0f} MiB",
+            f"  {mode} ({kernel} kernel, {checkpoint} checkpoint): {r['run_s']:.2f} s = {r['ratio']:.2f} x forward "
+            f"simulation ({r['forward_s']:.2f} s), peak RSS {r['peak_rss_mib']:.0f} MiB",
             flush=True,
         )
-    hoist = "without" if args.no_hoist else "with"
     lines = [
         f"One trial, {args.seconds:g} s record, {args.substeps} substeps, friction 2, location 1, "
-        f"{hoist} the XLA small-loop option:",
+        f"{'with' if hoist else 'without'} the XLA small-loop option:",
         "",
-        "| mode | kernel | run s | forward simulation s (same process) | x forward simulation | compile s "
-        "| XLA temp MiB | peak RSS MiB |",
-        "|---|---|---|---|---|---|---|---|",
+        "| mode | kernel | checkpoint | run s | forward simulation s (same process) | x forward simulation "
+        "| compile s | XLA temp MiB | peak RSS MiB |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     lines += [
-        f"| {r['mode']} | {r['kernel']} | {r['run_s']:.2f} | {r['forward_s']:.2f} | {r['ratio']:.2f} | "
-        f"{r['compile_s']:.1f} | {r['xla_temp_mib']:.0f} | {r['peak_rss_mib']:.0f} |"
+        f"| {r['mode']} | {r['kernel']} | {r['checkpoint'] if r['mode'] != 'primal' else '-'} | {r['run_s']:.2f} | "
+        f"{r['forward_s']:.2f} | {r['ratio']:.2f} | {r['compile_s']:.1f} | {r['xla_temp_mib']:.0f} | "
+        f"{r['peak_rss_mib']:.0f} |"
         for r in rows
     ]
-    if args.training_batch:
-        proc = subprocess.run(
-            [sys.executable, __file__, "--child", "training", "--repeats", str(args.repeats)],
-            capture_output=True,
-            text=True,
-        )
-        if proc.returncode != 0:
-            sys.exit(proc.stderr)
-        training = json.loads(proc.stdout.strip().splitlines()[-1])
-        rows.append(dict(training=training))
+    training = run_child("--child", "training") if args.training_batch else []
+    if training:
         lines += [
             "",
-            "Gradient of the tuner's training batch (tune_mhat.py defaults), one process:",
+            "Gradient of the tuner's training batch (tune_mhat.py defaults), one process, alternating:",
             "",
-            "| trials | devices | run s | compile s |",
-            "|---|---|---|---|",
+            "| trials | checkpoint | devices | run s | compile s | XLA temp MiB |",
+            "|---|---|---|---|---|---|",
         ]
-        lines += [f"| {r['trials']} | {r['devices']} | {r['run_s']:.2f} | {r['compile_s']:.1f} |" for r in training]
+        lines += [
+            f"| {r['trials']} | {r['checkpoint']} | {r['devices']} | {r['run_s']:.2f} | {r['compile_s']:.1f} | "
+            f"{r['xla_temp_mib']:.0f} |"
+            for r in training
+        ]
     table = "\n".join(lines)
     print("\n" + table)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "bench_gradient.md").write_text(table + "\n")
-    (args.out / "bench_gradient.json").write_text(json.dumps(rows, indent=1))
+    (args.out / "bench_gradient.json").write_text(
+        json.dumps(dict(single_trial=rows, training_batch=training), indent=1)
+    )
 
 
 if __name__ == "__main__":

@@ -1,5 +1,11 @@
 """Gradients of phi_T w.r.t. Mhat (both modes vs finite differences) and the tuner's guard."""
 
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -7,7 +13,7 @@ import pytest
 
 from armimp_jax import tune
 from armimp_jax.simulate import stack_trials, trial_params
-from armimp_jax.sweep import Welch
+from armimp_jax.sweep import Welch, make_mesh
 
 WELCH = Welch(512, 384)
 
@@ -130,9 +136,9 @@ def test_divergence_guard_on_unstable_start_and_on_unstable_steps(tmp_path):
 
 
 SHARDED_GRADIENT = """
-import json
+import json, logging, re
 from armimp_jax.runtime import configure
-configure(host_devices=2)
+configure(host_devices=3)
 import jax, numpy as np
 from armimp_jax import tune
 from armimp_jax.sweep import Welch
@@ -140,18 +146,21 @@ params, f_delta = tune.training_batch((0, 2), (1,), (0,), seconds=1.6, substeps=
 vg = tune.value_and_grad_fn(parameterisation="diagonal", welch=Welch(512, 384), mode="reverse")
 theta = tune.theta_from_mhat(0.4 * np.eye(2), "diagonal")
 out = {}
-for name, batch in (("one", (params, f_delta, 1)), ("two", tune.place_batch(params, f_delta))):
+for name, batch in (("one", (params, f_delta, None)), ("two", tune.place_batch(params, f_delta))):
     (value, aux), grad = vg(theta, *batch[:2])
     devices = len(batch[0].q0.sharding.device_set)
-    out[name] = dict(value=float(value), grad=np.asarray(grad).tolist(), devices=devices, placed=batch[2])
-odd = tune.place_batch(*tune.training_batch((2,), (1,), (0,), seconds=1.6, substeps=4))
-out["odd"] = odd[2]
+    placed = None if batch[2] is None else batch[2].size
+    out[name] = dict(value=float(value), grad=np.asarray(grad).tolist(), devices=devices, placed=placed)
+# not padded: a batch spans the largest number of devices that divides it
+for n_trials in (1, 3):
+    batch = tune.training_batch((0,), (1,), tuple(range(n_trials)), seconds=1.6, substeps=4)
+    placed = tune.place_batch(*batch)[2]
+    out[f"placed {n_trials}"] = None if placed is None else placed.size
 # a short tuning run on two devices compiles its gradient once, not again at the first step
-import logging
 compiled = []
 class Compiles(logging.Handler):
     def emit(self, record):
-        if record.getMessage().startswith("Compiling jit(loss)"):
+        if re.match(r"Compiling \\S*loss", record.getMessage()):
             compiled.append(record.getMessage())
 logging.getLogger("jax").addHandler(Compiles())
 config = tune.TuneConfig(learning_rate=0.1, iterations=2)
@@ -162,24 +171,18 @@ out["tune"] = dict(compiles=len(compiled), steps=state["iteration"], first=logs[
 print(json.dumps(out))
 """
 
+# Subprocesses that set their own device count: the parent's XLA flags and platform stay out.
+CPU_ENV = dict(os.environ, XLA_FLAGS="", JAX_PLATFORMS="cpu")
 
-def test_training_batch_sharded_over_two_devices_gives_the_same_gradient():
-    import json
-    import os
-    import subprocess
-    import sys
 
+def test_training_batch_sharded_over_devices_gives_the_same_gradient():
     proc = subprocess.run(
-        [sys.executable, "-c", SHARDED_GRADIENT],
-        capture_output=True,
-        text=True,
-        env=dict(os.environ, XLA_FLAGS=""),
-        timeout=600,
+        [sys.executable, "-c", SHARDED_GRADIENT], capture_output=True, text=True, env=CPU_ENV, timeout=600
     )
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout.strip().splitlines()[-1])
     assert out["one"]["devices"] == 1 and out["two"]["devices"] == 2 and out["two"]["placed"] == 2
-    assert out["odd"] == 1  # one trial on two devices: not padded (that would re-weight the loss)
+    assert out["placed 1"] is None and out["placed 3"] == 3
     assert out["tune"]["first"] == {"event": "training batch", "trials": 2, "devices": 2}
     assert out["tune"]["steps"] == 2 and out["tune"]["compiles"] == 1
     # Round-off apart: the "grad" kernel's last bits depend on the per-device batch (measured
@@ -188,10 +191,27 @@ def test_training_batch_sharded_over_two_devices_gives_the_same_gradient():
     np.testing.assert_allclose(out["two"]["grad"], out["one"]["grad"], rtol=1e-9)
 
 
-def test_place_batch_on_one_device_changes_nothing(short_batch):
+def test_place_batch_on_one_device_leaves_the_batch_alone(short_batch):
     params, f_delta = short_batch
-    placed = tune.place_batch(params, f_delta, tune.make_mesh(jax.devices()[:1]))
-    assert placed[0] is params and placed[1] is f_delta and placed[2] == 1
+    placed = tune.place_batch(params, f_delta, mesh=make_mesh(jax.devices()[:1]))
+    assert placed[0] is params and placed[1] is f_delta and placed[2] is None
+    with pytest.raises(ValueError, match="inconsistent batch sizes"):
+        tune.place_batch(params, f_delta[:1])
+
+
+def test_substep_and_period_checkpoints_give_the_same_gradient(short_batch):
+    # What reverse mode keeps changes the work, not the maths.
+    params, f_delta = short_batch
+    assert params.checkpoint == "substep"  # the tuner's
+    period = tune.training_batch((0, 2), (1,), (0,), seconds=1.6, substeps=4, checkpoint="period")
+    vg = tune.value_and_grad_fn(parameterisation="full", welch=WELCH, mode="reverse")
+    theta = tune.theta_from_mhat(np.array([[0.4, 0.05], [0.05, 0.3]]), "full")
+    (v_s, _), g_s = vg(theta, params, f_delta)
+    (v_p, _), g_p = vg(theta, *period)
+    np.testing.assert_allclose(v_s, v_p, rtol=1e-13)
+    np.testing.assert_allclose(g_s, g_p, rtol=1e-10)
+    with pytest.raises(ValueError, match="unknown checkpoint 'step'; allowed: 'period', 'substep'"):
+        trial_params("imbic", 2, 1, checkpoint="step")
 
 
 def test_unknown_mode_and_parameterisation_are_rejected():
@@ -202,11 +222,6 @@ def test_unknown_mode_and_parameterisation_are_rejected():
 
 
 def test_tune_script_quick_produces_its_outputs(tmp_path):
-    import json
-    import pathlib
-    import subprocess
-    import sys
-
     root = pathlib.Path(__file__).resolve().parents[1]
     proc = subprocess.run(
         [
@@ -222,6 +237,7 @@ def test_tune_script_quick_produces_its_outputs(tmp_path):
         ],
         capture_output=True,
         text=True,
+        env=dict(CPU_ENV, XLA_FLAGS="--xla_force_host_platform_device_count=2"),
         timeout=900,
     )
     assert proc.returncode == 0, proc.stderr
@@ -230,5 +246,5 @@ def test_tune_script_quick_produces_its_outputs(tmp_path):
     for name in ("loss_curve.png", "comparison.md", "comparison.json", "tune_state.json", "tune_state.npz"):
         assert (tmp_path / name).stat().st_size > 0, name
     assert "| tuned |" in (tmp_path / "comparison.md").read_text()
-    # runtime.configure gave the script one device per core; its 8 training trials span both
+    # two host devices (runtime.configure keeps a count that is set): 8 training trials span both
     assert '"event": "training batch", "trials": 8, "devices": 2' in proc.stdout
