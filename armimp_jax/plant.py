@@ -312,8 +312,8 @@ def integrate_period(
         return jax.lax.scan(body, s, None, length=substeps)[0]
     if kernel in ("fast", "grad"):
         # Reverse mode keeps the substep carries (and, for "grad" under period checkpoints,
-        # the shared stage values).
-        # The runtime 1.0 comes from the state so that XLA cannot fold the divisions away.
+        # the shared stage values). The runtime 1.0 comes from the state so that XLA
+        # cannot fold the divisions away.
         share, policy = _sharer(None), None
         if kernel == "grad":
             share = _sharer(jax.lax.stop_gradient(1.0 + 0.0 * s.q1))

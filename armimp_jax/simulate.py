@@ -139,8 +139,9 @@ def trial_params(
             the last bits of a trial depend on the batch it runs in). They agree to
             round-off; see ``plant.integrate_period``.
         checkpoint: what reverse mode keeps for the backward pass (gradients agree to
-            round-off; forward runs are unaffected). ``"period"`` (default): one carry per control period,
-            the substeps recomputed in the backward pass (a few hundred bytes per sample).
+            round-off; forward runs are unaffected). ``"period"`` (default): one carry
+            per control period, the substeps recomputed in the backward pass (a few
+            hundred bytes per sample).
             ``"substep"``: one carry per RK4 substep, 96 bytes each (480 MB for a 50 s
             trial at 100 substeps, 31 MB for 16 s at 20); with the ``"grad"`` kernel
             gradients take 16-25% less time in paired runs. Memory grows with the batch.

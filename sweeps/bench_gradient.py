@@ -28,9 +28,10 @@ import subprocess
 import sys
 import time
 
+from armimp_jax.plant import CHECKPOINTS  # no JAX backend starts on import: configure() still applies
+
 MODES = ("primal", "reverse-diagonal", "reverse-full", "forward-diagonal", "forward-full")
 KERNELS = ("fast", "grad", "reference")
-CHECKPOINTS = ("period", "substep")
 
 
 def child(mode, kernel, checkpoint, seconds, substeps, repeats, hoist=True):
@@ -116,7 +117,8 @@ def child_training(repeats, hoist=True):
             compiled = vg.lower(t, params, f_delta).compile()
             compile_s = time.perf_counter() - t0
             temp = compiled.memory_analysis().temp_size_in_bytes / 2**20
-            built.append((functools.partial(compiled, t, params, f_delta), checkpoint, n, compile_s, temp))
+            trials = int(params.q0.shape[0])
+            built.append((functools.partial(compiled, t, params, f_delta), checkpoint, n, compile_s, temp, trials))
             jax.block_until_ready(built[-1][0]())
     runs = [[] for _ in built]
     for _ in range(repeats):
@@ -125,8 +127,8 @@ def child_training(repeats, hoist=True):
             jax.block_until_ready(fn())
             times.append(time.perf_counter() - t0)
     return [
-        dict(trials=16, checkpoint=c, devices=n, compile_s=cs, xla_temp_mib=temp, run_s=statistics.median(t), runs_s=t)
-        for (_, c, n, cs, temp), t in zip(built, runs)
+        dict(trials=b, checkpoint=c, devices=n, compile_s=cs, xla_temp_mib=temp, run_s=statistics.median(t), runs_s=t)
+        for (_, c, n, cs, temp, b), t in zip(built, runs)
     ]
 
 
