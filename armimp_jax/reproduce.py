@@ -201,8 +201,8 @@ def run_reproduction(
         f_delta = np.stack([signals(s)[0][c.perturbation] for c, s in batch])
         base_done = done_substeps
 
-        def on_chunk(k, _n, _elapsed, base_done=base_done, batch=batch):
-            now = base_done + k * settings.substeps * len(batch)
+        def on_chunk(trial_samples, _total, _elapsed, base_done=base_done):
+            now = base_done + trial_samples * settings.substeps
             elapsed = time.perf_counter() - start
             rate = now / elapsed if elapsed > 0 else 0.0
             if progress is not None:

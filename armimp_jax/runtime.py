@@ -6,18 +6,34 @@ Library code never changes JAX's configuration; scripts call ``configure`` once 
 from __future__ import annotations
 
 import os
+import re
 import warnings
 
 import jax
 
 _FLAG = "--xla_force_host_platform_device_count"
+_EXTRA = "--xla_backend_extra_options"
 # Lets XLA:CPU run a small while loop (our inner RK4 scan) as one kernel instead of
 # dispatching every iteration: 1.4-4x faster at batch 1-24 (sweeps/bench_simulate.py).
-_LOOP_FLAG = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000"
+_LOOP_OPTION = ("xla_cpu_small_while_loop_byte_threshold", "1000000")
+# Inside that kernel every fusion is a loop over the per-device batch, a few vectors
+# long. LLVM unrolls such short loops into straight-line code that ran 1.4-1.7x slower
+# at 8-16 trials per device on an AVX2 host (1.8-2.5x on an AVX-512 one), no change
+# from 24 up, same forward bits at those sizes (sweeps/bench_simulate.py --compare-unrolling).
+_NO_UNROLL_OPTION = ("xla_cpu_disable_loop_unrolling", None)
 # XLA:CPU asks LLVM for 256-bit vectors by default. The batch axis of the RK4 loop is
 # elementwise work on (B,) float64 arrays, and with 512-bit vectors (8 doubles) it runs
 # 1.4-1.7x faster on AVX-512 cores, bit for bit the same results (sweeps/bench_simulate.py).
 _VECTOR_FLAG = "--xla_cpu_prefer_vector_width"
+_DEFAULT_VECTOR_WIDTH = 256  # XLA:CPU's own default for the flag above
+
+
+def vector_lanes() -> int:
+    """float64 lanes of the SIMD vectors XLA:CPU generates code for: the width set by
+    ``--xla_cpu_prefer_vector_width`` in ``XLA_FLAGS`` (XLA's default 256 bits if unset),
+    divided by 64. ``sweep`` pads per-device batches to whole vectors of this size."""
+    match = re.search(rf"{_VECTOR_FLAG}=(\d+)", os.environ.get("XLA_FLAGS", ""))
+    return max(1, (int(match.group(1)) if match else _DEFAULT_VECTOR_WIDTH) // 64)
 
 
 def cpu_has_avx512() -> bool:
@@ -35,8 +51,25 @@ def _add_flag(flag: str, name: str) -> None:
         os.environ["XLA_FLAGS"] = f"{flags} {flag}".strip()
 
 
+def _add_extra_option(name: str, value: str | None) -> None:
+    """Add ``name[=value]`` to XLA's backend extra options (one comma-separated flag)
+    unless the option is already there."""
+    option = name if value is None else f"{name}={value}"
+    flags = os.environ.get("XLA_FLAGS", "")
+    match = re.search(rf"{_EXTRA}=(\S*)", flags)
+    if match is None:
+        os.environ["XLA_FLAGS"] = f"{flags} {_EXTRA}={option}".strip()
+    elif name not in {item.split("=")[0] for item in match.group(1).split(",")}:
+        merged = f"{match.group(1)},{option}" if match.group(1) else option
+        os.environ["XLA_FLAGS"] = flags[: match.start(1)] + merged + flags[match.end(1) :]
+
+
 def configure(
-    *, host_devices: int | None = 0, hoist_small_loops: bool = True, vector_width: int | str | None = "auto"
+    *,
+    host_devices: int | None = 0,
+    hoist_small_loops: bool = True,
+    unroll_loops: bool = False,
+    vector_width: int | str | None = "auto",
 ) -> int:
     """Switch float64 on, set XLA:CPU code generation, and optionally split the CPU into devices.
 
@@ -44,7 +77,10 @@ def configure(
     sharded batch use that many cores (see ``sweep.make_mesh``). ``0`` (default) means one
     per core (``os.cpu_count()``), ``None`` leaves the platform alone.
     ``hoist_small_loops`` adds the XLA:CPU option that compiles the inner RK4 loop into
-    one kernel (it changes no forward result; gradients may differ in the last bits).
+    one kernel. ``unroll_loops=False`` adds the option that stops LLVM unrolling the
+    short per-fusion loops over the batch inside that kernel (1.4-2.5x faster at 8-16
+    trials per device). Both change where LLVM contracts ``a*b + c`` into an FMA, so
+    results may move in their last bits (bounded in ``tests/test_kernels.py``).
     ``vector_width`` (bits) is XLA:CPU's preferred SIMD width: ``"auto"`` asks for 512 on
     AVX-512 hosts and leaves the default elsewhere, ``None`` leaves it alone.
     Flags already in ``XLA_FLAGS`` win. Must run before the first JAX computation; on
@@ -59,7 +95,9 @@ def configure(
             raise ValueError(f"vector_width must be 128, 256, 512, 'auto' or None, got {vector_width!r}")
         _add_flag(f"{_VECTOR_FLAG}={vector_width}", _VECTOR_FLAG)
     if hoist_small_loops:
-        _add_flag(_LOOP_FLAG, "xla_cpu_small_while_loop_byte_threshold")
+        _add_extra_option(*_LOOP_OPTION)
+    if not unroll_loops:
+        _add_extra_option(*_NO_UNROLL_OPTION)
     if host_devices is not None:
         n = host_devices or os.cpu_count() or 1
         flags = os.environ.get("XLA_FLAGS", "")

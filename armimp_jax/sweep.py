@@ -28,6 +28,7 @@ from jax.sharding import PartitionSpec as P
 from .arm import impedance_response
 from .estimate import Estimate, check_welch, estimate
 from .metrics import impedance_error
+from .runtime import vector_lanes
 from .simulate import SimResult, TrialParams, simulate_chunk, simulate_init
 from .tables import ESTIMATION_FMAX, SAMPLE_RATE, WELCH_NOVERLAP, WELCH_NPERSEG
 
@@ -75,31 +76,35 @@ def _batch_size(tree) -> int:
     return sizes.pop()
 
 
-# float64 lanes of one AVX-512 vector. XLA:CPU handles a per-device batch that is not a
-# multiple of it badly: 12 trials per device run 2.5x slower than 16 (bench_simulate.py).
-CPU_LANES = 8
-
-
 def padded_batch_size(b: int, n_devices: int, lanes: int = 1) -> int:
     """The batch size ``shard_batch`` pads ``b`` to: a multiple of ``n_devices`` whose share
-    per device is, when it exceeds ``lanes``, also a multiple of ``lanes``."""
+    per device is, when it exceeds one trial, also a multiple of ``lanes``."""
     per_device = math.ceil(b / n_devices)
-    if per_device > lanes:
+    if per_device > 1:
         per_device = math.ceil(per_device / lanes) * lanes
     return per_device * n_devices
 
 
 def default_lanes(mesh: Mesh) -> int:
-    """``CPU_LANES`` on a CPU mesh, else 1 (accelerators need no padding)."""
-    return CPU_LANES if mesh.devices.flat[0].platform == "cpu" else 1
+    """float64 lanes of one SIMD vector (``runtime.vector_lanes``) on a CPU mesh, else 1
+    (accelerators need no padding).
+
+    XLA:CPU runs a per-device batch that is not a whole number of vectors as scalar code:
+    on a 2-core AVX2 host (4 lanes), 2-3 and 5-7 trials ran at 2.6-3.0 M substeps/s, 4, 8
+    and 12 at 9.2-9.5 (``sweeps/bench_simulate.py --lanes``), so 3 trials padded to 4
+    finish 2.4x sooner than 3 alone. One trial alone is as fast as padded to a vector."""
+    return vector_lanes() if mesh.devices.flat[0].platform == "cpu" else 1
 
 
-def shard_batch(tree, mesh: Mesh, *, lanes: int | None = None):
-    """Pad the leading (batch) axis (repeating the last trial) to ``padded_batch_size`` and
-    place it sharded over the mesh. ``lanes`` defaults to ``default_lanes(mesh)``.
+def shard_batch(tree, mesh: Mesh, *, lanes: int | None = None, size: int | None = None):
+    """Pad the leading (batch) axis (repeating the last trial) and place it sharded over the
+    mesh. The padded size is ``size`` if given (at least the batch, a multiple of the mesh
+    size), else ``padded_batch_size`` with ``lanes`` (default ``default_lanes(mesh)``).
     Returns ``(sharded tree, original size)``; drop the padding with ``to_host``."""
     b = _batch_size(tree)
-    padded = padded_batch_size(b, mesh.size, default_lanes(mesh) if lanes is None else lanes)
+    padded = padded_batch_size(b, mesh.size, default_lanes(mesh) if lanes is None else lanes) if size is None else size
+    if padded < b or padded % mesh.size:
+        raise ValueError(f"size must be >= the batch ({b}) and a multiple of the {mesh.size} devices, got {padded}")
 
     def place(leaf):
         host = np.asarray(leaf)
@@ -109,6 +114,32 @@ def shard_batch(tree, mesh: Mesh, *, lanes: int | None = None):
         return jax.make_array_from_callback(host.shape, NamedSharding(mesh, spec), lambda idx: host[idx])
 
     return jax.tree.map(place, tree), b
+
+
+# Trials per device beyond which a batch runs as several groups, one after another, so
+# that the loop's working set (a few dozen (B,) arrays) stays in cache. One AVX2 core ran
+# 96 trials at 9.9 M substeps/s, 192 at 9.6, 256 at 5.8 and 512 at 3.9; 1024 trials on two
+# cores ran at 18.4 in 4 groups against 7.9 in one (sweeps/bench_simulate.py --large-batch).
+# It also bounds the estimator's memory.
+MAX_PER_DEVICE = 128
+
+
+def batch_groups(b: int, n_devices: int, *, max_per_device: int | None = MAX_PER_DEVICE, lanes: int = 1):
+    """Split ``b`` trials into the fewest equal groups of at most ``max_per_device`` per
+    device (``None``: one group). Returns ``([(lo, hi), ...], size)``: each group's
+    trials and the size every group is padded to (``padded_batch_size``), so that all
+    groups run one compiled program."""
+    if max_per_device is not None and max_per_device < 1:
+        raise ValueError(f"max_per_device must be a positive number of trials or None, got {max_per_device}")
+    n_groups = 1 if max_per_device is None else math.ceil(b / (max_per_device * n_devices))
+    per_group = math.ceil(b / n_groups)
+    return [(lo, min(lo + per_group, b)) for lo in range(0, b, per_group)], padded_batch_size(
+        per_group, n_devices, lanes
+    )
+
+
+def _rows(tree, lo: int, hi: int):
+    return jax.tree.map(lambda a: np.asarray(a)[lo:hi], tree)
 
 
 def to_host(tree, size: int | None = None):
@@ -134,9 +165,10 @@ def simulate_batch(
     *,
     mesh: Mesh | None = None,
     chunk_samples: int | None = None,
+    max_per_device: int | None = MAX_PER_DEVICE,
     progress: Callable[[int, int, float], None] | None = None,
 ) -> SimResult:
-    """``jax.vmap(simulate)`` over a batch, sharded over ``mesh``, run in chunks.
+    """``jax.vmap(simulate)`` over a batch, sharded over ``mesh``, in groups and chunks.
 
     Args:
         params: stacked ``TrialParams`` (leading axis ``B``).
@@ -146,8 +178,11 @@ def simulate_batch(
             At most two chunks of perturbation and output live on the devices at a
             time: each chunk's output is copied to the host while the next one runs
             (in a single-process run; across hosts the gather waits for it).
-        progress: called as ``progress(done_samples, total_samples, elapsed_s)`` after
-            every chunk.
+        max_per_device: a batch with more trials per device runs as equal groups, one
+            after another (``batch_groups``; ``None``: one group). With the default
+            ``"fast"`` kernel a trial's numbers do not depend on its group.
+        progress: called as ``progress(done, total, elapsed_s)`` after every chunk, with
+            ``done`` and ``total`` in trial samples (trials times samples).
 
     Returns the ``SimResult`` of the batch as NumPy arrays (``(B, N, 2)`` fields).
     """
@@ -155,36 +190,42 @@ def simulate_batch(
     f_delta = np.asarray(f_delta)
     if f_delta.ndim != 3 or f_delta.shape[2] != 2:
         raise ValueError(f"f_delta must have shape (B, N, 2), got {f_delta.shape}")
-    n = f_delta.shape[1]
+    b, n = f_delta.shape[:2]
     if n < 1:
         raise ValueError(f"f_delta must hold at least one sample per trial, got shape {f_delta.shape}")
     chunk = n if chunk_samples is None else max(1, min(int(chunk_samples), n))
     n_chunks = math.ceil(n / chunk)
-    f_padded = np.concatenate([f_delta, np.zeros((f_delta.shape[0], n_chunks * chunk - n, 2))], axis=1)
-    params_s, b = shard_batch(params, mesh)
-    carry = _init(params_s, NamedSharding(mesh, P("batch")))
+    f_padded = np.concatenate([f_delta, np.zeros((b, n_chunks * chunk - n, 2))], axis=1)
+    groups, size = batch_groups(b, mesh.size, max_per_device=max_per_device, lanes=default_lanes(mesh))
     names = ("x", "xd", "fh", "fu", "q", "z")
     fields = {name: np.empty((b, n, 2)) for name in names}  # filled chunk by chunk, no concatenation
-    start, running = time.perf_counter(), None
+    diverged_at = np.empty(b, dtype=np.int32)
+    start, running, done = time.perf_counter(), None, 0
 
-    def collect(i, out):
-        host = to_host(out, b)
-        lo, hi = i * chunk, min((i + 1) * chunk, n)
+    def collect(lo, hi, i, out):
+        nonlocal done
+        host = to_host(out, hi - lo)
+        s_lo, s_hi = i * chunk, min((i + 1) * chunk, n)
         for name in names:
-            fields[name][:, lo:hi] = getattr(host, name)[:, : hi - lo]
+            fields[name][lo:hi, s_lo:s_hi] = getattr(host, name)[:, : s_hi - s_lo]
+        if i == n_chunks - 1:
+            diverged_at[lo:hi] = host.diverged_at
+        done += (hi - lo) * (s_hi - s_lo)
         if progress is not None:
-            progress(hi, n, time.perf_counter() - start)
-        return host
+            progress(done, b * n, time.perf_counter() - start)
 
-    for i in range(n_chunks):
-        f_i, _ = shard_batch(f_padded[:, i * chunk : (i + 1) * chunk], mesh)
-        carry, out = _chunk(params_s, carry, f_i)  # dispatched asynchronously
-        if running is not None:
-            collect(*running)
-        running = (i, out)
-    last = collect(*running)
+    for lo, hi in groups:
+        params_s, _ = shard_batch(_rows(params, lo, hi), mesh, size=size)
+        carry = _init(params_s, NamedSharding(mesh, P("batch")))
+        for i in range(n_chunks):
+            f_i, _ = shard_batch(f_padded[lo:hi, i * chunk : (i + 1) * chunk], mesh, size=size)
+            carry, out = _chunk(params_s, carry, f_i)  # dispatched asynchronously
+            if running is not None:
+                collect(*running)
+            running = (lo, hi, i, out)
+    collect(*running)
     # diverged_at is sticky across chunks; a blow-up inside the zero padding does not count
-    first = np.where(last.diverged_at > n, -1, last.diverged_at)
+    first = np.where(diverged_at > n, -1, diverged_at)
     return SimResult(**fields, diverged=first >= 0, diverged_at=first)
 
 
@@ -192,10 +233,21 @@ _assess = jax.jit(jax.vmap(assess, in_axes=(0, 0, 0, None)), static_argnums=3)
 
 
 def assess_batch(
-    params: TrialParams, f_delta, sim: SimResult, welch: Welch = Welch(), *, mesh: Mesh | None = None
+    params: TrialParams,
+    f_delta,
+    sim: SimResult,
+    welch: Welch = Welch(),
+    *,
+    mesh: Mesh | None = None,
+    max_per_device: int | None = MAX_PER_DEVICE,
 ) -> TrialOutcome:
-    """``assess`` over a batch (NumPy in, NumPy out), sharded like ``simulate_batch``."""
+    """``assess`` over a batch (NumPy in, NumPy out), sharded and grouped like ``simulate_batch``
+    (a group of 96 trials of 50 s takes ~2.3 GB of XLA temporaries)."""
     mesh = make_mesh() if mesh is None else mesh
     welch.check(np.shape(f_delta)[1])
-    (p, f, s), b = shard_batch((params, np.asarray(f_delta), sim), mesh)
-    return to_host(_assess(p, f, s, welch), b)
+    groups, size = batch_groups(_batch_size(f_delta), mesh.size, max_per_device=max_per_device)
+    outcomes = []
+    for lo, hi in groups:
+        (p, f, s), _ = shard_batch(_rows((params, f_delta, sim), lo, hi), mesh, size=size)
+        outcomes.append(to_host(_assess(p, f, s, welch), hi - lo))
+    return jax.tree.map(lambda *parts: np.concatenate(parts), *outcomes)

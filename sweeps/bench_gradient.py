@@ -34,10 +34,10 @@ MODES = ("primal", "reverse-diagonal", "reverse-full", "forward-diagonal", "forw
 KERNELS = ("fast", "grad", "reference")
 
 
-def child(mode, kernel, checkpoint, seconds, substeps, repeats, hoist=True):
+def child(mode, kernel, checkpoint, seconds, substeps, repeats, codegen):
     from armimp_jax.runtime import configure
 
-    configure(host_devices=1, hoist_small_loops=hoist)
+    configure(host_devices=1, **codegen)
     import jax
     import numpy as np
 
@@ -92,11 +92,11 @@ def child(mode, kernel, checkpoint, seconds, substeps, repeats, hoist=True):
     )
 
 
-def child_training(repeats, hoist=True):
+def child_training(repeats, codegen):
     """The tuner's default training batch: one gradient per (checkpoint, placement)."""
     from armimp_jax.runtime import configure
 
-    configure(hoist_small_loops=hoist)
+    configure(**codegen)
     import jax
     import numpy as np
     from jax.sharding import NamedSharding, PartitionSpec
@@ -142,6 +142,7 @@ def main():
     ap.add_argument("--child-kernel", choices=KERNELS)
     ap.add_argument("--child-checkpoint", choices=CHECKPOINTS)
     ap.add_argument("--no-hoist", action="store_true", help="without the XLA small-loop option")
+    ap.add_argument("--unroll-loops", action="store_true", help="leave LLVM's loop unrolling on (XLA's default)")
     ap.add_argument("--modes", nargs="+", choices=MODES[1:], default=list(MODES[1:]))
     ap.add_argument("--kernels", nargs="+", choices=KERNELS, default=["grad"], help="RK4 kernels of the gradients")
     ap.add_argument(
@@ -149,19 +150,20 @@ def main():
     )
     ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/bench"))
     args = ap.parse_args()
-    hoist = not args.no_hoist
+    codegen = dict(hoist_small_loops=not args.no_hoist, unroll_loops=args.unroll_loops)
+    codegen_args = ["--no-hoist"] * args.no_hoist + ["--unroll-loops"] * args.unroll_loops
     if args.child == "training":
-        print(json.dumps(child_training(args.repeats, hoist)))
+        print(json.dumps(child_training(args.repeats, codegen)))
         return
     if args.child:
         result = child(
-            args.child, args.child_kernel, args.child_checkpoint, args.seconds, args.substeps, args.repeats, hoist
+            args.child, args.child_kernel, args.child_checkpoint, args.seconds, args.substeps, args.repeats, codegen
         )
         print(json.dumps(result))
         return
 
     def run_child(*extra):
-        cmd = [sys.executable, __file__, *extra, "--repeats", str(args.repeats)] + (["--no-hoist"] if not hoist else [])
+        cmd = [sys.executable, __file__, *extra, "--repeats", str(args.repeats), *codegen_args]
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
             sys.exit(proc.stderr)
@@ -183,7 +185,8 @@ def main():
         )
     lines = [
         f"One trial, {args.seconds:g} s record, {args.substeps} substeps, friction 2, location 1, "
-        f"{'with' if hoist else 'without'} the XLA small-loop option:",
+        f"{'without' if args.no_hoist else 'with'} the XLA small-loop option, LLVM loop unrolling "
+        f"{'on' if args.unroll_loops else 'off'}:",
         "",
         "| mode | kernel | checkpoint | run s | forward simulation s (same process) | x forward simulation "
         "| compile s | XLA temp MiB | peak RSS MiB |",

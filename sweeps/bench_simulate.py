@@ -4,28 +4,44 @@ Fixed inputs (seeded perturbations, IMBIC, friction levels and locations cycled)
 time measured apart, ``block_until_ready``, median of repeats. Entry-point settings as
 every script uses them (``runtime.configure``: float64, one XLA device per core, the
 small-loop option, 512-bit vectors on AVX-512 hosts; ``--no-wide-vectors`` measures
-XLA's default width instead). Prints Markdown tables and writes them (and JSON) under
-``--out``.
+XLA's default width instead, ``--unroll-loops`` with LLVM's loop unrolling left on).
+Prints Markdown tables and writes them (and JSON) under ``--out``.
 
     python sweeps/bench_simulate.py [--repeats 3] [--quick] [--no-numba] [--no-wide-vectors]
+
+``--compare-unrolling`` instead times the simulation with and without LLVM's unrolling of
+XLA:CPU's loops over the batch (an XLA option, fixed per process): two child processes,
+each compiled once, run the same configurations in alternation (so the host's drift hits
+both alike) and report whether their outputs agree bit for bit (a digest of each).
+
+``--lanes`` instead times unpadded batches of 1 to two vectors' worth of trials on one
+device, the data behind ``sweep.padded_batch_size``; ``--large-batch`` times large
+batches on one device and ``simulate_batch`` in groups against one group (the data
+behind ``sweep.MAX_PER_DEVICE``).
 """
 
 from __future__ import annotations
 
 import argparse
 import functools
+import hashlib
 import json
 import os
 import pathlib
 import platform
 import statistics
+import subprocess
 import sys
 import time
 
-from armimp_jax.runtime import configure
+from armimp_jax import runtime
 
-# configure() must run before JAX starts, so this one option is read before argparse.
-N_DEVICES = configure(vector_width=None if "--no-wide-vectors" in sys.argv else "auto")
+# The children of --compare-unrolling start from the caller's flags, not this process's.
+CALLER_XLA_FLAGS = os.environ.get("XLA_FLAGS", "")
+# configure() must run before JAX starts, so these options are read before argparse.
+N_DEVICES = runtime.configure(
+    vector_width=None if "--no-wide-vectors" in sys.argv else "auto", unroll_loops="--unroll-loops" in sys.argv
+)
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
@@ -33,6 +49,28 @@ import numpy as np  # noqa: E402
 
 import armimp_jax as aj  # noqa: E402
 from armimp_jax import sweep  # noqa: E402
+
+
+def environment():
+    """What the figures were measured on."""
+    model = next((ln.split(":", 1)[1].strip() for ln in _cpuinfo() if ln.startswith("model name")), "")
+    return dict(
+        jax=jax.__version__,
+        devices=N_DEVICES,
+        backend=jax.default_backend(),
+        cpu=model or platform.processor() or platform.machine(),
+        avx512=runtime.cpu_has_avx512(),
+        vector_lanes=runtime.vector_lanes(),
+        python=platform.python_version(),
+        xla_flags=os.environ.get("XLA_FLAGS", ""),
+    )
+
+
+def _cpuinfo():
+    try:
+        return pathlib.Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        return []
 
 
 def batch_inputs(b, n, substeps, controller="imbic", kernel="fast"):
@@ -56,23 +94,32 @@ def timed(fn, repeats):
     return first, statistics.median(runs)
 
 
-def bench_simulation(configs, seconds, substeps, repeats):
-    """``configs``: (kernel, devices, batch) triples.
-
-    All configurations are compiled and run once first; then the timed repeats go round
-    robin over them, so that the shared host's slow drift hits every configuration alike
-    (the scaling ratios compare runs taken minutes apart otherwise). Median of repeats."""
+def build_cases(configs, seconds, substeps, *, lanes=None):
+    """Compile and run once each (kernel, devices, batch) configuration: a list of
+    ``(kernel, devices, batch, run, padded batch, compile s)``, ``run()`` the compiled call.
+    ``lanes`` as in ``sweep.shard_batch`` (default: pad to whole vectors; 1: no padding)."""
     n = int(seconds * 1000)
     cases = []
     for kernel, n_dev, b in configs:
         mesh = sweep.make_mesh(jax.devices()[:n_dev])
         params, f_delta = batch_inputs(b, n, substeps, kernel=kernel)
-        (p_s, f_s), _ = sweep.shard_batch((params, f_delta), mesh)  # may pad: see sweep.CPU_LANES
+        (p_s, f_s), _ = sweep.shard_batch((params, f_delta), mesh, lanes=lanes)
         t0 = time.perf_counter()
         compiled = jax.jit(jax.vmap(aj.simulate)).lower(p_s, f_s).compile()
         compile_s = time.perf_counter() - t0
         jax.block_until_ready(compiled(p_s, f_s))
         cases.append((kernel, n_dev, b, functools.partial(compiled, p_s, f_s), int(p_s.q0.shape[0]), compile_s))
+    return cases
+
+
+def bench_simulation(configs, seconds, substeps, repeats, *, lanes=None):
+    """``configs``: (kernel, devices, batch) triples; ``lanes`` as in ``build_cases``.
+
+    All configurations are compiled and run once first; then the timed repeats go round
+    robin over them, so that the shared host's slow drift hits every configuration alike
+    (the scaling ratios compare runs taken minutes apart otherwise). Median of repeats."""
+    n = int(seconds * 1000)
+    cases = build_cases(configs, seconds, substeps, lanes=lanes)
     times = [[] for _ in cases]
     for _ in range(repeats):
         for case, t in zip(cases, times):
@@ -103,6 +150,164 @@ def bench_simulation(configs, seconds, substeps, repeats):
             flush=True,
         )
     return rows
+
+
+def serve(configs, seconds, substeps):
+    """Child of ``--compare-unrolling``: build the cases, print a digest of each one's
+    outputs (one JSON line), then run the case named by each stdin line and print its
+    seconds."""
+    cases = build_cases(configs, seconds, substeps)
+    digests = []
+    for case in cases:
+        out = case[3]()
+        leaves = (out.x, out.xd, out.fh, out.fu, out.diverged)
+        digests.append(hashlib.sha256(b"".join(np.asarray(a).tobytes() for a in leaves)).hexdigest())
+    print(json.dumps(dict(digests=digests, compile_s=[c[5] for c in cases])), flush=True)
+    for line in sys.stdin:
+        run = cases[int(line)][3]
+        t0 = time.perf_counter()
+        jax.block_until_ready(run())
+        print(time.perf_counter() - t0, flush=True)
+
+
+def compare_unrolling(configs, seconds, substeps, repeats, wide_vectors=True):
+    """The same configurations with LLVM's loop unrolling on (XLA's default) and off
+    (``configure``'s default), in two child processes, alternating case by case."""
+    cmd = [sys.executable, __file__, "--serve", json.dumps(configs), "--seconds", str(seconds)]
+    cmd += ["--substeps", str(substeps)] + ([] if wide_vectors else ["--no-wide-vectors"])
+    children, ready = {}, {}
+    for unroll in (True, False):
+        child = subprocess.Popen(
+            cmd + (["--unroll-loops"] if unroll else []),
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            env=dict(os.environ, XLA_FLAGS=CALLER_XLA_FLAGS),
+        )
+        children[unroll], ready[unroll] = child, json.loads(child.stdout.readline())
+    times = {(unroll, i): [] for unroll in children for i in range(len(configs))}
+    for _ in range(repeats):
+        for i in range(len(configs)):
+            for unroll, child in children.items():
+                child.stdin.write(f"{i}\n")
+                child.stdin.flush()
+                times[(unroll, i)].append(float(child.stdout.readline()))
+    for child in children.values():
+        child.stdin.close()
+        child.wait()
+    n = int(seconds * 1000)
+    rows = []
+    for i, (kernel, n_dev, b) in enumerate(configs):
+        rate = {u: b * n * substeps / statistics.median(times[(u, i)]) / 1e6 for u in children}
+        rows.append(
+            dict(
+                kernel=kernel,
+                devices=n_dev,
+                batch=b,
+                msubsteps_per_s_unrolled=rate[True],
+                msubsteps_per_s_not_unrolled=rate[False],
+                speedup=rate[False] / rate[True],
+                same_bits=ready[True]["digests"][i] == ready[False]["digests"][i],
+                compile_s_unrolled=ready[True]["compile_s"][i],
+                compile_s_not_unrolled=ready[False]["compile_s"][i],
+                runs_s_unrolled=times[(True, i)],
+                runs_s_not_unrolled=times[(False, i)],
+            )
+        )
+        print(
+            f"  {kernel} devices={n_dev} batch={b:3d}: unrolled {rate[True]:.2f}, not unrolled {rate[False]:.2f} "
+            f"M substeps/s ({rows[-1]['speedup']:.2f}x), same bits: {rows[-1]['same_bits']}",
+            flush=True,
+        )
+    return rows
+
+
+def markdown_unrolling(rows, seconds, substeps, repeats):
+    lines = [
+        f"LLVM loop unrolling on (XLA default) vs off (`configure` default): {seconds:g} s records, "
+        f"{substeps} substeps, median of {repeats}, alternating between the two processes.",
+        "",
+        "| kernel | devices | batch | M substeps/s, unrolled | M substeps/s, not unrolled | speed-up | same bits |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| {r['kernel']} | {r['devices']} | {r['batch']} | {r['msubsteps_per_s_unrolled']:.2f} | "
+        f"{r['msubsteps_per_s_not_unrolled']:.2f} | {r['speedup']:.2f}x | {'yes' if r['same_bits'] else 'no'} |"
+        for r in rows
+    ]
+    return "\n".join(lines)
+
+
+def markdown_lanes(rows, lanes):
+    """Unpadded batches on one device, and what padding each to ``sweep.padded_batch_size``
+    would deliver (the padded batch's rate times the real share), where that size was run."""
+    rate = {r["batch"]: r["msubsteps_per_s"] for r in rows}
+    lines = [
+        f"One device, unpadded batches ({lanes} float64 lanes per vector); 'padded' is the measured rate of "
+        "the padded batch times its share of real trials:",
+        "",
+        "| batch | M substeps/s | padded to | M real substeps/s padded |",
+        "|---|---|---|---|",
+    ]
+    for r in rows:
+        p = sweep.padded_batch_size(r["batch"], 1, lanes)
+        padded = f"{rate[p] * r['batch'] / p:.2f}" if p in rate else "-"
+        lines.append(f"| {r['batch']} | {r['msubsteps_per_s']:.2f} | {p} | {padded} |")
+    return "\n".join(lines)
+
+
+def bench_grouped(b, seconds, substeps, repeats):
+    """``simulate_batch`` on all devices for a large batch: in groups of at most
+    ``sweep.MAX_PER_DEVICE`` trials per device (the default) against one group."""
+    n = int(seconds * 1000)
+    params, f_delta = batch_inputs(b, n, substeps)
+    f_delta = np.asarray(f_delta)
+    rows = []
+    for cap in (sweep.MAX_PER_DEVICE, None):
+        run = functools.partial(sweep.simulate_batch, params, f_delta, max_per_device=cap)
+        t0 = time.perf_counter()
+        run()  # compiles
+        first = time.perf_counter() - t0
+        runs = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            run()
+            runs.append(time.perf_counter() - t0)
+        groups, size = sweep.batch_groups(b, N_DEVICES, max_per_device=cap, lanes=runtime.vector_lanes())
+        rows.append(
+            dict(
+                max_per_device=cap,
+                batch=b,
+                devices=N_DEVICES,
+                groups=len(groups),
+                group_size=size,
+                first_s=first,
+                run_s=statistics.median(runs),
+                msubsteps_per_s=b * n * substeps / statistics.median(runs) / 1e6,
+            )
+        )
+        rate = rows[-1]["msubsteps_per_s"]
+        print(f"  simulate_batch b={b} max_per_device={cap}: {rate:.2f} M substeps/s", flush=True)
+    return rows
+
+
+def markdown_large(sim, grouped):
+    lines = [
+        "| batch on one device | M substeps/s | compile s |",
+        "|---|---|---|",
+    ]
+    lines += [f"| {r['batch']} | {r['msubsteps_per_s']:.2f} | {r['compile_s']:.1f} |" for r in sim]
+    lines += [
+        "",
+        "| `simulate_batch` | batch | devices | groups x padded size | M substeps/s |",
+        "|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| max_per_device={r['max_per_device']} | {r['batch']} | {r['devices']} | {r['groups']} x {r['group_size']} | "
+        f"{r['msubsteps_per_s']:.2f} |"
+        for r in grouped
+    ]
+    return "\n".join(lines)
 
 
 def bench_full_trial(b, substeps, kernel="fast"):
@@ -239,10 +444,52 @@ def main():
     ap.add_argument("--quick", action="store_true", help="tiny sizes, to check the script runs")
     ap.add_argument("--no-numba", action="store_true", help="skip the numba baseline")
     ap.add_argument("--no-wide-vectors", action="store_true", help="XLA:CPU's default vector width")
+    ap.add_argument("--unroll-loops", action="store_true", help="leave LLVM's loop unrolling on (XLA's default)")
+    ap.add_argument("--compare-unrolling", action="store_true", help="paired runs with and without loop unrolling")
+    ap.add_argument("--lanes", action="store_true", help="unpadded batch sizes around the vector width, one device")
+    ap.add_argument("--large-batch", action="store_true", help="large batches: one device, and grouped simulate_batch")
+    ap.add_argument("--seconds", type=float, default=5.0, help="record length of the simulation timings")
+    ap.add_argument("--serve", help=argparse.SUPPRESS)
     ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/bench"))
     args = ap.parse_args()
+    if args.serve:
+        return serve([tuple(c) for c in json.loads(args.serve)], args.seconds, args.substeps)
     args.out.mkdir(parents=True, exist_ok=True)
     devs = sorted({1, N_DEVICES})
+    if args.compare_unrolling:
+        batches = (4, 8) if args.quick else (8, 16, 24, 32, 48, 96)
+        configs = [("fast", d, b) for d in devs for b in batches if b >= 8 * d or args.quick]
+        configs += [("batch", N_DEVICES, b) for b in batches[-2:]]
+        seconds, substeps = (0.5, 10) if args.quick else (args.seconds, args.substeps)
+        repeats = 1 if args.quick else args.repeats
+        rows = compare_unrolling(configs, seconds, substeps, repeats, wide_vectors=not args.no_wide_vectors)
+        table = markdown_unrolling(rows, seconds, substeps, repeats)
+        print("\n" + table)
+        (args.out / "bench_unrolling.md").write_text(table + "\n")
+        (args.out / "bench_unrolling.json").write_text(json.dumps(rows, indent=1))
+        return None
+    if args.lanes:
+        lanes = runtime.vector_lanes()
+        sizes = (1, 2, 3, 4) if args.quick else (*range(1, 2 * lanes + 1), 3 * lanes, 6 * lanes)
+        seconds, substeps = (0.5, 10) if args.quick else (args.seconds, args.substeps)
+        rows = bench_simulation([("fast", 1, b) for b in sizes], seconds, substeps, args.repeats, lanes=1)
+        table = markdown_lanes(rows, lanes) + f"\n\n{environment()}"
+        print("\n" + table)
+        (args.out / "bench_lanes.md").write_text(table + "\n")
+        (args.out / "bench_lanes.json").write_text(json.dumps(dict(env=environment(), sim=rows), indent=1))
+        return None
+    if args.large_batch:
+        sizes, seconds, substeps, big = (
+            ((8, 16), 0.2, 10, 8 * N_DEVICES) if args.quick else ((96, 128, 192, 256, 512), 2.0, args.substeps, 1024)
+        )
+        sim = bench_simulation([("fast", 1, b) for b in sizes], seconds, substeps, args.repeats)
+        grouped = bench_grouped(big, seconds, substeps, args.repeats)
+        table = markdown_large(sim, grouped) + f"\n\n{environment()}"
+        print("\n" + table)
+        (args.out / "bench_large.md").write_text(table + "\n")
+        record = dict(env=environment(), sim=sim, grouped=grouped)
+        (args.out / "bench_large.json").write_text(json.dumps(record, indent=1))
+        return None
     if args.quick:
         kernels = ("fast", "batch", "reference")
         sim = bench_simulation([(k, d, b) for k in kernels for d in devs for b in (1, 4)], 0.5, 10, 1)
@@ -251,18 +498,11 @@ def main():
     else:
         configs = [("fast", d, b) for d in devs for b in (1, 24, 48, 96, 256)]
         configs += [("batch", d, b) for d in devs for b in (24, 48, 96)] + [("reference", d, 24) for d in devs]
-        sim = bench_simulation(configs, 5.0, args.substeps, args.repeats)
+        sim = bench_simulation(configs, args.seconds, args.substeps, args.repeats)
         full = [bench_full_trial(48, args.substeps, kernel) for kernel in ("fast", "batch")]
         numba_row = None if args.no_numba else bench_numba(24, 2.0, args.substeps, args.repeats)
         est = bench_estimator([24, 96], args.repeats)
-    env = dict(
-        jax=jax.__version__,
-        devices=N_DEVICES,
-        backend=jax.default_backend(),
-        cpu=platform.processor() or platform.machine(),
-        python=platform.python_version(),
-        xla_flags=os.environ.get("XLA_FLAGS", ""),
-    )
+    env = environment()
     table = markdown(sim, full, est, numba_row)
     print("\n" + table + f"\n\n{env}")
     (args.out / "bench_simulate.md").write_text(table + f"\n\n{env}\n")

@@ -1,5 +1,6 @@
 """The fast, grad and batch RK4 kernels against the reference one, and sharded against unsharded runs."""
 
+import functools
 import json
 import os
 import pathlib
@@ -74,7 +75,7 @@ def test_fast_grad_and_batch_kernels_agree_with_reference_over_50_s(controller):
 SHARDED = """
 import json, sys
 from armimp_jax.runtime import configure
-n = configure(host_devices=2, hoist_small_loops=False, vector_width=json.loads(sys.argv[2]))
+n = configure(host_devices=2, **json.loads(sys.argv[2]))
 import jax, numpy as np, armimp_jax as aj
 from armimp_jax import sweep
 params = aj.stack_trials([aj.trial_params(c, f, 1 + f, substeps=5) for c in ["imbic"] for f in (0, 1, 2)])
@@ -87,10 +88,17 @@ print(json.dumps(out))
 """
 
 
-def _run_sharded(n_devices, vector_width=None):
+# XLA's own code generation: none of configure's XLA:CPU options.
+PLAIN_XLA = dict(hoist_small_loops=False, unroll_loops=True, vector_width=None)
+# What scripts run: configure's defaults.
+ENTRY_POINT = {}
+
+
+@functools.cache
+def _run_sharded_cached(n_devices, configure_items):
     env = dict(os.environ, XLA_FLAGS="")
     proc = subprocess.run(
-        [sys.executable, "-c", SHARDED, str(n_devices), json.dumps(vector_width)],
+        [sys.executable, "-c", SHARDED, str(n_devices), json.dumps(dict(configure_items))],
         capture_output=True,
         text=True,
         env=env,
@@ -101,37 +109,91 @@ def _run_sharded(n_devices, vector_width=None):
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+def _run_sharded(n_devices, configure_kwargs):
+    """SHARDED in a fresh process with ``configure(host_devices=2, **configure_kwargs)``."""
+    return _run_sharded_cached(n_devices, tuple(sorted(configure_kwargs.items())))
+
+
 def _plain_batch():
-    """The subprocess's batch, vmapped in this process (XLA's default vector width)."""
+    """The subprocess's batch, vmapped in this process (XLA's own code generation, unpadded)."""
     params = aj.stack_trials([aj.trial_params("imbic", f, 1 + f, substeps=5) for f in (0, 1, 2)])
     fd = jnp.stack([aj.perturbation(jax.random.PRNGKey(i), 600, 2.25) for i in range(3)])
     return jax.jit(jax.vmap(aj.simulate))(params, fd)
 
 
-def test_sharded_over_two_devices_equals_one_device():
-    one, two = _run_sharded(1), _run_sharded(2)
+@pytest.mark.parametrize("codegen", ["plain", "entry_point"])
+def test_sharded_over_two_devices_equals_one_device(codegen):
+    options = PLAIN_XLA if codegen == "plain" else ENTRY_POINT
+    one, two = _run_sharded(1, options), _run_sharded(2, options)
     assert one["seen"] == 2 and one["devices"] == 1 and two["devices"] == 2
     # the carry leaves each chunk sharded as it entered: later chunks reuse the compiled loop
     assert one["compiles"] == 1 and two["compiles"] == 1
     for name in ("x", "fh", "fu"):
         np.testing.assert_array_equal(np.array(one[name]), np.array(two[name]))
-    # ...and the chunked, sharded, padded batch equals a plain vmapped run here
-    np.testing.assert_array_equal(np.array(two["x"]), _plain_batch().x)
+    if codegen == "plain":  # ...and the chunked, sharded, padded batch equals a plain vmapped run here
+        np.testing.assert_array_equal(np.array(two["x"]), _plain_batch().x)
 
 
 def test_wide_vectors_change_no_bit():
-    # runtime.configure asks XLA:CPU for 512-bit vectors on AVX-512 hosts: the same
-    # elementwise arithmetic per lane, so the numbers must not move.
-    wide, plain = _run_sharded(2, 512), _plain_batch()
+    # 512-bit vectors (configure on AVX-512 hosts) run the same elementwise arithmetic per lane.
+    wide, plain = _run_sharded(2, dict(PLAIN_XLA, vector_width=512)), _plain_batch()
     for name in ("x", "fh", "fu"):
         np.testing.assert_array_equal(np.array(wide[name]), getattr(plain, name))
+
+
+# XLA:CPU lets LLVM contract a*b + c into FMAs wherever both sit in one function. The
+# small-loop kernel (one function for the whole inner loop) and loop unrolling change
+# which products meet which sums, so they may move the last bits (seen on the project's
+# AVX2 host: up to 3e-13 of each signal's scale over this 0.6 s record). Trajectories are
+# not chaotic, so round-off does not grow into a physical difference.
+CODEGEN_BOUND = 1e-11
+
+
+def test_entry_point_codegen_options_agree_with_plain_xla_to_round_off():
+    tuned, plain = _run_sharded(2, ENTRY_POINT), _plain_batch()
+    for name in ("x", "fh", "fu"):
+        a, b = np.array(tuned[name]), np.asarray(getattr(plain, name))
+        scale = np.abs(b).max(axis=(1, 2), keepdims=True)
+        assert np.all(np.abs(a - b) <= CODEGEN_BOUND * scale), (name, (np.abs(a - b) / scale).max())
+
+
+def test_configure_merges_xla_extra_options(monkeypatch):
+    from armimp_jax import runtime
+
+    monkeypatch.setenv("XLA_FLAGS", "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=5")
+    runtime.configure(host_devices=None, vector_width=None)
+    # one flag holds all extra options; a value the caller set wins
+    assert os.environ["XLA_FLAGS"] == (
+        "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=5,xla_cpu_disable_loop_unrolling"
+    )
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_prefer_vector_width=256")
+    runtime.configure(host_devices=None, vector_width=512, unroll_loops=True)
+    assert os.environ["XLA_FLAGS"] == (
+        "--xla_cpu_prefer_vector_width=256 --xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000"
+    )
 
 
 def test_per_device_batch_is_padded_to_whole_vectors():
     from armimp_jax.sweep import padded_batch_size
 
     assert padded_batch_size(24, 2, 8) == 32  # 12 per device -> 16
+    assert padded_batch_size(24, 2, 4) == 24
     assert padded_batch_size(48, 2, 8) == 48
-    assert padded_batch_size(3, 2, 8) == 4  # small batches: only to the device count
+    assert padded_batch_size(3, 2, 4) == 8  # 2 per device -> 4
+    assert padded_batch_size(3, 1, 4) == 4
+    assert padded_batch_size(2, 2, 4) == 2  # one trial per device runs alone
+    assert padded_batch_size(1, 1, 8) == 1
     assert padded_batch_size(17, 1, 8) == 24
     assert padded_batch_size(24, 2, 1) == 24
+    assert padded_batch_size(3, 2, 1) == 4  # accelerators: only to the device count
+
+
+def test_vector_lanes_follow_the_xla_vector_width(monkeypatch):
+    from armimp_jax import runtime
+
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
+    assert runtime.vector_lanes() == 4  # XLA:CPU's default 256-bit vectors
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_prefer_vector_width=512 --xla_force_host_platform_device_count=2")
+    assert runtime.vector_lanes() == 8
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_prefer_vector_width=128")
+    assert runtime.vector_lanes() == 2
