@@ -18,8 +18,8 @@ _EXTRA = "--xla_backend_extra_options"
 _LOOP_OPTION = ("xla_cpu_small_while_loop_byte_threshold", "1000000")
 # Inside that kernel every fusion is a loop over the per-device batch, a few vectors
 # long. LLVM unrolls such short loops into straight-line code that ran 1.4-1.7x slower
-# at 8-16 trials per device on an AVX2 host (1.8-2.5x on an AVX-512 one), no change
-# from 24 up, same forward bits at those sizes (sweeps/bench_simulate.py --compare-unrolling).
+# at 8-16 trials per device on a 2-core AVX2 host, no change from 24 up, same forward
+# bits at those sizes (sweeps/bench_simulate.py --compare-unrolling).
 _NO_UNROLL_OPTION = ("xla_cpu_disable_loop_unrolling", None)
 # XLA:CPU asks LLVM for 256-bit vectors by default. The batch axis of the RK4 loop is
 # elementwise work on (B,) float64 arrays, and with 512-bit vectors (8 doubles) it runs
@@ -78,7 +78,7 @@ def configure(
     per core (``os.cpu_count()``), ``None`` leaves the platform alone.
     ``hoist_small_loops`` adds the XLA:CPU option that compiles the inner RK4 loop into
     one kernel. ``unroll_loops=False`` adds the option that stops LLVM unrolling the
-    short per-fusion loops over the batch inside that kernel (1.4-2.5x faster at 8-16
+    short per-fusion loops over the batch inside that kernel (1.4-1.7x faster at 8-16
     trials per device). Both change where LLVM contracts ``a*b + c`` into an FMA, so
     results may move in their last bits (bounded in ``tests/test_kernels.py``).
     ``vector_width`` (bits) is XLA:CPU's preferred SIMD width: ``"auto"`` asks for 512 on
