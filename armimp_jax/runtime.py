@@ -19,7 +19,7 @@ _LOOP_OPTION = ("xla_cpu_small_while_loop_byte_threshold", "1000000")
 # Inside that kernel every fusion is a loop over the per-device batch, a few vectors
 # long. LLVM unrolls such short loops into straight-line code that ran 1.4-1.7x slower
 # at 8-16 trials per device on a 2-core AVX2 host, no change from 24 up, same forward
-# bits at those sizes (sweeps/bench_simulate.py --compare-unrolling).
+# bits at 8-96 trials with the "fast" kernel (sweeps/bench_simulate.py --compare-unrolling).
 _NO_UNROLL_OPTION = ("xla_cpu_disable_loop_unrolling", None)
 # XLA:CPU asks LLVM for 256-bit vectors by default. The batch axis of the RK4 loop is
 # elementwise work on (B,) float64 arrays, and with 512-bit vectors (8 doubles) it runs

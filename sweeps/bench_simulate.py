@@ -264,16 +264,9 @@ def bench_grouped(b, seconds, substeps, repeats):
     f_delta = np.asarray(f_delta)
     rows = []
     for cap in (sweep.MAX_PER_DEVICE, None):
-        run = functools.partial(sweep.simulate_batch, params, f_delta, max_per_device=cap)
-        t0 = time.perf_counter()
-        run()  # compiles
-        first = time.perf_counter() - t0
-        runs = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            run()
-            runs.append(time.perf_counter() - t0)
-        groups, size = sweep.batch_groups(b, N_DEVICES, max_per_device=cap, lanes=runtime.vector_lanes())
+        first, run_s = timed(functools.partial(sweep.simulate_batch, params, f_delta, max_per_device=cap), repeats)
+        lanes = sweep.default_lanes(sweep.make_mesh())
+        groups, size = sweep.batch_groups(b, N_DEVICES, max_per_device=cap, lanes=lanes)
         rows.append(
             dict(
                 max_per_device=cap,
@@ -282,8 +275,8 @@ def bench_grouped(b, seconds, substeps, repeats):
                 groups=len(groups),
                 group_size=size,
                 first_s=first,
-                run_s=statistics.median(runs),
-                msubsteps_per_s=b * n * substeps / statistics.median(runs) / 1e6,
+                run_s=run_s,
+                msubsteps_per_s=b * n * substeps / run_s / 1e6,
             )
         )
         rate = rows[-1]["msubsteps_per_s"]
