@@ -262,10 +262,10 @@ def bench_grouped(b, seconds, substeps, repeats):
     n = int(seconds * 1000)
     params, f_delta = batch_inputs(b, n, substeps)
     f_delta = np.asarray(f_delta)
+    lanes = sweep.default_lanes(sweep.make_mesh())  # what simulate_batch pads to
     rows = []
     for cap in (sweep.MAX_PER_DEVICE, None):
         first, run_s = timed(functools.partial(sweep.simulate_batch, params, f_delta, max_per_device=cap), repeats)
-        lanes = sweep.default_lanes(sweep.make_mesh())
         groups, size = sweep.batch_groups(b, N_DEVICES, max_per_device=cap, lanes=lanes)
         rows.append(
             dict(
