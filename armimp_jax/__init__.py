@@ -1,30 +1,44 @@
 """armimp_jax: differentiable, vectorised simulation of stochastic human-arm impedance
-estimation with a friction-afflicted MIT-MANUS robot under PD or IMBIC control.
+estimation with a friction-afflicted planar robot under PD or IMBIC control.
+
+The general simulator is at the top level (``make_trial``, ``simulate``, ``estimate``,
+``accuracy``); the paper's presets and study are in ``armimp_jax.paper``.
 
 Float64 is required: call ``jax.config.update("jax_enable_x64", True)`` before use
 (the library never switches it on for you, and its entry points refuse to run without it).
 """
 
-from .arm import ArmImpedance as ArmImpedance
-from .arm import arm_impedance as arm_impedance
-from .arm import true_impedance as true_impedance
-from .control import ControllerGains as ControllerGains
-from .control import ControllerMemory as ControllerMemory
-from .estimate import Estimate as Estimate
-from .estimate import cross_spectral_matrix as cross_spectral_matrix
-from .estimate import estimate as estimate
-from .estimate import input_coherence as input_coherence
-from .friction import LuGreParams as LuGreParams
-from .friction import friction_params as friction_params
-from .friction import lugre as lugre
-from .metrics import accuracy as accuracy
-from .perturbation import perturbation as perturbation
-from .perturbation import perturbation_peak as perturbation_peak
-from .plant import PlantState as PlantState
-from .simulate import SimResult as SimResult
-from .simulate import TrialParams as TrialParams
-from .simulate import simulate as simulate
-from .simulate import stack_trials as stack_trials
-from .simulate import trial_params as trial_params
+from . import runtime as runtime
+from ._arm import Arm as Arm
+from ._batch import TrialOutcome as TrialOutcome
+from ._batch import Welch as Welch
+from ._batch import assess as assess
+from ._batch import assess_batch as assess_batch
+from ._batch import simulate_batch as simulate_batch
+from ._control import IMBIC as IMBIC
+from ._control import PD as PD
+from ._estimate import Estimate as Estimate
+from ._estimate import cross_spectral_matrix as cross_spectral_matrix
+from ._estimate import estimate as estimate
+from ._estimate import input_coherence as input_coherence
+from ._friction import NO_FRICTION as NO_FRICTION
+from ._friction import LuGre as LuGre
+from ._friction import lugre as lugre
+from ._metrics import accuracy as accuracy
+from ._numerics import Numerics as Numerics
+from ._perturbation import perturbation as perturbation
+from ._plant import PlantState as PlantState
+from ._robot import MIT_MANUS as MIT_MANUS
+from ._robot import Robot as Robot
+from ._sensors import Sensors as Sensors
+from ._simulate import SimResult as SimResult
+from ._simulate import Trial as Trial
+from ._simulate import make_trial as make_trial
+from ._simulate import simulate as simulate
+from ._simulate import simulate_chunk as simulate_chunk
+from ._simulate import simulate_init as simulate_init
+from ._simulate import stack_trials as stack_trials
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
+
+runtime.apply_cpu_defaults()

@@ -45,3 +45,54 @@ def as_float64(name: str, x, shape: tuple[int, ...] | None = None, *, where: str
     if shape is not None and arr.shape != shape:
         raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
     return arr
+
+
+def _show(a) -> str:
+    a = np.asarray(a)
+    return repr(a.item()) if a.ndim == 0 else repr(a.tolist())
+
+
+def as_param(name: str, x, shape: tuple[int, ...], *, where: str, broadcast: bool = False):
+    """A float64 parameter of ``shape`` (a scalar broadcast to it when ``broadcast``), finite
+    when concrete. Tracers pass through unchecked so ``grad`` and ``vmap`` flow through it."""
+    if isinstance(x, (jax.Array, jax.core.Tracer)):
+        arr = as_float64(name, x, where=where)
+        if broadcast and arr.shape == ():
+            arr = jnp.broadcast_to(arr, shape)
+    else:  # host values stay NumPy: building parameters starts no JAX backend
+        try:
+            arr = np.asarray(x, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"{where}: {name} must be numeric, got {x!r}") from None
+        if broadcast and arr.shape == ():
+            arr = np.broadcast_to(arr, shape).copy()
+    if arr.shape != shape:
+        allowed = f"a scalar or shape {shape}" if broadcast else f"shape {shape}"
+        raise ValueError(f"{where}: {name} must be {allowed}, got shape {arr.shape}")
+    if is_concrete(arr) and not np.all(np.isfinite(np.asarray(arr))):
+        raise ValueError(f"{where}: {name} must be finite, got {_show(arr)}")
+    return arr
+
+
+def check_range(name: str, x, *, where: str, minimum=None, exclusive: bool = False, unit: str = "") -> None:
+    """Refuse concrete values below ``minimum`` (or at it, when ``exclusive``)."""
+    if minimum is None or not is_concrete(x):
+        return
+    a = np.asarray(x)
+    bad = a <= minimum if exclusive else a < minimum
+    if np.any(bad):
+        op = ">" if exclusive else ">="
+        raise ValueError(f"{where}: {name} must be {op} {minimum:g}{unit}, got {_show(a)}")
+
+
+def check_positive_definite(name: str, a, *, where: str, unit: str = "") -> None:
+    """Refuse a concrete 2x2 matrix whose symmetric part is not positive definite."""
+    if not is_concrete(a):
+        return
+    m = np.asarray(a)
+    eig = np.linalg.eigvalsh(0.5 * (m + m.T))
+    if not np.all(eig > 0.0):
+        raise ValueError(
+            f"{where}: {name} must have a positive definite symmetric part (eigenvalues of (A + A^T)/2 > 0)"
+            f"{unit}; got {m.tolist()} with eigenvalues {eig.tolist()}"
+        )

@@ -1,6 +1,12 @@
 """Entry-point set-up: float64, one XLA device per CPU core, and XLA:CPU code-generation flags.
 
-Library code never changes JAX's configuration; scripts call ``configure`` once at start.
+Scripts call ``configure`` once at start (float64, devices, code generation). Importing
+``armimp_jax`` only adds the two XLA:CPU code-generation options of ``apply_cpu_defaults``
+when no JAX backend has started yet, so that the documented library path runs at full
+speed without a set-up call: XLA refuses them as per-compilation options (they live in
+``xla_backend_extra_options``, a map that ``jax.jit(compiler_options=...)`` cannot set),
+so the environment is the only place for them. Set ``ARMIMP_JAX_XLA_DEFAULTS=0`` to
+leave XLA's own code generation alone.
 """
 
 from __future__ import annotations
@@ -26,6 +32,26 @@ _NO_UNROLL_OPTION = ("xla_cpu_disable_loop_unrolling", None)
 # 1.4-1.7x faster on AVX-512 cores, bit for bit the same results (sweeps/bench_simulate.py).
 _VECTOR_FLAG = "--xla_cpu_prefer_vector_width"
 _DEFAULT_VECTOR_WIDTH = 256  # XLA:CPU's own default for the flag above
+
+
+def apply_cpu_defaults() -> bool:
+    """Add the small-loop and no-unrolling XLA:CPU options to ``XLA_FLAGS`` if no JAX backend
+    has started yet (and ``ARMIMP_JAX_XLA_DEFAULTS`` is not ``0``); options already there win.
+    They change code generation only (results may move in their last bits: FMA contraction).
+    Returns whether they are in effect for this process."""
+    from jax._src import xla_bridge
+
+    if os.environ.get("ARMIMP_JAX_XLA_DEFAULTS", "1") == "0":
+        return False
+    if not xla_bridge.backends_are_initialized():
+        _add_extra_option(*_LOOP_OPTION)
+        _add_extra_option(*_NO_UNROLL_OPTION)
+    return cpu_defaults_active()
+
+
+def cpu_defaults_active() -> bool:
+    """Whether ``XLA_FLAGS`` holds the small-loop option (read when the CPU backend started)."""
+    return _LOOP_OPTION[0] in os.environ.get("XLA_FLAGS", "")
 
 
 def vector_lanes() -> int:

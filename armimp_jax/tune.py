@@ -1,4 +1,6 @@
-"""Gradient-based tuning of IMBIC's gain ``Mhat``: parameterisation, loss, gradients, optimiser loop.
+"""Gradient-based tuning of a controller gain (IMBIC's ``Mhat``): parameterisation, loss,
+gradients, and an optimiser loop with a divergence guard. The paper's experiment (its
+training and held-out batches) is ``armimp_jax.paper.tune``.
 
 ``phi_T`` is differentiated through the whole pipeline (RK4 scan -> Welch -> ``Z`` ->
 ``phi_T``) with respect to ``Mhat``. ``Mhat`` is parameterised so it is always symmetric
@@ -10,10 +12,9 @@ Two gradient modes: ``"forward"`` (``jax.jacfwd``: one tangent per parameter, me
 a few primal runs) and ``"reverse"`` (``jax.grad`` through the scan with ``jax.checkpoint``;
 the trials' ``checkpoint`` field says whether the tape holds one carry per control period
 or per RK4 substep). Both are exact; ``bench_gradient.py`` measures them. Training
-batches use the ``"grad"`` RK4 kernel (``plant.integrate_period``), which halves the cost
-of reverse mode, with a carry per substep on the tape (16-25% less time again in paired
-runs), and are sharded over the devices (``place_batch``: one per core after
-``runtime.configure``).
+batches are best run with ``Numerics(kernel="grad", checkpoint="substep")`` (the RK4 kernel
+arranged for reverse mode, a carry per substep on the tape: ``sweeps/bench_gradient.py``)
+and are sharded over the devices (``place_batch``: one per core after ``runtime.configure``).
 
 ``tune`` runs optax with a divergence guard: a step that lands on an ``Mhat`` whose
 simulation diverges (flag, NaN or inf) is rejected, the step size is halved, and the
@@ -37,10 +38,11 @@ import numpy as np
 import optax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from ._batch import Welch, _batch_size, assess, make_mesh, shard_batch, to_host
 from ._checks import check_choice
-from .perturbation import perturbation, perturbation_peak
-from .simulate import TrialParams, simulate, stack_trials, trial_params
-from .sweep import Welch, _batch_size, assess, assess_batch, make_mesh, shard_batch, simulate_batch, to_host
+from ._numerics import Numerics
+from ._pytree import replace_unchecked
+from ._simulate import Trial, simulate
 
 PARAMETERISATIONS = ("diagonal", "full")
 MAX_START_SHRINKS = 8  # an unstable start is halved at most this often (a factor of 256)
@@ -68,10 +70,14 @@ def theta_from_mhat(mhat, parameterisation: str):
     return jnp.array([np.log(lower[0, 0]), lower[1, 0], np.log(lower[1, 1])])
 
 
-def with_mhat(params: TrialParams, mhat) -> TrialParams:
-    """``params`` (single or stacked) with IMBIC's gain replaced by ``mhat`` ``(2, 2)``."""
-    batch_shape = params.gains.kp.shape[:-2]
-    return dataclasses.replace(params, gains=params.gains._replace(mhat=jnp.broadcast_to(mhat, batch_shape + (2, 2))))
+def with_mhat(trials: Trial, mhat) -> Trial:
+    """``trials`` (single or stacked IMBIC trials) with the gain replaced by ``mhat`` ``(2, 2)``."""
+    ctrl = trials.controller
+    if not hasattr(ctrl, "mhat"):
+        raise ValueError(f"with_mhat: the trials' controller {type(ctrl).__name__} has no mhat")
+    batch_shape = jnp.shape(ctrl.mhat)[:-2]
+    new = replace_unchecked(ctrl, mhat=jnp.broadcast_to(mhat, batch_shape + (2, 2)))
+    return replace_unchecked(trials, controller=new)
 
 
 class LossAux(NamedTuple):
@@ -81,27 +87,49 @@ class LossAux(NamedTuple):
     diverged: jnp.ndarray
 
 
-def trial_loss(params: TrialParams, f_delta, welch: Welch, phi_ij_weight: float = 0.0):
+def trial_loss(trial: Trial, f_delta, welch: Welch, phi_ij_weight: float = 0.0, numerics: Numerics | None = None):
     """``phi_T`` (+ weight x mean ``phi_ij``) of one trial, and its divergence flag."""
-    out = assess(params, f_delta, simulate(params, f_delta), welch)
+    out = assess(trial, f_delta, simulate(trial, f_delta, numerics=numerics), welch)
     return out.phi_T + phi_ij_weight * jnp.mean(out.phi_ij), (out.phi_T, out.diverged)
 
 
-def batch_loss(theta, params: TrialParams, f_delta, *, parameterisation: str, welch: Welch, phi_ij_weight: float = 0.0):
+def batch_loss(
+    theta,
+    trials: Trial,
+    f_delta,
+    *,
+    parameterisation: str,
+    welch: Welch,
+    phi_ij_weight: float = 0.0,
+    numerics: Numerics | None = None,
+):
     """Mean loss over a stacked batch as a pure function of ``theta``; returns ``(loss, LossAux)``."""
-    p = with_mhat(params, mhat_from_theta(theta, parameterisation))
-    losses, (phi_t, diverged) = jax.vmap(trial_loss, in_axes=(0, 0, None, None))(p, f_delta, welch, phi_ij_weight)
+    p = with_mhat(trials, mhat_from_theta(theta, parameterisation))
+    losses, (phi_t, diverged) = jax.vmap(lambda t, f: trial_loss(t, f, welch, phi_ij_weight, numerics))(p, f_delta)
     return jnp.mean(losses), LossAux(phi_t, diverged)
 
 
-def value_and_grad_fn(*, parameterisation: str, welch: Welch, phi_ij_weight: float = 0.0, mode: str = "forward"):
-    """A jitted ``(theta, params, f_delta) -> ((loss, aux), grad)`` in the chosen mode."""
+def value_and_grad_fn(
+    *,
+    parameterisation: str,
+    welch: Welch,
+    phi_ij_weight: float = 0.0,
+    mode: str = "forward",
+    numerics: Numerics | None = None,
+):
+    """A jitted ``(theta, trials, f_delta) -> ((loss, aux), grad)`` in the chosen mode."""
     check_choice("gradient mode", mode, ("forward", "reverse"))
     check_choice("parameterisation", parameterisation, PARAMETERISATIONS)
 
     def loss(theta, params, f_delta):
         return batch_loss(
-            theta, params, f_delta, parameterisation=parameterisation, welch=welch, phi_ij_weight=phi_ij_weight
+            theta,
+            params,
+            f_delta,
+            parameterisation=parameterisation,
+            welch=welch,
+            phi_ij_weight=phi_ij_weight,
+            numerics=numerics,
         )
 
     if mode == "reverse":
@@ -127,15 +155,16 @@ class TuneConfig:
     mode: str = "reverse"
     phi_ij_weight: float = 0.0
     min_step_scale: float = 1e-3
+    numerics: Numerics = Numerics(kernel="grad", checkpoint="substep")
 
 
-def place_batch(params: TrialParams, f_delta, *, mesh: Mesh | None = None):
+def place_batch(params: Trial, f_delta, *, mesh: Mesh | None = None):
     """Shard a stacked training batch's trial axis over the devices of ``mesh`` so that
     ``value_and_grad_fn`` runs on every core: jit partitions the vmapped loss, and the mean
     and the gradient are summed across devices (the last bits may differ from one device).
 
     Args:
-        params: stacked ``TrialParams``, leading axis ``B`` (``stack_trials``).
+        params: stacked trials, leading axis ``B`` (``stack_trials``).
         f_delta: perturbations ``(B, N, 2)`` [N].
         mesh: a one-axis mesh named ``"batch"`` (``sweep.make_mesh``); default every device.
 
@@ -160,7 +189,7 @@ def _finite(*trees) -> bool:
 
 def tune(
     theta0,
-    params: TrialParams,
+    params: Trial,
     f_delta,
     welch: Welch,
     config: TuneConfig,
@@ -185,7 +214,11 @@ def tune(
     # compilation (a proposal built from them would otherwise differ in sharding: 23 s more)
     replicated = None if placed is None else NamedSharding(placed, PartitionSpec())
     vg = value_and_grad_fn(
-        parameterisation=config.parameterisation, welch=welch, phi_ij_weight=config.phi_ij_weight, mode=config.mode
+        parameterisation=config.parameterisation,
+        welch=welch,
+        phi_ij_weight=config.phi_ij_weight,
+        mode=config.mode,
+        numerics=config.numerics,
     )
     opt = optax.adam(config.learning_rate)
 
@@ -313,111 +346,3 @@ def load_state(path: pathlib.Path, config: TuneConfig) -> dict:
         grad=grad,
         **{k: meta[k] for k in ("iteration", "step_scale", "history", "value", "rejected")},
     )
-
-
-TRAIN_SEED_OFFSET = 100  # training and held-out perturbation seeds never overlap
-HELDOUT_SEED_OFFSET = 1000
-
-
-def seed_perturbations(base_seed: int, seeds, n_samples: int, level: int = 1):
-    """``(len(seeds), n, 2)`` perturbations [N] from ``fold_in(PRNGKey(base_seed), seed)``."""
-    key = jax.random.PRNGKey(base_seed)
-    return np.stack(
-        [np.asarray(perturbation(jax.random.fold_in(key, s), n_samples, perturbation_peak(level))) for s in seeds]
-    )
-
-
-def training_batch(
-    frictions,
-    locations,
-    seeds,
-    *,
-    seconds: float,
-    substeps: int,
-    base_seed: int = 0,
-    kernel: str = "grad",
-    checkpoint: str = "substep",
-):
-    """Stacked IMBIC ``TrialParams`` (friction x location x seed) and their perturbations.
-
-    ``kernel`` defaults to ``"grad"``, the RK4 kernel arranged for reverse mode, and
-    ``checkpoint`` to ``"substep"``: reverse mode keeps every substep's carry, 96 bytes per
-    trial-substep (``substeps`` x 96 kB per trial-second: 31 MB for a 16 s trial at 20
-    substeps); use ``"period"`` for batches that would not fit (see ``trial_params``)."""
-    n = int(round(seconds * 1000))
-    signals = seed_perturbations(base_seed, [TRAIN_SEED_OFFSET + s for s in seeds], n)
-    params, f_delta = [], []
-    for fr in frictions:
-        for loc in locations:
-            for i, _ in enumerate(seeds):
-                params.append(trial_params("imbic", fr, loc, substeps=substeps, kernel=kernel, checkpoint=checkpoint))
-                f_delta.append(signals[i])
-    return stack_trials(params), jnp.asarray(np.stack(f_delta))
-
-
-def heldout_phi(
-    mhats: dict,
-    *,
-    frictions=(0, 1, 2),
-    locations=(1, 2, 3, 4),
-    seeds=(0, 1),
-    seconds: float = 50.0,
-    substeps: int = 100,
-    welch: Welch = Welch(),
-    base_seed: int = 0,
-    batch_size: int = 24,
-) -> dict:
-    """``phi_T`` of each candidate ``Mhat`` on held-out seeds at the given settings.
-
-    Returns ``{name: array (len(frictions), len(locations), len(seeds))}`` plus
-    ``"_diverged"``: names whose runs diverged in any trial.
-    """
-    n = int(round(seconds * 1000))
-    welch.check(n)
-    signals = seed_perturbations(base_seed, [HELDOUT_SEED_OFFSET + s for s in seeds], n)
-    cells = [(fr, loc, i) for fr in frictions for loc in locations for i in range(len(seeds))]
-    out, diverged = {}, []
-    for name, mhat in mhats.items():
-        phis = np.empty(len(cells))
-        bad = False
-        for start in range(0, len(cells), batch_size):
-            chunk = cells[start : start + batch_size]
-            params = stack_trials(
-                [trial_params("imbic", fr, loc, mhat=np.asarray(mhat), substeps=substeps) for fr, loc, _ in chunk]
-            )
-            f_delta = np.stack([signals[i] for _, _, i in chunk])
-            sim = simulate_batch(params, f_delta, chunk_samples=min(n, 10_000))
-            res = assess_batch(params, f_delta, sim, welch)
-            phis[start : start + len(chunk)] = res.phi_T
-            bad |= bool(np.any(res.diverged))
-        out[name] = phis.reshape(len(frictions), len(locations), len(seeds))
-        if bad:
-            diverged.append(name)
-    out["_diverged"] = diverged
-    return out
-
-
-def comparison_markdown(table: dict, mhat, *, locations, evals: dict, seeds) -> str:
-    """The held-out comparison as Markdown: mean phi_T per friction level and location."""
-    names = [k for k in table if not k.startswith("_")]
-    frictions = range(next(iter(table[n] for n in names)).shape[0])
-    w = evals["welch"]
-    lines = [
-        f"Held-out phi_T [N/m] (seeds {list(seeds)} offset {HELDOUT_SEED_OFFSET}, {evals['seconds']:g} s, "
-        f"{evals['substeps']} substeps, nperseg {w.nperseg}); tuned Mhat = "
-        f"{np.round(np.asarray(mhat), 4).tolist()} kg",
-        "",
-        "| Mhat | " + " | ".join(f"F{f} L{loc}" for f in frictions for loc in locations) + " | mean |",
-        "|---|" + "---|" * (len(frictions) * len(locations) + 1),
-    ]
-    for n in names:
-        cells = table[n].mean(axis=2)
-        flag = " (diverged)" if n in table["_diverged"] else ""
-        lines.append(
-            f"| {n}{flag} | "
-            + " | ".join(f"{cells[f, i]:.0f}" for f in frictions for i in range(len(locations)))
-            + f" | {table[n].mean():.1f} |"
-        )
-    best = min(names, key=lambda n: table[n].mean())
-    lines += ["", f"Lowest mean phi_T: **{best}**."]
-    return "\n".join(lines) + "\n"

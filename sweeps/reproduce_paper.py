@@ -104,9 +104,9 @@ def finish(repro, plots, report, out, *, complete):
 def main(argv=None):
     args = parse(argv)
     configure()
-    from armimp_jax import plots, report
-    from armimp_jax import reproduce as repro
-    from armimp_jax.paper import paper_conditions
+    from armimp_jax.paper import plots, report
+    from armimp_jax.paper import reproduce as repro
+    from armimp_jax.paper.claims import paper_conditions
 
     if args.replot:
         results, arrays = repro.load_results(args.replot)

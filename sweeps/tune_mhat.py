@@ -59,8 +59,8 @@ def main(argv=None):
     configure()
     import numpy as np
 
-    from armimp_jax import tune
-    from armimp_jax.sweep import Welch
+    from armimp_jax import Welch, tune
+    from armimp_jax.paper import tune as paper_tune
 
     if args.quick:
         # 20 substeps: fewer put RK4 near its stability limit on the stiff LuGre bristles
@@ -84,14 +84,11 @@ def main(argv=None):
         iterations=args.iterations,
         mode=args.mode,
         phi_ij_weight=args.phi_ij_weight,
+        numerics=paper_tune.training_numerics(train["substeps"]),
     )
     train["welch"].check(int(train["seconds"] * 1000))
-    params, f_delta = tune.training_batch(
-        tuple(args.frictions),
-        locations,
-        tuple(range(args.train_seeds)),
-        seconds=train["seconds"],
-        substeps=train["substeps"],
+    params, f_delta = paper_tune.training_batch(
+        tuple(args.frictions), locations, tuple(range(args.train_seeds)), seconds=train["seconds"]
     )
     state_path = out / "tune_state"
     state = tune.load_state(state_path, config) if args.resume else None
@@ -99,7 +96,7 @@ def main(argv=None):
 
     def evaluate(iteration, theta):
         mhat = np.asarray(tune.mhat_from_theta(theta, config.parameterisation))
-        phi = tune.heldout_phi(
+        phi = paper_tune.heldout_phi(
             {"current": mhat},
             locations=locations,
             seeds=eval_seeds,
@@ -149,11 +146,11 @@ def main(argv=None):
             indent=1,
         )
     )
-    from armimp_jax.plots import loss_curve
+    from armimp_jax.paper.plots import loss_curve
 
     loss_curve(state["history"], out / "loss_curve.png")
     candidates = {"tuned": mhat} | {f"{v:g} I": v * np.eye(2) for v in args.compare}
-    table = tune.heldout_phi(
+    table = paper_tune.heldout_phi(
         candidates,
         locations=locations,
         seeds=eval_seeds,
@@ -161,7 +158,7 @@ def main(argv=None):
         substeps=evals["substeps"],
         welch=evals["welch"],
     )
-    md = tune.comparison_markdown(table, mhat, locations=locations, evals=evals, seeds=eval_seeds)
+    md = paper_tune.comparison_markdown(table, mhat, locations=locations, evals=evals, seeds=eval_seeds)
     (out / "comparison.md").write_text(md)
     (out / "comparison.json").write_text(
         json.dumps({k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in table.items()}, indent=1)

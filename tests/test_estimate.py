@@ -7,8 +7,9 @@ import pytest
 import scipy.signal
 
 import armimp_jax as aj
-from armimp_jax.estimate import cross_spectral_matrix
-from armimp_jax.metrics import largest_singular_value
+from armimp_jax import paper
+from armimp_jax._estimate import cross_spectral_matrix
+from armimp_jax._metrics import largest_singular_value
 
 
 @pytest.mark.parametrize("n, nperseg, noverlap", [(50_000, 8192, 6144), (3000, 256, 192), (1000, 300, 100)])
@@ -106,28 +107,30 @@ def test_largest_singular_value_and_accuracy():
     a = np.random.default_rng(3).standard_normal((50, 2, 2)) + 1j * np.random.default_rng(4).standard_normal((50, 2, 2))
     np.testing.assert_allclose(largest_singular_value(jnp.asarray(a)), np.linalg.norm(a, 2, axis=(1, 2)), rtol=1e-13)
     f = jnp.linspace(0.1, 15, 40)
-    phi_t, phi_ij = aj.accuracy(aj.true_impedance(2, f), f, 2)
+    phi_t, phi_ij = aj.accuracy(paper.arm(2).impedance(f), f, paper.arm(2))
     assert float(phi_t) == 0.0 and np.all(np.asarray(phi_ij) == 0.0)
-    z = aj.true_impedance(1, f) + 10.0
-    phi_t, phi_ij = aj.accuracy(z, f, 1)
+    z = paper.arm(1).impedance(f) + 10.0
+    phi_t, phi_ij = aj.accuracy(z, f, paper.arm(1))
     np.testing.assert_allclose(phi_t, 20.0, rtol=1e-12)  # ||10 * ones(2,2)||_2 = 20
     np.testing.assert_allclose(phi_ij, 10.0, rtol=1e-12)
 
 
-def test_true_impedance_matches_table_and_vmaps_over_locations():
+def test_true_impedance_matches_table_and_vmaps_over_arms():
     f = jnp.array([0.0, 1.0])
-    z = aj.true_impedance(3, f)
-    arm = aj.arm_impedance(3)
+    arm = paper.arm(3)
+    z = arm.impedance(f)
     np.testing.assert_allclose(z[0], arm.stiffness)
     s = 2j * np.pi
     np.testing.assert_allclose(z[1], arm.mass * s**2 + arm.damping * s + arm.stiffness, rtol=1e-15)
-    zs = jax.vmap(aj.true_impedance, in_axes=(0, None))(jnp.arange(1, 5), f)
+    arms = jax.tree.map(lambda *xs: jnp.stack(xs), *[paper.arm(loc) for loc in (1, 2, 3, 4)])
+    zs = jax.vmap(lambda a: a.impedance(f))(arms)
     np.testing.assert_allclose(zs[2], z)
 
 
 def _short_trial(friction_level, n=12_288, substeps=20):
-    fd = aj.perturbation(jax.random.PRNGKey(5), n, aj.perturbation_peak(1))
-    r = jax.jit(aj.simulate)(aj.trial_params("pd", friction_level, 1, substeps=substeps), fd)
+    fd = aj.perturbation(jax.random.PRNGKey(5), n, paper.perturbation_peak(1))
+    run = jax.jit(aj.simulate, static_argnames="numerics")
+    r = run(paper.trial("pd", friction_level, 1), fd, numerics=aj.Numerics(substeps=substeps))
     return fd, r
 
 
@@ -137,8 +140,8 @@ def test_end_to_end_pd_frictionless_is_accurate_and_friction_ruins_it():
     for level in (0, 2):
         fd, r = _short_trial(level)
         est = aj.estimate(fd, r.x, r.fh, **kw)
-        phi_t, _ = aj.accuracy(est.Z, est.f, 1)
-        scale = float(jnp.mean(largest_singular_value(aj.true_impedance(1, est.f))))
+        phi_t, _ = aj.accuracy(est.Z, est.f, paper.arm(1))
+        scale = float(jnp.mean(largest_singular_value(paper.arm(1).impedance(est.f))))
         results[level] = (float(phi_t) / scale, est)
     assert results[0][0] < 0.1, results[0][0]
     assert results[2][0] > 10 * results[0][0]
@@ -153,7 +156,7 @@ def test_gradient_of_phi_through_estimate_matches_finite_differences():
 
     def phi(a):  # a feed-through of the perturbation into the force: a smooth scalar family
         est = aj.estimate(fd, r.x, r.fh + a * fd, **kw)
-        return aj.accuracy(est.Z, est.f, 1)[0]
+        return aj.accuracy(est.Z, est.f, paper.arm(1))[0]
 
     a0, eps = 0.05, 1e-5
     g = jax.grad(phi)(a0)
@@ -190,6 +193,11 @@ def test_mismatched_lengths_are_rejected():
         aj.estimate(jnp.zeros((5000, 2)), jnp.zeros((4999, 2)), jnp.zeros((5000, 2)), nperseg=1024, noverlap=512)
 
 
-def test_unknown_location_is_rejected():
+def test_accuracy_checks_its_arguments():
     with pytest.raises(ValueError, match="unknown arm location 0"):
-        aj.true_impedance(0, jnp.ones(3))
+        paper.arm(0)
+    f = jnp.linspace(1, 10, 5)
+    with pytest.raises(ValueError, match="arm must be an Arm"):
+        aj.accuracy(jnp.zeros((5, 2, 2)), f, 1)
+    with pytest.raises(ValueError, match=r"Z must have shape \(F, 2, 2\)"):
+        aj.accuracy(jnp.zeros((4, 2, 2)), f, paper.arm(1))

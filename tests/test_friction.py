@@ -6,13 +6,14 @@ import numpy as np
 import pytest
 
 import armimp_jax as aj
-from armimp_jax.friction import steady_state_friction, stribeck
+from armimp_jax import paper
+from armimp_jax._friction import steady_state_friction, stribeck
 
 
 @pytest.mark.parametrize("level", [1, 2])
 @pytest.mark.parametrize("v", [-0.2, -2e-3, 5e-4, 0.05])
 def test_constant_velocity_reaches_the_steady_friction(level, v):
-    p = aj.friction_params(level)
+    p = paper.friction(level).joint(0)
     v = jnp.asarray(v)
 
     # The bristle ODE relaxes with time constant g(v) / (sigma0 |v|): integrate 40 of them.
@@ -41,7 +42,7 @@ def test_constant_velocity_reaches_the_steady_friction(level, v):
 def test_small_motions_see_the_bristle_stiffness(level):
     """A 0.01 microradian oscillation stays in linear pre-sliding (|z| << g / sigma0 = 1.5e-5 rad):
     tau ~ sigma0 q + (sigma1 + sigma2) qd; the bristle nonlinearity is ~sigma0 |z| / g = 0.07%."""
-    p = aj.friction_params(level)
+    p = paper.friction(level).joint(0)
     amp, w, h = 1e-8, 2 * np.pi * 2.0, 1e-5
     t = np.arange(0, 0.5, h)
     q, qd = amp * np.sin(w * t), amp * w * np.cos(w * t)
@@ -56,16 +57,26 @@ def test_small_motions_see_the_bristle_stiffness(level):
 
 
 def test_level_0_is_exactly_zero_with_finite_gradients():
-    p = aj.friction_params(0)
+    p = paper.friction(0).joint(0)
     for v, z in [(0.0, 0.0), (0.3, 1e-3), (-1e-9, 0.0)]:
         tau, zd = aj.lugre(jnp.asarray(v), jnp.asarray(z), p)
-        assert float(tau) == 0.0 and float(zd) == v
+        assert float(tau) == 0.0 and float(zd) == 0.0  # no bristles: z stays 0
         grads = jax.grad(lambda v_, z_, p_: aj.lugre(v_, z_, p_)[0] + aj.lugre(v_, z_, p_)[1], argnums=(0, 1, 2))(
             jnp.asarray(v), jnp.asarray(z), p
         )
         assert all(np.all(np.isfinite(g)) for g in jax.tree.leaves(grads))
 
 
+def test_without_bristles_friction_is_viscous_only():
+    """tau_c = tau_s = 0 with the bristle parameters left in place: tau_f = sigma2 v (spec 4),
+    not a 1e5 N m/rad spring, whatever the (unused) bristle state."""
+    p = aj.LuGre(0.0, 0.0).joint(0)
+    for v, z in [(0.2, 0.0), (-0.05, 3e-4), (0.0, 1e-3)]:
+        tau, zd = aj.lugre(jnp.asarray(v), jnp.asarray(z), p)
+        assert float(zd) == 0.0
+        np.testing.assert_allclose(float(tau), 0.5 * v, rtol=1e-15)
+
+
 def test_unknown_level_is_rejected():
     with pytest.raises(ValueError, match="unknown friction level 3; allowed: 0, 1, 2"):
-        aj.friction_params(3)
+        paper.friction(3)

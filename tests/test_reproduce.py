@@ -8,8 +8,8 @@ import sys
 import numpy as np
 import pytest
 
-from armimp_jax import reproduce as repro
-from armimp_jax.paper import Condition, evaluate_claims, paper_conditions
+from armimp_jax.paper import reproduce as repro
+from armimp_jax.paper.claims import Condition, evaluate_claims, paper_conditions
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "reproduce_paper.py"

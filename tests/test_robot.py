@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 
 import armimp_jax as aj
-from armimp_jax import robot
-from armimp_jax.plant import PlantState, plant_derivative, plant_model
-from armimp_jax.tables import ROBOT_BASE, location_endpoint
+from armimp_jax import _robot as robot
+from armimp_jax import paper
+from armimp_jax._plant import PlantState, plant_derivative, plant_model
+from armimp_jax._robot import MIT_MANUS_BASE as ROBOT_BASE
+from armimp_jax.paper import location_endpoint
 
 
 @pytest.mark.parametrize("location", [1, 2, 3, 4])
@@ -56,7 +58,7 @@ def _lagrangian_qdd(q, qd, z, fu, params):
     j = robot.jacobian(q)
     jd_qd = jax.jvp(robot.jacobian, (q,), (qd,))[1] @ qd
     arm, fr = params.arm, params.friction
-    tau_f = jnp.stack([aj.lugre(qd[i], z[i], fr)[0] for i in range(2)])
+    tau_f = jnp.stack([aj.lugre(qd[i], z[i], fr.joint(i))[0] for i in range(2)])
     x = robot.fk(q)
     # M qdd + h + tau_f = J^T (F_u - F_h),  F_h = M_h (J qdd + Jd qd) + B_h J qd + K_h (x - x0)
     lhs = m + j.T @ arm.mass @ j
@@ -67,13 +69,13 @@ def _lagrangian_qdd(q, qd, z, fu, params):
 @pytest.mark.parametrize("friction_level", [0, 2])
 @pytest.mark.parametrize("location", [1, 3])
 def test_coupled_acceleration_matches_lagrangian(friction_level, location):
-    p = aj.trial_params("pd", friction_level, location)
+    p = paper.trial("pd", friction_level, location)
     q = p.q0 + jnp.array([0.01, -0.02])
     qd = jnp.array([0.3, -0.5])
     z = jnp.array([2e-6, -5e-6])
     fu = jnp.array([1.5, -2.0])
     s = PlantState(q[0], q[1], qd[0], qd[1], z[0], z[1], 0.0, 0.0)
-    d = plant_derivative(s, fu, plant_model(p.q0, p.x0, p.arm, p.friction))
+    d = plant_derivative(s, fu, plant_model(p.q0, p.x0, p.arm, p.friction, p.robot))
     expected = _lagrangian_qdd(q, qd, z, fu, p)
     np.testing.assert_allclose([d.qd1, d.qd2], expected, rtol=1e-11, atol=1e-12)
     np.testing.assert_allclose([d.xi1, d.xi2], robot.fk(q) - p.x0, rtol=1e-12, atol=1e-16)

@@ -11,24 +11,35 @@ import scipy.signal
 from helpers import tree_equal
 
 import armimp_jax as aj
-from armimp_jax import sweep
-from armimp_jax.plant import measure, plant_model, rest_state, rk4_step
+from armimp_jax import _batch as sweep
+from armimp_jax import paper
+from armimp_jax._plant import measure, plant_model, rest_state, rk4_step
 
 CONTROLLERS = ["pd", "imbic"]
 
 
+@jax.jit(static_argnames="substeps")
+def _sim(trial, fd, substeps=100):
+    return aj.simulate(trial, fd, numerics=aj.Numerics(substeps=substeps))
+
+
+@jax.jit(static_argnames="substeps")
+def _batch_sim(trials, fds, substeps=100):
+    return jax.vmap(lambda t, f: aj.simulate(t, f, numerics=aj.Numerics(substeps=substeps)))(trials, fds)
+
+
 @pytest.fixture(scope="module")
 def sim():
-    return jax.jit(aj.simulate)
+    return _sim
 
 
 @pytest.fixture(scope="module")
 def batch_sim():
-    return jax.jit(jax.vmap(aj.simulate))
+    return _batch_sim
 
 
 def _fd(n, seed=3, level=1):
-    return aj.perturbation(jax.random.PRNGKey(seed), n, aj.perturbation_peak(level))
+    return aj.perturbation(jax.random.PRNGKey(seed), n, paper.perturbation_peak(level))
 
 
 @pytest.mark.parametrize("acquisition", ["instant", "interval_mean"])
@@ -36,10 +47,8 @@ def _fd(n, seed=3, level=1):
 def test_rest_is_exact_rest_everywhere(batch_sim, controller, acquisition):
     """Unperturbed, every friction level and location stays exactly (bitwise) at x0."""
     cases = [(f, loc) for f in (0, 1, 2) for loc in (1, 2, 3, 4)]
-    params = aj.stack_trials(
-        [aj.trial_params(controller, f, loc, substeps=4, acquisition=acquisition) for f, loc in cases]
-    )
-    r = batch_sim(params, jnp.zeros((len(cases), 300, 2)))
+    params = aj.stack_trials([paper.trial(controller, f, loc, acquisition=acquisition) for f, loc in cases])
+    r = batch_sim(params, jnp.zeros((len(cases), 300, 2)), substeps=4)
     x0 = np.asarray(params.x0)[:, None, :]
     np.testing.assert_array_equal(r.x, np.broadcast_to(x0, r.x.shape))
     np.testing.assert_array_equal(r.q, np.broadcast_to(np.asarray(params.q0)[:, None, :], r.q.shape))
@@ -50,11 +59,11 @@ def test_rest_is_exact_rest_everywhere(batch_sim, controller, acquisition):
 
 def test_rk4_is_fourth_order():
     """Smooth case (friction 0), a 20 ms control period so that the step error is visible."""
-    base = aj.trial_params("pd", 0, 1)
+    base = aj.make_trial(aj.PD(), arm=paper.arm(1), friction=aj.NO_FRICTION, period=0.02)
     fd = 20.0 * _fd(40)
 
     def run(substeps):
-        return np.asarray(aj.simulate(dataclasses.replace(base, substeps=substeps, period=0.02), fd).q)
+        return np.asarray(aj.simulate(base, fd, numerics=aj.Numerics(substeps=substeps)).q)
 
     ref = run(256)
     errs = [np.abs(run(s) - ref).max() for s in (1, 2, 4, 8)]
@@ -64,9 +73,9 @@ def test_rk4_is_fourth_order():
 
 def _desired_response(params, fd, period, mass_scale=1.0):
     """IMBIC's target: (M_rd + M_h) xdd + (B_rd + B_h) xd + (K_rd + K_h) e = F_Delta (ZOH), exact."""
-    mt = np.asarray(mass_scale * params.gains.m_rd + params.arm.mass)
-    bt = np.asarray(params.gains.kv + params.arm.damping)
-    kt = np.asarray(params.gains.kp + params.arm.stiffness)
+    mt = np.asarray(mass_scale * params.controller.m_rd + params.arm.mass)
+    bt = np.asarray(params.controller.b_rd + params.arm.damping)
+    kt = np.asarray(params.controller.k_rd + params.arm.stiffness)
     mi = np.linalg.inv(mt)
     a = np.block([[np.zeros((2, 2)), np.eye(2)], [-mi @ kt, -mi @ bt]])
     b = np.vstack([np.zeros((2, 2)), mi])
@@ -81,9 +90,9 @@ def _desired_response(params, fd, period, mass_scale=1.0):
 @pytest.mark.parametrize("accel_estimate", ["velocity", "position"])
 @pytest.mark.parametrize("location", [1, 4])
 def test_imbic_without_friction_realises_its_desired_dynamics(sim, location, accel_estimate):
-    p = aj.trial_params("imbic", 0, location, substeps=10, accel_estimate=accel_estimate)
+    p = paper.trial("imbic", 0, location, accel_estimate=accel_estimate)
     fd = _fd(2000)
-    e = np.asarray(sim(p, fd).x - p.x0[None])
+    e = np.asarray(sim(p, fd, substeps=10).x - p.x0[None])
     ref = _desired_response(p, fd, p.period)
     rel = np.sqrt(np.mean((e - ref) ** 2) / np.mean(ref**2))
     assert rel < 0.02, rel  # the one-sample delay of time-delay estimation costs ~1%
@@ -94,8 +103,8 @@ def test_imbic_without_friction_realises_its_desired_dynamics(sim, location, acc
 
 def test_friction_locks_pd_in_presliding(sim):
     fd = _fd(1000)
-    free = np.asarray(sim(aj.trial_params("pd", 0, 1, substeps=20), fd).x).std(0)
-    stuck = np.asarray(sim(aj.trial_params("pd", 2, 1, substeps=20), fd).x).std(0)
+    free = np.asarray(sim(paper.trial("pd", 0, 1), fd, substeps=20).x).std(0)
+    stuck = np.asarray(sim(paper.trial("pd", 2, 1), fd, substeps=20).x).std(0)
     assert np.all(stuck < 0.05 * free)
 
 
@@ -106,17 +115,18 @@ def test_interval_mean_is_the_mean_over_the_period():
     Simpson reference be accurate enough for a tight check.
     """
     fd = _fd(200)
-    p = aj.trial_params("pd", 0, 2, substeps=40, acquisition="interval_mean")
-    r = aj.simulate(p, fd)
-    model = plant_model(p.q0, p.x0, p.arm, p.friction)
-    h = p.period / p.substeps
+    p = paper.trial("pd", 0, 2, acquisition="interval_mean")
+    substeps = 40
+    r = aj.simulate(p, fd, numerics=aj.Numerics(substeps=substeps))
+    model = plant_model(p.q0, p.x0, p.arm, p.friction, p.robot)
+    h = p.period / substeps
 
     def period(state, fu):  # replay the recorded commands through the plant, sampling every substep
         def sub(st, _):
             x_i, _, f_i = measure(st, fu, model)
             return rk4_step(st, fu, model, h), (x_i, f_i)
 
-        end, (xs, fs) = jax.lax.scan(sub, state, None, length=p.substeps)
+        end, (xs, fs) = jax.lax.scan(sub, state, None, length=substeps)
         x_end, _, f_end = measure(end, fu, model)
         return end, (jnp.concatenate([xs, x_end[None]]), jnp.concatenate([fs, f_end[None]]))
 
@@ -128,46 +138,48 @@ def test_interval_mean_is_the_mean_over_the_period():
     np.testing.assert_array_equal(r.x[0], p.x0)
     np.testing.assert_array_equal(r.fh[0], 0.0)
     # ...and it differs from the instant samples by far more than that tolerance
-    inst = aj.simulate(dataclasses.replace(p, acquisition="instant"), fd)
+    inst = aj.simulate(dataclasses.replace(p, acquisition="instant"), fd, numerics=aj.Numerics(substeps=substeps))
     assert np.abs(np.asarray(inst.fh) - np.asarray(r.fh)).max() > 1e-3 * np.abs(r.fh).max()
 
 
 @pytest.mark.parametrize("controller", CONTROLLERS)
 def test_runs_are_bitwise_deterministic_and_batch_equals_single(sim, batch_sim, controller):
-    """Same inputs, same bits; a mixed batch reproduces every trial run alone.
+    """Same inputs, same bits; any two batches (size >= 2) agree bitwise in everything.
 
-    The unbatched program is a scalar program to XLA, which FMA-contracts the final force
-    sum of the sensor model differently from the vectorised one: there ``fh`` may differ
-    by an ulp or two. The trajectory and every other output are bitwise equal, and any
-    two batches (size >= 2) agree bitwise in everything.
+    A trial run alone is a scalar program to XLA, which FMA-contracts the sensor sums
+    (``xd``, ``F_h``) differently from the vectorised one: the measured outputs differ by a
+    few ulp, which IMBIC's feedback carries into the trajectory (seen: 3e-13 relative).
     """
     cases = [(0, 1, 0.25), (1, 2, 0.4), (2, 3, 0.25), (2, 4, 0.6)]
-    params = [aj.trial_params(controller, f, loc, mhat=m * np.eye(2), substeps=5) for f, loc, m in cases]
+    params = [paper.trial(controller, f, loc, mhat=m * np.eye(2)) for f, loc, m in cases]
     fds = jnp.stack([_fd(400, seed=s) for s in range(len(cases))])
-    singles = [sim(p, fd) for p, fd in zip(params, fds)]
-    assert tree_equal(singles[0], sim(params[0], fds[0]))
-    batch = batch_sim(aj.stack_trials(params), fds)
+    singles = [sim(p, fd, substeps=5) for p, fd in zip(params, fds)]
+    assert tree_equal(singles[0], sim(params[0], fds[0], substeps=5))
+    batch = batch_sim(aj.stack_trials(params), fds, substeps=5)
     for i, single in enumerate(singles):
         row = jax.tree.map(lambda a, i=i: a[i], batch)
-        assert tree_equal(row._replace(fh=None), single._replace(fh=None))
-        np.testing.assert_allclose(row.fh, single.fh, rtol=0, atol=4 * np.finfo(float).eps * np.abs(single.fh).max())
-    pair = batch_sim(aj.stack_trials(params[1:3]), fds[1:3])
+        assert int(row.diverged_at) == int(single.diverged_at) == -1
+        for name in ("x", "q", "xd", "fh", "fu", "z"):
+            a, b = np.asarray(getattr(row, name)), np.asarray(getattr(single, name))
+            a, b = a - b[:1], b - b[:1]  # displacements, not the 0.4 m offset
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-11 * np.abs(b).max())
+    pair = batch_sim(aj.stack_trials(params[1:3]), fds[1:3], substeps=5)
     assert tree_equal(pair, jax.tree.map(lambda a: a[1:3], batch))
-    assert tree_equal(batch, batch_sim(aj.stack_trials(params), fds))
+    assert tree_equal(batch, batch_sim(aj.stack_trials(params), fds, substeps=5))
 
 
 def test_divergence_is_flagged_per_trial_without_poisoning_the_batch(sim, batch_sim):
     # mhat far above 2 M_x breaks time-delay estimation: the trial must blow up
-    good = aj.trial_params("imbic", 0, 1, substeps=5)
-    bad = aj.trial_params("imbic", 0, 1, mhat=20.0 * np.eye(2), substeps=5)
+    good = paper.trial("imbic", 0, 1)
+    bad = paper.trial("imbic", 0, 1, mhat=20.0 * np.eye(2))
     fds = jnp.stack([_fd(400), _fd(400)])
-    r = batch_sim(aj.stack_trials([good, bad]), fds)
+    r = batch_sim(aj.stack_trials([good, bad]), fds, substeps=5)
     assert not bool(r.diverged[0]) and int(r.diverged_at[0]) == -1
     assert bool(r.diverged[1]) and 0 < int(r.diverged_at[1]) < 400
     assert all(np.all(np.isfinite(leaf)) for leaf in jax.tree.leaves(r))
     k = int(r.diverged_at[1])
     np.testing.assert_array_equal(r.x[1, k:], np.broadcast_to(r.x[1, k - 1], r.x[1, k:].shape))
-    alone = batch_sim(aj.stack_trials([good, good]), fds)
+    alone = batch_sim(aj.stack_trials([good, good]), fds, substeps=5)
     assert tree_equal(jax.tree.map(lambda a: a[0], r), jax.tree.map(lambda a: a[0], alone))
 
 
@@ -176,8 +188,8 @@ def test_gradient_wrt_mhat_is_finite(friction_level):
     fd = _fd(120)
 
     def loss(m):
-        p = aj.trial_params("imbic", friction_level, 1, mhat=m, substeps=4)
-        return jnp.sum(aj.simulate(p, fd).x ** 2)
+        p = paper.trial("imbic", friction_level, 1, mhat=m)
+        return jnp.sum(aj.simulate(p, fd, numerics=aj.Numerics(substeps=4)).x ** 2)
 
     g = jax.grad(loss)(0.25 * jnp.eye(2))
     assert np.all(np.isfinite(g)) and np.any(g != 0)
@@ -188,12 +200,12 @@ def test_vmap_over_mhat_inside_trial_params(batch_sim):
     fd = _fd(100)
 
     def final_x(m):
-        return aj.simulate(aj.trial_params("imbic", 1, 1, mhat=m, substeps=4), fd).x[-1]
+        return aj.simulate(paper.trial("imbic", 1, 1, mhat=m), fd, numerics=aj.Numerics(substeps=4)).x[-1]
 
     ms = jnp.stack([0.25 * jnp.eye(2), 0.5 * jnp.eye(2)])
     out = jax.jit(jax.vmap(final_x))(ms)
-    stacked = aj.stack_trials([aj.trial_params("imbic", 1, 1, mhat=m, substeps=4) for m in ms])
-    np.testing.assert_array_equal(out, batch_sim(stacked, jnp.stack([fd, fd])).x[:, -1])
+    stacked = aj.stack_trials([paper.trial("imbic", 1, 1, mhat=m) for m in ms])
+    np.testing.assert_array_equal(out, batch_sim(stacked, jnp.stack([fd, fd]), substeps=4).x[:, -1])
     assert not np.array_equal(out[0], out[1])
 
 
@@ -203,33 +215,44 @@ def test_vmap_over_mhat_inside_trial_params(batch_sim):
         (dict(controller="lqr"), "unknown controller 'lqr'; allowed: 'pd', 'imbic'"),
         (dict(friction_level=3), "unknown friction level 3; allowed: 0, 1, 2"),
         (dict(location=5), "unknown arm location 5; allowed: 1, 2, 3, 4"),
-        (dict(substeps=0), "substeps .* must be >= 1, got 0"),
-        (dict(substeps=2.5), "substeps .* must be an integer >= 1, got 2.5"),
-        (dict(mhat=np.eye(3)), r"mhat must have shape \(2, 2\), got \(3, 3\)"),
-        (dict(mhat=-0.1 * np.eye(2)), "mhat must be a finite positive definite"),
-        (dict(mhat=np.zeros((2, 2))), "mhat must be a finite positive definite"),
-        (dict(mhat=np.array([[0.3, 0.0], [0.0, np.nan]])), "mhat must be a finite positive definite"),
+        (dict(mhat=np.eye(3)), r"IMBIC: mhat \[kg\] must be shape \(2, 2\), got shape \(3, 3\)"),
+        (dict(mhat=-0.1 * np.eye(2)), "IMBIC: mhat must have a positive definite symmetric part"),
+        (dict(mhat=np.zeros((2, 2))), "IMBIC: mhat must have a positive definite symmetric part"),
+        (dict(mhat=np.array([[0.3, 0.0], [0.0, np.nan]])), r"IMBIC: mhat \[kg\] must be finite"),
         (dict(acquisition="oversampled"), "unknown acquisition 'oversampled'"),
         (dict(accel_estimate="kalman"), "unknown accel_estimate 'kalman'"),
-        (dict(kernel="gpu"), "unknown kernel 'gpu'; allowed: 'fast', 'reference', 'grad', 'batch'"),
     ],
 )
-def test_bad_parameters_are_rejected(kwargs, message):
+def test_bad_paper_presets_are_rejected(kwargs, message):
     args = dict(controller="imbic", friction_level=1, location=1) | kwargs
     with pytest.raises(ValueError, match=message):
-        aj.trial_params(args.pop("controller"), args.pop("friction_level"), args.pop("location"), **args)
+        paper.trial(args.pop("controller"), args.pop("friction_level"), args.pop("location"), **args)
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(substeps=0), "substeps .* must be >= 1, got 0"),
+        (dict(substeps=2.5), "substeps .* must be an integer >= 1, got 2.5"),
+        (dict(kernel="gpu"), "unknown kernel 'gpu'; allowed: 'fast', 'reference', 'grad'"),
+        (dict(checkpoint="step"), "unknown checkpoint 'step'; allowed: 'period', 'substep'"),
+    ],
+)
+def test_bad_numerics_are_rejected(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        aj.Numerics(**kwargs)
 
 
 def test_bad_perturbation_and_batches_are_rejected():
-    p = aj.trial_params("pd", 0, 1, substeps=2)
+    p = paper.trial("pd", 0, 1)
     with pytest.raises(ValueError, match=r"f_delta must have shape \(N, 2\)"):
         aj.simulate(p, jnp.zeros((10, 3)))
     with pytest.raises(ValueError, match=r"f_delta must have shape \(N, 2\)"):
         aj.simulate(p, jnp.zeros(10))
     with pytest.raises(ValueError, match="f_delta must be float64, got dtype float32"):
         aj.simulate(p, np.zeros((10, 2), dtype=np.float32))
-    with pytest.raises(ValueError, match="must share controller"):
-        aj.stack_trials([p, aj.trial_params("imbic", 0, 1, substeps=2)])
+    with pytest.raises(ValueError, match="must share the controller type"):
+        aj.stack_trials([p, paper.trial("imbic", 0, 1)])
     batch = aj.stack_trials([p])
     with pytest.raises(ValueError, match=r"f_delta must have shape \(B, N, 2\), got \(1, 10\)"):
         sweep.simulate_batch(batch, np.zeros((1, 10)))
@@ -250,12 +273,17 @@ def test_batch_groups_are_equal_and_bounded():
 
 def test_grouped_chunked_batches_give_the_numbers_of_one_vmapped_batch(batch_sim):
     cases = [("imbic", f, loc) for f, loc in ((0, 1), (1, 2), (2, 3), (2, 4), (1, 1))]
-    params = aj.stack_trials([aj.trial_params(c, f, loc, substeps=4) for c, f, loc in cases])
+    params = aj.stack_trials([paper.trial(c, f, loc) for c, f, loc in cases])
     fd = np.stack([np.asarray(_fd(300, seed=i)) for i in range(len(cases))])
-    ref = jax.tree.map(np.asarray, batch_sim(params, jnp.asarray(fd)))
+    ref = jax.tree.map(np.asarray, batch_sim(params, jnp.asarray(fd), substeps=4))
     seen = []
     grouped = sweep.simulate_batch(
-        params, fd, chunk_samples=120, max_per_device=2, progress=lambda done, total, _: seen.append((done, total))
+        params,
+        fd,
+        numerics=aj.Numerics(substeps=4),
+        chunk_samples=120,
+        max_per_device=2,
+        progress=lambda done, total, _: seen.append((done, total)),
     )
     assert tree_equal(grouped, ref)  # three groups (2, 2, 1 trials, each padded to 4) x three chunks
     assert [d for d, _ in seen] == sorted(d for d, _ in seen) and len(seen) == 9
@@ -266,10 +294,10 @@ def test_grouped_chunked_batches_give_the_numbers_of_one_vmapped_batch(batch_sim
 
 
 def test_integrate_period_rejects_unknown_kernels():
-    from armimp_jax.plant import integrate_period
+    from armimp_jax._plant import integrate_period
 
-    p = aj.trial_params("pd", 0, 1, substeps=2)
-    model = plant_model(p.q0, p.x0, p.arm, p.friction)
+    p = paper.trial("pd", 0, 1)
+    model = plant_model(p.q0, p.x0, p.arm, p.friction, p.robot)
     with pytest.raises(ValueError, match="unknown kernel 'gpu'"):
         integrate_period(rest_state(p.q0), jnp.zeros(2), model, period=1e-3, substeps=2, kernel="gpu")
 
@@ -278,6 +306,6 @@ def test_float32_mode_is_refused():
     jax.config.update("jax_enable_x64", False)
     try:
         with pytest.raises(ValueError, match="needs float64, but jax_enable_x64 is off"):
-            aj.trial_params("pd", 0, 1)
+            paper.trial("pd", 0, 1)
     finally:
         jax.config.update("jax_enable_x64", True)

@@ -11,23 +11,26 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from armimp_jax import tune
-from armimp_jax.simulate import stack_trials, trial_params
-from armimp_jax.sweep import Welch, make_mesh
+import armimp_jax as aj
+from armimp_jax import Welch, tune
+from armimp_jax import paper as presets
+from armimp_jax._batch import make_mesh
+from armimp_jax.paper import tune as paper_tune
 
 WELCH = Welch(512, 384)
+NUM = paper_tune.training_numerics(4)  # the tuner's: "grad" kernel, a carry per substep on the tape
 
 
 @pytest.fixture(scope="module")
 def short_batch():
     """Friction 0 and 2 at location 1: 1.6 s records, 4 substeps (a few seconds, reduced nperseg)."""
-    params, f_delta = tune.training_batch((0, 2), (1,), (0,), seconds=1.6, substeps=4)
+    params, f_delta = paper_tune.training_batch((0, 2), (1,), (0,), seconds=1.6)
     return params, f_delta
 
 
 def _per_trial_losses(theta, params, f_delta):
     p = tune.with_mhat(params, tune.mhat_from_theta(theta, "diagonal"))
-    losses, _ = jax.vmap(tune.trial_loss, in_axes=(0, 0, None, None))(p, f_delta, WELCH, 0.0)
+    losses, _ = jax.vmap(lambda t, f: tune.trial_loss(t, f, WELCH, 0.0, NUM))(p, f_delta)
     return losses
 
 
@@ -48,32 +51,35 @@ def test_gradient_matches_finite_differences_at_friction_0_and_2(short_batch):
 def test_forward_and_reverse_modes_agree(short_batch):
     params, f_delta = short_batch
     theta = tune.theta_from_mhat(np.array([[0.4, 0.05], [0.05, 0.3]]), "full")
-    kw = dict(parameterisation="full", welch=WELCH)
+    kw = dict(parameterisation="full", welch=WELCH, numerics=NUM)
     (v_f, aux_f), g_f = tune.value_and_grad_fn(mode="forward", **kw)(theta, params, f_delta)
     (v_r, aux_r), g_r = tune.value_and_grad_fn(mode="reverse", **kw)(theta, params, f_delta)
-    assert float(v_f) == float(v_r) and np.all(np.isfinite(g_r))
+    # the two programs fuse the primal differently: its last bits may move
+    np.testing.assert_allclose(v_f, v_r, rtol=1e-13)
+    assert np.all(np.isfinite(g_r))
     np.testing.assert_allclose(g_f, g_r, rtol=1e-9, atol=1e-12)
-    np.testing.assert_array_equal(aux_f.phi_T, aux_r.phi_T)
+    np.testing.assert_allclose(aux_f.phi_T, aux_r.phi_T, rtol=1e-13)
 
 
 def test_grad_and_fast_kernels_give_the_same_gradient(short_batch):
     # The tuner's "grad" kernel shares stage values for reverse mode; the maths is "fast"'s.
     params, f_delta = short_batch
-    assert params.kernel == "grad"
-    fast = tune.training_batch((0, 2), (1,), (0,), seconds=1.6, substeps=4, kernel="fast")
-    vg = tune.value_and_grad_fn(parameterisation="diagonal", welch=WELCH, mode="reverse")
+    assert NUM.kernel == "grad"
+    kw = dict(parameterisation="diagonal", welch=WELCH, mode="reverse")
     theta = tune.theta_from_mhat(0.4 * np.eye(2), "diagonal")
-    (v_g, _), g_g = vg(theta, params, f_delta)
-    (v_f, _), g_f = vg(theta, *fast)
+    (v_g, _), g_g = tune.value_and_grad_fn(**kw, numerics=NUM)(theta, params, f_delta)
+    fast = paper_tune.training_numerics(4, kernel="fast")
+    (v_f, _), g_f = tune.value_and_grad_fn(**kw, numerics=fast)(theta, params, f_delta)
     np.testing.assert_allclose(v_g, v_f, rtol=1e-12)
     np.testing.assert_allclose(g_g, g_f, rtol=1e-9)
 
 
 @pytest.mark.parametrize("kernel", ["fast", "grad"])
 def test_no_nan_in_the_gradient_at_friction_0(kernel):
-    params = stack_trials([trial_params("imbic", 0, loc, substeps=3, kernel=kernel) for loc in (1, 3)])
-    f_delta = jnp.asarray(tune.seed_perturbations(0, [5, 6], 1200))
-    vg = tune.value_and_grad_fn(parameterisation="diagonal", welch=Welch(512, 256), mode="reverse")
+    params = aj.stack_trials([presets.trial("imbic", 0, loc) for loc in (1, 3)])
+    f_delta = jnp.asarray(paper_tune.seed_perturbations(0, [5, 6], 1200))
+    numerics = paper_tune.training_numerics(3, kernel=kernel)
+    vg = tune.value_and_grad_fn(parameterisation="diagonal", welch=Welch(512, 256), mode="reverse", numerics=numerics)
     (_, _), g = vg(jnp.log(jnp.array([0.25, 0.25])), params, f_delta)
     assert np.all(np.isfinite(g))
 
@@ -92,8 +98,8 @@ def test_parameterisation_is_spd_and_invertible(kind):
 
 
 def test_short_tuning_run_lowers_the_loss_from_a_poor_start():
-    params, f_delta = tune.training_batch((2,), (1,), (0,), seconds=1.6, substeps=4)
-    config = tune.TuneConfig(learning_rate=0.3, iterations=4)
+    params, f_delta = paper_tune.training_batch((2,), (1,), (0,), seconds=1.6)
+    config = tune.TuneConfig(learning_rate=0.3, iterations=4, numerics=NUM)
     logs = []
     state = tune.tune(
         tune.theta_from_mhat(1.5 * np.eye(2), "diagonal"), params, f_delta, WELCH, config, log=logs.append
@@ -104,10 +110,10 @@ def test_short_tuning_run_lowers_the_loss_from_a_poor_start():
 
 
 def test_divergence_guard_on_unstable_start_and_on_unstable_steps(tmp_path):
-    params, f_delta = tune.training_batch((1,), (1,), (0,), seconds=1.6, substeps=4)
+    params, f_delta = paper_tune.training_batch((1,), (1,), (0,), seconds=1.6)
     logs = []
     # an unstable start (far above 2 M_x): shrunk until stable, and said so
-    config = tune.TuneConfig(learning_rate=0.1, iterations=1)
+    config = tune.TuneConfig(learning_rate=0.1, iterations=1, numerics=NUM)
     state = tune.tune(
         tune.theta_from_mhat(40.0 * np.eye(2), "diagonal"), params, f_delta, WELCH, config, log=logs.append
     )
@@ -115,7 +121,7 @@ def test_divergence_guard_on_unstable_start_and_on_unstable_steps(tmp_path):
     assert np.isfinite(state["value"])
     # steps that land on unstable gains (a deliberately huge ascent step) are rejected, not taken
     logs.clear()
-    config = tune.TuneConfig(learning_rate=-6.0, iterations=2)
+    config = tune.TuneConfig(learning_rate=-6.0, iterations=2, numerics=NUM)
     state = tune.tune(
         tune.theta_from_mhat(0.3 * np.eye(2), "diagonal"),
         params,
@@ -140,10 +146,11 @@ import json, logging, re
 from armimp_jax.runtime import configure
 configure(host_devices=3)
 import jax, numpy as np
-from armimp_jax import tune
-from armimp_jax.sweep import Welch
-params, f_delta = tune.training_batch((0, 2), (1,), (0,), seconds=1.6, substeps=4)
-vg = tune.value_and_grad_fn(parameterisation="diagonal", welch=Welch(512, 384), mode="reverse")
+from armimp_jax import Welch, tune
+from armimp_jax.paper import tune as paper_tune
+params, f_delta = paper_tune.training_batch((0, 2), (1,), (0,), seconds=1.6)
+NUM = paper_tune.training_numerics(4)
+vg = tune.value_and_grad_fn(parameterisation="diagonal", welch=Welch(512, 384), mode="reverse", numerics=NUM)
 theta = tune.theta_from_mhat(0.4 * np.eye(2), "diagonal")
 out = {}
 for name, batch in (("one", (params, f_delta, None)), ("two", tune.place_batch(params, f_delta))):
@@ -153,7 +160,7 @@ for name, batch in (("one", (params, f_delta, None)), ("two", tune.place_batch(p
     out[name] = dict(value=float(value), grad=np.asarray(grad).tolist(), devices=devices, placed=placed)
 # not padded: a batch spans the largest number of devices that divides it
 for n_trials in (1, 3):
-    batch = tune.training_batch((0,), (1,), tuple(range(n_trials)), seconds=1.6, substeps=4)
+    batch = paper_tune.training_batch((0,), (1,), tuple(range(n_trials)), seconds=1.6)
     placed = tune.place_batch(*batch)[2]
     out[f"placed {n_trials}"] = None if placed is None else placed.size
 # a short tuning run on two devices compiles its gradient once, not again at the first step
@@ -163,7 +170,7 @@ class Compiles(logging.Handler):
         if re.match(r"Compiling \\S*loss", record.getMessage()):
             compiled.append(record.getMessage())
 logging.getLogger("jax").addHandler(Compiles())
-config = tune.TuneConfig(learning_rate=0.1, iterations=2)
+config = tune.TuneConfig(learning_rate=0.1, iterations=2, numerics=NUM)
 logs = []
 with jax.log_compiles():
     state = tune.tune(theta, params, f_delta, Welch(512, 384), config, log=logs.append)
@@ -202,16 +209,14 @@ def test_place_batch_on_one_device_leaves_the_batch_alone(short_batch):
 def test_substep_and_period_checkpoints_give_the_same_gradient(short_batch):
     # What reverse mode keeps changes the work, not the maths.
     params, f_delta = short_batch
-    assert params.checkpoint == "substep"  # the tuner's
-    period = tune.training_batch((0, 2), (1,), (0,), seconds=1.6, substeps=4, checkpoint="period")
-    vg = tune.value_and_grad_fn(parameterisation="full", welch=WELCH, mode="reverse")
+    assert NUM.checkpoint == "substep"  # the tuner's
+    kw = dict(parameterisation="full", welch=WELCH, mode="reverse")
     theta = tune.theta_from_mhat(np.array([[0.4, 0.05], [0.05, 0.3]]), "full")
-    (v_s, _), g_s = vg(theta, params, f_delta)
-    (v_p, _), g_p = vg(theta, *period)
+    (v_s, _), g_s = tune.value_and_grad_fn(**kw, numerics=NUM)(theta, params, f_delta)
+    period = paper_tune.training_numerics(4, checkpoint="period")
+    (v_p, _), g_p = tune.value_and_grad_fn(**kw, numerics=period)(theta, params, f_delta)
     np.testing.assert_allclose(v_s, v_p, rtol=1e-13)
     np.testing.assert_allclose(g_s, g_p, rtol=1e-10)
-    with pytest.raises(ValueError, match="unknown checkpoint 'step'; allowed: 'period', 'substep'"):
-        trial_params("imbic", 2, 1, checkpoint="step")
 
 
 def test_unknown_mode_and_parameterisation_are_rejected():

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .arm import true_impedance
-from .metrics import largest_singular_value
+from .._metrics import largest_singular_value
+from ._presets import arm
 
 LOW_BAND_HZ = 2.0  # the paper's "below 1-2 Hz"
 
@@ -60,7 +60,7 @@ def trial_metrics(f, Z, est_arrays: dict, location: int) -> dict:
     ``est_arrays`` holds the ``Estimate`` coherence arrays as NumPy (``coh_multiple_x``...).
     """
     f = np.asarray(f)
-    zt = np.asarray(true_impedance(location, f))
+    zt = np.asarray(arm(location).impedance(f))
     err = zt - Z
     phi_t = float(np.mean(np.asarray(largest_singular_value(err))))
     scale = float(np.mean(np.asarray(largest_singular_value(zt))))

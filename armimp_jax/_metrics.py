@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .arm import true_impedance
+from ._arm import Arm, impedance_response
 
 
 def largest_singular_value(a):
@@ -26,10 +26,16 @@ def largest_singular_value(a):
     return jnp.sqrt(0.5 * (fro2 + root))
 
 
-def accuracy(Z, f, location):
-    """``(phi_T, phi_ij)`` [N/m] of the estimate ``Z`` ``(F, 2, 2)`` on bins ``f`` ``(F,)`` [Hz]
-    for arm ``location`` (1-4, int or traced int). ``phi_T`` scalar, ``phi_ij`` ``(2, 2)``."""
-    return impedance_error(Z, true_impedance(location, f))
+def accuracy(Z, f, arm: Arm):
+    """``(phi_T, phi_ij)`` [N/m] of the estimate ``Z`` ``(F, 2, 2)`` complex on bins ``f``
+    ``(F,)`` [Hz] against the true impedance of ``arm``. ``phi_T`` scalar, ``phi_ij`` ``(2, 2)``.
+    Single-trial and differentiable; batch with ``jax.vmap`` (over arms too)."""
+    if not isinstance(arm, Arm):
+        raise ValueError(f"accuracy: arm must be an Arm (e.g. paper.arm(1)), got {type(arm).__name__}")
+    Z, f = jnp.asarray(Z), jnp.asarray(f)
+    if f.ndim != 1 or Z.shape != (f.shape[0], 2, 2):
+        raise ValueError(f"accuracy: Z must have shape (F, 2, 2) for F = len(f) bins; got Z {Z.shape}, f {f.shape}")
+    return impedance_error(Z, impedance_response(arm, f))
 
 
 def impedance_error(Z, Z_true):

@@ -21,13 +21,10 @@ import jax
 import jax.numpy as jnp
 from jax.ad_checkpoint import checkpoint_name
 
+from ._arm import Arm
 from ._checks import check_choice
-from .arm import ArmImpedance
-from .friction import LuGreParams, lugre
-from .robot import jacobian_from_trig, mass_matrix_entries
-from .tables import ELBOW_LINK_LENGTH as L_E
-from .tables import INERTIA_C2
-from .tables import SHOULDER_LINK_LENGTH as L_S
+from ._friction import LuGre, lugre
+from ._robot import Robot, jacobian_from_trig, mass_matrix_entries
 
 
 class PlantState(NamedTuple):
@@ -51,7 +48,7 @@ class PlantModel(NamedTuple):
     trig of ``q0``: displacements ``x - x0`` are formed from trig differences, which are
     exactly zero at ``q = q0`` whatever XLA's FMA contraction does to the fused
     expressions. ``mh``, ``bh``, ``kh`` are the arm's ``(m11, m12, m21, m22)``;
-    ``friction`` the LuGre scalars.
+    ``friction`` the LuGre scalars of each joint; ``robot`` the robot's parameters.
     """
 
     x0: tuple
@@ -59,17 +56,26 @@ class PlantModel(NamedTuple):
     mh: tuple
     bh: tuple
     kh: tuple
-    friction: LuGreParams
+    friction: tuple
+    robot: Robot
 
 
 def _entries(m):
     return (m[0, 0], m[0, 1], m[1, 0], m[1, 1])
 
 
-def plant_model(q0, x0, arm: ArmImpedance, friction: LuGreParams) -> PlantModel:
+def plant_model(q0, x0, arm: Arm, friction: LuGre, robot: Robot) -> PlantModel:
     """Unpack trial parameters into the scalars the inner loop uses (hoisted out of it)."""
     cq0 = (jnp.cos(q0[0]), jnp.sin(q0[0]), jnp.cos(q0[1]), jnp.sin(q0[1]))
-    return PlantModel((x0[0], x0[1]), cq0, _entries(arm.mass), _entries(arm.damping), _entries(arm.stiffness), friction)
+    return PlantModel(
+        (x0[0], x0[1]),
+        cq0,
+        _entries(arm.mass),
+        _entries(arm.damping),
+        _entries(arm.stiffness),
+        (friction.joint(0), friction.joint(1)),
+        robot,
+    )
 
 
 def rest_state(q0) -> PlantState:
@@ -118,13 +124,12 @@ def rotate(t: Trig, d1, d2) -> Trig:
 
 _SHARED = "armimp_shared_stage_value"
 
-# Why the kernels mark stage values. XLA:CPU fuses each output of an RK4 stage into its
-# own single-output loop and copies chains of cheap operations (add, multiply, sin, cos)
-# into every fusion that uses them, so shared sub-expressions are recomputed many times
-# per substep. Two things stop the copying: a division (never duplicated), and being an
-# output of the loop (a value the loop returns is computed once and read by the rest).
-_DIVIDED = ("trig", "stage", "a", "b")  # "grad" kernel: x / one, saved for reverse mode
-_KEPT = ("trig", "b", "qdd")  # "batch" kernel: returned by the substep loop
+# Why the "grad" kernel marks stage values. XLA:CPU copies chains of cheap operations
+# (add, multiply, sin, cos) into every fusion that uses them, and in the backward pass
+# of an RK4 substep that multiplies the work. XLA never duplicates a division, so the
+# kernel divides the stage values by a runtime 1.0 (exact) and names them for the
+# substep checkpoint (sweeps/bench_gradient.py measures the effect).
+_DIVIDED = ("trig", "stage", "a", "b")
 
 
 def _sharer(one):
@@ -144,34 +149,22 @@ def _sharer(one):
     return share
 
 
-def _keeper(kept: list):
-    """``share(group, *values)`` for the ``"batch"`` kernel: appends the values of the groups in
-    ``_KEPT`` to ``kept`` (which ``integrate_period`` returns from the substep loop)."""
-
-    def share(group, *values):
-        if group in _KEPT:
-            kept.extend(values)
-        return values
-
-    return share
-
-
 def _dynamics(s: PlantState, fu, model: PlantModel, trig: Trig | None = None, share=_sharer(None)):
     """Joint accelerations and the pieces needed for the hand force, at command ``fu`` [N] ``(2,)``.
 
     ``trig`` (optional) supplies ``cos/sin`` of ``q``; by default they are evaluated.
-    ``share`` (``_sharer`` or ``_keeper``) marks the solve's matrix ``"a"``, right-hand
-    side ``"b"`` and result ``"qdd"``."""
+    ``share`` (``_sharer``) marks the solve's matrix ``"a"`` and right-hand side ``"b"``."""
     c1, s1, c2, s2 = trig_of(s) if trig is None else trig
     # Angle-difference identities instead of cos/sin(q1 - q2): two fewer transcendentals
     # per evaluation (they dominate the cost on CPU), error ~1e-16.
     cos_d = c1 * c2 + s1 * s2
     sin_d = s1 * c2 - c1 * s2
     c10, s10, c20, s20 = model.cq0
+    L_S, L_E = model.robot.shoulder_link, model.robot.elbow_link
     ex = L_S * (c1 - c10) + L_E * (c2 - c20)  # x - x0, exactly 0 at q0
     ey = L_S * (s1 - s10) + L_E * (s2 - s20)
-    j11, j12, j21, j22 = jacobian_from_trig(c1, s1, c2, s2)
-    m11, m12, m22 = mass_matrix_entries(cos_d)
+    j11, j12, j21, j22 = jacobian_from_trig(model.robot, c1, s1, c2, s2)
+    m11, m12, m22 = mass_matrix_entries(model.robot, cos_d)
     mh11, mh12, mh21, mh22 = model.mh
     bh11, bh12, bh21, bh22 = model.bh
     kh11, kh12, kh21, kh22 = model.kh
@@ -187,9 +180,9 @@ def _dynamics(s: PlantState, fu, model: PlantModel, trig: Trig | None = None, sh
     f0y = (mh21 * jdqd_x + mh22 * jdqd_y) + (bh21 * xd + bh22 * yd) + (kh21 * ex + kh22 * ey)
     rx, ry = fu[0] - f0x, fu[1] - f0y
 
-    tau_f1, zd1 = lugre(s.qd1, s.z1, model.friction)
-    tau_f2, zd2 = lugre(s.qd2, s.z2, model.friction)
-    hc = INERTIA_C2 * sin_d
+    tau_f1, zd1 = lugre(s.qd1, s.z1, model.friction[0])
+    tau_f2, zd2 = lugre(s.qd2, s.z2, model.friction[1])
+    hc = model.robot.inertia[1] * sin_d
     b1 = (j11 * rx + j21 * ry) - hc * qd2sq - tau_f1
     b2 = (j12 * rx + j22 * ry) + hc * qd1sq - tau_f2
     b1, b2 = share("b", b1, b2)
@@ -207,7 +200,6 @@ def _dynamics(s: PlantState, fu, model: PlantModel, trig: Trig | None = None, sh
     det = a11 * a22 - a12 * a21
     qdd1 = (a22 * b1 - a12 * b2) / det
     qdd2 = (a11 * b2 - a21 * b1) / det
-    qdd1, qdd2 = share("qdd", qdd1, qdd2)
     deriv = PlantState(s.qd1, s.qd2, qdd1, qdd2, zd1, zd2, ex, ey)
     jqdd = (j11 * qdd1 + j12 * qdd2, j21 * qdd1 + j22 * qdd2)
     return deriv, (ex, ey), (xd, yd), (f0x, f0y), jqdd
@@ -251,9 +243,9 @@ def rk4_step_rotating(s: PlantState, trig: Trig, fu, model: PlantModel, h, *, sh
     (the values at ``s``) instead of 16 transcendental calls; returns the new state and
     its ``Trig``. Same method, same stages; differs from ``rk4_step`` only by round-off.
 
-    ``share`` (``_sharer`` for the ``"grad"`` kernel, ``_keeper`` for ``"batch"``) marks
-    the stage ``cos/sin`` (``"trig"``), the stage states (``"stage"``) and, through
-    ``_dynamics``, the 2x2 solve of every stage."""
+    ``share`` (``_sharer`` for the ``"grad"`` kernel) marks the stage ``cos/sin``
+    (``"trig"``), the stage states (``"stage"``) and, through ``_dynamics``, the 2x2 solve
+    of every stage."""
 
     def f(state, t):
         return _dynamics(state, fu, model, Trig(*share("trig", *t)), share)[0]
@@ -269,7 +261,7 @@ def rk4_step_rotating(s: PlantState, trig: Trig, fu, model: PlantModel, h, *, sh
     return jax.tree.map(jnp.add, s, incr), rotate(trig, incr.q1, incr.q2)
 
 
-KERNELS = ("fast", "reference", "grad", "batch")
+KERNELS = ("fast", "reference", "grad")
 CHECKPOINTS = ("period", "substep")  # how the simulation checkpoints a period for reverse mode
 
 
@@ -289,20 +281,13 @@ def integrate_period(
     ``"fast"`` evaluates them once per period and carries them through the substeps by
     small-angle rotations (``rk4_step_rotating``), re-seeded exactly every period so the
     rotation's round-off cannot accumulate beyond one period. ``"grad"`` is ``"fast"``
-    with the stage values shared (``_sharer``) and saved for reverse mode: about 2x
-    faster gradients, 10-20% slower batched forward runs. ``"batch"`` is ``"fast"`` with
-    stage values returned from the substep loop (``_keeper``): 9-20% faster at batch
-    24-96 on one XLA:CPU device in paired runs (not everywhere: see the README), but its
-    last bits depend on the batch (a trial run alone or in another batch differs by up
-    to ~3e-13 relative), where ``"fast"`` is bitwise independent of it.
-    All agree with ``"fast"`` to round-off (fusion boundaries move, so FMA contraction
-    differs).
+    with the stage values shared (``_sharer``) and saved for reverse mode, which makes
+    ``jax.grad`` cheaper (``sweeps/bench_gradient.py``). All agree to round-off.
 
-    ``checkpoint`` says how the caller checkpoints the period (``simulate.trial_params``):
-    under ``"period"`` the ``"grad"`` kernel's substep checkpoint saves the shared stage
-    values, which the backward pass produces one period at a time; under ``"substep"``
-    (the period not checkpointed, every substep's carry on the tape) it saves nothing
-    else, since saving them for a whole record would take 64 values per substep.
+    ``checkpoint`` says how the caller checkpoints the period (``Numerics``): under
+    ``"period"`` the ``"grad"`` kernel's substep checkpoint saves the shared stage values,
+    which the backward pass produces one period at a time; under ``"substep"`` (the
+    period not checkpointed, every substep's carry on the tape) it saves nothing else.
     """
     check_choice("kernel", kernel, KERNELS)
     check_choice("checkpoint", checkpoint, CHECKPOINTS)
@@ -310,37 +295,17 @@ def integrate_period(
     if kernel == "reference":
         body = jax.checkpoint(lambda state, _: (rk4_step(state, fu, model, h), None), prevent_cse=False)
         return jax.lax.scan(body, s, None, length=substeps)[0]
-    if kernel in ("fast", "grad"):
-        # Reverse mode keeps the substep carries (and, for "grad" under period checkpoints,
-        # the shared stage values). The runtime 1.0 comes from the state so that XLA
-        # cannot fold the divisions away.
-        share, policy = _sharer(None), None
-        if kernel == "grad":
-            share = _sharer(jax.lax.stop_gradient(1.0 + 0.0 * s.q1))
-            if checkpoint == "period":
-                policy = jax.checkpoint_policies.save_only_these_names(_SHARED)
+    # Reverse mode keeps the substep carries (and, for "grad" under period checkpoints,
+    # the shared stage values). The runtime 1.0 comes from the state so that XLA cannot
+    # fold the divisions away.
+    share, policy = _sharer(None), None
+    if kernel == "grad":
+        share = _sharer(jax.lax.stop_gradient(1.0 + 0.0 * s.q1))
+        if checkpoint == "period":
+            policy = jax.checkpoint_policies.save_only_these_names(_SHARED)
 
-        @functools.partial(jax.checkpoint, prevent_cse=False, policy=policy)
-        def body(carry, _):
-            return rk4_step_rotating(*carry, fu, model, h, share=share), None
+    @functools.partial(jax.checkpoint, prevent_cse=False, policy=policy)
+    def body(carry, _):
+        return rk4_step_rotating(*carry, fu, model, h, share=share), None
 
-        return jax.lax.scan(body, (s, trig_of(s)), None, length=substeps)[0][0]
-
-    def step_keeping(state, trig):
-        kept = []
-        new_state, new_trig = rk4_step_rotating(state, trig, fu, model, h, share=_keeper(kept))
-        return new_state, new_trig, tuple(kept)
-
-    # The "batch" kernel returns the kept stage values of the last substep from the loop
-    # (see _KEPT). The exact no-op "+ sum of 0 * value" keeps JAX and XLA from dropping
-    # them as unused; a non-finite one makes the state NaN, which the simulation then
-    # flags as divergence. stop_gradient: reverse mode does no work for them.
-    n_kept = len(jax.eval_shape(step_keeping, s, trig_of(s))[2])
-    zero = jnp.zeros_like(s.q1)
-
-    @functools.partial(jax.checkpoint, prevent_cse=False)
-    def body_keeping(carry, _):
-        return step_keeping(*carry[:2]), None
-
-    state, _, kept = jax.lax.scan(body_keeping, (s, trig_of(s), (zero,) * n_kept), None, length=substeps)[0]
-    return state._replace(q1=state.q1 + jax.lax.stop_gradient(sum(0.0 * v for v in kept)))
+    return jax.lax.scan(body, (s, trig_of(s)), None, length=substeps)[0][0]

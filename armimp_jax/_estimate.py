@@ -16,7 +16,12 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from ._checks import as_float64, check_int, require_x64
-from .tables import ESTIMATION_FMAX, SAMPLE_RATE, WELCH_NOVERLAP, WELCH_NPERSEG
+
+SAMPLE_RATE = 1000.0  # [Hz]
+# Table 4 of the paper (spec section 9): 21 segments in a 50 s record.
+WELCH_NPERSEG = 8192  # = nfft
+WELCH_NOVERLAP = 6144
+ESTIMATION_FMAX = 15.0  # [Hz]
 
 
 def check_welch(n_samples: int, *, fs: float, nperseg: int, noverlap: int, fmax: float | None = None) -> int:

@@ -6,7 +6,7 @@ import pathlib
 
 import numpy as np
 
-from .paper import LOW_BAND_HZ
+from .claims import LOW_BAND_HZ
 
 
 def _fmt(mean, sd, n):

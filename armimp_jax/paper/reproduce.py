@@ -25,11 +25,13 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
-from .estimate import input_coherence
-from .paper import Condition, evaluate_claims, paper_conditions, trial_id, trial_metrics
-from .perturbation import perturbation, perturbation_peak
-from .simulate import stack_trials, trial_params
-from .sweep import Welch, assess_batch, make_mesh, simulate_batch
+from .._batch import Welch, assess_batch, make_mesh, simulate_batch
+from .._estimate import input_coherence
+from .._numerics import Numerics
+from .._perturbation import perturbation
+from .._simulate import stack_trials
+from ._presets import perturbation_peak, trial
+from .claims import Condition, evaluate_claims, paper_conditions, trial_id, trial_metrics
 
 ESTIMATE_FIELDS = ("f", "Z", "coh_multiple_x", "coh_partial_x", "coh_multiple_fh", "coh_partial_fh", "coh_inputs")
 
@@ -113,7 +115,7 @@ def versions() -> dict:
     import matplotlib
     import scipy
 
-    from . import __version__
+    from .. import __version__
 
     return dict(
         armimp_jax=__version__,
@@ -187,14 +189,7 @@ def run_reproduction(
         t_batch = time.perf_counter()
         params = stack_trials(
             [
-                trial_params(
-                    c.controller,
-                    c.friction,
-                    c.location,
-                    mhat=settings.mhat * np.eye(2),
-                    substeps=settings.substeps,
-                    acquisition=c.acquisition,
-                )
+                trial(c.controller, c.friction, c.location, mhat=settings.mhat * np.eye(2), acquisition=c.acquisition)
                 for c, _ in batch
             ]
         )
@@ -217,7 +212,14 @@ def run_reproduction(
                     )
                 )
 
-        sim = simulate_batch(params, f_delta, mesh=mesh, chunk_samples=int(chunk_seconds * 1000), progress=on_chunk)
+        sim = simulate_batch(
+            params,
+            f_delta,
+            numerics=Numerics(substeps=settings.substeps),
+            mesh=mesh,
+            chunk_samples=int(chunk_seconds * 1000),
+            progress=on_chunk,
+        )
         outcome = assess_batch(params, f_delta, sim, settings.welch, mesh=mesh)
         done_substeps += len(batch) * per_trial
         wall = time.perf_counter() - t_batch

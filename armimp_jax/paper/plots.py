@@ -15,7 +15,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .arm import true_impedance  # noqa: E402
+from ._presets import arm  # noqa: E402
 
 FRICTION_COLORS = {0: "tab:blue", 1: "tab:orange", 2: "tab:red"}
 
@@ -53,7 +53,7 @@ def bode_figure(results, arrays, path: pathlib.Path, *, experiment: str, locatio
         return None
     fig, axes = plt.subplots(2, 4, figsize=(15, 6.5), sharex=True)
     f = next(iter(picked.values()))["f"]
-    zt = np.asarray(true_impedance(location, f))
+    zt = np.asarray(arm(location).impedance(f))
     for col, (i, j) in enumerate(ELEMENTS):
         axes[0, col].loglog(f, np.abs(zt[:, i, j]), "k--", lw=2, label="true $Z_h$")
         axes[1, col].semilogx(f, np.degrees(np.angle(zt[:, i, j])), "k--", lw=2)

@@ -1,6 +1,6 @@
 """Batches of trials: the simulate -> estimate -> accuracy pipeline, vmapped and sharded.
 
-A batch is stacked ``TrialParams`` (``stack_trials``) plus stacked perturbations
+A batch is stacked trials (``stack_trials``) plus stacked perturbations
 ``(B, N, 2)``. The batch axis is padded to a multiple of the device count and sharded
 over a one-axis ``Mesh`` (``"batch"``): on a CPU split by ``runtime.configure`` that uses
 every core; the same code shards across GPUs, or across hosts after
@@ -25,12 +25,12 @@ from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from .arm import impedance_response
-from .estimate import Estimate, check_welch, estimate
-from .metrics import impedance_error
+from ._arm import impedance_response
+from ._estimate import ESTIMATION_FMAX, SAMPLE_RATE, WELCH_NOVERLAP, WELCH_NPERSEG, Estimate, check_welch, estimate
+from ._metrics import impedance_error
+from ._numerics import Numerics
+from ._simulate import SimResult, Trial, simulate_chunk, simulate_init
 from .runtime import vector_lanes
-from .simulate import SimResult, TrialParams, simulate_chunk, simulate_init
-from .tables import ESTIMATION_FMAX, SAMPLE_RATE, WELCH_NOVERLAP, WELCH_NPERSEG
 
 
 class Welch(NamedTuple):
@@ -57,10 +57,11 @@ class TrialOutcome(NamedTuple):
     estimate: Estimate
 
 
-def assess(params: TrialParams, f_delta, sim: SimResult, welch: Welch = Welch()) -> TrialOutcome:
-    """Estimate the impedance from a simulated record and score it against the trial's arm."""
+def assess(trial: Trial, f_delta, sim: SimResult, welch: Welch = Welch()) -> TrialOutcome:
+    """Estimate the impedance from a simulated record and score it against the trial's arm
+    (single trial; vmap it, or use ``assess_batch``)."""
     est = estimate(f_delta, sim.x, sim.fh, fs=welch.fs, nperseg=welch.nperseg, noverlap=welch.noverlap, fmax=welch.fmax)
-    phi_t, phi_ij = impedance_error(est.Z, impedance_response(params.arm, est.f))
+    phi_t, phi_ij = impedance_error(est.Z, impedance_response(trial.arm, est.f))
     return TrialOutcome(phi_t, phi_ij, jnp.max(est.coh_inputs), sim.diverged, sim.diverged_at, est)
 
 
@@ -149,30 +150,55 @@ def to_host(tree, size: int | None = None):
     return jax.tree.map(lambda a: np.asarray(a)[:size], tree)
 
 
-_chunk = jax.jit(jax.vmap(simulate_chunk))
+@functools.partial(jax.jit, static_argnames="numerics")
+def _chunk(trials: Trial, carry, f_delta, keys, numerics: Numerics):
+    def one(trial, c, f, key):
+        return simulate_chunk(trial, c, f, key=key, numerics=numerics)
+
+    return jax.vmap(one)(trials, carry, f_delta, keys)
 
 
-@functools.partial(jax.jit, static_argnums=1)
-def _init(params: TrialParams, sharding: NamedSharding):
-    # Constrained like the carry that _chunk returns: otherwise XLA replicates the
-    # constant leaves and the second chunk compiles the loop a second time.
-    return jax.lax.with_sharding_constraint(jax.vmap(simulate_init)(params), sharding)
+_vinit = jax.jit(jax.vmap(simulate_init))
+
+
+def _init(trials: Trial, sharding: NamedSharding):
+    # Placed like the carry that _chunk returns: otherwise XLA replicates the constant
+    # leaves and the second chunk compiles the loop a second time.
+    return jax.device_put(_vinit(trials), sharding)
+
+
+def _key_data(keys, b: int):
+    """Raw ``uint32`` key data ``(B, 2)`` (typed keys are unwrapped), or None."""
+    if keys is None:
+        return None
+    keys = jnp.asarray(keys)
+    if jnp.issubdtype(keys.dtype, jax.dtypes.prng_key):
+        keys = jax.random.key_data(keys)
+    keys = np.asarray(keys)
+    if keys.shape[0] != b:
+        raise ValueError(f"keys must hold one key per trial ({b}), got shape {keys.shape}")
+    return keys
 
 
 def simulate_batch(
-    params: TrialParams,
+    trials: Trial,
     f_delta,
     *,
+    keys=None,
+    numerics: Numerics | None = None,
     mesh: Mesh | None = None,
     chunk_samples: int | None = None,
     max_per_device: int | None = MAX_PER_DEVICE,
     progress: Callable[[int, int, float], None] | None = None,
 ) -> SimResult:
-    """``jax.vmap(simulate)`` over a batch, sharded over ``mesh``, in groups and chunks.
+    """``jax.vmap(simulate)`` over a batch, sharded over ``mesh``, in groups and chunks: the
+    library's way to run many trials (compiled once per batch shape, every device used).
 
     Args:
-        params: stacked ``TrialParams`` (leading axis ``B``).
+        trials: stacked trials (``stack_trials``, leading axis ``B``).
         f_delta: ``(B, N, 2)`` perturbations [N].
+        keys: ``(B,)`` keys (``jax.random.split``) for sensor noise, when the trials draw it.
+        numerics: ``Numerics(...)`` of every trial (default ``Numerics()``).
         chunk_samples: samples per compiled chunk (default: all at once). The record is
             zero-padded to a whole number of chunks (after its end, so nothing changes).
             At most two chunks of perturbation and output live on the devices at a
@@ -187,6 +213,9 @@ def simulate_batch(
     Returns the ``SimResult`` of the batch as NumPy arrays (``(B, N, 2)`` fields).
     """
     mesh = make_mesh() if mesh is None else mesh
+    numerics = Numerics() if numerics is None else numerics
+    if not isinstance(trials, Trial):
+        raise ValueError(f"trials must be stacked Trial values (stack_trials), got {type(trials).__name__}")
     f_delta = np.asarray(f_delta)
     if f_delta.ndim != 3 or f_delta.shape[2] != 2:
         raise ValueError(f"f_delta must have shape (B, N, 2), got {f_delta.shape}")
@@ -196,6 +225,7 @@ def simulate_batch(
     chunk = n if chunk_samples is None else max(1, min(int(chunk_samples), n))
     n_chunks = math.ceil(n / chunk)
     f_padded = np.concatenate([f_delta, np.zeros((b, n_chunks * chunk - n, 2))], axis=1)
+    keys = _key_data(keys, b)
     groups, size = batch_groups(b, mesh.size, max_per_device=max_per_device, lanes=default_lanes(mesh))
     names = ("x", "xd", "fh", "fu", "q", "z")
     fields = {name: np.empty((b, n, 2)) for name in names}  # filled chunk by chunk, no concatenation
@@ -215,11 +245,16 @@ def simulate_batch(
             progress(done, b * n, time.perf_counter() - start)
 
     for lo, hi in groups:
-        params_s, _ = shard_batch(_rows(params, lo, hi), mesh, size=size)
-        carry = _init(params_s, NamedSharding(mesh, P("batch")))
+        trials_s, _ = shard_batch(_rows(trials, lo, hi), mesh, size=size)
+        keys_s = None if keys is None else shard_batch(keys[lo:hi], mesh, size=size)[0]
+        carry_sharding = NamedSharding(mesh, P("batch"))
+        carry = _init(trials_s, carry_sharding)
         for i in range(n_chunks):
             f_i, _ = shard_batch(f_padded[lo:hi, i * chunk : (i + 1) * chunk], mesh, size=size)
-            carry, out = _chunk(params_s, carry, f_i)  # dispatched asynchronously
+            carry, out = _chunk(trials_s, carry, f_i, keys_s, numerics)  # dispatched asynchronously
+            # XLA may label a carry leaf replicated on a one-device mesh: relabel it (free) so
+            # that the next chunk hits the same compiled program.
+            carry = jax.device_put(carry, carry_sharding)
             if running is not None:
                 collect(*running)
             running = (lo, hi, i, out)
@@ -233,7 +268,7 @@ _assess = jax.jit(jax.vmap(assess, in_axes=(0, 0, 0, None)), static_argnums=3)
 
 
 def assess_batch(
-    params: TrialParams,
+    trials: Trial,
     f_delta,
     sim: SimResult,
     welch: Welch = Welch(),
@@ -248,6 +283,6 @@ def assess_batch(
     groups, size = batch_groups(_batch_size(f_delta), mesh.size, max_per_device=max_per_device)
     outcomes = []
     for lo, hi in groups:
-        (p, f, s), _ = shard_batch(_rows((params, f_delta, sim), lo, hi), mesh, size=size)
+        (p, f, s), _ = shard_batch(_rows((trials, f_delta, sim), lo, hi), mesh, size=size)
         outcomes.append(to_host(_assess(p, f, s, welch), hi - lo))
     return jax.tree.map(lambda *parts: np.concatenate(parts), *outcomes)

@@ -15,8 +15,12 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.signal
 
-from ._checks import as_float64, check_choice, check_int, is_concrete, require_x64
-from .tables import PERTURBATION_CUTOFF, PERTURBATION_ORDER, PERTURBATION_PEAKS, PERTURBATION_WARMUP, SAMPLE_RATE
+from ._checks import as_float64, check_int, is_concrete, require_x64
+
+SAMPLE_RATE = 1000.0  # [Hz], one sample per 1 ms control period
+PERTURBATION_CUTOFF = 15.0  # Butterworth cut-off f_max [Hz]
+PERTURBATION_ORDER = 8
+PERTURBATION_WARMUP = 2000  # samples of filter output discarded (2 s at 1 kHz)
 
 
 @functools.cache
@@ -46,21 +50,26 @@ def sosfilt(sos, x):
     return jax.lax.scan(step, zi0, x)[1]
 
 
-def perturbation_peak(level: int):
-    """Per-axis peak ``|F_Delta|`` [N] of perturbation level 1-3 (Table 3), shape ``(2,)``."""
-    check_choice("perturbation level", level, tuple(PERTURBATION_PEAKS))
-    return jnp.asarray(PERTURBATION_PEAKS[level], dtype=jnp.float64)
-
-
-def perturbation(key, n_samples: int, peak, *, warmup: int = PERTURBATION_WARMUP, cutoff: float = PERTURBATION_CUTOFF):
+def perturbation(
+    key,
+    n_samples: int,
+    peak,
+    *,
+    warmup: int = PERTURBATION_WARMUP,
+    cutoff: float = PERTURBATION_CUTOFF,
+    order: int = PERTURBATION_ORDER,
+):
     """A perturbation record ``F_Delta`` [N], shape ``(n_samples, 2)`` float64, at 1 kHz.
 
     Args:
         key: a ``jax.random`` key; the same key always gives the same signal.
         n_samples: record length (integer >= 1), one sample per 1 ms control period.
-        peak: per-axis peak [N], a scalar or ``(2,)`` (e.g. ``perturbation_peak(1)``).
+        peak: per-axis peak [N], a scalar or ``(2,)`` (e.g. ``paper.perturbation_peak(1)``).
         warmup: filter start-up samples drawn and discarded (default 2000 = 2 s).
-        cutoff: Butterworth cut-off [Hz] (default 15).
+        cutoff: Butterworth cut-off [Hz] (default 15), below Nyquist (500 Hz).
+        order: Butterworth order (even integer >= 2, default 8).
+
+    The paper's per-level peaks are ``paper.perturbation_peak(level)``.
     """
     require_x64("perturbation")
     n_samples = check_int("n_samples", n_samples, minimum=1)
@@ -71,8 +80,11 @@ def perturbation(key, n_samples: int, peak, *, warmup: int = PERTURBATION_WARMUP
     if is_concrete(peak) and not np.all(np.asarray(peak) > 0):
         raise ValueError(f"peak must be > 0 N, got {np.asarray(peak).tolist()}")
     if not 0.0 < cutoff < SAMPLE_RATE / 2:
-        raise ValueError(f"cutoff must be in (0, {SAMPLE_RATE / 2}) Hz, got {cutoff}")
+        raise ValueError(f"cutoff must be in (0, {SAMPLE_RATE / 2:g}) Hz, got {cutoff}")
+    order = check_int("order", order, minimum=2)
+    if order % 2:
+        raise ValueError(f"order must be even (second-order sections), got {order}")
     noise = jax.random.uniform(key, (warmup + n_samples, 2), dtype=jnp.float64, minval=-1.0, maxval=1.0)
-    filtered = sosfilt(butterworth_sos(cutoff=cutoff), noise)[warmup:]
+    filtered = sosfilt(butterworth_sos(order=order, cutoff=float(cutoff)), noise)[warmup:]
     scale = jnp.broadcast_to(peak, (2,)) / jnp.max(jnp.abs(filtered), axis=0)
     return filtered * scale[None, :]

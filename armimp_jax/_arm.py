@@ -1,0 +1,69 @@
+"""The human arm: a linear 2-DOF Cartesian impedance about an equilibrium endpoint (spec 2).
+
+``F_h = M_h xdd + B_h xd + K_h (x - x0)`` is the force applied to the hand [N];
+``Z_h(s) = M_h s^2 + B_h s + K_h``. The matrices need not be symmetric and are used as
+given. ``Arm`` is a single arm; stack arms (``jax.tree.map(jnp.stack, ...)``) or vmap over
+them like any pytree.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from ._checks import as_param, check_positive_definite
+from ._pytree import params
+
+UPPER_ARM_LENGTH = 0.21  # l_u [m]
+FOREARM_LENGTH = 0.32  # l_f [m] (forearm plus hand)
+
+
+def arm_endpoint(shoulder_rad, elbow_rad, *, upper=UPPER_ARM_LENGTH, forearm=FOREARM_LENGTH):
+    """World-frame hand position [m] ``(2,)`` of a two-link arm (shoulder at the origin) with
+    shoulder angle ``th_s`` and relative elbow angle ``th_e`` [rad] (spec section 2), NumPy."""
+    return np.array(
+        [
+            upper * np.cos(shoulder_rad) + forearm * np.cos(shoulder_rad + elbow_rad),
+            upper * np.sin(shoulder_rad) + forearm * np.sin(shoulder_rad + elbow_rad),
+        ]
+    )
+
+
+@params
+class Arm:
+    """A human arm (an immutable pytree of float64 leaves).
+
+    Args:
+        mass: ``M_h`` ``(2, 2)`` [kg].
+        damping: ``B_h`` ``(2, 2)`` [N s/m].
+        stiffness: ``K_h`` ``(2, 2)`` [N/m].
+        endpoint: ``x0`` ``(2,)`` [m], the hand's equilibrium in the world frame (origin at
+            the shoulder); the robot holds the hand there at rest.
+
+    The matrices may be non-symmetric. ``mass`` must have a positive definite symmetric
+    part (the coupled plant's inertia must stay invertible); damping and stiffness are
+    free (a user may study unstable or negative-stiffness arms). Values are checked
+    when concrete; traced values pass, so ``grad`` and ``vmap`` flow through them.
+    """
+
+    mass: jnp.ndarray
+    damping: jnp.ndarray
+    stiffness: jnp.ndarray
+    endpoint: jnp.ndarray
+
+    def __post_init__(self):
+        w = "Arm"
+        for name, unit in (("mass", "kg"), ("damping", "N s/m"), ("stiffness", "N/m")):
+            object.__setattr__(self, name, as_param(f"{name} [{unit}]", getattr(self, name), (2, 2), where=w))
+        object.__setattr__(self, "endpoint", as_param("endpoint [m]", self.endpoint, (2,), where=w))
+        check_positive_definite("mass", self.mass, where=w, unit=" [kg]")
+
+    def impedance(self, f):
+        """``Z_h(j 2 pi f)`` [N/m] ``(F, 2, 2)`` complex at frequencies ``f`` [Hz] ``(F,)``."""
+        return impedance_response(self, f)
+
+
+def impedance_response(arm: Arm, f):
+    """``M s^2 + B s + K`` at ``s = j 2 pi f`` for ``f`` [Hz] ``(F,)``: ``(F, 2, 2)`` complex [N/m]."""
+    s = 2j * jnp.pi * jnp.asarray(f, dtype=jnp.float64)[:, None, None]
+    return jnp.asarray(arm.mass)[None] * s**2 + jnp.asarray(arm.damping)[None] * s + jnp.asarray(arm.stiffness)[None]

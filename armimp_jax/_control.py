@@ -1,0 +1,157 @@
+"""Controllers (spec section 7): PD and IMBIC as values with pure per-sample functions.
+
+A controller is an immutable pytree of gains with three methods, which is all the
+simulation loop knows about it (so a new controller needs no change to the loop):
+
+- ``bind(robot, q0, x0)``: the controller with its defaults resolved for the trial's
+  equilibrium (IMBIC's desired inertia ``M_x(q0)``); ``make_trial`` calls it.
+- ``init(x0)``: its memory at rest at ``x0`` (a pytree).
+- ``step(memory, x, xd, fh, f_delta, x0, period)``: the command ``F_u,k`` [N] ``(2,)`` held
+  over the next period, and the new memory, from the measured ``x_k`` [m], ``xd_k``
+  [m/s], ``F_h,k`` [N] and the perturbation ``F_Delta,k`` [N].
+
+Vectors are ``(2,)``; batch with ``jax.vmap``. The 2x2 products are written out
+(``matvec``) rather than left to a generic ``dot``: that keeps the rounding identical in
+batched and unbatched programs and lets an unperturbed IMBIC stay exactly at rest.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+from ._checks import as_param, check_choice, check_positive_definite
+from ._pytree import params
+from ._robot import cartesian_inertia
+
+ACCEL_ESTIMATES = ("velocity", "position")
+# Defaults as nested tuples (immutable): K_p [N/m], K_v [N s/m] (paper eq. 5), Mhat [kg] (spec 7.2)
+PD_STIFFNESS = ((250.0, 0.0), (0.0, 250.0))
+PD_DAMPING = ((4.0, 0.0), (0.0, 4.0))
+DEFAULT_MHAT = ((0.25, 0.0), (0.0, 0.25))
+
+
+def matvec(a, v):
+    """``a @ v`` for a ``(2, 2)`` matrix and a ``(2,)`` vector, with a fixed summation order."""
+    return jnp.stack([a[0, 0] * v[0] + a[0, 1] * v[1], a[1, 0] * v[0] + a[1, 1] * v[1]])
+
+
+def _gain(name, value, unit, where, *, definite=True):
+    arr = as_param(f"{name} [{unit}]", value, (2, 2), where=where)
+    if definite:
+        check_positive_definite(name, arr, where=where, unit=f" [{unit}]")
+    return arr
+
+
+@params
+class PD:
+    """PD control (paper eq. 5): ``F_u = F_Delta - K_p (x - x0) - K_v xd``.
+
+    Args:
+        kp: ``K_p`` ``(2, 2)`` [N/m]; its symmetric part positive definite.
+        kv: ``K_v`` ``(2, 2)`` [N s/m]; its symmetric part positive definite.
+    """
+
+    kp: jnp.ndarray = PD_STIFFNESS
+    kv: jnp.ndarray = PD_DAMPING
+
+    def __post_init__(self):
+        object.__setattr__(self, "kp", _gain("kp", self.kp, "N/m", "PD"))
+        object.__setattr__(self, "kv", _gain("kv", self.kv, "N s/m", "PD"))
+
+    def bind(self, robot, q0, x0) -> PD:
+        return self
+
+    def init(self, x0):
+        return ()
+
+    def step(self, memory, x, xd, fh, f_delta, x0, period):
+        return f_delta - matvec(self.kp, x - x0) - matvec(self.kv, xd), memory
+
+
+class IMBICMemory(NamedTuple):
+    """IMBIC's memory (all ``(2,)``): ``x_k-1``, ``x_k-2`` [m], ``xd_k-1`` [m/s], ``v_k-1``
+    [m/s^2] and the last command ``F_u,k-1`` [N]."""
+
+    x_prev: jnp.ndarray
+    x_prev2: jnp.ndarray
+    xd_prev: jnp.ndarray
+    v_prev: jnp.ndarray
+    fu_prev: jnp.ndarray
+
+
+@params(static=("accel_estimate",))
+class IMBIC:
+    """Internal-model-based impedance control (paper eqs. 10-17 and 30, spec 7.2).
+
+    Desired robot dynamics ``M_rd xdd + B_rd xd + K_rd (x - x0) = F_Delta - F_h``, realised by
+    time-delay estimation with the constant gain ``mhat``.
+
+    Args:
+        mhat: ``Mhat`` ``(2, 2)`` [kg], positive definite symmetric part (stability of time-delay
+            estimation needs roughly ``0 < Mhat < 2 M_x``).
+        kp, kv: ``K_p`` [N/m] and ``K_v`` [N s/m], the defaults of ``K_rd`` and ``B_rd``.
+        m_rd: desired inertia ``(2, 2)`` [kg]; ``None`` (default) is the robot's Cartesian
+            inertia ``M_x(q0)`` at the trial's equilibrium, resolved by ``make_trial``.
+        b_rd: desired damping [N s/m]; ``None`` is ``kv``.
+        k_rd: desired stiffness [N/m]; ``None`` is ``kp``.
+        accel_estimate: ``"velocity"`` (``a_k-1 = (xd_k - xd_k-1) / L``, default) or
+            ``"position"`` (``(x_k - 2 x_k-1 + x_k-2) / L^2``); static.
+    """
+
+    mhat: jnp.ndarray = DEFAULT_MHAT
+    kp: jnp.ndarray = PD_STIFFNESS
+    kv: jnp.ndarray = PD_DAMPING
+    m_rd: jnp.ndarray | None = None
+    b_rd: jnp.ndarray | None = None
+    k_rd: jnp.ndarray | None = None
+    m_rd_inv: jnp.ndarray | None = None
+    accel_estimate: str = "velocity"
+
+    def __post_init__(self):
+        w = "IMBIC"
+        set_ = object.__setattr__
+        set_(self, "mhat", _gain("mhat", self.mhat, "kg", w))
+        set_(self, "kp", _gain("kp", self.kp, "N/m", w))
+        set_(self, "kv", _gain("kv", self.kv, "N s/m", w))
+        for name, unit in (("m_rd", "kg"), ("b_rd", "N s/m"), ("k_rd", "N/m")):
+            if getattr(self, name) is not None:
+                set_(self, name, _gain(name, getattr(self, name), unit, w))
+        check_choice("accel_estimate", self.accel_estimate, ACCEL_ESTIMATES)
+
+    def bind(self, robot, q0, x0) -> IMBIC:
+        """Resolve the desired dynamics for the equilibrium ``q0`` (and invert ``M_rd`` once)."""
+        m_rd = cartesian_inertia(q0, robot) if self.m_rd is None else jnp.asarray(self.m_rd)
+        out = object.__new__(IMBIC)
+        for name in ("mhat", "kp", "kv", "accel_estimate"):
+            object.__setattr__(out, name, getattr(self, name))
+        object.__setattr__(out, "m_rd", m_rd)
+        object.__setattr__(out, "b_rd", self.kv if self.b_rd is None else self.b_rd)
+        object.__setattr__(out, "k_rd", self.kp if self.k_rd is None else self.k_rd)
+        object.__setattr__(out, "m_rd_inv", jnp.linalg.inv(m_rd))
+        return out
+
+    def init(self, x0) -> IMBICMemory:
+        """At rest at ``x0``: ``x_-1 = x_-2 = x0``, ``xd_-1 = 0``, ``F_u,-1 = 0``,
+        ``v_-1 = M_rd^-1 K_rd x0`` (an unperturbed robot then stays exactly at rest)."""
+        zero = jnp.zeros_like(x0)
+        return IMBICMemory(x0, x0, zero, matvec(self.m_rd_inv, matvec(self.k_rd, x0)), zero)
+
+    def step(self, memory: IMBICMemory, x, xd, fh, f_delta, x0, period):
+        if self.accel_estimate == "velocity":
+            a = (xd - memory.xd_prev) / period
+        else:
+            a = (x - 2.0 * memory.x_prev + memory.x_prev2) / (period * period)
+        minv, kd, bd = self.m_rd_inv, self.k_rd, self.b_rd
+        v = (
+            matvec(minv, (matvec(kd, x0) + f_delta) - fh)
+            - (a + matvec(minv, matvec(bd, memory.xd_prev) + matvec(kd, memory.x_prev)))
+            + memory.v_prev
+        )
+        u = v - matvec(minv, matvec(bd, xd) + matvec(kd, x))
+        fu = matvec(self.mhat, u) + memory.fu_prev - matvec(self.mhat, a)
+        return fu, IMBICMemory(x, memory.x_prev, xd, v, fu)
+
+
+CONTROLLERS = {"pd": PD, "imbic": IMBIC}

@@ -1,0 +1,368 @@
+"""A trial and its simulation loop (spec sections 5-7 and 13).
+
+A trial is one record: the robot starts at rest at the arm's equilibrium, a perturbation
+``F_Delta`` (``(N, 2)`` [N], one sample per control period) is added to the controller's
+command, and the loop records what the acquisition sees. jax-md style, the simulation is
+a pair of pure functions, ``simulate_init`` and ``simulate_chunk`` (an outer ``lax.scan``
+over control periods: measure, control, integrate; an inner fixed-step RK4 scan over the
+substeps), and ``simulate`` runs them over a whole record.
+
+``simulate`` is a single-trial function: batch it with ``jax.vmap`` over stacked trials
+(``stack_trials``) and stacked perturbations. A batch may mix robots, arms, endpoints,
+friction, gains and ``mhat``; the controller type, the acquisition and the period must
+agree (they fix the program).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._arm import Arm
+from ._checks import as_float64, check_choice, require_x64
+from ._control import matvec
+from ._friction import LuGre
+from ._numerics import Numerics
+from ._plant import PlantState, Trig, integrate_period, measure, plant_model, rest_state, trig_of
+from ._pytree import params
+from ._robot import MIT_MANUS, Robot, fk, ik, jacobian_from_trig
+from ._sensors import IDEAL, Sensors, quantise, sample_noise
+
+ACQUISITIONS = ("instant", "interval_mean")
+CONTROL_PERIOD = 1e-3  # L [s], control and acquisition period (spec section 6)
+# A trial is flagged as diverged when its state is not finite or a joint has moved this
+# far from its equilibrium [rad] (about 0.2 m at the handle; real trials move < 1 cm).
+DIVERGENCE_ANGLE = 0.5
+
+
+@params(static=("acquisition", "period"))
+class Trial:
+    """Everything that defines a trial except the perturbation (an immutable pytree; build it
+    with ``make_trial``, which resolves and checks it).
+
+    Leaves (float64, may be tracers): ``robot`` (``Robot``), ``arm`` (``Arm``), ``friction``
+    (``LuGre``), ``controller`` (a bound ``PD``, ``IMBIC`` or user controller), ``sensors``
+    (``Sensors``), and the equilibrium ``q0`` ``(2,)`` [rad] with ``x0 = fk(q0)`` ``(2,)``
+    [m]. Static: ``acquisition`` and the control ``period`` [s].
+    """
+
+    robot: Robot
+    arm: Arm
+    friction: LuGre
+    controller: Any
+    sensors: Sensors
+    q0: jnp.ndarray
+    x0: jnp.ndarray
+    acquisition: str = "instant"
+    period: float = CONTROL_PERIOD
+
+
+def _require(name, value, cls):
+    if not isinstance(value, cls):
+        raise ValueError(f"make_trial: {name} must be a {cls.__name__}, got {type(value).__name__}")
+
+
+def make_trial(
+    controller,
+    *,
+    arm: Arm,
+    friction: LuGre,
+    sensors: Sensors | None = None,
+    robot: Robot | None = None,
+    acquisition: str = "instant",
+    period: float = CONTROL_PERIOD,
+) -> Trial:
+    """One trial's parameters.
+
+    Args:
+        controller: ``PD(...)``, ``IMBIC(...)`` or any value with ``bind``, ``init`` and
+            ``step`` (see ``armimp_jax._control``). Its defaults that depend on the
+            equilibrium (IMBIC's ``M_rd = M_x(q0)``) are resolved here.
+        arm: the human arm, with its equilibrium ``endpoint`` [m] in the world frame.
+        friction: joint friction, ``LuGre(...)`` or ``NO_FRICTION``.
+        sensors: ``Sensors(...)``; default ideal.
+        robot: ``Robot(...)``; default ``MIT_MANUS``.
+        acquisition: ``"instant"`` (samples at ``t_k``, the paper's) or ``"interval_mean"``
+            (box-car means over the period ending at ``t_k``).
+        period: control and acquisition period ``L`` [s] (default 1 ms).
+
+    The robot starts at rest at ``q0 = ik(endpoint)`` (the branch ``0 < q1 - q2 < pi``);
+    an endpoint it cannot reach, or reaches only near a singular posture, is refused
+    with a ``ValueError``. Values may be tracers (``jax.vmap`` over ``mhat`` or an arm).
+    """
+    require_x64("make_trial")
+    for method in ("bind", "init", "step"):
+        if not callable(getattr(controller, method, None)):
+            raise ValueError(
+                f"make_trial: controller must be PD(...), IMBIC(...) or provide bind/init/step, "
+                f"got {type(controller).__name__}"
+            )
+    _require("arm", arm, Arm)
+    _require("friction", friction, LuGre)
+    sensors = IDEAL if sensors is None else sensors
+    _require("sensors", sensors, Sensors)
+    robot = MIT_MANUS if robot is None else robot
+    _require("robot", robot, Robot)
+    check_choice("acquisition", acquisition, ACQUISITIONS)
+    if not (isinstance(period, (int, float)) and not isinstance(period, bool) and period > 0):
+        raise ValueError(f"make_trial: period must be a positive number of seconds, got {period!r}")
+    q0 = ik(jnp.asarray(arm.endpoint), robot)
+    x0 = fk(q0, robot)
+    return Trial(
+        robot=robot,
+        arm=arm,
+        friction=friction,
+        controller=controller.bind(robot, q0, x0),
+        sensors=sensors,
+        q0=q0,
+        x0=x0,
+        acquisition=acquisition,
+        period=float(period),
+    )
+
+
+def _align_sensors(trials: list[Trial]) -> list[Trial]:
+    """Give every trial the union of the batch's sensor flags (a level of 0 then adds zeros)."""
+    flags = [(t.sensors.force_on, t.sensors.encoder_on, t.sensors.velocity_on) for t in trials]
+    if len(set(flags)) == 1:
+        return trials
+    if len({f[1] for f in flags}) > 1:
+        raise ValueError("stack_trials: trials with and without encoder quantisation cannot share a batch")
+    force_on, velocity_on = any(f[0] for f in flags), any(f[2] for f in flags)
+    out = []
+    for t in trials:
+        s = Sensors(
+            t.sensors.force_noise,
+            t.sensors.encoder_counts,
+            t.sensors.velocity_noise,
+            force_on=force_on,
+            velocity_on=velocity_on,
+        )
+        out.append(dataclasses.replace(t, sensors=s))
+    return out
+
+
+def stack_trials(trials: list[Trial]) -> Trial:
+    """Stack single trials along a new leading axis, for ``jax.vmap(simulate)``.
+
+    The trials must share the controller type (and IMBIC's ``accel_estimate``), the
+    acquisition and the period; sensor options are aligned (a trial whose noise is off
+    gets a zero level).
+    """
+    trials = list(trials)
+    if not trials:
+        raise ValueError("stack_trials needs at least one Trial")
+    for t in trials:
+        if not isinstance(t, Trial):
+            raise ValueError(f"stack_trials takes Trial values (from make_trial), got {type(t).__name__}")
+    trials = _align_sensors(trials)
+    structures = {jax.tree.structure(t) for t in trials}
+    if len(structures) > 1:
+        kinds = sorted({(type(t.controller).__name__, t.acquisition, t.period) for t in trials})
+        raise ValueError(
+            "trials in one batch must share the controller type and its static options, the acquisition and "
+            f"the period; got (controller, acquisition, period) in {kinds}"
+        )
+    return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *trials)
+
+
+class SimResult(NamedTuple):
+    """What a trial records, one row per control sample ``k = 0..N-1`` (``t_k = k L``).
+
+    ``x`` [m], ``fh`` [N]: what the acquisition records at ``t_k`` (world-frame position;
+    hand force per spec section 6, sensor noise included). ``xd`` [m/s]: the measured
+    velocity the controller used. ``q`` [rad], ``z`` [rad]: true joint angles and bristle
+    states at ``t_k``. ``fu`` [N]: the command applied over ``[t_k, t_k+1)`` (it includes
+    ``F_Delta``). All ``(N, 2)`` float64. ``diverged`` (bool) and ``diverged_at`` (int,
+    first sample whose state was not finite or left the joint range, else -1): from that
+    sample on, every field holds its last good value.
+    """
+
+    x: jnp.ndarray
+    xd: jnp.ndarray
+    fh: jnp.ndarray
+    fu: jnp.ndarray
+    q: jnp.ndarray
+    z: jnp.ndarray
+    diverged: jnp.ndarray
+    diverged_at: jnp.ndarray
+
+
+def check_perturbation(f_delta, *, where: str):
+    arr = as_float64("f_delta", f_delta, where=where)
+    if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] < 1:
+        raise ValueError(f"f_delta must have shape (N, 2) with N >= 1 samples, got {arr.shape}")
+    return arr
+
+
+class SimCarry(NamedTuple):
+    """Loop state between control periods: the plant state at ``t_k``; the command
+    ``F_u,k-1`` and the true ``x_k-1``, ``xd_k-1`` (the acquisition's memory); the
+    controller's memory; ``diverged_at`` (int32, -1 while the trial is sound) and ``k``,
+    the next sample index."""
+
+    plant: PlantState
+    fu_prev: jnp.ndarray
+    x_prev: jnp.ndarray
+    xd_prev: jnp.ndarray
+    memory: Any
+    diverged_at: jnp.ndarray
+    k: jnp.ndarray
+
+
+def _check_trial(trial, where):
+    require_x64(where)
+    if not isinstance(trial, Trial):
+        raise ValueError(f"{where}: trial must be a Trial (from make_trial), got {type(trial).__name__}")
+
+
+def simulate_init(trial: Trial) -> SimCarry:
+    """The loop state of a trial at ``t_0``: robot at rest at ``q0``, relaxed bristles."""
+    zero = jnp.zeros_like(trial.x0)
+    return SimCarry(
+        rest_state(trial.q0),
+        zero,
+        trial.x0,
+        zero,
+        trial.controller.init(trial.x0),
+        jnp.asarray(-1, dtype=jnp.int32),
+        jnp.asarray(0, dtype=jnp.int32),
+    )
+
+
+def _sense(trial: Trial, state: PlantState, x, xd, fh, noise):
+    """What the sensors report, from the true ``x``, ``xd``, ``F_h`` (unchanged when ideal)."""
+    s = trial.sensors
+    force_noise, rate_noise = noise
+    if s.encoder_on or s.velocity_on:
+        qd = jnp.stack([state.qd1, state.qd2])
+        if s.velocity_on:
+            qd = qd + rate_noise
+        if s.encoder_on:
+            q = quantise(jnp.stack([state.q1, state.q2]), s)
+            t = Trig(jnp.cos(q[0]), jnp.sin(q[0]), jnp.cos(q[1]), jnp.sin(q[1]))
+            c10, s10, c20, s20 = jnp.cos(trial.q0[0]), jnp.sin(trial.q0[0]), jnp.cos(trial.q0[1]), jnp.sin(trial.q0[1])
+            ls, le = trial.robot.shoulder_link, trial.robot.elbow_link
+            x = trial.x0 + jnp.stack([ls * (t.c1 - c10) + le * (t.c2 - c20), ls * (t.s1 - s10) + le * (t.s2 - s20)])
+        else:
+            t = trig_of(state)
+        j11, j12, j21, j22 = jacobian_from_trig(trial.robot, *t)
+        xd = jnp.stack([j11 * qd[0] + j12 * qd[1], j21 * qd[0] + j22 * qd[1]])
+    if s.force_on:
+        fh = fh + force_noise
+    return x, xd, fh
+
+
+def simulate_chunk(
+    trial: Trial, carry: SimCarry, f_delta, *, key=None, numerics: Numerics | None = None
+) -> tuple[SimCarry, SimResult]:
+    """Run the samples ``f_delta`` ``(n, 2)`` [N] from ``carry``; returns the new carry and
+    the ``n`` recorded rows. Chaining chunks gives bitwise the same numbers as one call of
+    ``simulate`` (used for progress reporting and resumable long runs)."""
+    _check_trial(trial, "simulate_chunk")
+    numerics = Numerics() if numerics is None else numerics
+    if not isinstance(numerics, Numerics):
+        raise ValueError(f"numerics must be a Numerics, got {type(numerics).__name__}")
+    f_delta = check_perturbation(f_delta, where="simulate_chunk")
+    if not trial.sensors.ideal and (trial.sensors.force_on or trial.sensors.velocity_on) and key is None:
+        raise ValueError("simulate: the trial's sensors draw noise; pass key=jax.random.key(seed)")
+    period, substeps = trial.period, numerics.substeps
+    model = plant_model(trial.q0, trial.x0, trial.arm, trial.friction, trial.robot)
+    x0, arm, controller = trial.x0, trial.arm, trial.controller
+
+    def record(state: PlantState, x, xd, fh, carry: SimCarry):
+        if trial.acquisition == "instant":
+            return x, fh
+        xbar = x0 + jnp.stack([state.xi1, state.xi2]) / period
+        fbar = (
+            matvec(arm.mass, (xd - carry.xd_prev) / period)
+            + matvec(arm.damping, (x - carry.x_prev) / period)
+            + matvec(arm.stiffness, xbar - x0)
+        )
+        return xbar, fbar
+
+    def control_period(carry: SimCarry, fd):
+        state, k = carry.plant, carry.k
+        # The barriers make each sample one materialised value: otherwise XLA may recompute
+        # it in several fusions whose FMA contraction differs (batched vs unbatched programs
+        # then disagree in the last bit of the outputs).
+        x, xd, fh = jax.lax.optimization_barrier(measure(*jax.lax.optimization_barrier((state, carry.fu_prev)), model))
+        noise = sample_noise(trial.sensors, key, k)
+        x_rec, fh_rec = record(state, x, xd, fh, carry)
+        if not trial.sensors.ideal:
+            x_m, xd_m, fh_m = _sense(trial, state, x, xd, fh, noise)
+            if trial.acquisition == "instant":
+                x_rec, fh_rec = x_m, fh_m
+            elif trial.sensors.force_on:
+                fh_rec = fh_rec + noise[0]
+        else:
+            x_m, xd_m, fh_m = x, xd, fh
+        fu, memory = controller.step(carry.memory, x_m, xd_m, fh_m, fd, x0, period)
+        fu, memory, x, xd = jax.lax.optimization_barrier((fu, memory, x, xd))
+        zero = jnp.zeros_like(state.xi1)
+        new_state = integrate_period(
+            state._replace(xi1=zero, xi2=zero),
+            fu,
+            model,
+            period=period,
+            substeps=substeps,
+            kernel=numerics.kernel,
+            checkpoint=numerics.checkpoint,
+        )
+
+        finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(leaf)) for leaf in jax.tree.leaves((new_state, fu))]))
+        in_range = (jnp.abs(new_state.q1 - trial.q0[0]) < DIVERGENCE_ANGLE) & (
+            jnp.abs(new_state.q2 - trial.q0[1]) < DIVERGENCE_ANGLE
+        )
+        diverged_at = jnp.where((carry.diverged_at < 0) & ~(finite & in_range), k + 1, carry.diverged_at)
+        frozen = diverged_at >= 0
+        new = (new_state, fu, x, xd, memory)
+        old = (state, carry.fu_prev, carry.x_prev, carry.xd_prev, carry.memory)
+        keep = jax.tree.map(lambda n, o: jnp.where(frozen, o, n), new, old)
+        out = (x_rec, xd_m, fh_rec, fu, jnp.stack([state.q1, state.q2]), jnp.stack([state.z1, state.z2]))
+        return SimCarry(*keep, diverged_at, k + 1), out
+
+    # What reverse mode keeps (inert when nothing is differentiated): with "period" the
+    # tape holds one carry per period and the backward pass recomputes its substeps; with
+    # "substep" the period is not checkpointed, so the tape holds every substep's carry.
+    step = control_period if numerics.checkpoint == "substep" else jax.checkpoint(control_period, prevent_cse=False)
+    carry, (x, xd, fh, fu, q, z) = jax.lax.scan(step, carry, f_delta)
+    return carry, SimResult(x, xd, fh, fu, q, z, carry.diverged_at >= 0, carry.diverged_at)
+
+
+def simulate(trial: Trial, f_delta, *, key=None, numerics: Numerics | None = None) -> SimResult:
+    """Simulate one trial driven by the perturbation ``f_delta`` ``(N, 2)`` [N].
+
+    Per sample ``k``: (1) measure ``x_k``, ``xd_k`` and ``F_h,k`` (with ``F_u,k-1`` still
+    acting), (2) compute ``F_u,k``, (3) integrate to ``t_k+1`` with ``F_u,k`` held.
+
+    Args:
+        trial: from ``make_trial`` (or ``paper.trial``).
+        f_delta: the perturbation ``(N, 2)`` [N], one sample per control period.
+        key: a ``jax.random`` key for sensor noise (required when ``trial.sensors`` draws
+            noise; ignored otherwise). Sample ``k`` uses ``fold_in(key, k)``.
+        numerics: ``Numerics(...)``; default 100 RK4 substeps, ``"fast"`` kernel.
+
+    Pure and single-trial: ``jax.vmap(simulate)`` batches it (trials from
+    ``stack_trials``, keys from ``jax.random.split``), ``jax.grad`` flows through every
+    float leaf of ``trial`` and through ``f_delta``.
+    """
+    _check_trial(trial, "simulate")
+    return simulate_chunk(trial, simulate_init(trial), f_delta, key=key, numerics=numerics)[1]
+
+
+def describe(trial: Trial) -> dict:
+    """The trial's settings as plain JSON-ready data (single trial; for saved results)."""
+
+    def plain(v):
+        if dataclasses.is_dataclass(v):
+            return {"type": type(v).__name__} | {f.name: plain(getattr(v, f.name)) for f in dataclasses.fields(v)}
+        if v is None or isinstance(v, (str, bool, int, float)):
+            return v
+        return np.asarray(v).tolist()
+
+    return plain(trial)

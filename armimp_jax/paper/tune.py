@@ -1,0 +1,114 @@
+"""The paper's Mhat-tuning experiment: training and held-out batches, the comparison table.
+
+Built on the general tuner (``armimp_jax.tune``): IMBIC trials of the paper's arms and
+friction levels, perturbation level 1, training and held-out seeds that never overlap.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._batch import Welch, assess_batch, simulate_batch
+from .._numerics import Numerics
+from .._perturbation import perturbation
+from .._simulate import stack_trials
+from ._presets import perturbation_peak, trial
+
+TRAIN_SEED_OFFSET = 100  # training and held-out perturbation seeds never overlap
+HELDOUT_SEED_OFFSET = 1000
+
+
+def seed_perturbations(base_seed: int, seeds, n_samples: int, level: int = 1):
+    """``(len(seeds), n, 2)`` perturbations [N] from ``fold_in(PRNGKey(base_seed), seed)``."""
+    key = jax.random.PRNGKey(base_seed)
+    return np.stack(
+        [np.asarray(perturbation(jax.random.fold_in(key, s), n_samples, perturbation_peak(level))) for s in seeds]
+    )
+
+
+def training_numerics(substeps: int, *, kernel: str = "grad", checkpoint: str = "substep") -> Numerics:
+    """The tuner's numerics: the RK4 kernel arranged for reverse mode, and every substep's
+    carry on the tape (96 bytes per trial-substep: 31 MB for a 16 s trial at 20 substeps;
+    use ``checkpoint="period"`` for batches that would not fit)."""
+    return Numerics(substeps=substeps, kernel=kernel, checkpoint=checkpoint)
+
+
+def training_batch(frictions, locations, seeds, *, seconds: float, base_seed: int = 0):
+    """Stacked IMBIC trials of the paper (friction x location x seed) and their perturbations."""
+    n = int(round(seconds * 1000))
+    signals = seed_perturbations(base_seed, [TRAIN_SEED_OFFSET + s for s in seeds], n)
+    params, f_delta = [], []
+    for fr in frictions:
+        for loc in locations:
+            for i, _ in enumerate(seeds):
+                params.append(trial("imbic", fr, loc))
+                f_delta.append(signals[i])
+    return stack_trials(params), jnp.asarray(np.stack(f_delta))
+
+
+def heldout_phi(
+    mhats: dict,
+    *,
+    frictions=(0, 1, 2),
+    locations=(1, 2, 3, 4),
+    seeds=(0, 1),
+    seconds: float = 50.0,
+    substeps: int = 100,
+    welch: Welch = Welch(),
+    base_seed: int = 0,
+    batch_size: int = 24,
+) -> dict:
+    """``phi_T`` of each candidate ``Mhat`` on held-out seeds at the given settings.
+
+    Returns ``{name: array (len(frictions), len(locations), len(seeds))}`` plus
+    ``"_diverged"``: names whose runs diverged in any trial.
+    """
+    n = int(round(seconds * 1000))
+    welch.check(n)
+    signals = seed_perturbations(base_seed, [HELDOUT_SEED_OFFSET + s for s in seeds], n)
+    cells = [(fr, loc, i) for fr in frictions for loc in locations for i in range(len(seeds))]
+    out, diverged = {}, []
+    for name, mhat in mhats.items():
+        phis = np.empty(len(cells))
+        bad = False
+        for start in range(0, len(cells), batch_size):
+            chunk = cells[start : start + batch_size]
+            params = stack_trials([trial("imbic", fr, loc, mhat=np.asarray(mhat)) for fr, loc, _ in chunk])
+            f_delta = np.stack([signals[i] for _, _, i in chunk])
+            sim = simulate_batch(params, f_delta, numerics=Numerics(substeps=substeps), chunk_samples=min(n, 10_000))
+            res = assess_batch(params, f_delta, sim, welch)
+            phis[start : start + len(chunk)] = res.phi_T
+            bad |= bool(np.any(res.diverged))
+        out[name] = phis.reshape(len(frictions), len(locations), len(seeds))
+        if bad:
+            diverged.append(name)
+    out["_diverged"] = diverged
+    return out
+
+
+def comparison_markdown(table: dict, mhat, *, locations, evals: dict, seeds) -> str:
+    """The held-out comparison as Markdown: mean phi_T per friction level and location."""
+    names = [k for k in table if not k.startswith("_")]
+    frictions = range(next(iter(table[n] for n in names)).shape[0])
+    w = evals["welch"]
+    lines = [
+        f"Held-out phi_T [N/m] (seeds {list(seeds)} offset {HELDOUT_SEED_OFFSET}, {evals['seconds']:g} s, "
+        f"{evals['substeps']} substeps, nperseg {w.nperseg}); tuned Mhat = "
+        f"{np.round(np.asarray(mhat), 4).tolist()} kg",
+        "",
+        "| Mhat | " + " | ".join(f"F{f} L{loc}" for f in frictions for loc in locations) + " | mean |",
+        "|---|" + "---|" * (len(frictions) * len(locations) + 1),
+    ]
+    for n in names:
+        cells = table[n].mean(axis=2)
+        flag = " (diverged)" if n in table["_diverged"] else ""
+        lines.append(
+            f"| {n}{flag} | "
+            + " | ".join(f"{cells[f, i]:.0f}" for f in frictions for i in range(len(locations)))
+            + f" | {table[n].mean():.1f} |"
+        )
+    best = min(names, key=lambda n: table[n].mean())
+    lines += ["", f"Lowest mean phi_T: **{best}**."]
+    return "\n".join(lines) + "\n"
