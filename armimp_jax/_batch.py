@@ -90,10 +90,9 @@ def default_lanes(mesh: Mesh) -> int:
     """float64 lanes of one SIMD vector (``runtime.vector_lanes``) on a CPU mesh, else 1
     (accelerators need no padding).
 
-    XLA:CPU runs a per-device batch that is not a whole number of vectors as scalar code:
-    on a 2-core AVX2 host (4 lanes), 2-3 and 5-7 trials ran at 2.6-3.0 M substeps/s, 4, 8
-    and 12 at 9.2-9.5 (``sweeps/bench_simulate.py --lanes``), so 3 trials padded to 4
-    finish 2.4x sooner than 3 alone. One trial alone is as fast as padded to a vector."""
+    XLA:CPU runs a per-device batch that is not a whole number of vectors as scalar code,
+    so a few trials padded to a vector finish sooner than alone; one trial alone is as fast
+    as padded (``sweeps/bench_simulate.py --lanes``)."""
     return vector_lanes() if mesh.devices.flat[0].platform == "cpu" else 1
 
 
@@ -118,10 +117,8 @@ def shard_batch(tree, mesh: Mesh, *, lanes: int | None = None, size: int | None 
 
 
 # Trials per device beyond which a batch runs as several groups, one after another, so
-# that the loop's working set (a few dozen (B,) arrays) stays in cache. One AVX2 core ran
-# 96 trials at 9.9 M substeps/s, 192 at 9.6, 256 at 5.8 and 512 at 3.9; 1024 trials on two
-# cores ran at 18.4 in 4 groups against 7.9 in one (sweeps/bench_simulate.py --large-batch).
-# It also bounds the estimator's memory.
+# that the loop's working set (a few dozen (B,) arrays) stays in cache; it also bounds the
+# estimator's memory (sweeps/bench_simulate.py --large-batch).
 MAX_PER_DEVICE = 128
 
 
@@ -277,7 +274,7 @@ def assess_batch(
     max_per_device: int | None = MAX_PER_DEVICE,
 ) -> TrialOutcome:
     """``assess`` over a batch (NumPy in, NumPy out), sharded and grouped like ``simulate_batch``
-    (a group of 96 trials of 50 s takes ~2.3 GB of XLA temporaries)."""
+    (groups bound the estimator's memory)."""
     mesh = make_mesh() if mesh is None else mesh
     welch.check(np.shape(f_delta)[1])
     groups, size = batch_groups(_batch_size(f_delta), mesh.size, max_per_device=max_per_device)

@@ -20,16 +20,15 @@ import jax
 _FLAG = "--xla_force_host_platform_device_count"
 _EXTRA = "--xla_backend_extra_options"
 # Lets XLA:CPU run a small while loop (our inner RK4 scan) as one kernel instead of
-# dispatching every iteration: 1.4-4x faster at batch 1-24 (sweeps/bench_simulate.py).
+# dispatching every iteration, much faster at small batches (sweeps/bench_simulate.py).
 _LOOP_OPTION = ("xla_cpu_small_while_loop_byte_threshold", "1000000")
 # Inside that kernel every fusion is a loop over the per-device batch, a few vectors
-# long. LLVM unrolls such short loops into straight-line code that ran 1.4-1.7x slower
-# at 8-16 trials per device on a 2-core AVX2 host, no change from 24 up, same forward
-# bits at 8-96 trials with the "fast" kernel (sweeps/bench_simulate.py --compare-unrolling).
+# long, which LLVM would unroll into slower straight-line code at small per-device batches
+# (sweeps/bench_simulate.py --compare-unrolling).
 _NO_UNROLL_OPTION = ("xla_cpu_disable_loop_unrolling", None)
 # XLA:CPU asks LLVM for 256-bit vectors by default. The batch axis of the RK4 loop is
-# elementwise work on (B,) float64 arrays, and with 512-bit vectors (8 doubles) it runs
-# 1.4-1.7x faster on AVX-512 cores, bit for bit the same results (sweeps/bench_simulate.py).
+# elementwise work on (B,) float64 arrays, which 512-bit vectors run faster on AVX-512
+# cores, bit for bit the same (sweeps/bench_simulate.py).
 _VECTOR_FLAG = "--xla_cpu_prefer_vector_width"
 _DEFAULT_VECTOR_WIDTH = 256  # XLA:CPU's own default for the flag above
 
@@ -104,8 +103,8 @@ def configure(
     per core (``os.cpu_count()``), ``None`` leaves the platform alone.
     ``hoist_small_loops`` adds the XLA:CPU option that compiles the inner RK4 loop into
     one kernel. ``unroll_loops=False`` adds the option that stops LLVM unrolling the
-    short per-fusion loops over the batch inside that kernel (1.4-1.7x faster at 8-16
-    trials per device). Both change where LLVM contracts ``a*b + c`` into an FMA, so
+    short per-fusion loops over the batch inside that kernel (faster at small per-device
+    batches). Both change where LLVM contracts ``a*b + c`` into an FMA, so
     results may move in their last bits (bounded in ``tests/test_kernels.py``).
     ``vector_width`` (bits) is XLA:CPU's preferred SIMD width: ``"auto"`` asks for 512 on
     AVX-512 hosts and leaves the default elsewhere, ``None`` leaves it alone.
@@ -114,6 +113,13 @@ def configure(
     JAX then sees.
     """
     jax.config.update("jax_enable_x64", True)
+    present = os.environ.get("XLA_FLAGS", "")
+    if (not hoist_small_loops and _LOOP_OPTION[0] in present) or (unroll_loops and _NO_UNROLL_OPTION[0] in present):
+        warnings.warn(
+            "configure(hoist_small_loops=False / unroll_loops=True) cannot take out XLA:CPU options already in "
+            "XLA_FLAGS (importing armimp_jax adds them); set ARMIMP_JAX_XLA_DEFAULTS=0 before the import",
+            stacklevel=2,
+        )
     if vector_width == "auto":
         vector_width = 512 if cpu_has_avx512() else None
     if vector_width is not None:

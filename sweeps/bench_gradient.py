@@ -10,6 +10,10 @@ alternating with its own runs, and reports the paired ratio. The gradients use
 
     python sweeps/bench_gradient.py [--seconds 50] [--substeps 100] [--repeats 3]
 
+The script sets XLA's code generation itself (``configure``), so it opts out of the
+options that importing ``armimp_jax`` adds (``ARMIMP_JAX_XLA_DEFAULTS=0``): ``--no-hoist``
+and ``--unroll-loops`` then really leave them off.
+
 ``--training-batch`` also times one gradient of ``tune_mhat.py``'s default training batch
 (16 trials of 16 s at 20 substeps, nperseg 4096) with each checkpoint, on one device and
 sharded over every core by ``tune.place_batch`` (theta replicated, as ``tune.tune`` does),
@@ -21,6 +25,7 @@ from __future__ import annotations
 import argparse
 import functools
 import json
+import os
 import pathlib
 import resource
 import statistics
@@ -28,7 +33,11 @@ import subprocess
 import sys
 import time
 
-from armimp_jax.plant import CHECKPOINTS  # no JAX backend starts on import: configure() still applies
+# configure() in each child sets code generation: keep the import-time options out of it
+# (the children inherit this). No JAX backend starts on import, so configure() still applies.
+os.environ["ARMIMP_JAX_XLA_DEFAULTS"] = "0"
+
+from armimp_jax._plant import CHECKPOINTS  # noqa: E402
 
 MODES = ("primal", "reverse-diagonal", "reverse-full", "forward-diagonal", "forward-full")
 KERNELS = ("fast", "grad", "reference")
@@ -41,21 +50,22 @@ def child(mode, kernel, checkpoint, seconds, substeps, repeats, codegen):
     import jax
     import numpy as np
 
-    from armimp_jax import tune
-    from armimp_jax.sweep import Welch
+    from armimp_jax import Welch, tune
+    from armimp_jax.paper import tune as paper_tune
 
     welch = Welch() if seconds >= 8.192 else Welch(1024, 768)
     kind = "full" if mode.endswith("full") else "diagonal"
     theta = tune.theta_from_mhat(0.25 * np.eye(2), kind)
 
     def build(mode, kernel, checkpoint):
-        params, f_delta = tune.training_batch(
-            (2,), (1,), (0,), seconds=seconds, substeps=substeps, kernel=kernel, checkpoint=checkpoint
-        )
+        params, f_delta = paper_tune.training_batch((2,), (1,), (0,), seconds=seconds)
+        numerics = paper_tune.training_numerics(substeps, kernel=kernel, checkpoint=checkpoint)
         if mode == "primal":
-            fn = jax.jit(lambda t, p, f: tune.batch_loss(t, p, f, parameterisation=kind, welch=welch))
+            fn = jax.jit(
+                lambda t, p, f: tune.batch_loss(t, p, f, parameterisation=kind, welch=welch, numerics=numerics)
+            )
         else:
-            fn = tune.value_and_grad_fn(parameterisation=kind, welch=welch, mode=mode.split("-")[0])
+            fn = tune.value_and_grad_fn(parameterisation=kind, welch=welch, mode=mode.split("-")[0], numerics=numerics)
         t0 = time.perf_counter()
         compiled = fn.lower(theta, params, f_delta).compile()
         return functools.partial(compiled, theta, params, f_delta), time.perf_counter() - t0, compiled
@@ -101,15 +111,18 @@ def child_training(repeats, codegen):
     import numpy as np
     from jax.sharding import NamedSharding, PartitionSpec
 
-    from armimp_jax import tune
-    from armimp_jax.sweep import Welch
+    from armimp_jax import Welch, tune
+    from armimp_jax.paper import tune as paper_tune
 
     theta = tune.theta_from_mhat(0.25 * np.eye(2), "diagonal")
-    vg = tune.value_and_grad_fn(parameterisation="diagonal", welch=Welch(4096, 3072), mode="reverse")
+    # tune_mhat.py's defaults: friction 1-2 x 4 locations x 2 seeds, 16 s, 20 substeps
+    batch = paper_tune.training_batch((1, 2), (1, 2, 3, 4), (0, 1), seconds=16.0)
     built = []
     for checkpoint in CHECKPOINTS:
-        # tune_mhat.py's defaults: friction 1-2 x 4 locations x 2 seeds, 16 s, 20 substeps
-        batch = tune.training_batch((1, 2), (1, 2, 3, 4), (0, 1), seconds=16.0, substeps=20, checkpoint=checkpoint)
+        numerics = paper_tune.training_numerics(20, checkpoint=checkpoint)
+        vg = tune.value_and_grad_fn(
+            parameterisation="diagonal", welch=Welch(4096, 3072), mode="reverse", numerics=numerics
+        )
         for params, f_delta, mesh in (batch + (None,), tune.place_batch(*batch)):
             t = theta if mesh is None else jax.device_put(theta, NamedSharding(mesh, PartitionSpec()))
             n = 1 if mesh is None else mesh.size
@@ -146,7 +159,11 @@ def main():
     ap.add_argument("--modes", nargs="+", choices=MODES[1:], default=list(MODES[1:]))
     ap.add_argument("--kernels", nargs="+", choices=KERNELS, default=["grad"], help="RK4 kernels of the gradients")
     ap.add_argument(
-        "--checkpoints", nargs="+", choices=CHECKPOINTS, default=["substep"], help="reverse-mode tapes (trial_params)"
+        "--checkpoints",
+        nargs="+",
+        choices=CHECKPOINTS,
+        default=["substep"],
+        help="reverse-mode tapes (Numerics.checkpoint)",
     )
     ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/bench"))
     args = ap.parse_args()

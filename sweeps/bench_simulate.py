@@ -9,15 +9,27 @@ Prints Markdown tables and writes them (and JSON) under ``--out``.
 
     python sweeps/bench_simulate.py [--repeats 3] [--quick] [--no-numba] [--no-wide-vectors]
 
+The script sets XLA's code generation itself (``configure``), so it opts out of the
+options that importing ``armimp_jax`` adds (``ARMIMP_JAX_XLA_DEFAULTS=0``): ``--unroll-loops``
+then really leaves LLVM's loop unrolling on.
+
 ``--compare-unrolling`` instead times the simulation with and without LLVM's unrolling of
 XLA:CPU's loops over the batch (an XLA option, fixed per process): two child processes,
 each compiled once, run the same configurations in alternation (so the host's drift hits
 both alike) and report whether their outputs agree bit for bit (a digest of each).
 
 ``--lanes`` instead times unpadded batches of 1 to two vectors' worth of trials on one
-device, the data behind ``sweep.padded_batch_size``; ``--large-batch`` times large
+device, the data behind ``_batch.padded_batch_size``; ``--large-batch`` times large
 batches on one device and ``simulate_batch`` in groups against one group (the data
-behind ``sweep.MAX_PER_DEVICE``).
+behind ``_batch.MAX_PER_DEVICE``).
+
+``--library-path`` instead (and the default run, as an extra table) times one device
+running 24 IMBIC trials (5 s, 100 substeps) the way a library user would,
+``aj.simulate_batch(trials, f_delta, numerics=...)`` in a process that only switches
+float64 on (the XLA:CPU options that importing ``armimp_jax`` adds), against the same
+call after ``runtime.configure(host_devices=1)`` (an entry point's set-up) and in a
+process with ``ARMIMP_JAX_XLA_DEFAULTS=0`` (plain XLA): three child processes, compile
+excluded, alternating run by run, median of repeats.
 """
 
 from __future__ import annotations
@@ -34,21 +46,40 @@ import subprocess
 import sys
 import time
 
-from armimp_jax import runtime
+# The children of --compare-unrolling and --library-path start from the caller's
+# environment and flags, not this process's.
+CALLER_ENV = dict(os.environ)
+CALLER_XLA_FLAGS = CALLER_ENV.get("XLA_FLAGS", "")
+# The set-ups that --library-path compares, each in a child process ("--library-child SETUP").
+SETUPS = ("library", "configured", "plain")
+SETUP = sys.argv[sys.argv.index("--library-child") + 1] if "--library-child" in sys.argv else None
+if SETUP is None:
+    # configure() below sets code generation: keep the import-time options out of it.
+    os.environ["ARMIMP_JAX_XLA_DEFAULTS"] = "0"
 
-# The children of --compare-unrolling start from the caller's flags, not this process's.
-CALLER_XLA_FLAGS = os.environ.get("XLA_FLAGS", "")
+from armimp_jax import runtime  # noqa: E402
+
 # configure() must run before JAX starts, so these options are read before argparse.
-N_DEVICES = runtime.configure(
-    vector_width=None if "--no-wide-vectors" in sys.argv else "auto", unroll_loops="--unroll-loops" in sys.argv
-)
+if SETUP in ("library", "plain"):
+    import jax
+
+    jax.config.update("jax_enable_x64", True)  # all a library user does
+    N_DEVICES = jax.device_count()
+elif SETUP == "configured":
+    N_DEVICES = runtime.configure(host_devices=1)
+else:
+    N_DEVICES = runtime.configure(
+        vector_width=None if "--no-wide-vectors" in sys.argv else "auto", unroll_loops="--unroll-loops" in sys.argv
+    )
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import armimp_jax as aj  # noqa: E402
-from armimp_jax import sweep  # noqa: E402
+from armimp_jax import _batch, paper  # noqa: E402
+
+LIBRARY_BATCH = 24  # trials of --library-path
 
 
 def environment():
@@ -73,13 +104,18 @@ def _cpuinfo():
         return []
 
 
-def batch_inputs(b, n, substeps, controller="imbic", kernel="fast"):
-    params = aj.stack_trials(
-        [aj.trial_params(controller, i % 3, 1 + i % 4, substeps=substeps, kernel=kernel) for i in range(b)]
-    )
+def batch_inputs(b, n, controller="imbic"):
+    """``b`` trials of the paper (friction levels and locations cycled) and ``(b, n, 2)``
+    seeded perturbations of level 1."""
+    trials = aj.stack_trials([paper.trial(controller, i % 3, 1 + i % 4) for i in range(b)])
     keys = jax.random.split(jax.random.PRNGKey(0), b)
-    f_delta = jax.vmap(lambda k: aj.perturbation(k, n, aj.perturbation_peak(1)))(keys)
-    return params, f_delta
+    f_delta = jax.vmap(lambda k: aj.perturbation(k, n, paper.perturbation_peak(1)))(keys)
+    return trials, f_delta
+
+
+def vmapped_simulate(numerics):
+    """``jax.vmap(simulate)`` with fixed numerics, jitted."""
+    return jax.jit(jax.vmap(lambda t, f: aj.simulate(t, f, numerics=numerics)))
 
 
 def timed(fn, repeats):
@@ -97,15 +133,15 @@ def timed(fn, repeats):
 def build_cases(configs, seconds, substeps, *, lanes=None):
     """Compile and run once each (kernel, devices, batch) configuration: a list of
     ``(kernel, devices, batch, run, padded batch, compile s)``, ``run()`` the compiled call.
-    ``lanes`` as in ``sweep.shard_batch`` (default: pad to whole vectors; 1: no padding)."""
+    ``lanes`` as in ``_batch.shard_batch`` (default: pad to whole vectors; 1: no padding)."""
     n = int(seconds * 1000)
     cases = []
     for kernel, n_dev, b in configs:
-        mesh = sweep.make_mesh(jax.devices()[:n_dev])
-        params, f_delta = batch_inputs(b, n, substeps, kernel=kernel)
-        (p_s, f_s), _ = sweep.shard_batch((params, f_delta), mesh, lanes=lanes)
+        mesh = _batch.make_mesh(jax.devices()[:n_dev])
+        trials, f_delta = batch_inputs(b, n)
+        (p_s, f_s), _ = _batch.shard_batch((trials, f_delta), mesh, lanes=lanes)
         t0 = time.perf_counter()
-        compiled = jax.jit(jax.vmap(aj.simulate)).lower(p_s, f_s).compile()
+        compiled = vmapped_simulate(aj.Numerics(substeps=substeps, kernel=kernel)).lower(p_s, f_s).compile()
         compile_s = time.perf_counter() - t0
         jax.block_until_ready(compiled(p_s, f_s))
         cases.append((kernel, n_dev, b, functools.partial(compiled, p_s, f_s), int(p_s.q0.shape[0]), compile_s))
@@ -238,8 +274,124 @@ def markdown_unrolling(rows, seconds, substeps, repeats):
     return "\n".join(lines)
 
 
+def _strip_device_count(flags):
+    """``XLA_FLAGS`` without a host device count (the library path runs on one device)."""
+    return " ".join(f for f in flags.split() if not f.startswith("--xla_force_host_platform_device_count"))
+
+
+def _codegen(flags):
+    """The XLA:CPU code-generation options in ``flags``, in words."""
+    opts = ["small-loop kernel" if "xla_cpu_small_while_loop_byte_threshold" in flags else "no small-loop kernel"]
+    opts.append("no LLVM unrolling" if "xla_cpu_disable_loop_unrolling" in flags else "LLVM unrolling")
+    width = next((f.split("=", 1)[1] for f in flags.split() if f.startswith("--xla_cpu_prefer_vector_width=")), None)
+    opts.append(f"{width}-bit vectors" if width else "default vector width")
+    return ", ".join(opts)
+
+
+def serve_library(setup, seconds, substeps):
+    """Child of ``--library-path``: compile and run once ``simulate_batch`` on the library
+    batch, print what this process runs with (one JSON line), then run it once per stdin
+    line and print its seconds."""
+    trials, f_delta = batch_inputs(LIBRARY_BATCH, int(seconds * 1000))
+    f_delta = np.asarray(f_delta)
+    run = functools.partial(aj.simulate_batch, trials, f_delta, numerics=aj.Numerics(substeps=substeps))
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(run())  # compiles
+    first_s = time.perf_counter() - t0
+    leaves = (out.x, out.xd, out.fh, out.fu, out.diverged)
+    digest = hashlib.sha256(b"".join(np.asarray(a).tobytes() for a in leaves)).hexdigest()
+    flags = os.environ.get("XLA_FLAGS", "")
+    ready = dict(setup=setup, devices=jax.device_count(), xla_flags=flags, lanes=runtime.vector_lanes())
+    print(json.dumps(ready | dict(digest=digest, first_s=first_s)), flush=True)
+    for _ in sys.stdin:
+        t0 = time.perf_counter()
+        jax.block_until_ready(run())
+        print(time.perf_counter() - t0, flush=True)
+
+
+def library_path(seconds, substeps, repeats):
+    """``simulate_batch`` on one device in three child processes (library, configured, plain
+    XLA), compiled once each, timed in alternation (so the host's drift hits all alike)."""
+    base = {k: v for k, v in CALLER_ENV.items() if k != "ARMIMP_JAX_XLA_DEFAULTS"}
+    base["XLA_FLAGS"] = _strip_device_count(CALLER_XLA_FLAGS)
+    envs = dict(library=base, configured=base, plain=dict(base, ARMIMP_JAX_XLA_DEFAULTS="0"))
+    cmd = [sys.executable, __file__, "--seconds", str(seconds), "--substeps", str(substeps), "--library-child"]
+    children, ready = {}, {}
+    for setup in SETUPS:
+        child = subprocess.Popen(
+            cmd + [setup], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=envs[setup]
+        )
+        line = child.stdout.readline()
+        if not line:
+            sys.exit(f"--library-path: the {setup} child failed (exit {child.wait()})")
+        children[setup], ready[setup] = child, json.loads(line)
+    times = {setup: [] for setup in SETUPS}
+    for _ in range(repeats):
+        for setup, child in children.items():
+            child.stdin.write("\n")
+            child.stdin.flush()
+            times[setup].append(float(child.stdout.readline()))
+    for child in children.values():
+        child.stdin.close()
+        child.wait()
+    work = LIBRARY_BATCH * int(seconds * 1000) * substeps
+    rate = {setup: work / statistics.median(times[setup]) / 1e6 for setup in SETUPS}
+    rows = []
+    for setup in SETUPS:
+        r = ready[setup]
+        rows.append(
+            dict(
+                setup=setup,
+                batch=LIBRARY_BATCH,
+                record_s=seconds,
+                substeps=substeps,
+                devices=r["devices"],
+                lanes=r["lanes"],
+                xla_flags=r["xla_flags"],
+                codegen=_codegen(r["xla_flags"]),
+                first_s=r["first_s"],
+                run_s=statistics.median(times[setup]),
+                runs_s=times[setup],
+                msubsteps_per_s=rate[setup],
+                vs_configured=rate[setup] / rate["configured"],
+                same_bits_as_configured=r["digest"] == ready["configured"]["digest"],
+            )
+        )
+        print(
+            f"  {setup}: {rate[setup]:.2f} M substeps/s on {r['devices']} device(s) ({rows[-1]['codegen']}; "
+            f"first call {r['first_s']:.1f} s), {rows[-1]['vs_configured']:.2f}x configured, "
+            f"same bits as configured: {rows[-1]['same_bits_as_configured']}",
+            flush=True,
+        )
+    print(f"  library/configured = {rate['library'] / rate['configured']:.2f}", flush=True)
+    return rows
+
+
+def markdown_library(rows, repeats):
+    r0 = rows[0]
+    how = {
+        "library": "library: `import armimp_jax`, float64 only",
+        "configured": "configured: `runtime.configure(host_devices=1)`",
+        "plain": "plain XLA: `ARMIMP_JAX_XLA_DEFAULTS=0`, float64 only",
+    }
+    lines = [
+        f"Library path: `aj.simulate_batch(trials, f_delta, numerics=aj.Numerics(substeps={r0['substeps']}))`, "
+        f"{r0['batch']} IMBIC trials of {r0['record_s']:g} s, one device, compile excluded, median of {repeats}, "
+        "alternating between three processes:",
+        "",
+        "| process | XLA:CPU code generation | devices | M substeps/s | vs configured | same bits as configured |",
+        "|---|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| {how[r['setup']]} | {r['codegen']} | {r['devices']} | {r['msubsteps_per_s']:.2f} | "
+        f"{r['vs_configured']:.2f}x | {'yes' if r['same_bits_as_configured'] else 'no'} |"
+        for r in rows
+    ]
+    return "\n".join(lines)
+
+
 def markdown_lanes(rows, lanes):
-    """Unpadded batches on one device, and what padding each to ``sweep.padded_batch_size``
+    """Unpadded batches on one device, and what padding each to ``_batch.padded_batch_size``
     would deliver (the padded batch's rate times the real share), where that size was run."""
     rate = {r["batch"]: r["msubsteps_per_s"] for r in rows}
     lines = [
@@ -250,7 +402,7 @@ def markdown_lanes(rows, lanes):
         "|---|---|---|---|",
     ]
     for r in rows:
-        p = sweep.padded_batch_size(r["batch"], 1, lanes)
+        p = _batch.padded_batch_size(r["batch"], 1, lanes)
         padded = f"{rate[p] * r['batch'] / p:.2f}" if p in rate else "-"
         lines.append(f"| {r['batch']} | {r['msubsteps_per_s']:.2f} | {p} | {padded} |")
     return "\n".join(lines)
@@ -258,15 +410,17 @@ def markdown_lanes(rows, lanes):
 
 def bench_grouped(b, seconds, substeps, repeats):
     """``simulate_batch`` on all devices for a large batch: in groups of at most
-    ``sweep.MAX_PER_DEVICE`` trials per device (the default) against one group."""
+    ``_batch.MAX_PER_DEVICE`` trials per device (the default) against one group."""
     n = int(seconds * 1000)
-    params, f_delta = batch_inputs(b, n, substeps)
+    trials, f_delta = batch_inputs(b, n)
     f_delta = np.asarray(f_delta)
-    lanes = sweep.default_lanes(sweep.make_mesh())  # what simulate_batch pads to
+    numerics = aj.Numerics(substeps=substeps)
+    lanes = _batch.default_lanes(_batch.make_mesh())  # what simulate_batch pads to
     rows = []
-    for cap in (sweep.MAX_PER_DEVICE, None):
-        first, run_s = timed(functools.partial(sweep.simulate_batch, params, f_delta, max_per_device=cap), repeats)
-        groups, size = sweep.batch_groups(b, N_DEVICES, max_per_device=cap, lanes=lanes)
+    for cap in (_batch.MAX_PER_DEVICE, None):
+        run = functools.partial(aj.simulate_batch, trials, f_delta, numerics=numerics, max_per_device=cap)
+        first, run_s = timed(run, repeats)
+        groups, size = _batch.batch_groups(b, N_DEVICES, max_per_device=cap, lanes=lanes)
         rows.append(
             dict(
                 max_per_device=cap,
@@ -305,10 +459,11 @@ def markdown_large(sim, grouped):
 
 def bench_full_trial(b, substeps, kernel="fast"):
     """A real 50 s batch, all devices, in 5 s chunks (one compile), host copies included, one run."""
-    params, f_delta = batch_inputs(b, 50_000, substeps, kernel=kernel)
-    sweep.simulate_batch(params, np.asarray(f_delta)[:, :10_000], chunk_samples=5000)  # compile, two chunks
+    trials, f_delta = batch_inputs(b, 50_000)
+    numerics = aj.Numerics(substeps=substeps, kernel=kernel)
+    aj.simulate_batch(trials, np.asarray(f_delta)[:, :10_000], numerics=numerics, chunk_samples=5000)  # compile
     t0 = time.perf_counter()
-    sweep.simulate_batch(params, f_delta, chunk_samples=5000)
+    aj.simulate_batch(trials, f_delta, numerics=numerics, chunk_samples=5000)
     wall = time.perf_counter() - t0
     return dict(kernel=kernel, batch=b, devices=N_DEVICES, wall_s=wall, s_per_trial=wall / b)
 
@@ -320,18 +475,18 @@ def bench_numba(b, seconds, substeps, repeats):
     sys.path.insert(0, str(pathlib.Path(__file__).parent))
     import numba_baseline
 
-    params, f_delta = batch_inputs(b, int(seconds * 1000), substeps, kernel="reference")
+    trials, f_delta = batch_inputs(b, int(seconds * 1000))
     f_np = np.asarray(f_delta)
     t0 = time.perf_counter()
-    numba_baseline.run(params, f_np[:, :10])
+    numba_baseline.run(trials, f_np[:, :10], substeps)
     compile_s = time.perf_counter() - t0
     runs = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        x, _ = numba_baseline.run(params, f_np)
+        x, _ = numba_baseline.run(trials, f_np, substeps)
         runs.append(time.perf_counter() - t0)
     run_s = statistics.median(runs)
-    ref = np.asarray(jax.jit(jax.vmap(aj.simulate))(params, f_delta).x)
+    ref = np.asarray(vmapped_simulate(aj.Numerics(substeps=substeps, kernel="reference"))(trials, f_delta).x)
     agree = float(np.abs(x - ref).max() / np.abs(ref - ref[:, :1]).max())
     total = b * f_np.shape[1] * substeps
     row = dict(
@@ -385,7 +540,7 @@ def bench_estimator(batches, repeats, n=50_000):
     return rows
 
 
-def markdown(sim, full, est, numba_row=None):
+def markdown(sim, full, est, numba_row=None, library=None, library_repeats=None):
     lines = [
         "| kernel | devices | batch (padded) | M substeps/s | s per 50 s trial (from 5 s) | compile s |",
         "|---|---|---|---|---|---|",
@@ -396,7 +551,7 @@ def markdown(sim, full, est, numba_row=None):
         for r in sim
     ]
     by = {(r["kernel"], r["devices"], r["batch"]): r["msubsteps_per_s"] for r in sim}
-    for kernel in ("fast", "batch"):
+    for kernel in ("fast",):
         scal = [
             f"batch {b}: {by[(kernel, 2, b)] / by[(kernel, 1, b)]:.2f}x"
             for (k, d, b) in by
@@ -405,16 +560,12 @@ def markdown(sim, full, est, numba_row=None):
         if scal:
             lines += ["", f"Scaling from 1 to 2 devices ({kernel} kernel): " + ", ".join(scal) + "."]
     if numba_row:
-        best = {
-            kernel: max((v for (k, d, b), v in by.items() if k == kernel and (b >= 24 or len(by) < 9)), default=0.0)
-            for kernel in ("fast", "batch")
-        }
+        best = max((v for (k, d, b), v in by.items() if k == "fast" and (b >= 24 or len(by) < 9)), default=0.0)
         lines += [
             "",
             f"numba baseline ({numba_row['threads']} threads, one trajectory per core, batch "
             f"{numba_row['batch']}): {numba_row['msubsteps_per_s']:.2f} M substeps/s; best JAX at batch >= 24 "
-            f"is {best['fast'] / numba_row['msubsteps_per_s']:.1f}x that (fast kernel), "
-            f"{best['batch'] / numba_row['msubsteps_per_s']:.1f}x (batch kernel). numba agrees with JAX to "
+            f"is {best / numba_row['msubsteps_per_s']:.1f}x that (fast kernel). numba agrees with JAX to "
             f"{numba_row['rel_diff_vs_jax']:.1e} (relative, x).",
         ]
     for f in full or []:
@@ -427,6 +578,8 @@ def markdown(sim, full, est, numba_row=None):
     lines += [
         f"| {r['method']} | {r['batch']} | {r['run_s']:.3f} | {r['temp_mib']:.0f} | {r['input_mib']:.0f} |" for r in est
     ]
+    if library:
+        lines += ["", markdown_library(library, library_repeats)]
     return "\n".join(lines)
 
 
@@ -441,18 +594,25 @@ def main():
     ap.add_argument("--compare-unrolling", action="store_true", help="paired runs with and without loop unrolling")
     ap.add_argument("--lanes", action="store_true", help="unpadded batch sizes around the vector width, one device")
     ap.add_argument("--large-batch", action="store_true", help="large batches: one device, and grouped simulate_batch")
+    ap.add_argument(
+        "--library-path",
+        action="store_true",
+        help="simulate_batch as a library user runs it vs configured vs plain XLA",
+    )
     ap.add_argument("--seconds", type=float, default=5.0, help="record length of the simulation timings")
     ap.add_argument("--serve", help=argparse.SUPPRESS)
+    ap.add_argument("--library-child", choices=SETUPS, help=argparse.SUPPRESS)
     ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/bench"))
     args = ap.parse_args()
     if args.serve:
         return serve([tuple(c) for c in json.loads(args.serve)], args.seconds, args.substeps)
+    if args.library_child:
+        return serve_library(args.library_child, args.seconds, args.substeps)
     args.out.mkdir(parents=True, exist_ok=True)
     devs = sorted({1, N_DEVICES})
     if args.compare_unrolling:
         batches = (4, 8) if args.quick else (8, 16, 24, 32, 48, 96)
         configs = [("fast", d, b) for d in devs for b in batches if b >= 8 * d or args.quick]
-        configs += [("batch", N_DEVICES, b) for b in batches[-2:]]
         seconds, substeps = (0.5, 10) if args.quick else (args.seconds, args.substeps)
         repeats = 1 if args.quick else args.repeats
         rows = compare_unrolling(configs, seconds, substeps, repeats, wide_vectors=not args.no_wide_vectors)
@@ -483,24 +643,34 @@ def main():
         record = dict(env=environment(), sim=sim, grouped=grouped)
         (args.out / "bench_large.json").write_text(json.dumps(record, indent=1))
         return None
+    # --library-path: the library batch at the requested sizes (--quick: short records, few substeps)
+    lib_seconds, lib_substeps, lib_repeats = (0.5, 10, 1) if args.quick else (args.seconds, args.substeps, args.repeats)
+    if args.library_path:
+        rows = library_path(lib_seconds, lib_substeps, lib_repeats)
+        table = markdown_library(rows, lib_repeats) + f"\n\n{environment()}"
+        print("\n" + table)
+        (args.out / "bench_library.md").write_text(table + "\n")
+        (args.out / "bench_library.json").write_text(json.dumps(dict(env=environment(), library=rows), indent=1))
+        return None
     if args.quick:
-        kernels = ("fast", "batch", "reference")
+        kernels = ("fast", "reference")
         sim = bench_simulation([(k, d, b) for k in kernels for d in devs for b in (1, 4)], 0.5, 10, 1)
         full, est = None, []
         numba_row = None if args.no_numba else bench_numba(4, 0.5, 10, 1)
     else:
         configs = [("fast", d, b) for d in devs for b in (1, 24, 48, 96, 256)]
-        configs += [("batch", d, b) for d in devs for b in (24, 48, 96)] + [("reference", d, 24) for d in devs]
+        configs += [("reference", d, 24) for d in devs]
         sim = bench_simulation(configs, args.seconds, args.substeps, args.repeats)
-        full = [bench_full_trial(48, args.substeps, kernel) for kernel in ("fast", "batch")]
+        full = [bench_full_trial(48, args.substeps, "fast")]
         numba_row = None if args.no_numba else bench_numba(24, 2.0, args.substeps, args.repeats)
         est = bench_estimator([24, 96], args.repeats)
+    library = library_path(lib_seconds, lib_substeps, lib_repeats)
     env = environment()
-    table = markdown(sim, full, est, numba_row)
+    table = markdown(sim, full, est, numba_row, library, lib_repeats)
     print("\n" + table + f"\n\n{env}")
     (args.out / "bench_simulate.md").write_text(table + f"\n\n{env}\n")
     (args.out / "bench_simulate.json").write_text(
-        json.dumps(dict(env=env, sim=sim, full=full, numba=numba_row, est=est), indent=1)
+        json.dumps(dict(env=env, sim=sim, full=full, numba=numba_row, est=est, library=library), indent=1)
     )
 
 

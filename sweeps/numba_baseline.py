@@ -4,25 +4,32 @@ What a careful person would write by hand: one trajectory per call, RK4 with
 ``sin/cos`` evaluated at every stage (``cos/sin(q1 - q2)`` by angle identities), PD or
 IMBIC (velocity acceleration estimate), instant acquisition. ``simulate_many`` runs one
 trajectory per thread (``prange``). Used by ``bench_simulate.py``, which also checks that
-it agrees with the JAX simulator.
+it agrees with the JAX simulator; run on its own, it does that check for a small batch:
+
+    python sweeps/numba_baseline.py [--batch 4] [--seconds 0.5] [--substeps 10] [--controller imbic]
 """
 
 from __future__ import annotations
 
+import argparse
 import math
+import statistics
+import time
 
 import numpy as np
 from numba import njit, prange
 
-from armimp_jax.tables import ELBOW_LINK_LENGTH as LE
-from armimp_jax.tables import INERTIA_C1 as C1
-from armimp_jax.tables import INERTIA_C2 as C2
-from armimp_jax.tables import INERTIA_C3 as C3
-from armimp_jax.tables import SHOULDER_LINK_LENGTH as LS
+from armimp_jax._control import IMBIC, PD
+from armimp_jax._robot import MIT_MANUS_ELBOW_LINK as LE
+from armimp_jax._robot import MIT_MANUS_INERTIA
+from armimp_jax._robot import MIT_MANUS_SHOULDER_LINK as LS
+
+C1, C2, C3 = MIT_MANUS_INERTIA
 
 
 @njit(cache=True)
 def _lugre(v, z, fr):
+    """One joint: ``fr = (tau_c, tau_s, sigma0, sigma1, sigma2, v_s)``; returns ``(tau_f, zd)``."""
     g = fr[0] + (fr[1] - fr[0]) * math.exp(-((v / fr[5]) ** 2))
     zd = v - (fr[2] * abs(v) * z / g if g > 0.0 else 0.0)
     return fr[2] * z + fr[3] * zd + fr[4] * v, zd
@@ -30,7 +37,8 @@ def _lugre(v, z, fr):
 
 @njit(cache=True)
 def _deriv(s, fu, cq0, mh, bh, kh, fr, out):
-    """State s = (q1, q2, qd1, qd2, z1, z2); writes the derivative; returns (ex, ey, xd, yd, fhx, fhy)."""
+    """State s = (q1, q2, qd1, qd2, z1, z2), fr (2, 6) the joints' LuGre parameters; writes the
+    derivative; returns (ex, ey, xd, yd, fhx, fhy)."""
     c1, s1, c2, s2 = math.cos(s[0]), math.sin(s[0]), math.cos(s[1]), math.sin(s[1])
     cd, sd = c1 * c2 + s1 * s2, s1 * c2 - c1 * s2
     ex = LS * (c1 - cq0[0]) + LE * (c2 - cq0[2])
@@ -42,8 +50,8 @@ def _deriv(s, fu, cq0, mh, bh, kh, fr, out):
     f0x = mh[0, 0] * jx + mh[0, 1] * jy + bh[0, 0] * xd + bh[0, 1] * yd + kh[0, 0] * ex + kh[0, 1] * ey
     f0y = mh[1, 0] * jx + mh[1, 1] * jy + bh[1, 0] * xd + bh[1, 1] * yd + kh[1, 0] * ex + kh[1, 1] * ey
     rx, ry = fu[0] - f0x, fu[1] - f0y
-    t1, zd1 = _lugre(s[2], s[4], fr)
-    t2, zd2 = _lugre(s[3], s[5], fr)
+    t1, zd1 = _lugre(s[2], s[4], fr[0])
+    t2, zd2 = _lugre(s[3], s[5], fr[1])
     b1 = j11 * rx + j21 * ry - C2 * sd * a2 - t1
     b2 = j12 * rx + j22 * ry + C2 * sd * a1 - t2
     p11, p12 = mh[0, 0] * j11 + mh[0, 1] * j21, mh[0, 0] * j12 + mh[0, 1] * j22
@@ -120,28 +128,52 @@ def simulate_many(imbic, q0, x0, mh, bh, kh, fr, kp, kv, minv, mhat, f_delta, su
         )
 
 
-def run(params, f_delta):
-    """Run stacked ``TrialParams`` (one controller) through the numba loop; returns ``(x, fh)``."""
+def run(trials, f_delta, substeps):
+    """Run stacked trials (``stack_trials``: PD or IMBIC with the velocity acceleration
+    estimate, MIT-MANUS, ideal sensors, instant acquisition) driven by ``f_delta``
+    ``(B, N, 2)`` through the numba loop, ``substeps`` RK4 steps per period; returns ``(x, fh)``."""
+    ctrl = trials.controller
+    imbic = isinstance(ctrl, IMBIC)
+    if not (imbic or isinstance(ctrl, PD)):
+        raise ValueError(f"numba baseline: PD or IMBIC trials only, got {type(ctrl).__name__}")
+    if imbic and ctrl.accel_estimate != "velocity":
+        raise ValueError("numba baseline: IMBIC with the velocity acceleration estimate only")
+    if trials.acquisition != "instant" or not trials.sensors.ideal:
+        raise ValueError("numba baseline: instant acquisition and ideal sensors only")
+    robot = trials.robot
+    for name, value, const in (
+        ("shoulder_link", robot.shoulder_link, LS),
+        ("elbow_link", robot.elbow_link, LE),
+        ("inertia", robot.inertia, MIT_MANUS_INERTIA),
+    ):
+        if not np.all(np.asarray(value) == np.asarray(const)):
+            raise ValueError(f"numba baseline: MIT-MANUS only (robot {name} differs)")
+    fr = trials.friction
+    b = np.shape(trials.q0)[0]
+    zeros = np.zeros((b, 2, 2))
     # copies: arrays viewed from JAX are read-only, a different numba type (a recompile)
     p = {
         k: np.array(v, dtype=np.float64, order="C")
         for k, v in dict(
-            q0=params.q0,
-            x0=params.x0,
-            mh=params.arm.mass,
-            bh=params.arm.damping,
-            kh=params.arm.stiffness,
-            fr=np.stack([np.asarray(leaf) for leaf in params.friction], axis=-1),
-            kp=params.gains.kp,
-            kv=params.gains.kv,
-            minv=params.gains.m_rd_inv,
-            mhat=params.gains.mhat,
+            q0=trials.q0,
+            x0=trials.x0,
+            mh=trials.arm.mass,
+            bh=trials.arm.damping,
+            kh=trials.arm.stiffness,
+            fr=np.stack(
+                [np.asarray(getattr(fr, f)) for f in ("tau_c", "tau_s", "sigma0", "sigma1", "sigma2", "v_s")], -1
+            ),
+            # IMBIC's desired stiffness and damping play PD's kp and kv
+            kp=ctrl.k_rd if imbic else ctrl.kp,
+            kv=ctrl.b_rd if imbic else ctrl.kv,
+            minv=ctrl.m_rd_inv if imbic else zeros,
+            mhat=ctrl.mhat if imbic else zeros,
         ).items()
     }
     f_delta = np.array(f_delta, dtype=np.float64, order="C")
     x, fh = np.empty_like(f_delta), np.empty_like(f_delta)
     simulate_many(
-        params.controller == "imbic",
+        imbic,
         p["q0"],
         p["x0"],
         p["mh"],
@@ -153,9 +185,56 @@ def run(params, f_delta):
         p["minv"],
         p["mhat"],
         f_delta,
-        params.substeps,
-        params.period,
+        int(substeps),
+        float(trials.period),
         x,
         fh,
     )
     return x, fh
+
+
+def main():
+    """Time the numba loop on a small batch and compare it with the JAX simulator."""
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--batch", type=int, default=4)
+    ap.add_argument("--seconds", type=float, default=0.5)
+    ap.add_argument("--substeps", type=int, default=10)
+    ap.add_argument("--controller", choices=("imbic", "pd"), default="imbic")
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+    from armimp_jax import runtime
+
+    runtime.configure()
+    import jax
+    import numba
+
+    import armimp_jax as aj
+    from armimp_jax import paper
+
+    b, n = args.batch, int(args.seconds * 1000)
+    trials = aj.stack_trials([paper.trial(args.controller, i % 3, 1 + i % 4) for i in range(b)])
+    keys = jax.random.split(jax.random.PRNGKey(0), b)
+    f_delta = np.asarray(jax.vmap(lambda k: aj.perturbation(k, n, paper.perturbation_peak(1)))(keys))
+    t0 = time.perf_counter()
+    run(trials, f_delta[:, :10], args.substeps)
+    compile_s = time.perf_counter() - t0
+    runs = []
+    for _ in range(args.repeats):
+        t0 = time.perf_counter()
+        x, fh = run(trials, f_delta, args.substeps)
+        runs.append(time.perf_counter() - t0)
+    numerics = aj.Numerics(substeps=args.substeps, kernel="reference")
+    ref = jax.jit(jax.vmap(lambda t, f: aj.simulate(t, f, numerics=numerics)))(trials, f_delta)
+    rx, rfh = np.asarray(ref.x), np.asarray(ref.fh)
+    diff_x = float(np.abs(x - rx).max() / np.abs(rx - rx[:, :1]).max())
+    diff_fh = float(np.abs(fh - rfh).max() / np.abs(rfh).max())
+    rate = b * n * args.substeps / statistics.median(runs) / 1e6
+    print(
+        f"numba {numba.get_num_threads()} threads, {args.controller} batch={b}, {args.seconds:g} s, "
+        f"{args.substeps} substeps: {rate:.2f} M substeps/s (compile {compile_s:.1f} s); agrees with JAX "
+        f"(reference kernel) to {diff_x:.1e} (x), {diff_fh:.1e} (fh), relative"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -18,3 +18,16 @@ def test_ci_runs_exactly_the_readme_test_command():
 
 def test_readme_main_command_runs_the_reproduction():
     assert any("python sweeps/reproduce_paper.py" in block and "pip install" in block for block in _commands())
+
+
+def test_readme_library_example_runs():
+    """The README's library example, verbatim: a custom arm and friction, noise, a batch, a gradient."""
+    import jax
+
+    readme = (ROOT / "README.md").read_text()
+    code = re.findall(r"```python\n(.*?)```", readme, flags=re.S)[0]
+    scope: dict = {}
+    exec(compile(code, "README.md", "exec"), scope)
+    assert 100.0 < float(scope["phi_T"]) < 1000.0
+    assert scope["sims"].x.shape == (3, 20_000, 2)
+    jax.config.update("jax_enable_x64", True)

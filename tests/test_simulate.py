@@ -7,8 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.integrate
-import scipy.signal
-from helpers import tree_equal
+from helpers import tree_equal, zoh_response
 
 import armimp_jax as aj
 from armimp_jax import _batch as sweep
@@ -73,18 +72,9 @@ def test_rk4_is_fourth_order():
 
 def _desired_response(params, fd, period, mass_scale=1.0):
     """IMBIC's target: (M_rd + M_h) xdd + (B_rd + B_h) xd + (K_rd + K_h) e = F_Delta (ZOH), exact."""
-    mt = np.asarray(mass_scale * params.controller.m_rd + params.arm.mass)
-    bt = np.asarray(params.controller.b_rd + params.arm.damping)
-    kt = np.asarray(params.controller.k_rd + params.arm.stiffness)
-    mi = np.linalg.inv(mt)
-    a = np.block([[np.zeros((2, 2)), np.eye(2)], [-mi @ kt, -mi @ bt]])
-    b = np.vstack([np.zeros((2, 2)), mi])
-    ad, bd, *_ = scipy.signal.cont2discrete((a, b, np.eye(4), np.zeros((4, 2))), period, "zoh")
-    s, out = np.zeros(4), []
-    for f in np.asarray(fd):
-        out.append(s[:2].copy())
-        s = ad @ s + bd @ f
-    return np.array(out)
+    c, arm = params.controller, params.arm
+    m = np.asarray(mass_scale * c.m_rd + arm.mass)
+    return zoh_response(m, np.asarray(c.b_rd + arm.damping), np.asarray(c.k_rd + arm.stiffness), fd, period)
 
 
 @pytest.mark.parametrize("accel_estimate", ["velocity", "position"])

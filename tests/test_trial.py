@@ -6,8 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import scipy.signal
-from helpers import tree_equal
+from helpers import tree_equal, zoh_response
 
 import armimp_jax as aj
 from armimp_jax import paper
@@ -55,19 +54,6 @@ def test_presets_give_the_numbers_of_the_former_trial_params(controller, acquisi
         np.testing.assert_array_equal(np.asarray(r.z)[:4], 0.0)
 
 
-def _desired_response(m, b, k, fd, period):
-    """Exact ZOH response of ``m xdd + b xd + k e = F_Delta`` from rest (independent of the simulator)."""
-    mi = np.linalg.inv(m)
-    a = np.block([[np.zeros((2, 2)), np.eye(2)], [-mi @ k, -mi @ b]])
-    bb = np.vstack([np.zeros((2, 2)), mi])
-    ad, bd, *_ = scipy.signal.cont2discrete((a, bb, np.eye(4), np.zeros((4, 2))), period, "zoh")
-    s, out = np.zeros(4), []
-    for f in np.asarray(fd):
-        out.append(s[:2].copy())
-        s = ad @ s + bd @ f
-    return np.array(out)
-
-
 CUSTOM_ARM = aj.Arm(
     mass=[[1.2, -0.3], [-0.35, 0.8]],
     damping=[[9.0, -2.0], [-2.5, 6.0]],
@@ -86,12 +72,10 @@ def test_custom_scenario_realises_the_desired_dynamics_it_asks_for():
     fd = aj.perturbation(jax.random.PRNGKey(1), 2000, 2.0)
     e = np.asarray(jax.jit(aj.simulate, static_argnames="numerics")(trial, fd, numerics=aj.Numerics(substeps=10)).x)
     e = e - np.asarray(trial.x0)
-    ref = _desired_response(
-        m_rd + CUSTOM_ARM.mass, ctrl.kv + CUSTOM_ARM.damping, ctrl.kp + CUSTOM_ARM.stiffness, fd, 1e-3
-    )
+    ref = zoh_response(m_rd + CUSTOM_ARM.mass, ctrl.kv + CUSTOM_ARM.damping, ctrl.kp + CUSTOM_ARM.stiffness, fd, 1e-3)
     rel = np.sqrt(np.mean((e - ref) ** 2) / np.mean(ref**2))
     assert rel < 0.02, rel
-    wrong = _desired_response(
+    wrong = zoh_response(
         0.5 * m_rd + CUSTOM_ARM.mass, ctrl.kv + CUSTOM_ARM.damping, ctrl.kp + CUSTOM_ARM.stiffness, fd, 1e-3
     )
     assert np.sqrt(np.mean((e - wrong) ** 2) / np.mean(wrong**2)) > 0.1
