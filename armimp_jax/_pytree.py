@@ -63,11 +63,6 @@ def _repr(self) -> str:
     return f"{type(self).__name__}({fields})"
 
 
-def replace(obj, **changes):
-    """``dataclasses.replace`` that validates the result (it runs the constructor)."""
-    return dataclasses.replace(obj, **changes)
-
-
 def replace_unchecked(obj, **changes):
     """A copy of ``obj`` with fields changed, without running its constructor (for batched or
     traced values inside transformed code, which the single-value checks do not apply to)."""

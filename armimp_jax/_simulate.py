@@ -20,7 +20,6 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from ._arm import Arm
 from ._checks import as_float64, check_choice, require_x64
@@ -353,16 +352,3 @@ def simulate(trial: Trial, f_delta, *, key=None, numerics: Numerics | None = Non
     """
     _check_trial(trial, "simulate")
     return simulate_chunk(trial, simulate_init(trial), f_delta, key=key, numerics=numerics)[1]
-
-
-def describe(trial: Trial) -> dict:
-    """The trial's settings as plain JSON-ready data (single trial; for saved results)."""
-
-    def plain(v):
-        if dataclasses.is_dataclass(v):
-            return {"type": type(v).__name__} | {f.name: plain(getattr(v, f.name)) for f in dataclasses.fields(v)}
-        if v is None or isinstance(v, (str, bool, int, float)):
-            return v
-        return np.asarray(v).tolist()
-
-    return plain(trial)
