@@ -228,6 +228,7 @@ def simulate_batch(
     fields = {name: np.empty((b, n, 2)) for name in names}  # filled chunk by chunk, no concatenation
     diverged_at = np.empty(b, dtype=np.int32)
     start, running, done = time.perf_counter(), None, 0
+    carry_sharding = NamedSharding(mesh, P("batch"))
 
     def collect(lo, hi, i, out):
         nonlocal done
@@ -244,7 +245,6 @@ def simulate_batch(
     for lo, hi in groups:
         trials_s, _ = shard_batch(_rows(trials, lo, hi), mesh, size=size)
         keys_s = None if keys is None else shard_batch(keys[lo:hi], mesh, size=size)[0]
-        carry_sharding = NamedSharding(mesh, P("batch"))
         carry = _init(trials_s, carry_sharding)
         for i in range(n_chunks):
             f_i, _ = shard_batch(f_padded[lo:hi, i * chunk : (i + 1) * chunk], mesh, size=size)

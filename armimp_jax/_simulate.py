@@ -233,7 +233,7 @@ def simulate_init(trial: Trial) -> SimCarry:
     )
 
 
-def _sense(trial: Trial, state: PlantState, x, xd, fh, noise):
+def _sense(trial: Trial, model, state: PlantState, x, xd, fh, noise):
     """What the sensors report, from the true ``x``, ``xd``, ``F_h`` (unchanged when ideal)."""
     s = trial.sensors
     force_noise, rate_noise = noise
@@ -244,7 +244,7 @@ def _sense(trial: Trial, state: PlantState, x, xd, fh, noise):
         if s.encoder_on:
             q = quantise(jnp.stack([state.q1, state.q2]), s)
             t = Trig(jnp.cos(q[0]), jnp.sin(q[0]), jnp.cos(q[1]), jnp.sin(q[1]))
-            c10, s10, c20, s20 = jnp.cos(trial.q0[0]), jnp.sin(trial.q0[0]), jnp.cos(trial.q0[1]), jnp.sin(trial.q0[1])
+            c10, s10, c20, s20 = model.cq0  # trig of q0, computed once outside the loop
             ls, le = trial.robot.shoulder_link, trial.robot.elbow_link
             x = trial.x0 + jnp.stack([ls * (t.c1 - c10) + le * (t.c2 - c20), ls * (t.s1 - s10) + le * (t.s2 - s20)])
         else:
@@ -267,7 +267,7 @@ def simulate_chunk(
     if not isinstance(numerics, Numerics):
         raise ValueError(f"numerics must be a Numerics, got {type(numerics).__name__}")
     f_delta = check_perturbation(f_delta, where="simulate_chunk")
-    if not trial.sensors.ideal and (trial.sensors.force_on or trial.sensors.velocity_on) and key is None:
+    if (trial.sensors.force_on or trial.sensors.velocity_on) and key is None:
         raise ValueError("simulate: the trial's sensors draw noise; pass key=jax.random.key(seed)")
     period, substeps = trial.period, numerics.substeps
     model = plant_model(trial.q0, trial.x0, trial.arm, trial.friction, trial.robot)
@@ -293,7 +293,7 @@ def simulate_chunk(
         noise = sample_noise(trial.sensors, key, k)
         x_rec, fh_rec = record(state, x, xd, fh, carry)
         if not trial.sensors.ideal:
-            x_m, xd_m, fh_m = _sense(trial, state, x, xd, fh, noise)
+            x_m, xd_m, fh_m = _sense(trial, model, state, x, xd, fh, noise)
             if trial.acquisition == "instant":
                 x_rec, fh_rec = x_m, fh_m
             elif trial.sensors.force_on:

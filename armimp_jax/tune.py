@@ -10,7 +10,7 @@ training batch (plus, optionally, a weight times the mean ``phi_ij``).
 
 Two gradient modes: ``"forward"`` (``jax.jacfwd``: one tangent per parameter, memory of
 a few primal runs) and ``"reverse"`` (``jax.grad`` through the scan with ``jax.checkpoint``;
-the trials' ``checkpoint`` field says whether the tape holds one carry per control period
+``Numerics.checkpoint`` says whether the tape holds one carry per control period
 or per RK4 substep). Both are exact; ``bench_gradient.py`` measures them. Training
 batches are best run with ``Numerics(kernel="grad", checkpoint="substep")`` (the RK4 kernel
 arranged for reverse mode, a carry per substep on the tape: ``sweeps/bench_gradient.py``)
