@@ -97,6 +97,14 @@ def trig_of(s: PlantState) -> Trig:
     return Trig(jnp.cos(s.q1), jnp.sin(s.q1), jnp.cos(s.q2), jnp.sin(s.q2))
 
 
+def displacement(t: Trig, model: PlantModel):
+    """``x - x0`` [m] from the trig of the angles, as trig differences against ``q0``'s:
+    exactly 0 at ``q = q0``."""
+    c10, s10, c20, s20 = model.cq0
+    ls, le = model.robot.shoulder_link, model.robot.elbow_link
+    return ls * (t.c1 - c10) + le * (t.c2 - c20), ls * (t.s1 - s10) + le * (t.s2 - s20)
+
+
 @jax.custom_jvp
 def _small_angle_cos_sin(d):
     d2 = d * d
@@ -159,10 +167,8 @@ def _dynamics(s: PlantState, fu, model: PlantModel, trig: Trig | None = None, sh
     # per evaluation (they dominate the cost on CPU), error ~1e-16.
     cos_d = c1 * c2 + s1 * s2
     sin_d = s1 * c2 - c1 * s2
-    c10, s10, c20, s20 = model.cq0
+    ex, ey = displacement(Trig(c1, s1, c2, s2), model)
     L_S, L_E = model.robot.shoulder_link, model.robot.elbow_link
-    ex = L_S * (c1 - c10) + L_E * (c2 - c20)  # x - x0, exactly 0 at q0
-    ey = L_S * (s1 - s10) + L_E * (s2 - s20)
     j11, j12, j21, j22 = jacobian_from_trig(model.robot, c1, s1, c2, s2)
     m11, m12, m22 = mass_matrix_entries(model.robot, cos_d)
     mh11, mh12, mh21, mh22 = model.mh

@@ -26,7 +26,7 @@ from ._checks import as_float64, check_choice, require_x64
 from ._control import matvec
 from ._friction import LuGre
 from ._numerics import Numerics
-from ._plant import PlantState, Trig, integrate_period, measure, plant_model, rest_state, trig_of
+from ._plant import PlantState, Trig, displacement, integrate_period, measure, plant_model, rest_state, trig_of
 from ._pytree import params
 from ._robot import MIT_MANUS, Robot, fk, ik, jacobian_from_trig
 from ._sensors import IDEAL, Sensors, quantise, sample_noise
@@ -244,9 +244,7 @@ def _sense(trial: Trial, model, state: PlantState, x, xd, fh, noise):
         if s.encoder_on:
             q = quantise(jnp.stack([state.q1, state.q2]), s)
             t = Trig(jnp.cos(q[0]), jnp.sin(q[0]), jnp.cos(q[1]), jnp.sin(q[1]))
-            c10, s10, c20, s20 = model.cq0  # trig of q0, computed once outside the loop
-            ls, le = trial.robot.shoulder_link, trial.robot.elbow_link
-            x = trial.x0 + jnp.stack([ls * (t.c1 - c10) + le * (t.c2 - c20), ls * (t.s1 - s10) + le * (t.s2 - s20)])
+            x = trial.x0 + jnp.stack(displacement(t, model))
         else:
             t = trig_of(state)
         j11, j12, j21, j22 = jacobian_from_trig(trial.robot, *t)
