@@ -21,6 +21,8 @@ from ._estimate import Estimate as Estimate
 from ._estimate import cross_spectral_matrix as cross_spectral_matrix
 from ._estimate import estimate as estimate
 from ._estimate import input_coherence as input_coherence
+from ._fit import ImpedanceFit as ImpedanceFit
+from ._fit import fit_impedance as fit_impedance
 from ._friction import NO_FRICTION as NO_FRICTION
 from ._friction import LuGre as LuGre
 from ._friction import lugre as lugre

@@ -34,15 +34,19 @@ from .runtime import vector_lanes
 
 
 class Welch(NamedTuple):
-    """Welch settings (static): segment, overlap, highest frequency [Hz], sample rate [Hz]."""
+    """Welch settings (static): segment, overlap, highest frequency [Hz], sample rate [Hz],
+    window (a name or tuple ``scipy.signal.get_window`` knows; hashable) and FFT length
+    (``None``: ``nperseg``)."""
 
     nperseg: int = WELCH_NPERSEG
     noverlap: int = WELCH_NOVERLAP
     fmax: float = ESTIMATION_FMAX
     fs: float = SAMPLE_RATE
+    window: str | tuple = "hann"
+    nfft: int | None = None
 
     def check(self, n_samples: int) -> None:
-        check_welch(n_samples, fs=self.fs, nperseg=self.nperseg, noverlap=self.noverlap, fmax=self.fmax)
+        check_welch(n_samples, **self._asdict())
 
 
 class TrialOutcome(NamedTuple):
@@ -60,7 +64,7 @@ class TrialOutcome(NamedTuple):
 def assess(trial: Trial, f_delta, sim: SimResult, welch: Welch = Welch()) -> TrialOutcome:
     """Estimate the impedance from a simulated record and score it against the trial's arm
     (single trial; vmap it, or use ``assess_batch``)."""
-    est = estimate(f_delta, sim.x, sim.fh, fs=welch.fs, nperseg=welch.nperseg, noverlap=welch.noverlap, fmax=welch.fmax)
+    est = estimate(f_delta, sim.x, sim.fh, **welch._asdict())
     phi_t, phi_ij = impedance_error(est.Z, impedance_response(trial.arm, est.f))
     return TrialOutcome(phi_t, phi_ij, jnp.max(est.coh_inputs), sim.diverged, sim.diverged_at, est)
 

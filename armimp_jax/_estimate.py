@@ -1,21 +1,26 @@
 """Stochastic impedance estimation (spec section 9): Welch spectra, H1, Z, coherences.
 
-All channels of a record go through one ``jnp.fft.rfft`` per windowed, mean-removed
-segment; the cross-spectral matrix is the segment average of ``conj(X_a) X_b`` (the
-``scipy.signal.csd(a, b)`` convention, one-sided density scaling). Only the bins the
-caller needs are kept after the FFT, so a trial costs ``S x C x nperseg`` reals of
-segments plus ``S x C x F`` complex spectra (about 8 + 0.3 MB for a 50 s record).
+All channels of a record go through one ``jnp.fft.rfft`` (of length ``nfft``, zero
+padded) per windowed, mean-removed segment; the cross-spectral matrix is the segment
+average of ``conj(X_a) X_b`` (the ``scipy.signal.csd(a, b)`` convention, one-sided density
+scaling). The window is the periodic Hann by default, or any window ``scipy.signal.get_window``
+knows, or an explicit array. Only the bins the caller needs are kept after the FFT, so a
+trial costs ``S x C x nperseg`` reals of segments plus ``S x C x F`` complex spectra (about
+8 + 0.3 MB for a 50 s record).
 
 Single-trial functions; batch with ``jax.vmap``. Differentiable end to end.
 """
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax.numpy as jnp
+import numpy as np
+import scipy.signal
 
-from ._checks import as_float64, check_int, require_x64
+from ._checks import as_float64, check_int, is_concrete, require_x64
 
 SAMPLE_RATE = 1000.0  # [Hz]
 # Table 4 of the paper (spec section 9): 21 segments in a 50 s record.
@@ -24,29 +29,84 @@ WELCH_NOVERLAP = 6144
 ESTIMATION_FMAX = 15.0  # [Hz]
 
 
-def check_welch(n_samples: int, *, fs: float, nperseg: int, noverlap: int, fmax: float | None = None) -> int:
-    """Validate Welch settings for a record of ``n_samples``; return the number of segments."""
+def check_welch(
+    n_samples: int,
+    *,
+    fs: float,
+    nperseg: int,
+    noverlap: int,
+    fmax: float | None = None,
+    nfft: int | None = None,
+    window="hann",
+) -> int:
+    """Validate Welch settings for a record of ``n_samples``; return the number of segments.
+
+    Refuses a record that gives fewer than two segments: with one, every coherence is
+    identically 1 and H1 is meaningless (spec section 9).
+    """
     nperseg = check_int("nperseg", nperseg, minimum=2)
     noverlap = check_int("noverlap", noverlap, minimum=0)
-    if not fs > 0:
-        raise ValueError(f"fs must be > 0 Hz, got {fs}")
+    nfft = nperseg if nfft is None else check_int("nfft", nfft, minimum=nperseg)
+    if not 0 < fs < float("inf"):
+        raise ValueError(f"fs must be a finite sample rate > 0 Hz, got {fs}")
     if noverlap >= nperseg:
         raise ValueError(f"noverlap must be smaller than nperseg={nperseg}, got {noverlap}")
+    if not (isinstance(window, str) and window == "hann"):
+        welch_window(window, nperseg)  # refuse an unknown window or a wrong-length array now
+    n_min = 2 * nperseg - noverlap  # two segments
     if n_samples < nperseg:
         raise ValueError(
             f"the record has {n_samples} samples, shorter than one Welch segment (nperseg={nperseg}); "
-            f"use a longer record (>= {nperseg / fs:g} s at {fs:g} Hz) or a smaller nperseg"
+            f"two segments need >= {n_min} samples ({n_min / fs:g} s at {fs:g} Hz): "
+            "use a longer record or a smaller nperseg"
         )
-    if fmax is not None and not fs / nperseg <= fmax <= fs / 2:
+    n_seg = (n_samples - noverlap) // (nperseg - noverlap)
+    if n_seg < 2:
         raise ValueError(
-            f"fmax must lie between one frequency bin ({fs / nperseg:g} Hz) and Nyquist ({fs / 2:g} Hz), got {fmax}"
+            f"the record has {n_samples} samples, which give {n_seg} Welch segment (nperseg={nperseg}, "
+            f"noverlap={noverlap}); at least 2 are needed (with one, every coherence is 1): "
+            f"use >= {n_min} samples ({n_min / fs:g} s at {fs:g} Hz), a smaller nperseg or a larger noverlap"
         )
-    return (n_samples - noverlap) // (nperseg - noverlap)
+    if fmax is not None and not fs / nfft <= fmax <= fs / 2:
+        raise ValueError(
+            f"fmax must lie between one frequency bin ({fs / nfft:g} Hz) and Nyquist ({fs / 2:g} Hz), got {fmax}"
+        )
+    return n_seg
 
 
 def hann(n: int):
     """Periodic Hann window of length ``n`` (``scipy.signal.get_window("hann", n)``)."""
     return 0.5 - 0.5 * jnp.cos(2.0 * jnp.pi * jnp.arange(n) / n)
+
+
+@functools.lru_cache(maxsize=32)
+def _scipy_window(window, nperseg: int) -> np.ndarray:
+    try:
+        w = scipy.signal.get_window(window, nperseg, fftbins=True)
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"window {window!r} is not one scipy.signal.get_window knows: {err}") from None
+    w = np.asarray(w, dtype=np.float64)
+    w.setflags(write=False)  # shared by the cache
+    return w
+
+
+def welch_window(window, nperseg: int):
+    """The Welch window ``(nperseg,)`` float64 for ``window``.
+
+    ``"hann"`` (default) is the periodic Hann by formula; any other name or ``(name, param,
+    ...)`` tuple is ``scipy.signal.get_window(window, nperseg)`` (periodic), built on the
+    host; an array is used as given (length ``nperseg``; it may be traced).
+    """
+    if isinstance(window, str) and window == "hann":
+        return hann(nperseg)  # the formula: keeps the default path's numbers unchanged
+    if isinstance(window, (str, tuple)):
+        return _scipy_window(window, nperseg)
+    w = as_float64("window", window, where="the Welch estimator")
+    if w.shape != (nperseg,):
+        raise ValueError(f"a window array must have shape (nperseg,) = ({nperseg},), got {w.shape}")
+    if is_concrete(w) and not (np.all(np.isfinite(np.asarray(w))) and np.any(np.asarray(w) != 0)):
+        raise ValueError("a window array must be finite and not all zero")
+    return w
 
 
 def cross_spectral_matrix(
@@ -56,32 +116,41 @@ def cross_spectral_matrix(
     nperseg: int = WELCH_NPERSEG,
     noverlap: int = WELCH_NOVERLAP,
     nbins: int | None = None,
+    window="hann",
+    nfft: int | None = None,
 ):
     """Welch cross-spectral density matrix of all channel pairs.
 
     Args:
-        signals: ``(N, C)`` real record, ``C`` channels sampled at ``fs`` [Hz].
-        nbins: keep only bins ``0 .. nbins-1`` (default: all ``nperseg // 2 + 1``).
+        signals: ``(N, C)`` real record, ``C`` channels sampled at ``fs`` [Hz]; it must
+            give at least two segments.
+        nbins: keep only bins ``0 .. nbins-1`` (default: all ``nfft // 2 + 1``).
+        window: ``"hann"`` (periodic, default), any name or tuple ``scipy.signal.get_window``
+            knows (periodic), or an array ``(nperseg,)``.
+        nfft: FFT length ``>= nperseg`` (zero padding; default ``nperseg``); bins are
+            ``fs / nfft`` apart.
 
     Returns:
         ``(freqs (F,), G (F, C, C) complex)`` with ``G[f, a, b] = scipy.signal.csd(a, b)``
-        (Hann, ``detrend="constant"``, ``scaling="density"``, one-sided).
+        (same window and ``nfft``, ``detrend="constant"``, ``scaling="density"``, one-sided).
     """
     n, _ = signals.shape
-    n_seg = check_welch(n, fs=fs, nperseg=nperseg, noverlap=noverlap)
-    nbins = nperseg // 2 + 1 if nbins is None else nbins
+    n_seg = check_welch(n, fs=fs, nperseg=nperseg, noverlap=noverlap, nfft=nfft, window=window)
+    nfft = nperseg if nfft is None else nfft
+    nbins = nfft // 2 + 1 if nbins is None else nbins
     step = nperseg - noverlap
     idx = jnp.arange(n_seg)[:, None] * step + jnp.arange(nperseg)[None, :]
     segments = signals[idx]  # (S, nperseg, C)
-    window = hann(nperseg)
+    window = welch_window(window, nperseg)
     segments = (segments - jnp.mean(segments, axis=1, keepdims=True)) * window[None, :, None]
-    spectra = jnp.fft.rfft(segments, axis=1)[:, :nbins, :]  # (S, F, C)
+    pad = {} if nfft == nperseg else {"n": nfft}  # zero padding after the window, as scipy does
+    spectra = jnp.fft.rfft(segments, axis=1, **pad)[:, :nbins, :]  # (S, F, C)
     scale = jnp.full((nbins,), 2.0 / (fs * jnp.sum(window**2)))
     scale = scale.at[0].set(0.5 * scale[0])
-    if nperseg % 2 == 0 and nbins == nperseg // 2 + 1:
+    if nfft % 2 == 0 and nbins == nfft // 2 + 1:
         scale = scale.at[-1].set(0.5 * scale[-1])
     g = jnp.einsum("sfa,sfb->fab", jnp.conj(spectra), spectra) * (scale / n_seg)[:, None, None]
-    return jnp.arange(nbins) * (fs / nperseg), g
+    return jnp.arange(nbins) * (fs / nfft), g
 
 
 def _inv2(a):
@@ -115,12 +184,17 @@ def coherences(g, inputs, output):
     return mult, jnp.stack(partial, axis=-1)
 
 
-def band_spectra(signals, *, fs: float, nperseg: int, noverlap: int, fmax: float):
+def band_spectra(
+    signals, *, fs: float, nperseg: int, noverlap: int, fmax: float, window="hann", nfft: int | None = None
+):
     """Cross-spectral matrix of ``signals`` ``(N, C)`` on the bins ``0 < f <= fmax`` only
-    (validated): ``(freqs (F,), G (F, C, C))``."""
-    check_welch(signals.shape[0], fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax)
-    k = n_bins(fmax, fs=fs, nperseg=nperseg)
-    freqs, g = cross_spectral_matrix(signals, fs=fs, nperseg=nperseg, noverlap=noverlap, nbins=k + 1)
+    (validated): ``(freqs (F,), G (F, C, C))``. ``window`` and ``nfft`` as in
+    ``cross_spectral_matrix``."""
+    check_welch(signals.shape[0], fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax, nfft=nfft, window=window)
+    k = n_bins(fmax, fs=fs, nperseg=nperseg, nfft=nfft)
+    freqs, g = cross_spectral_matrix(
+        signals, fs=fs, nperseg=nperseg, noverlap=noverlap, nbins=k + 1, window=window, nfft=nfft
+    )
     return freqs[1:], g[1:]
 
 
@@ -150,9 +224,10 @@ class Estimate(NamedTuple):
     coh_inputs: jnp.ndarray
 
 
-def n_bins(fmax: float, *, fs: float, nperseg: int) -> int:
-    """Number of bins with ``0 < f <= fmax`` (122 for the paper's settings)."""
-    return int(fmax * nperseg / fs + 1e-9)
+def n_bins(fmax: float, *, fs: float, nperseg: int, nfft: int | None = None) -> int:
+    """Number of bins with ``0 < f <= fmax`` (122 for the paper's settings); bins are
+    ``fs / nfft`` apart (``nfft`` defaults to ``nperseg``)."""
+    return int(fmax * (nperseg if nfft is None else nfft) / fs + 1e-9)
 
 
 def estimate(
@@ -164,6 +239,8 @@ def estimate(
     nperseg: int = WELCH_NPERSEG,
     noverlap: int = WELCH_NOVERLAP,
     fmax: float = ESTIMATION_FMAX,
+    window="hann",
+    nfft: int | None = None,
 ) -> Estimate:
     """Estimate the arm impedance from a record (spec section 9, paper eq. 9).
 
@@ -171,18 +248,25 @@ def estimate(
         f_delta: perturbation ``(N, 2)`` [N] (the inputs).
         x: recorded hand position ``(N, 2)`` [m] (any constant offset is removed per segment).
         fh: recorded hand force ``(N, 2)`` [N].
-        fs, nperseg, noverlap: Welch settings (Table 4 defaults; ``nfft = nperseg``).
-        fmax: highest frequency of interest [Hz].
+        fs, nperseg, noverlap: Welch settings (Table 4 defaults).
+        fmax: highest frequency of interest [Hz], between ``fs / nfft`` and Nyquist.
+        window: ``"hann"`` (periodic, default), any name or tuple ``scipy.signal.get_window``
+            knows (periodic), or an array ``(nperseg,)``.
+        nfft: FFT length ``>= nperseg`` (zero padding; default ``nperseg``); bins are
+            ``fs / nfft`` apart.
 
-    Single-trial; ``jax.vmap`` batches it. Raises ``ValueError`` for mismatched lengths,
-    a record shorter than one segment, ``noverlap >= nperseg`` or ``fmax`` out of range.
+    Single-trial; ``jax.vmap`` batches it (the settings are static). Raises ``ValueError``
+    for mismatched lengths, a record that gives fewer than two segments, ``noverlap >=
+    nperseg``, ``nfft < nperseg``, an unknown window or ``fmax`` out of range.
     """
     require_x64("estimate")
     arrays = [as_float64(name, a, where="estimate") for name, a in (("f_delta", f_delta), ("x", x), ("fh", fh))]
     shapes = [a.shape for a in arrays]
     if any(len(s) != 2 or s[1] != 2 for s in shapes) or len(set(shapes)) != 1:
         raise ValueError(f"f_delta, x and fh must all have the same shape (N, 2); got {shapes}")
-    freqs, g = band_spectra(jnp.concatenate(arrays, axis=1), fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax)
+    freqs, g = band_spectra(
+        jnp.concatenate(arrays, axis=1), fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax, window=window, nfft=nfft
+    )
     u, xs, fs_ = (0, 1), (2, 3), (4, 5)
     r, t = h1(g, u, xs), h1(g, u, fs_)
     z = t @ _inv2(r)
@@ -209,14 +293,17 @@ def input_coherence(
     nperseg: int = WELCH_NPERSEG,
     noverlap: int = WELCH_NOVERLAP,
     fmax: float = ESTIMATION_FMAX,
+    window="hann",
+    nfft: int | None = None,
 ):
     """Maximum ordinary coherence between the two perturbation axes over ``0 < f <= fmax``.
 
-    The paper kept it below 0.4; report it with every trial. Scalar; vmappable.
+    The paper kept it below 0.4; report it with every trial. Scalar; vmappable. Welch
+    settings as in ``estimate``.
     """
     require_x64("input_coherence")
     f_delta = as_float64("f_delta", f_delta, where="input_coherence")
     if f_delta.ndim != 2 or f_delta.shape[1] != 2:
         raise ValueError(f"f_delta must have shape (N, 2), got {f_delta.shape}")
-    _, g = band_spectra(f_delta, fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax)
+    _, g = band_spectra(f_delta, fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax, window=window, nfft=nfft)
     return jnp.max(ordinary_coherence(g, 0, 1))

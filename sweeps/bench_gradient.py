@@ -53,7 +53,7 @@ def child(mode, kernel, checkpoint, seconds, substeps, repeats, codegen):
     from armimp_jax import Welch, tune
     from armimp_jax.paper import tune as paper_tune
 
-    welch = Welch() if seconds >= 8.192 else Welch(1024, 768)
+    welch = Welch() if seconds >= 10.24 else Welch(1024, 768)
     kind = "full" if mode.endswith("full") else "diagonal"
     theta = tune.theta_from_mhat(0.25 * np.eye(2), kind)
 

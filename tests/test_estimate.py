@@ -173,10 +173,65 @@ def test_estimate_vmaps_over_trials():
     np.testing.assert_allclose(batched.Z[1], single.Z, rtol=1e-12)
 
 
+def _scipy_h1(u, y, fmax, **kw):
+    """H1 ``[output, input]`` from ``scipy.signal.csd`` on the bins ``0 < f <= fmax``."""
+    f, _ = scipy.signal.csd(u[:, 0], u[:, 0], **kw)
+    band = (f > 0) & (f <= fmax)
+    guu = np.array([[scipy.signal.csd(u[:, i], u[:, j], **kw)[1][band] for j in range(2)] for i in range(2)])
+    guy = np.array([[scipy.signal.csd(u[:, i], y[:, k], **kw)[1][band] for k in range(2)] for i in range(2)])
+    h_t = np.linalg.solve(np.moveaxis(guu, -1, 0), np.moveaxis(guy, -1, 0))  # H^T = G_uu^-1 G_uy
+    return f[band], np.swapaxes(h_t, -1, -2)
+
+
+@pytest.mark.parametrize(
+    "window, nfft",
+    [(("tukey", 0.25), 2048), ("hamming", 1500), ("blackmanharris", 1001), ("boxcar", None)],
+)
+def test_window_and_nfft_give_scipy_csd_h1(window, nfft):
+    """A non-default window and zero padding: R, T, Z and the inputs' coherence equal H1 and
+    the coherence built from ``scipy.signal.csd`` with the same settings."""
+    u, y, n_out = _synthetic(n=12_000, noise=0.2)
+    fh = 3.0 * y + 0.1 * n_out[:, ::-1]
+    kw = dict(fs=1000.0, nperseg=1000, noverlap=600, window=window, nfft=nfft)
+    est = aj.estimate(u, y + n_out, fh, fmax=100.0, **kw)
+    f, r = _scipy_h1(u, y + n_out, 100.0, **kw)
+    _, t = _scipy_h1(u, fh, 100.0, **kw)
+    np.testing.assert_allclose(est.f, f, rtol=1e-14)
+    assert len(f) == int(100.0 * (nfft or 1000) / 1000.0)  # bins fs / nfft apart
+    np.testing.assert_allclose(est.R, r, rtol=1e-10, atol=1e-12 * np.abs(r).max())
+    np.testing.assert_allclose(est.T, t, rtol=1e-10, atol=1e-12 * np.abs(t).max())
+    np.testing.assert_allclose(est.Z, t @ np.linalg.inv(r), rtol=1e-9)
+    _, coh = scipy.signal.coherence(u[:, 0], u[:, 1], **kw)
+    np.testing.assert_allclose(est.coh_inputs, coh[1 : len(f) + 1], rtol=1e-9, atol=1e-13)
+
+
+def test_window_array_and_welch_settings_pass_through_assess():
+    u, y, _ = _synthetic(n=6000, noise=0.1)
+    kw = dict(nperseg=512, noverlap=256, fmax=50.0, nfft=640)
+    named = aj.estimate(u, y, 2.0 * y + u, window=("kaiser", 6.0), **kw)
+    given = aj.estimate(u, y, 2.0 * y + u, window=scipy.signal.get_window(("kaiser", 6.0), 512), **kw)
+    np.testing.assert_array_equal(named.Z, given.Z)
+    _, g = cross_spectral_matrix(jnp.asarray(u), nperseg=512, noverlap=256, window="hann", nfft=640)
+    np.testing.assert_allclose(g[:, 0, 1], scipy.signal.csd(u[:, 0], u[:, 1], fs=1000.0, nperseg=512, nfft=640)[1])
+    zeros = jnp.zeros_like(jnp.asarray(y))
+    sim = aj.SimResult(y, zeros, 2.0 * y + u, zeros, zeros, zeros, jnp.bool_(False), jnp.int32(-1))
+    welch = aj.Welch(512, 256, 50.0, window=("kaiser", 6.0), nfft=640)
+    out = aj.assess(paper.trial("pd", 0, 1), u, sim, welch)
+    np.testing.assert_array_equal(out.estimate.Z, named.Z)
+    with pytest.raises(ValueError, match="which give 1 Welch segment"):
+        aj.Welch(512, 256).check(767)
+
+
 @pytest.mark.parametrize(
     "n, kwargs, message",
     [
         (1000, dict(nperseg=2048, noverlap=1024), "shorter than one Welch segment"),
+        (1000, dict(nperseg=1000, noverlap=0), r"which give 1 Welch segment .* at least 2 .* >= 2000 samples"),
+        (1535, dict(nperseg=1024, noverlap=512), r"which give 1 Welch segment \(nperseg=1024, noverlap=512\)"),
+        (5000, dict(nperseg=1024, noverlap=512, nfft=1000), "nfft must be >= 1024"),
+        (5000, dict(nperseg=1024, noverlap=512, window="nope"), "window 'nope' is not one scipy"),
+        (5000, dict(nperseg=1024, noverlap=512, window=np.ones(1000)), r"window array must have shape \(nperseg,\)"),
+        (5000, dict(nperseg=1024, noverlap=512, fs=0.0), "fs must be a finite sample rate > 0 Hz"),
         (5000, dict(nperseg=1024, noverlap=1024), "noverlap must be smaller than nperseg=1024"),
         (5000, dict(nperseg=1024, noverlap=512, fmax=600.0), "fmax must lie between"),
         (5000, dict(nperseg=1024, noverlap=512, fmax=0.1), "fmax must lie between"),

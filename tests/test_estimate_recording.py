@@ -1,0 +1,278 @@
+"""sweeps/estimate_recording.py and armimp_jax.recording: a simulated trial through CSV and NPZ
+gives the library's numbers; every bad recording gets its own one-line message."""
+
+import importlib.util
+import json
+import pathlib
+import re
+import subprocess
+import sys
+import time
+
+import jax
+import numpy as np
+import pytest
+
+import armimp_jax as aj
+from armimp_jax import paper, recording
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "sweeps" / "estimate_recording.py"
+_spec = importlib.util.spec_from_file_location("estimate_recording", SCRIPT)
+script = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(script)
+
+WELCH = dict(nperseg=1024, noverlap=768, nfft=1280, window=("tukey", 0.25), fmax=15.0)
+ARGS = ["--fs", "1000", "--nperseg", "1024", "--noverlap", "768", "--nfft", "1280", "--window", "tukey,0.25"]
+HEADER = ["time", "fh_y", "f_delta_x", "f_delta_y", "x", "y", "fh_x", "note"]  # shuffled, with extras
+
+
+@pytest.fixture(scope="module")
+def trial():
+    """A 4.5 s frictionless PD trial at location 1 (10 substeps): f_delta, x, fh ``(N, 2)``."""
+    fd = aj.perturbation(jax.random.PRNGKey(3), 4500, paper.perturbation_peak(1))
+    sim = jax.jit(aj.simulate, static_argnames="numerics")(
+        paper.trial("pd", 0, 1), fd, numerics=aj.Numerics(substeps=10)
+    )
+    return {"f_delta": np.asarray(fd), "x": np.asarray(sim.x), "fh": np.asarray(sim.fh)}
+
+
+def _columns(rec):
+    n = len(rec["x"])
+    return {
+        "time": np.arange(n) / 1000.0,
+        "f_delta_x": rec["f_delta"][:, 0],
+        "f_delta_y": rec["f_delta"][:, 1],
+        "x": rec["x"][:, 0],
+        "y": rec["x"][:, 1],
+        "fh_x": rec["fh"][:, 0],
+        "fh_y": rec["fh"][:, 1],
+    }
+
+
+def write_csv(path, rec, *, header=HEADER, rename=None, edit=None):
+    """Write ``rec`` as CSV (round-trip exact floats); ``edit(rows)`` may spoil the cells."""
+    cols = _columns(rec)
+    rows = [[("ok" if h == "note" else repr(float(cols[h][k]))) for h in header] for k in range(len(rec["x"]))]
+    if edit is not None:
+        edit(rows)
+    names = [(rename or {}).get(h, h) for h in header]
+    path.write_text("\n".join(",".join(r) for r in [names, *rows]) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def reference(trial):
+    """What the library gives for the trial: ``estimate`` then ``fit_impedance``."""
+    est = jax.jit(lambda a, b, c: aj.estimate(a, b, c, fs=1000.0, **WELCH))(trial["f_delta"], trial["x"], trial["fh"])
+    return est, aj.fit_impedance(est)
+
+
+def test_csv_round_trip_gives_the_library_numbers(trial, reference, tmp_path, capsys):
+    path = write_csv(tmp_path / "rec.csv", trial)
+    out = tmp_path / "out"
+    assert script.main([str(path), "--out", str(out), *ARGS]) == 0
+    assert "VAF" in capsys.readouterr().out
+    est, fit = reference
+    result = json.loads((out / "estimate.json").read_text(), parse_constant=lambda c: pytest.fail(f"not strict: {c}"))
+    for name in ("mass", "damping", "stiffness", "mass_se", "damping_se", "stiffness_se", "dof"):
+        np.testing.assert_allclose(result[name], getattr(fit, name), rtol=1e-9, err_msg=name)
+    np.testing.assert_allclose(result["vaf"]["per_element"], fit.vaf, rtol=1e-9)
+    np.testing.assert_allclose(result["vaf"]["overall"], fit.vaf_overall, rtol=1e-9)
+    assert result["settings"]["window"] == ["tukey", 0.25] and result["settings"]["nfft"] == 1280
+    assert result["record"]["n_segments"] == (4500 - 768) // 256 and result["record"]["n_bins"] == len(est.f)
+    cx = np.asarray(est.coh_multiple_x)
+    np.testing.assert_allclose(result["coherence"]["multiple_x"]["y"]["min"], cx[:, 1].min(), rtol=1e-9)
+    np.testing.assert_allclose(result["coherence"]["inputs_max"], np.max(est.coh_inputs), rtol=1e-9)
+    saved = np.load(out / "estimate.npz")
+    for name, value in est._asdict().items():
+        np.testing.assert_allclose(saved[name], value, rtol=1e-9, atol=1e-12 * np.abs(value).max(), err_msg=name)
+    np.testing.assert_allclose(saved["Z_fit"], fit.impedance(est.f), rtol=1e-9)
+    for fig in ("bode.png", "coherence.png"):
+        assert (out / fig).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert sorted(p.name for p in out.iterdir()) == ["bode.png", "coherence.png", "estimate.json", "estimate.npz"]
+
+
+def test_npz_layouts_and_renamed_columns_read_the_same_recording(trial, tmp_path):
+    from_csv = recording.load_recording(write_csv(tmp_path / "rec.csv", trial))
+    for name in ("f_delta", "x", "fh"):
+        np.testing.assert_array_equal(from_csv[name], trial[name])  # repr floats round-trip exactly
+    np.savez(tmp_path / "grouped.npz", **trial)
+    np.savez(tmp_path / "columns.npz", **_columns(trial))
+    rename = {"fh_x": "Fx", "fh_y": "Fy", "x": "pos x"}
+    renamed = write_csv(tmp_path / "renamed.csv", trial, rename=rename)
+    mapping = recording.parse_columns(" fh_x=Fx, fh_y=Fy,x=pos x")
+    semicolons = tmp_path / "semi.csv"
+    semicolons.write_text("# a comment line\n" + renamed.read_text().replace(",", ";"))
+    for loaded in (
+        recording.load_recording(tmp_path / "grouped.npz"),
+        recording.load_recording(tmp_path / "columns.npz"),
+        recording.load_recording(renamed, columns=mapping),
+        recording.load_recording(semicolons, columns=mapping),
+    ):
+        for name in ("f_delta", "x", "fh"):
+            np.testing.assert_array_equal(loaded[name], trial[name])
+
+
+def _spoil(row, column, value):
+    def edit(rows):
+        rows[row][HEADER.index(column)] = value
+
+    return edit
+
+
+def _truncate(column, n):
+    def edit(rows):
+        for r in rows[-n:]:
+            r[HEADER.index(column)] = ""
+
+    return edit
+
+
+CSV_CASES = {
+    "missing column": (
+        dict(header=[h for h in HEADER if h != "fh_y"]),
+        [],
+        r"missing column\(s\) 'fh_y'; found 'time'",
+    ),
+    "misnamed column": (dict(rename={"fh_x": "fhx"}), [], r"missing column\(s\) 'fh_x' \(did you mean 'fhx'\?\)"),
+    "non-numeric cell": (
+        dict(edit=_spoil(9, "y", "abc")),
+        [],
+        r"row 10 \(line 11\), column 'y': 'abc' is not a number",
+    ),
+    "empty cell": (dict(edit=_spoil(99, "fh_x", "")), [], r"row 100 \(line 101\), column 'fh_x' is empty"),
+    "NaN": (dict(edit=_spoil(41, "x", "nan")), [], r"row 42 \(line 43\), column 'x': nan is not finite"),
+    "inf": (dict(edit=_spoil(4, "f_delta_y", "-inf")), [], r"row 5 \(line 6\), column 'f_delta_y': -inf is not finite"),
+    "unequal lengths": (dict(edit=_truncate("y", 3)), [], r"unequal lengths \(values per column: .*x 4500, y 4497"),
+    "too short": (dict(edit=lambda rows: rows.__delitem__(slice(1200, None))), [], r"1200 samples, which give 1 Welch"),
+    "bad mapping": (dict(), ["--columns", "fh_x"], r"column mapping 'fh_x' is not STANDARD=NAME"),
+    "unknown standard name": (dict(), ["--columns", "force=Fx"], r"unknown standard column\(s\) 'force'"),
+    "zero sample rate": (dict(), ["--fs", "0"], r"--fs must be a finite sample rate > 0 Hz, got 0"),
+    "negative sample rate": (dict(), ["--fs", "-1000"], r"--fs must be a finite sample rate > 0 Hz, got -1000"),
+    "unknown window": (dict(), ["--window", "nope"], r"window 'nope' is not one scipy.signal.get_window knows"),
+    "nfft below nperseg": (dict(), ["--nfft", "512"], r"nfft must be >= 1024, got 512"),
+}
+
+
+def _run_bad(path, extra, tmp_path, capsys):
+    out = tmp_path / "out"
+    code = script.main([str(path), "--out", str(out), *ARGS, *extra])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert not out.exists()  # refused before any work
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("estimate_recording: error: "), err
+    return lines[0]
+
+
+@pytest.mark.parametrize("case", CSV_CASES)
+def test_bad_csv_recordings_get_their_message(case, trial, tmp_path, capsys):
+    kwargs, extra, message = CSV_CASES[case]
+    path = write_csv(tmp_path / "rec.csv", trial, **kwargs)
+    line = _run_bad(path, extra, tmp_path, capsys)
+    assert re.search(message, line), line
+
+
+def _npz(path, **arrays):
+    np.savez(path, **arrays)
+    return path
+
+
+def _bad_files(tmp_path, trial):
+    cols = _columns(trial)
+    nan = dict(cols, x=np.where(np.arange(len(cols["x"])) == 7, np.nan, cols["x"]))
+    binary = tmp_path / "binary.csv"
+    binary.write_bytes(b"\xff\xfe\x00\x81garbage")
+    corrupt = tmp_path / "corrupt.npz"
+    corrupt.write_bytes(b"PK\x03\x04 not really a zip")
+    npy = tmp_path / "single.npz"
+    with open(npy, "wb") as fh:
+        np.save(fh, trial["x"])
+    header_only = tmp_path / "header.csv"
+    header_only.write_text(",".join(HEADER) + "\n\n")
+    return {
+        "nonexistent": (tmp_path / "nope.csv", r"cannot read .*nope.csv: it does not exist"),
+        "folder": (tmp_path, r"cannot read .*: it is a folder"),
+        "binary": (binary, r"not a UTF-8 text \(CSV\) file"),
+        "corrupt npz": (corrupt, r"cannot read .*corrupt.npz as NPZ"),
+        "npy as npz": (npy, r"cannot read .*single.npz as NPZ: not a zip archive"),
+        "empty": (_write(tmp_path / "empty.csv", ""), r"no header row"),
+        "header only": (header_only, r"the header is not followed by any data rows"),
+        "npz text": (
+            _npz(tmp_path / "npz_text.npz", **dict(cols, y=cols["y"].astype(str))),
+            r"array 'y' is not real numbers",
+        ),
+        "npz NaN": (_npz(tmp_path / "npz_NaN.npz", **nan), r"array 'x', index 7: nan is not finite"),
+        "npz lengths": (
+            _npz(tmp_path / "npz_lengths.npz", **dict(cols, fh_x=cols["fh_x"][:-1])),
+            r"unequal lengths .*fh_x 4499",
+        ),
+        "npz missing": (
+            _npz(tmp_path / "npz_missing.npz", x=cols["x"]),
+            r"missing array\(s\) 'f_delta_x'.* \(or give f_delta, x, fh",
+        ),
+        "npz shape": (
+            _npz(tmp_path / "npz_shape.npz", f_delta=trial["f_delta"], x=cols["x"][:, None], fh=trial["fh"]),
+            r"\(N, 2\)",
+        ),
+    }
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize(
+    "case",
+    [
+        "nonexistent",
+        "folder",
+        "binary",
+        "corrupt npz",
+        "npy as npz",
+        "empty",
+        "header only",
+        "npz text",
+        "npz NaN",
+        "npz lengths",
+        "npz missing",
+        "npz shape",
+    ],
+)
+def test_unreadable_and_bad_npz_recordings_get_their_message(case, trial, tmp_path, capsys):
+    files = tmp_path / "files"
+    files.mkdir()
+    path, message = _bad_files(files, trial)[case]
+    line = _run_bad(path, [], tmp_path, capsys)
+    assert re.search(message, line), line
+    with pytest.raises(recording.RecordingError, match=message):
+        recording.load_recording(path)
+
+
+def test_help_is_fast_and_states_units_conventions_and_columns():
+    start = time.perf_counter()
+    done = subprocess.run([sys.executable, str(SCRIPT), "--help"], capture_output=True, text=True, check=True)
+    elapsed = time.perf_counter() - start
+    assert elapsed < 2.0, elapsed
+    text = done.stdout
+    for needle in ("[N]", "[m]", "[Hz]", "TO the hand", "RECEIVES", "-F_h", "frame", "f_delta_x, f_delta_y"):
+        assert needle in text, needle
+    for name in recording.COLUMNS:
+        assert name in text
+
+
+def test_strict_json_and_atomic_writes(tmp_path):
+    path = recording.write_json(tmp_path / "a.json", {"x": np.array([1.0, np.nan]), "y": np.float64(np.inf), "n": 3})
+    assert json.loads(path.read_text()) == {"x": [1.0, None], "y": None, "n": 3}
+    assert [p.name for p in tmp_path.iterdir()] == ["a.json"]  # no temporary file left behind
+
+    def fail(fh):
+        fh.write(b"half")
+        raise RuntimeError("disk full")
+
+    with pytest.raises(RuntimeError, match="disk full"):
+        recording.write_atomic(tmp_path / "a.json", fail)
+    assert [p.name for p in tmp_path.iterdir()] == ["a.json"]  # the old file stays whole
+    assert json.loads((tmp_path / "a.json").read_text())["n"] == 3

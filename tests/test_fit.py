@@ -1,0 +1,207 @@
+"""The parametric fit of M, B, K: exact recovery, interval coverage, batching, gradients, bad input."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.stats
+
+import armimp_jax as aj
+from armimp_jax import paper
+from armimp_jax._estimate import Estimate
+from armimp_jax._fit import coherence_weights
+
+# Non-symmetric on purpose (spec section 2: use the matrices as given).
+M = np.array([[1.54, -0.57], [-0.65, 0.94]])
+B = np.array([[7.17, -6.14], [-6.19, 12.08]])
+K = np.array([[105.72, -104.11], [-127.35, 234.78]])
+F = np.arange(1, 123) * (1000.0 / 8192)  # the paper's bins in (0, 15] Hz
+NAMES = (("mass", M), ("damping", B), ("stiffness", K))
+
+
+def model(f, m=M, b=B, k=K):
+    s = 2j * np.pi * np.asarray(f)[:, None, None]
+    return m[None] * s**2 + b[None] * s + k[None]
+
+
+@pytest.mark.parametrize("f", [F, np.linspace(0.0, 400.0, 57)], ids=["paper bins", "0-400 Hz"])
+def test_noise_free_model_is_recovered_to_round_off(f):
+    """Round-off: errors below 1e-15 of the largest |Z|, in each parameter's units (K is a
+    small part of Z at 400 Hz, so its relative error may reach ~1e-12 there)."""
+    fit = aj.fit_impedance(jnp.asarray(model(f)), jnp.asarray(f))
+    z_max, w_max = np.abs(model(f)).max(), 2 * np.pi * np.max(f)
+    for (name, truth), scale in zip(NAMES, (w_max**-2, w_max**-1, 1.0)):
+        np.testing.assert_allclose(getattr(fit, name), truth, rtol=0, atol=1e-15 * z_max * scale)
+        assert np.all(np.asarray(getattr(fit, f"{name}_se")) < 1e-15 * z_max * scale)
+    np.testing.assert_allclose(fit.vaf, 100.0, rtol=1e-13)
+    np.testing.assert_allclose(fit.vaf_overall, 100.0, rtol=1e-13)
+    np.testing.assert_array_equal(fit.dof, 2 * len(f) - 3)
+    np.testing.assert_allclose(fit.impedance(f), model(f), rtol=0, atol=1e-15 * z_max)
+
+
+def test_arm_impedance_round_trips_through_the_fit():
+    arm = paper.arm(3)
+    fit = aj.fit_impedance(arm.impedance(F), F)
+    for name in ("mass", "damping", "stiffness"):
+        np.testing.assert_allclose(getattr(fit, name), getattr(arm, name), rtol=0, atol=1e-12 * 250)
+
+
+def _noisy_fits(n_draws, sigma, f, seed=0):
+    z0 = jnp.asarray(model(f))
+    keys = jax.random.split(jax.random.PRNGKey(seed), n_draws)
+
+    def one(key):
+        re, im = jax.random.normal(key, (2,) + z0.shape)
+        return aj.fit_impedance(z0 + sigma / np.sqrt(2) * (re + 1j * im), f)
+
+    return jax.jit(jax.vmap(one))(keys)
+
+
+def test_95_percent_intervals_cover_the_truth_95_percent_of_the_time():
+    """White complex noise, uniform weights: over 2000 draws each parameter's interval
+    ``value +- t_0.975(2F - 3) se`` covers the truth with probability 0.95; the binomial
+    standard error of the observed rate is sqrt(0.95 * 0.05 / 2000) = 0.0049, so each of
+    the 12 rates must lie within 4 of them (a false alarm once in ~10^3 runs of 12)."""
+    n, f = 2000, F[::3]  # 41 bins
+    fits = _noisy_fits(n, 3.0, f)
+    t = scipy.stats.t.ppf(0.975, 2 * len(f) - 3)
+    band = 4 * np.sqrt(0.95 * 0.05 / n)
+    for name, truth in NAMES:
+        value, se = np.asarray(getattr(fits, name)), np.asarray(getattr(fits, f"{name}_se"))
+        covered = np.mean(np.abs(value - truth[None]) <= t * se, axis=0)
+        assert np.all(np.abs(covered - 0.95) < band), (name, covered)
+        # the standard errors are the spread of the estimates (std of 2000 draws: ~1.6% scatter)
+        np.testing.assert_allclose(np.mean(se, axis=0), np.std(value, axis=0), rtol=0.06)
+        np.testing.assert_allclose(np.mean(value, axis=0), truth, atol=4 * np.std(value, axis=0).max() / np.sqrt(n))
+
+
+def test_vmap_over_a_batch_equals_a_loop():
+    rng = np.random.default_rng(1)
+    zs = model(F)[None] + rng.standard_normal((3, len(F), 2, 2)) + 1j * rng.standard_normal((3, len(F), 2, 2))
+    ws = rng.uniform(0.5, 2.0, (3, len(F)))
+    batched = jax.vmap(lambda z, w: aj.fit_impedance(z, F, weights=w))(jnp.asarray(zs), jnp.asarray(ws))
+    for i in range(3):
+        single = aj.fit_impedance(zs[i], F, weights=ws[i])
+        for a, b in zip(jax.tree.leaves(single), jax.tree.leaves(batched)):
+            np.testing.assert_allclose(b[i], a, rtol=1e-12, atol=1e-12)
+
+
+def test_gradient_equals_finite_differences():
+    rng = np.random.default_rng(2)
+    z0 = jnp.asarray(model(F))
+    noise = jnp.asarray(rng.standard_normal(z0.shape) + 1j * rng.standard_normal(z0.shape))
+    w = jnp.asarray(rng.uniform(0.5, 2.0, len(F)))
+
+    def loss(a):  # stiffness SE and damping through the noise amplitude and the weights
+        fit = aj.fit_impedance(z0 + a * noise, F, weights=w**a)
+        return jnp.sum(fit.stiffness_se) + fit.damping[0, 1] + fit.vaf_overall
+
+    a0, eps = 2.0, 1e-6
+    g = jax.jit(jax.grad(loss))(a0)
+    loss = jax.jit(loss)
+    fdiff = (loss(a0 + eps) - loss(a0 - eps)) / (2 * eps)
+    assert np.isfinite(g)
+    np.testing.assert_allclose(g, fdiff, rtol=1e-6)
+
+
+def test_weights_per_bin_per_element_scale_and_zeros():
+    rng = np.random.default_rng(3)
+    z = model(F) + 2.0 * (rng.standard_normal((len(F), 2, 2)) + 1j * rng.standard_normal((len(F), 2, 2)))
+    w = rng.uniform(0.1, 1.0, len(F))
+    a = aj.fit_impedance(z, F, weights=w)
+    b = aj.fit_impedance(z, F, weights=np.broadcast_to(w[:, None, None], (len(F), 2, 2)))
+    c = aj.fit_impedance(z, F, weights=1e6 * w)  # the fit and its errors do not depend on the scale
+    for x, y in ((a, b), (a, c)):
+        for u, v in zip(jax.tree.leaves(x), jax.tree.leaves(y)):
+            np.testing.assert_allclose(u, v, rtol=1e-9)
+    keep = F < 8.0  # zero weights drop bins, degrees of freedom included (the VAF stays over all bins)
+    d = aj.fit_impedance(z, F, weights=keep.astype(float))
+    e = aj.fit_impedance(z[keep], F[keep])
+    for name in ("mass", "damping", "stiffness", "mass_se", "damping_se", "stiffness_se", "dof"):
+        np.testing.assert_allclose(getattr(d, name), getattr(e, name), rtol=1e-9)
+    # per-element weights: element (0, 1) sees only the first half
+    w4 = np.ones((len(F), 2, 2))
+    w4[~keep, 0, 1] = 0.0
+    g = aj.fit_impedance(z, F, weights=w4)
+    np.testing.assert_allclose(g.mass[0, 1], e.mass[0, 1], rtol=1e-9)
+    np.testing.assert_allclose(g.mass[1, 0], aj.fit_impedance(z, F).mass[1, 0], rtol=1e-12)
+
+
+def test_vaf_is_the_fraction_of_power_explained():
+    z = model(F)
+    z_off = z + 30.0  # a constant real offset is absorbed by K: still 100 %
+    np.testing.assert_allclose(aj.fit_impedance(z_off, F).vaf, 100.0, rtol=1e-12)
+    w = 2 * np.pi * F
+    bump = 5.0j * w**3 / w.max() ** 2  # an odd power no M, B, K captures
+    z_bad = z + bump[:, None, None]
+    fit = aj.fit_impedance(z_bad, F)
+    resid = np.abs(z_bad - np.asarray(fit.impedance(F))) ** 2
+    expected = 100 * (1 - resid.sum(0) / (np.abs(z_bad) ** 2).sum(0))
+    np.testing.assert_allclose(fit.vaf, expected, rtol=1e-12)
+    assert np.all(np.asarray(fit.vaf) < 100.0)
+    np.testing.assert_allclose(fit.vaf_overall, 100 * (1 - resid.sum() / (np.abs(z_bad) ** 2).sum()), rtol=1e-12)
+
+
+def _estimate_like(z, f, coh_x, coh_fh):
+    n = len(f)
+    return Estimate(
+        f=jnp.asarray(f),
+        R=jnp.zeros((n, 2, 2), complex),
+        T=jnp.zeros((n, 2, 2), complex),
+        Z=jnp.asarray(z),
+        coh_multiple_x=jnp.asarray(coh_x),
+        coh_partial_x=jnp.zeros((n, 2, 2)),
+        coh_multiple_fh=jnp.asarray(coh_fh),
+        coh_partial_fh=jnp.zeros((n, 2, 2)),
+        coh_inputs=jnp.zeros(n),
+    )
+
+
+def test_an_estimate_is_fitted_directly_with_uniform_or_coherence_weights():
+    rng = np.random.default_rng(4)
+    z = model(F) + rng.standard_normal((len(F), 2, 2))
+    cx, cf = rng.uniform(0.5, 1.0, (len(F), 2)), rng.uniform(0.5, 1.0, (len(F), 2))
+    est = _estimate_like(z, F, cx, cf)
+    assert aj.fit_impedance(est).mass.tolist() == aj.fit_impedance(est.Z, est.f).mass.tolist()
+    assert aj.fit_impedance(est, weights="uniform").mass.tolist() == aj.fit_impedance(est.Z, est.f).mass.tolist()
+    e = lambda g: (1 - g) / g  # noqa: E731
+    w = 1 / (e(cf)[:, :, None] + e(cx).sum(-1)[:, None, None])
+    np.testing.assert_allclose(coherence_weights(est), np.broadcast_to(w, (len(F), 2, 2)), rtol=1e-12)
+    by_name = aj.fit_impedance(est, weights="coherence")
+    by_array = aj.fit_impedance(est.Z, est.f, weights=np.broadcast_to(w, (len(F), 2, 2)))
+    np.testing.assert_allclose(by_name.damping, by_array.damping, rtol=1e-12)
+    # a batch of estimates (TrialOutcome.estimate of assess_batch) fits under vmap
+    batch = jax.tree.map(lambda a: jnp.stack([a, a]), est)
+    fits = jax.vmap(lambda e_: aj.fit_impedance(e_, weights="coherence"))(batch)
+    np.testing.assert_allclose(fits.damping[1], by_name.damping, rtol=1e-12)
+    # unit coherence (a noise-free simulation) gives finite weights
+    assert np.all(np.isfinite(coherence_weights(_estimate_like(z, F, np.ones((len(F), 2)), cf))))
+
+
+@pytest.mark.parametrize(
+    "args, kwargs, message",
+    [
+        ((np.zeros((5, 2)), np.arange(1.0, 6)), {}, r"Z must have shape \(F, 2, 2\)"),
+        ((np.zeros((1, 2, 2)), np.ones(1)), {}, r"F >= 2"),
+        ((np.zeros((5, 2, 2)), np.arange(1.0, 5)), {}, r"f must have shape \(F,\) = \(5,\)"),
+        ((np.zeros((5, 2, 2)), None), {}, "f .* is required"),
+        ((np.zeros((5, 2, 2)), np.ones(5)), {}, "at least two distinct frequencies"),
+        ((np.zeros((5, 2, 2)), np.arange(-1.0, 4)), {}, ">= 0 Hz"),
+        ((np.zeros((5, 2, 2)), np.arange(1.0, 6)), dict(weights=np.ones(4)), r"weights must have shape \(F,\)"),
+        ((np.zeros((5, 2, 2)), np.arange(1.0, 6)), dict(weights=-np.ones(5)), "finite and >= 0"),
+        ((np.zeros((5, 2, 2)), np.arange(1.0, 6)), dict(weights=np.eye(5)[0]), "two or more distinct"),
+        ((np.zeros((5, 2, 2)), np.arange(1.0, 6)), dict(weights="coherence"), "needs an Estimate"),
+        ((np.zeros((5, 2, 2), np.complex64), np.arange(1.0, 6)), {}, "complex128"),
+    ],
+)
+def test_bad_input_is_refused_with_a_clear_message(args, kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        aj.fit_impedance(*args, **kwargs)
+
+
+def test_estimate_and_frequencies_together_are_refused():
+    est = _estimate_like(model(F), F, np.ones((len(F), 2)), np.ones((len(F), 2)))
+    with pytest.raises(ValueError, match="not an Estimate and f"):
+        aj.fit_impedance(est, F)
+    with pytest.raises(ValueError, match="unknown weights 'inverse'"):
+        aj.fit_impedance(est, weights="inverse")
