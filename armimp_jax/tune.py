@@ -20,12 +20,17 @@ and are sharded over the devices (``place_batch``: one per core after ``runtime.
 simulation diverges (flag, NaN or inf) is rejected, the step size is halved, and the
 rejection is logged; an unstable *start* is shrunk towards small ``Mhat`` (which
 time-delay estimation tolerates) until it is stable.
+
+The run's state is a ``TuneState`` (a NamedTuple pytree: ``theta``, Adam's state, the
+gradient, counters, and a ``History`` of arrays). ``save_state`` writes it atomically as
+one checked record together with the settings that produced it (``config_settings`` plus
+the caller's description of the training batch), and ``load_state`` refuses a file that
+is torn, altered, or was saved with other settings.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import pathlib
 import time
@@ -43,6 +48,7 @@ from ._checks import check_choice
 from ._numerics import Numerics
 from ._pytree import replace_unchecked
 from ._simulate import Trial, simulate
+from .results import ResultsError, load_record, save_record
 
 PARAMETERISATIONS = ("diagonal", "full")
 MAX_START_SHRINKS = 8  # an unstable start is halved at most this often (a factor of 256)
@@ -149,6 +155,10 @@ def value_and_grad_fn(
 
 @dataclasses.dataclass
 class TuneConfig:
+    """Options of ``tune``: the ``Mhat`` parameterisation, Adam's learning rate (in units of
+    ``theta``), the iteration budget, the gradient mode, the ``phi_ij`` weight of the loss,
+    the step scale below which the descent stops, and the training numerics."""
+
     parameterisation: str = "diagonal"
     learning_rate: float = 0.1
     iterations: int = 30
@@ -156,6 +166,115 @@ class TuneConfig:
     phi_ij_weight: float = 0.0
     min_step_scale: float = 1e-3
     numerics: Numerics = Numerics(kernel="grad", checkpoint="substep")
+
+
+def config_settings(config: TuneConfig) -> dict:
+    """The options of ``config`` that steer the descent, as saved with a tuning state:
+    everything but ``iterations`` (a run may be resumed with a larger budget)."""
+    out = {f.name: getattr(config, f.name) for f in dataclasses.fields(config) if f.name != "iterations"}
+    out["numerics"] = dataclasses.asdict(config.numerics)
+    return dict(out, optimiser="adam")
+
+
+def n_parameters(parameterisation: str) -> int:
+    """Length of ``theta``: 2 (``"diagonal"``) or 3 (``"full"``)."""
+    check_choice("parameterisation", parameterisation, PARAMETERISATIONS)
+    return 2 if parameterisation == "diagonal" else 3
+
+
+class History(NamedTuple):
+    """Every evaluated point of a tuning run, one row each (the start, then each proposal).
+
+    ``iteration`` ``(k,)``; ``accepted`` ``(k,)`` (False: a rejected proposal); the training
+    ``loss`` [N/m] and ``grad_norm`` ``(k,)`` (NaN where rejected); ``mhat`` ``(k, 2, 2)``
+    [kg] (the proposal where rejected); ``step_scale`` and ``time_s`` [s] ``(k,)``; per
+    training trial ``phi_T`` ``(k, B)`` [N/m] (NaN where rejected); held-out ``eval_phi_T``
+    [N/m] (NaN where not evaluated) and ``eval_diverged`` ``(k,)``.
+    """
+
+    iteration: np.ndarray
+    accepted: np.ndarray
+    loss: np.ndarray
+    grad_norm: np.ndarray
+    mhat: np.ndarray
+    step_scale: np.ndarray
+    time_s: np.ndarray
+    phi_T: np.ndarray
+    eval_phi_T: np.ndarray
+    eval_diverged: np.ndarray
+
+    @classmethod
+    def empty(cls, n_trials: int) -> History:
+        f = np.empty(0)
+        return cls(
+            iteration=np.empty(0, int),
+            accepted=np.empty(0, bool),
+            loss=f,
+            grad_norm=f,
+            mhat=np.empty((0, 2, 2)),
+            step_scale=f,
+            time_s=f,
+            phi_T=np.empty((0, n_trials)),
+            eval_phi_T=f,
+            eval_diverged=np.empty(0, bool),
+        )
+
+    def append(self, **row) -> History:
+        """A history one row longer; fields not given are NaN (False for flags)."""
+        unknown = row.keys() - set(self._fields)
+        if unknown:
+            raise ValueError(f"History has no field(s) {sorted(unknown)}")
+        new = {}
+        for name in self._fields:
+            old = getattr(self, name)
+            default = False if old.dtype == bool else np.nan
+            value = np.broadcast_to(np.asarray(row.get(name, default), dtype=old.dtype), old.shape[1:])
+            new[name] = np.concatenate([old, value[None]])
+        return History(**new)
+
+    def record(self, i: int) -> dict:
+        """Row ``i`` as the JSON-able dict that ``tune`` logs (``plots.loss_curve`` reads these)."""
+        i = range(len(self.iteration))[i]  # a negative index counts from the end
+        it, mhat = int(self.iteration[i]), self.mhat[i].tolist()
+        if not self.accepted[i]:
+            return dict(
+                iteration=it,
+                event="rejected: diverged or non-finite",
+                mhat=mhat,
+                step_scale=float(self.step_scale[i]),
+                time_s=float(self.time_s[i]),
+            )
+        rec = dict(
+            iteration=it,
+            event="start" if i == 0 else "step",
+            loss=float(self.loss[i]),
+            grad_norm=float(self.grad_norm[i]),
+            mhat=mhat,
+            phi_T=self.phi_T[i].tolist(),
+            step_scale=float(self.step_scale[i]),
+            time_s=float(self.time_s[i]),
+        )
+        if np.isfinite(self.eval_phi_T[i]) or self.eval_diverged[i]:
+            rec["eval"] = dict(mean_phi_T=float(self.eval_phi_T[i]), diverged=bool(self.eval_diverged[i]))
+        return rec
+
+    def records(self) -> list[dict]:
+        return [self.record(i) for i in range(len(self.iteration))]
+
+
+class TuneState(NamedTuple):
+    """Everything a tuning run needs to go on (a pytree): the parameters ``theta`` and the
+    loss gradient there, Adam's state, the training loss [N/m] at ``theta``, the iteration
+    count, the step scale of the divergence guard, the rejected-step count, and the history."""
+
+    theta: jax.Array
+    opt_state: optax.OptState
+    grad: jax.Array
+    value: float
+    iteration: int
+    step_scale: float
+    rejected: int
+    history: History
 
 
 def place_batch(params: Trial, f_delta, *, mesh: Mesh | None = None):
@@ -194,22 +313,31 @@ def tune(
     welch: Welch,
     config: TuneConfig,
     *,
-    state: dict | None = None,
+    state: TuneState | None = None,
     log: Callable[[dict], None] = print,
-    on_iteration: Callable[[dict], None] | None = None,
+    on_iteration: Callable[[TuneState], None] | None = None,
     evaluate: Callable[[int, jnp.ndarray], dict] | None = None,
     eval_every: int = 0,
     mesh: Mesh | None = None,
-) -> dict:
+) -> TuneState:
     """Descend the training loss from ``theta0`` with optax Adam and a divergence guard.
 
-    ``state`` (from a previous call's ``on_iteration``) resumes a run. The training batch
-    is sharded over ``mesh`` (default: every device) by ``place_batch``, and the first log
-    record says over how many devices. Returns the final state: ``theta``, ``mhat``,
-    ``history`` (one record per iteration), optimiser state.
+    ``state`` (from ``load_state``, or a previous call's ``on_iteration``) resumes a run;
+    ``on_iteration`` receives the state after the start and after every iteration (accepted
+    or rejected), e.g. to save it. ``evaluate(iteration, theta)`` returning
+    ``{"mean_phi_T", "diverged"}`` runs every ``eval_every`` accepted iterations. The
+    training batch is sharded over ``mesh`` (default: every device) by ``place_batch``, and
+    the first log record says over how many devices. Returns the final ``TuneState``.
     """
+    n_theta = n_parameters(config.parameterisation)
+    if state is not None and np.shape(state.theta) != (n_theta,):
+        raise ValueError(
+            f"tune: the state has {np.shape(state.theta)[0]} parameters; parameterisation "
+            f"{config.parameterisation!r} has {n_theta}"
+        )
     params, f_delta, placed = place_batch(params, f_delta, mesh=mesh)
-    log(dict(event="training batch", trials=int(params.q0.shape[0]), devices=1 if placed is None else placed.size))
+    n_trials = int(params.q0.shape[0])
+    log(dict(event="training batch", trials=n_trials, devices=1 if placed is None else placed.size))
     # theta replicated like the gradients that come back, so every step reuses the first
     # compilation (a proposal built from them would otherwise differ in sharding: 23 s more)
     replicated = None if placed is None else NamedSharding(placed, PartitionSpec())
@@ -231,6 +359,22 @@ def tune(
         ok = _finite(value, grad) and not bool(np.any(np.asarray(aux.diverged)))
         return ok, float(value), grad, aux, time.perf_counter() - t0
 
+    def mhat_of(theta):
+        return np.asarray(mhat_from_theta(theta, config.parameterisation))
+
+    def accepted_row(iteration, theta, value, grad, aux, scale, dt, ev=None):
+        return dict(
+            iteration=iteration,
+            accepted=True,
+            loss=value,
+            grad_norm=float(jnp.linalg.norm(grad)),
+            mhat=mhat_of(theta),
+            step_scale=scale,
+            time_s=dt,
+            phi_T=np.asarray(aux.phi_T),
+            **({} if ev is None else dict(eval_phi_T=ev["mean_phi_T"], eval_diverged=ev["diverged"])),
+        )
+
     if state is None:
         theta = jnp.asarray(theta0, dtype=jnp.float64)
         ok, value, grad, aux, dt = evaluate_at(theta)
@@ -240,57 +384,41 @@ def tune(
             if shrinks > MAX_START_SHRINKS:
                 raise RuntimeError(
                     f"no stable starting Mhat after halving it {MAX_START_SHRINKS} times (now "
-                    f"{np.asarray(mhat_from_theta(theta, config.parameterisation)).tolist()} kg): the training "
-                    "trials diverge for another reason, e.g. too few RK4 substeps for the LuGre bristles"
+                    f"{mhat_of(theta).tolist()} kg): the training trials diverge for another reason, e.g. too few RK4 "
+                    "substeps for the LuGre bristles"
                 )
-            log(dict(event="start diverged", mhat=np.asarray(mhat_from_theta(theta, config.parameterisation)).tolist()))
+            log(dict(event="start diverged", mhat=mhat_of(theta).tolist()))
             theta = _shrink(theta, config.parameterisation)
             ok, value, grad, aux, dt = evaluate_at(theta)
-        state = dict(
-            iteration=0,
-            theta=theta,
-            opt_state=opt.init(theta),
-            step_scale=1.0,
-            history=[],
-            value=value,
-            grad=grad,
-            rejected=0,
-        )
-        _record(state, config, value, grad, aux, dt, event="start")
-        log(state["history"][-1])
-    while state["iteration"] < config.iterations:
-        theta, grad = state["theta"], state["grad"]
-        updates, new_opt = opt.update(grad, state["opt_state"], theta)
-        proposal = theta + state["step_scale"] * updates
+        history = History.empty(n_trials).append(**accepted_row(0, theta, value, grad, aux, 1.0, dt))
+        state = TuneState(theta, opt.init(theta), grad, value, 0, 1.0, 0, history)
+        log(history.record(-1))
+        if on_iteration is not None:
+            on_iteration(state)
+    while state.iteration < config.iterations:
+        if state.step_scale < config.min_step_scale:
+            log(dict(event="stopping: step scale below minimum"))
+            break
+        updates, new_opt = opt.update(state.grad, state.opt_state, state.theta)
+        proposal = state.theta + state.step_scale * updates
         ok, value, new_grad, aux, dt = evaluate_at(proposal)
-        state["iteration"] += 1
+        iteration = state.iteration + 1
         if not ok:
-            state["step_scale"] *= 0.5
-            state["rejected"] += 1
-            rec = dict(
-                iteration=state["iteration"],
-                event="rejected: diverged or non-finite",
-                mhat=np.asarray(mhat_from_theta(proposal, config.parameterisation)).tolist(),
-                step_scale=state["step_scale"],
-                time_s=dt,
+            scale = state.step_scale * 0.5
+            history = state.history.append(
+                iteration=iteration, accepted=False, mhat=mhat_of(proposal), step_scale=scale, time_s=dt
             )
-            state["history"].append(rec)
-            log(rec)
-            if state["step_scale"] < config.min_step_scale:
-                log(dict(event="stopping: step scale below minimum"))
-                break
-            continue
-        state.update(
-            theta=proposal,
-            opt_state=new_opt,
-            value=value,
-            grad=new_grad,
-            step_scale=min(1.0, state["step_scale"] * 1.5),
-        )
-        _record(state, config, value, new_grad, aux, dt, event="step")
-        if evaluate is not None and eval_every and state["iteration"] % eval_every == 0:
-            state["history"][-1]["eval"] = evaluate(state["iteration"], proposal)
-        log(state["history"][-1])
+            state = state._replace(iteration=iteration, step_scale=scale, rejected=state.rejected + 1, history=history)
+        else:
+            scale = min(1.0, state.step_scale * 1.5)
+            ev = (
+                evaluate(iteration, proposal)
+                if evaluate is not None and eval_every and iteration % eval_every == 0
+                else None
+            )
+            history = state.history.append(**accepted_row(iteration, proposal, value, new_grad, aux, scale, dt, ev))
+            state = TuneState(proposal, new_opt, new_grad, value, iteration, scale, state.rejected, history)
+        log(state.history.record(-1))
         if on_iteration is not None:
             on_iteration(state)
     return state
@@ -304,45 +432,47 @@ def _shrink(theta, parameterisation):
     return jnp.array([theta[0] - half, theta[1] / math.sqrt(2.0), theta[2] - half])
 
 
-def _record(state, config, value, grad, aux, dt, *, event):
-    state["history"].append(
-        dict(
-            iteration=state["iteration"],
-            event=event,
-            loss=value,
-            grad_norm=float(jnp.linalg.norm(grad)),
-            mhat=np.asarray(mhat_from_theta(state["theta"], config.parameterisation)).tolist(),
-            phi_T=np.asarray(aux.phi_T).tolist(),
-            step_scale=state["step_scale"],
-            time_s=dt,
-        )
+def save_state(path: pathlib.Path, state: TuneState, settings: dict, *, meta: dict | None = None) -> str:
+    """Save ``state`` atomically as one checked record (``armimp_jax.results``) with the
+    ``settings`` that produced it (``config_settings`` plus the caller's description of the
+    training problem); returns their key. ``meta``: further JSON-able notes."""
+    arrays = dict(
+        theta=np.asarray(state.theta),
+        grad=np.asarray(state.grad),
+        value=np.asarray(state.value, dtype=float),
+        iteration=np.asarray(state.iteration, dtype=int),
+        step_scale=np.asarray(state.step_scale, dtype=float),
+        rejected=np.asarray(state.rejected, dtype=int),
+        **{f"opt_state.{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(state.opt_state))},
+        **{f"history.{k}": v for k, v in state.history._asdict().items()},
     )
+    notes = dict(iteration=state.iteration, value=state.value, rejected=state.rejected) | dict(meta or {})
+    return save_record(path, settings=settings, arrays=arrays, meta=notes)
 
 
-def save_state(path: pathlib.Path, state: dict, config: TuneConfig) -> None:
-    """Everything needed to resume: theta, optimiser state leaves, history (JSON + NPZ)."""
-    leaves = jax.tree.leaves(state["opt_state"])
-    np.savez(
-        path.with_suffix(".npz"),
-        theta=np.asarray(state["theta"]),
-        grad=np.asarray(state["grad"]),
-        **{f"opt_{i}": np.asarray(x) for i, x in enumerate(leaves)},
-    )
-    meta = {k: state[k] for k in ("iteration", "step_scale", "history", "value", "rejected")}
-    path.with_suffix(".json").write_text(json.dumps(dict(config=dataclasses.asdict(config), **meta), indent=1))
-
-
-def load_state(path: pathlib.Path, config: TuneConfig) -> dict:
-    meta = json.loads(path.with_suffix(".json").read_text())
-    with np.load(path.with_suffix(".npz")) as data:
-        theta = jnp.asarray(data["theta"])
+def load_state(path: pathlib.Path, settings: dict, config: TuneConfig) -> TuneState:
+    """The ``TuneState`` saved in ``path``, checked: a ``ResultsError`` names the file when it
+    is missing, truncated or altered, or was saved with other ``settings`` (the message
+    lists the differences)."""
+    rec = load_record(path, settings=settings)
+    a = rec.arrays
+    try:
+        theta = jnp.asarray(a["theta"])
         template = optax.adam(config.learning_rate).init(theta)
-        leaves = [jnp.asarray(data[f"opt_{i}"]) for i in range(len(jax.tree.leaves(template)))]
-        opt_state = jax.tree.unflatten(jax.tree.structure(template), leaves)
-        grad = jnp.asarray(data["grad"])
-    return dict(
-        theta=theta,
-        opt_state=opt_state,
-        grad=grad,
-        **{k: meta[k] for k in ("iteration", "step_scale", "history", "value", "rejected")},
-    )
+        leaves = jax.tree.leaves(template)
+        saved = [a[f"opt_state.{i}"] for i in range(len(leaves))]
+        if f"opt_state.{len(leaves)}" in a or any(np.shape(x) != np.shape(t) for x, t in zip(saved, leaves)):
+            raise KeyError("optimiser state of another shape")
+        history = History(**{k: a[f"history.{k}"] for k in History._fields})
+        return TuneState(
+            theta=theta,
+            opt_state=jax.tree.unflatten(jax.tree.structure(template), [jnp.asarray(x) for x in saved]),
+            grad=jnp.asarray(a["grad"]),
+            value=float(a["value"]),
+            iteration=int(a["iteration"]),
+            step_scale=float(a["step_scale"]),
+            rejected=int(a["rejected"]),
+            history=history,
+        )
+    except KeyError as err:
+        raise ResultsError(f"{path}: not a tuning state of this config ({err.args[0]})") from None

@@ -1,77 +1,108 @@
-"""Reproduce the paper end to end: PD and IMBIC sweeps, figures, a results report.
+"""Reproduce the paper end to end: PD and IMBIC sweeps over several seeds, figures, a report.
 
-    python sweeps/reproduce_paper.py                 # the paper's settings (50 s, 100 substeps, Table 4)
+    python sweeps/reproduce_paper.py                 # the paper's settings (50 s, 100 substeps, Table 4), 3 seeds
     python sweeps/reproduce_paper.py --quick         # a smoke run in well under a minute
     python sweeps/reproduce_paper.py --seeds 5       # every condition over 5 perturbation seeds
-    python sweeps/reproduce_paper.py --resume DIR    # finish an interrupted run
+    python sweeps/reproduce_paper.py --resume DIR    # finish an interrupted run with its own settings
     python sweeps/reproduce_paper.py --replot DIR    # redraw figures and report from saved results
 
-Writes ``DIR/REPORT.md``, PNG figures, ``results.json`` / ``results.npz`` and one file
-pair per finished trial under ``DIR/trials`` (default DIR: results/paper or
-results/paper-quick).
+Writes ``DIR/REPORT.md``, PNG figures, ``results.json`` / ``results.npz``, ``run.json`` (the
+run's settings and their key) and one checked record per finished trial under
+``DIR/trials`` (default DIR: results/paper or results/paper-quick). A folder holds one
+run: a command with the same settings reuses its finished trials, one with other settings
+is refused, and so is a folder another run is using (docs/results.md).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import pathlib
 import sys
 import time
 
-from armimp_jax.runtime import configure
+PROG = "reproduce_paper"
+DEFAULT_SEEDS = 3  # keep equal to armimp_jax.paper.reproduce.DEFAULT_SEEDS (read here before importing jax)
+QUICK = dict(seconds=6.0, substeps=10, nperseg=1024, noverlap=768)
+LEVELS = dict(locations=(1, 2, 3, 4), frictions=(0, 1, 2), perturbations=(1, 2, 3))
+# options that change the numbers, as ReproSettings fields (None: not given on the command line)
+SETTING_OPTIONS = (
+    "seconds",
+    "substeps",
+    "nperseg",
+    "noverlap",
+    "seeds",
+    "base_seed",
+    "mhat",
+    "locations",
+    "frictions",
+    "perturbations",
+    "max_input_coherence",
+)
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (``reproduce_paper: error: ...``, exit status 2)."""
+
+    def error(self, message):
+        fail(message)
+
+
+def fail(message: str):
+    sys.stderr.write(f"{PROG}: error: {message}\n")
+    sys.exit(2)
 
 
 def parse(argv):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="short records, 10 substeps, 1024-sample segments")
-    ap.add_argument("--seeds", type=int, default=1, help="perturbation seeds per condition (default 1)")
-    ap.add_argument("--base-seed", type=int, default=0)
+    ap = Parser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", default=None, help="6 s records, 10 substeps, 1024-sample segments")
+    ap.add_argument("--seeds", type=int, help=f"perturbation seeds per condition (default {DEFAULT_SEEDS})")
+    ap.add_argument("--base-seed", type=int, help="seed of the PRNG the perturbations are folded from (default 0)")
     ap.add_argument("--seconds", type=float, help="record length [s] (default 50; quick 6)")
     ap.add_argument("--substeps", type=int, help="RK4 substeps per 1 ms (default 100; quick 10)")
-    ap.add_argument("--nperseg", type=int, help="Welch segment (default 8192; quick 1024)")
-    ap.add_argument("--noverlap", type=int, help="Welch overlap (default 6144; quick 768)")
-    ap.add_argument("--mhat", type=float, default=0.25, help="IMBIC gain, times the identity [kg]")
-    ap.add_argument("--locations", type=int, nargs="+", default=[1, 2, 3, 4], help="IMBIC arm locations")
-    ap.add_argument("--frictions", type=int, nargs="+", default=[0, 1, 2])
-    ap.add_argument("--perturbations", type=int, nargs="+", default=[1, 2, 3], help="PD perturbation levels")
-    ap.add_argument("--no-ablation", action="store_true", help="skip the interval-mean acquisition sweep")
+    ap.add_argument("--nperseg", type=int, help="Welch segment [samples] (default 8192; quick 1024)")
+    ap.add_argument("--noverlap", type=int, help="Welch overlap [samples] (default 6144; quick 768)")
+    ap.add_argument("--mhat", type=float, help="IMBIC gain, times the identity [kg] (default 0.25)")
+    ap.add_argument("--locations", type=int, nargs="+", help="IMBIC arm locations (default 1 2 3 4)")
+    ap.add_argument("--frictions", type=int, nargs="+", help="friction levels (default 0 1 2)")
+    ap.add_argument("--perturbations", type=int, nargs="+", help="PD perturbation levels (default 1 2 3)")
+    ap.add_argument("--no-ablation", action="store_true", default=None, help="skip the interval-mean acquisition")
     ap.add_argument("--max-input-coherence", type=float, help="redraw perturbations until below (paper: 0.4)")
-    ap.add_argument("--batch-size", type=int, default=48, help="trials per vmapped batch")
+    ap.add_argument("--batch-size", type=int, default=48, help="trials per vmapped batch (does not change results)")
     ap.add_argument("--out", type=pathlib.Path, help="output folder")
-    ap.add_argument("--resume", type=pathlib.Path, metavar="DIR", help="continue an interrupted run in DIR")
+    ap.add_argument("--resume", type=pathlib.Path, metavar="DIR", help="finish the run in DIR with its own settings")
     ap.add_argument("--replot", type=pathlib.Path, metavar="DIR", help="redraw figures and report from DIR")
     return ap.parse_args(argv)
 
 
-def check_choices(args):
-    for name, values, allowed in (
-        ("location", args.locations, (1, 2, 3, 4)),
-        ("friction", args.frictions, (0, 1, 2)),
-        ("perturbation", args.perturbations, (1, 2, 3)),
-    ):
-        bad = [v for v in values if v not in allowed]
+def requested(args) -> dict:
+    """The settings given on the command line (``--quick`` stands for its four)."""
+    out = dict(QUICK) if args.quick else {}
+    out |= {k: getattr(args, k) for k in SETTING_OPTIONS if getattr(args, k) is not None}
+    if args.no_ablation:
+        out["ablation"] = False
+    return out
+
+
+def check_args(args) -> None:
+    """Checks that need no simulation (run before JAX is imported)."""
+    modes = [name for name in ("out", "resume", "replot") if getattr(args, name) is not None]
+    if len(modes) > 1:
+        fail(f"give one of --out, --resume and --replot, not {' and '.join('--' + m for m in modes)}")
+    for name, allowed in LEVELS.items():
+        bad = [v for v in getattr(args, name) or () if v not in allowed]
         if bad:
-            raise ValueError(f"unknown {name} level(s) {bad}; allowed: {', '.join(map(str, allowed))}")
+            fail(f"unknown {name[:-1]} level(s) {bad}; allowed: {', '.join(map(str, allowed))}")
     if args.batch_size < 1:
-        raise ValueError(f"--batch-size must be >= 1, got {args.batch_size}")
-
-
-def settings_from(args, repro):
-    base = repro.QUICK if args.quick else repro.ReproSettings()
-    overrides = {
-        k: getattr(args, k) for k in ("seconds", "substeps", "nperseg", "noverlap") if getattr(args, k) is not None
-    }
-    return dataclasses.replace(
-        base,
-        seeds=args.seeds,
-        base_seed=args.base_seed,
-        mhat=args.mhat,
-        ablation=not args.no_ablation,
-        max_input_coherence=args.max_input_coherence,
-        **overrides,
-    )
+        fail(f"--batch-size must be >= 1, got {args.batch_size}")
+    if args.seeds is not None and args.seeds < 1:
+        fail(f"--seeds must be >= 1, got {args.seeds}")
+    for name in ("resume", "replot"):
+        folder = getattr(args, name)
+        if folder is not None and not folder.is_dir():
+            fail(f"--{name} {folder}: no such folder")
+    if args.replot is not None and requested(args):
+        fail("--replot redraws a finished run: it takes no simulation options")
 
 
 class ProgressBar:
@@ -94,75 +125,94 @@ class ProgressBar:
         self.stream.flush()
 
 
-def finish(repro, plots, report, out, *, complete):
-    results, arrays = repro.aggregate(out, complete=complete)
+def warn(message: str) -> None:
+    sys.stderr.write(f"{PROG}: warning: {message}\n")
+
+
+def finish(repro, plots, report, out):
+    results, arrays = repro.aggregate(out, warn=warn)
     figures = plots.all_figures(results, arrays, out)
     path = report.write_report(results, out, figures)
     return results, path
 
 
+def settings_for(args, repro):
+    """``(settings, out)``: from the command line, or for ``--resume`` from the run's
+    ``run.json`` (options given as well must agree with it)."""
+    from armimp_jax.results import ResultsError, describe_difference
+
+    asked = requested(args)
+    if args.resume is None:
+        out = args.out or pathlib.Path("results/paper-quick" if args.quick else "results/paper")
+        return repro.ReproSettings(**asked), out
+    saved = repro.saved_settings(args.resume)
+    wanted = dataclasses.replace(saved, **asked)
+    if wanted != saved:
+        raise ResultsError(
+            f"--resume {args.resume}: that run has {describe_difference(saved.run_settings(), wanted.run_settings())}; "
+            "drop those options to finish it, or start a new run with --out"
+        )
+    return saved, args.resume
+
+
 def main(argv=None):
     args = parse(argv)
+    check_args(args)
+    from armimp_jax.runtime import configure
+
     configure()
     from armimp_jax.paper import plots, report
     from armimp_jax.paper import reproduce as repro
-    from armimp_jax.paper.claims import paper_conditions
+    from armimp_jax.results import RunLock
 
     if args.replot:
-        results, arrays = repro.load_results(args.replot)
-        figures = plots.all_figures(results, arrays, args.replot)
-        print(f"redrew {len(figures)} figures and {report.write_report(results, args.replot, figures)}")
+        with RunLock(args.replot):
+            results, arrays = repro.load_results(args.replot)
+            figures = plots.all_figures(results, arrays, args.replot)
+            print(f"redrew {len(figures)} figures and {report.write_report(results, args.replot, figures)}")
         return 0
-    check_choices(args)
-    if args.resume:
-        out = args.resume
-        saved = json.loads((out / "run.json").read_text())["settings"]
-        settings = repro.ReproSettings(**saved)
-    else:
-        settings = settings_from(args, repro)
-        out = args.out or pathlib.Path("results/paper-quick" if args.quick else "results/paper")
+    settings, out = settings_for(args, repro)
     settings.validate()
-    repro.prepare_output(out, settings, resume=bool(args.resume))
-    conditions = paper_conditions(
-        ablation=settings.ablation,
-        locations=tuple(args.locations),
-        frictions=tuple(args.frictions),
-        perturbations=tuple(args.perturbations),
-    )
-    print(
-        f"{len(conditions)} conditions x {settings.seeds} seed(s), {settings.seconds:g} s records, "
-        f"{settings.substeps} substeps -> {out}",
-        flush=True,
-    )
-    start = time.perf_counter()
-    try:
-        repro.run_reproduction(
-            settings,
-            out,
-            conditions=conditions,
-            batch_size=args.batch_size,
-            chunk_seconds=min(5.0, settings.seconds),
-            progress=ProgressBar(),
+    with RunLock(out):
+        repro.prepare_output(out, settings, resume=args.resume is not None)
+        done, todo = repro.trial_status(settings, out, warn=warn)
+        print(
+            f"{len(settings.conditions)} conditions x {settings.seeds} seed(s), {settings.seconds:g} s records, "
+            f"{settings.substeps} substeps -> {out} ({len(done)} trials on disk, {len(todo)} to run)",
+            flush=True,
         )
-    except KeyboardInterrupt:
-        sys.stderr.write("\ninterrupted: finished trials are saved\n")
-        _, path = finish(repro, plots, report, out, complete=False)
-        print(f"partial report: {path}\nresume with: python sweeps/reproduce_paper.py --resume {out}")
-        return 130
-    wall = time.perf_counter() - start
-    run = json.loads((out / "run.json").read_text())
-    run["wall_s"] = (run.get("wall_s") or 0.0) + wall if args.resume else wall
-    (out / "run.json").write_text(json.dumps(run, indent=1))
-    results, path = finish(repro, plots, report, out, complete=True)
+        start = time.perf_counter()
+        try:
+            repro.run_reproduction(
+                settings,
+                out,
+                batch_size=args.batch_size,
+                chunk_seconds=min(5.0, settings.seconds),
+                progress=ProgressBar(),
+                warn=lambda _: None,  # the scan above named every record that failed its check
+            )
+        except KeyboardInterrupt:
+            repro.add_wall_time(out, time.perf_counter() - start)
+            sys.stderr.write("\ninterrupted: finished trials are saved\n")
+            _, path = finish(repro, plots, report, out)
+            print(f"partial report: {path}\nresume with: python sweeps/reproduce_paper.py --resume {out}")
+            return 130
+        wall = time.perf_counter() - start
+        repro.add_wall_time(out, wall)
+        results, path = finish(repro, plots, report, out)
     sys.stderr.write("\n")
     for c in results["claims"]:
-        print(f"  ({c['key']}) {c['verdict']:10s} {c['ours']}")
+        print(f"  ({c['key']}) {c['verdict']:10s} {c['ours']}\n      {'':10s} {c['robustness']}")
+    if results["diverged"]:
+        print(f"  {len(results['diverged'])} diverged trial(s) left out of the means and claims (see the report)")
+    if not results["complete"]:
+        print(f"  incomplete: {len(results['missing'])} trial(s) missing; --resume {out} to finish")
     print(f"done in {wall:.1f} s: {path}")
-    return 0
+    return 0 if results["complete"] else 1
 
 
 if __name__ == "__main__":
     try:
         sys.exit(main())
-    except ValueError as err:
-        sys.exit(f"error: {err}")
+    except ValueError as err:  # bad settings and ResultsError: one line, no traceback
+        fail(str(err))

@@ -2,167 +2,287 @@
 
     python sweeps/tune_mhat.py                     # 30 Adam steps on 16 s records, held-out eval at paper settings
     python sweeps/tune_mhat.py --quick             # a smoke run (tiny records, 3 steps)
-    python sweeps/tune_mhat.py --resume DIR        # continue from the last saved iteration
+    python sweeps/tune_mhat.py --resume DIR        # continue from the last saved iteration, with its settings
 
-Writes DIR/mhat.json (the tuned gain), DIR/loss_curve.png, DIR/comparison.md (phi_T of
-the tuned Mhat vs hand-picked ones on held-out seeds, every location and friction level)
-and the resumable optimiser state (DIR/tune_state.json/.npz). Default DIR: results/tune.
+Writes DIR/mhat.json (the tuned gain), DIR/loss_curve.png, DIR/comparison.md and .json
+(phi_T of the tuned Mhat vs hand-picked ones on held-out seeds, every location and
+friction level) and the resumable state DIR/tune_state.npz (one checked file holding the
+optimiser state and the settings that produced it). Default DIR: results/tune.
+
+A folder holds one tuning run: a command with the same training settings continues it
+(``--iterations`` may grow), one with other settings is refused, and so is a folder that
+another run is using (docs/results.md).
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import pathlib
+import shlex
 import sys
 import time
 
-from armimp_jax.runtime import configure
+PROG = "tune_mhat"
+STATE = "tune_state.npz"
+DEFAULTS = dict(
+    quick=False,
+    iterations=30,
+    lr=0.1,
+    parameterisation="diagonal",
+    mode="reverse",
+    start=0.25,
+    phi_ij_weight=0.0,
+    train_seconds=16.0,
+    train_substeps=20,
+    train_nperseg=4096,
+    train_seeds=2,
+    frictions=[1, 2],
+    eval_every=10,
+    eval_seeds=2,
+    compare=[0.25, 0.5, 1.0, 1.5],
+)
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (``tune_mhat: error: ...``, exit status 2)."""
+
+    def error(self, message):
+        fail(message)
+
+
+def fail(message: str):
+    sys.stderr.write(f"{PROG}: error: {message}\n")
+    sys.exit(2)
 
 
 def parse(argv):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--iterations", type=int, default=30)
-    ap.add_argument("--lr", type=float, default=0.1, help="Adam learning rate (in log-Mhat units)")
-    ap.add_argument("--parameterisation", choices=["diagonal", "full"], default="diagonal")
+    d = DEFAULTS
+    ap = Parser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", default=None, help="2.5 s records, 2 locations, at most 3 steps")
+    ap.add_argument(
+        "--iterations", type=int, help=f"Adam steps in all, resumed ones included (default {d['iterations']})"
+    )
+    ap.add_argument("--lr", type=float, help=f"Adam learning rate, in log-Mhat units (default {d['lr']})")
+    ap.add_argument("--parameterisation", choices=["diagonal", "full"], help="default diagonal")
     ap.add_argument(
         "--mode",
         choices=["forward", "reverse"],
-        default="reverse",
-        help="gradient mode (reverse: 2x faster than forward in bench_gradient.py)",
+        help="gradient mode (default reverse: 2x faster than forward in bench_gradient.py)",
     )
-    ap.add_argument("--start", type=float, default=0.25, help="starting Mhat, times the identity [kg]")
-    ap.add_argument("--phi-ij-weight", type=float, default=0.0)
-    ap.add_argument("--train-seconds", type=float, default=16.0)
-    ap.add_argument("--train-substeps", type=int, default=20)
-    ap.add_argument("--train-nperseg", type=int, default=4096)
-    ap.add_argument("--train-seeds", type=int, default=2)
-    ap.add_argument("--frictions", type=int, nargs="+", default=[1, 2], help="training friction levels")
-    ap.add_argument("--eval-every", type=int, default=10, help="held-out evaluation every N steps (0: off)")
-    ap.add_argument("--eval-seeds", type=int, default=2)
-    ap.add_argument(
-        "--compare",
-        type=float,
-        nargs="+",
-        default=[0.25, 0.5, 1.0, 1.5],
-        help="hand-picked Mhat values (times I) for the final table",
-    )
-    ap.add_argument("--out", type=pathlib.Path, default=None)
-    ap.add_argument("--resume", type=pathlib.Path, metavar="DIR")
+    ap.add_argument("--start", type=float, help=f"starting Mhat, times the identity [kg] (default {d['start']})")
+    ap.add_argument("--phi-ij-weight", type=float, help="weight of mean phi_ij in the loss (default 0)")
+    ap.add_argument("--train-seconds", type=float, help=f"training record length [s] (default {d['train_seconds']:g})")
+    ap.add_argument("--train-substeps", type=int, help=f"training RK4 substeps (default {d['train_substeps']})")
+    ap.add_argument("--train-nperseg", type=int, help=f"training Welch segment (default {d['train_nperseg']})")
+    ap.add_argument("--train-seeds", type=int, help=f"training perturbation seeds (default {d['train_seeds']})")
+    ap.add_argument("--frictions", type=int, nargs="+", help="training friction levels (default 1 2)")
+    ap.add_argument("--eval-every", type=int, help="held-out evaluation every N steps (0: off; default 10)")
+    ap.add_argument("--eval-seeds", type=int, help=f"held-out seeds (default {d['eval_seeds']})")
+    ap.add_argument("--compare", type=float, nargs="+", help="hand-picked Mhat values (times I) for the final table")
+    ap.add_argument("--out", type=pathlib.Path, help="output folder (default results/tune or results/tune-quick)")
+    ap.add_argument("--resume", type=pathlib.Path, metavar="DIR", help="continue the tuning run in DIR")
     return ap.parse_args(argv)
+
+
+def explicit(args) -> dict:
+    """The options given on the command line."""
+    return {k: getattr(args, k) for k in DEFAULTS if getattr(args, k) is not None}
+
+
+def check_args(args) -> None:
+    """Checks that need no simulation (run before JAX is imported)."""
+    if args.out is not None and args.resume is not None:
+        fail("give --out or --resume, not both")
+    if args.resume is not None and not args.resume.is_dir():
+        fail(f"--resume {args.resume}: no such folder")
+    for name, minimum in (("iterations", 0), ("train_substeps", 1), ("train_seeds", 1), ("eval_seeds", 1)):
+        value = getattr(args, name)
+        if value is not None and value < minimum:
+            fail(f"--{name.replace('_', '-')} must be >= {minimum}, got {value}")
+    if args.eval_every is not None and args.eval_every < 0:
+        fail(f"--eval-every must be >= 0, got {args.eval_every}")
+    for name in ("start", "train_seconds"):
+        value = getattr(args, name)
+        if value is not None and not value > 0:
+            fail(f"--{name.replace('_', '-')} must be > 0, got {value}")
+    if args.compare is not None and not all(v > 0 for v in args.compare):
+        fail(f"--compare values must be > 0 kg, got {args.compare}")
+    bad = [f for f in args.frictions or () if f not in (0, 1, 2)]
+    if bad:
+        fail(f"unknown friction level(s) {bad}; allowed: 0, 1, 2")
+
+
+def command_line(out: pathlib.Path, options: dict) -> str:
+    """The full command that resumes the run in ``out`` with ``options``."""
+    words = ["python", "sweeps/tune_mhat.py", "--resume", str(out)]
+    for k, v in options.items():
+        flag = "--" + k.replace("_", "-")
+        if isinstance(v, bool):
+            words += [flag] if v else []
+        elif isinstance(v, list):
+            words += [flag, *(f"{x:g}" if isinstance(x, float) else str(x) for x in v)]
+        else:
+            words += [flag, f"{v:g}" if isinstance(v, float) else str(v)]
+    return shlex.join(words)
+
+
+def setup(options: dict, tune, paper_tune, Welch):
+    """``(config, train, evals, locations, eval_every, settings)`` of a run with ``options``."""
+    import numpy as np
+
+    if options["quick"]:
+        # 20 substeps: fewer put RK4 near its stability limit on the stiff LuGre bristles
+        train = dict(seconds=2.5, substeps=20, welch=Welch(512, 384))
+        evals = dict(seconds=2.5, substeps=20, welch=Welch(512, 384))
+        iterations, eval_every, locations = min(options["iterations"], 3), 0, (1, 2)
+    else:
+        nperseg = options["train_nperseg"]
+        train = dict(
+            seconds=options["train_seconds"], substeps=options["train_substeps"], welch=Welch(nperseg, 3 * nperseg // 4)
+        )
+        evals = dict(seconds=50.0, substeps=100, welch=Welch())
+        iterations, eval_every, locations = options["iterations"], options["eval_every"], (1, 2, 3, 4)
+    config = tune.TuneConfig(
+        parameterisation=options["parameterisation"],
+        learning_rate=options["lr"],
+        iterations=iterations,
+        mode=options["mode"],
+        phi_ij_weight=options["phi_ij_weight"],
+        numerics=paper_tune.training_numerics(train["substeps"]),
+    )
+    settings = paper_tune.training_settings(
+        config,
+        frictions=options["frictions"],
+        locations=locations,
+        seeds=range(options["train_seeds"]),
+        seconds=train["seconds"],
+        welch=train["welch"],
+        start_mhat=options["start"] * np.eye(2),
+    )
+    return config, train, evals, locations, eval_every, settings
 
 
 def main(argv=None):
     args = parse(argv)
+    check_args(args)
+    from armimp_jax.runtime import configure
+
     configure()
     import numpy as np
 
     from armimp_jax import Welch, tune
     from armimp_jax.paper import tune as paper_tune
+    from armimp_jax.results import (
+        ResultsError,
+        RunLock,
+        atomic_write_json,
+        atomic_write_text,
+        describe_difference,
+        load_record,
+        settings_key,
+    )
 
-    if args.quick:
-        # 20 substeps: fewer put RK4 near its stability limit on the stiff LuGre bristles
-        train = dict(seconds=2.5, substeps=20, welch=Welch(512, 384))
-        evals = dict(seconds=2.5, substeps=20, welch=Welch(512, 384))
-        args.iterations, args.eval_every = min(args.iterations, 3), 0
-        locations = (1, 2)
-    else:
-        train = dict(
-            seconds=args.train_seconds,
-            substeps=args.train_substeps,
-            welch=Welch(args.train_nperseg, 3 * args.train_nperseg // 4),
-        )
-        evals = dict(seconds=50.0, substeps=100, welch=Welch())
-        locations = (1, 2, 3, 4)
     out = args.resume or args.out or pathlib.Path("results/tune-quick" if args.quick else "results/tune")
-    out.mkdir(parents=True, exist_ok=True)
-    config = tune.TuneConfig(
-        parameterisation=args.parameterisation,
-        learning_rate=args.lr,
-        iterations=args.iterations,
-        mode=args.mode,
-        phi_ij_weight=args.phi_ij_weight,
-        numerics=paper_tune.training_numerics(train["substeps"]),
-    )
-    train["welch"].check(int(train["seconds"] * 1000))
-    params, f_delta = paper_tune.training_batch(
-        tuple(args.frictions), locations, tuple(range(args.train_seeds)), seconds=train["seconds"]
-    )
-    state_path = out / "tune_state"
-    state = tune.load_state(state_path, config) if args.resume else None
-    eval_seeds = tuple(range(args.eval_seeds))
+    with RunLock(out):
+        state_path = out / STATE
+        saved = None
+        if state_path.exists():
+            try:
+                saved = load_record(state_path)
+            except ResultsError as err:
+                raise ResultsError(f"{err}; delete it to start over") from None
+        elif args.resume is not None:
+            raise ResultsError(f"--resume {out}: holds no tuning state ({STATE})")
+        options = DEFAULTS | (saved.meta.get("options", {}) if saved and args.resume else {}) | explicit(args)
+        config, train, evals, locations, eval_every, settings = setup(options, tune, paper_tune, Welch)
+        train["welch"].check(int(train["seconds"] * 1000))
+        state = None
+        if saved is not None:
+            if saved.key != settings_key(settings):
+                diff = describe_difference(saved.settings, settings)
+                if args.resume is not None:
+                    raise ResultsError(
+                        f"--resume {out}: that run has {diff}; drop those options to continue it, or use a new --out"
+                    )
+                raise ResultsError(f"{out} holds a tuning run with {diff}: use another --out, or --resume {out}")
+            state = tune.load_state(state_path, settings, config)
+            print(f"continuing the tuning run in {out} from iteration {state.iteration}", flush=True)
+        params, f_delta = paper_tune.training_batch(
+            tuple(options["frictions"]), locations, tuple(range(options["train_seeds"])), seconds=train["seconds"]
+        )
+        eval_seeds = tuple(range(options["eval_seeds"]))
 
-    def evaluate(iteration, theta):
-        mhat = np.asarray(tune.mhat_from_theta(theta, config.parameterisation))
-        phi = paper_tune.heldout_phi(
-            {"current": mhat},
+        def evaluate(iteration, theta):
+            mhat = np.asarray(tune.mhat_from_theta(theta, config.parameterisation))
+            phi = paper_tune.heldout_phi(
+                {"current": mhat},
+                locations=locations,
+                seeds=eval_seeds,
+                seconds=evals["seconds"],
+                substeps=evals["substeps"],
+                welch=evals["welch"],
+            )
+            return dict(mean_phi_T=float(phi["current"].mean()), diverged=bool(phi["_diverged"]))
+
+        def log(rec):
+            keep = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in rec.items() if k != "phi_T"}
+            print(json.dumps(keep), flush=True)
+
+        def save(st):
+            tune.save_state(state_path, st, settings, meta=dict(options=options))
+
+        print(
+            f"training on {params.q0.shape[0]} trials of {train['seconds']:g} s ({train['substeps']} substeps), "
+            f"{config.mode}-mode gradients -> {out}",
+            flush=True,
+        )
+        start = time.perf_counter()
+        theta0 = tune.theta_from_mhat(options["start"] * np.eye(2), config.parameterisation)
+        try:
+            state = tune.tune(
+                theta0,
+                params,
+                f_delta,
+                train["welch"],
+                config,
+                state=state,
+                log=log,
+                on_iteration=save,
+                evaluate=evaluate,
+                eval_every=eval_every,
+            )
+        except KeyboardInterrupt:
+            print(f"interrupted; resume with:\n  {command_line(out, options)}")
+            return 130
+        save(state)
+        mhat = np.asarray(tune.mhat_from_theta(state.theta, config.parameterisation))
+        atomic_write_json(
+            out / "mhat.json",
+            dict(
+                mhat=mhat,
+                settings=settings,
+                key=settings_key(settings),
+                iterations=state.iteration,
+                train_loss=state.value,
+                train_s=time.perf_counter() - start,
+            ),
+        )
+        from armimp_jax.paper.plots import loss_curve
+
+        loss_curve(state.history.records(), out / "loss_curve.png")
+        candidates = {"tuned": mhat} | {f"{v:g} I": v * np.eye(2) for v in options["compare"]}
+        table = paper_tune.heldout_phi(
+            candidates,
             locations=locations,
             seeds=eval_seeds,
             seconds=evals["seconds"],
             substeps=evals["substeps"],
             welch=evals["welch"],
         )
-        return dict(mean_phi_T=float(phi["current"].mean()), diverged=bool(phi["_diverged"]))
-
-    def log(rec):
-        keep = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in rec.items() if k != "phi_T"}
-        print(json.dumps(keep), flush=True)
-
-    print(
-        f"training on {params.q0.shape[0]} trials of {train['seconds']:g} s ({train['substeps']} substeps), "
-        f"{config.mode}-mode gradients -> {out}",
-        flush=True,
-    )
-    start = time.perf_counter()
-    theta0 = tune.theta_from_mhat(args.start * np.eye(2), config.parameterisation)
-    try:
-        state = tune.tune(
-            theta0,
-            params,
-            f_delta,
-            train["welch"],
-            config,
-            state=state,
-            log=log,
-            on_iteration=lambda st: tune.save_state(state_path, st, config),
-            evaluate=evaluate,
-            eval_every=args.eval_every,
-        )
-    except KeyboardInterrupt:
-        print(f"interrupted; resume with: python sweeps/tune_mhat.py --resume {out}")
-        return 130
-    tune.save_state(state_path, state, config)
-    mhat = np.asarray(tune.mhat_from_theta(state["theta"], config.parameterisation))
-    (out / "mhat.json").write_text(
-        json.dumps(
-            dict(
-                mhat=mhat.tolist(),
-                config=dataclasses.asdict(config),
-                train_loss=state["value"],
-                train_s=time.perf_counter() - start,
-            ),
-            indent=1,
-        )
-    )
-    from armimp_jax.paper.plots import loss_curve
-
-    loss_curve(state["history"], out / "loss_curve.png")
-    candidates = {"tuned": mhat} | {f"{v:g} I": v * np.eye(2) for v in args.compare}
-    table = paper_tune.heldout_phi(
-        candidates,
-        locations=locations,
-        seeds=eval_seeds,
-        seconds=evals["seconds"],
-        substeps=evals["substeps"],
-        welch=evals["welch"],
-    )
-    md = paper_tune.comparison_markdown(table, mhat, locations=locations, evals=evals, seeds=eval_seeds)
-    (out / "comparison.md").write_text(md)
-    (out / "comparison.json").write_text(
-        json.dumps({k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in table.items()}, indent=1)
-    )
+        md = paper_tune.comparison_markdown(table, mhat, locations=locations, evals=evals, seeds=eval_seeds)
+        atomic_write_text(out / "comparison.md", md)
+        atomic_write_json(out / "comparison.json", table | dict(best=paper_tune.best_candidate(table)))
     print(md)
     print(f"tuned Mhat = {np.round(mhat, 4).tolist()} kg; done in {time.perf_counter() - start:.0f} s")
     return 0
@@ -171,5 +291,5 @@ def main(argv=None):
 if __name__ == "__main__":
     try:
         sys.exit(main())
-    except ValueError as err:
-        sys.exit(f"error: {err}")
+    except ValueError as err:  # bad settings and ResultsError: one line, no traceback
+        fail(str(err))

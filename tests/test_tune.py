@@ -1,23 +1,40 @@
-"""Gradients of phi_T w.r.t. Mhat (both modes vs finite differences) and the tuner's guard."""
+"""Gradients of phi_T w.r.t. Mhat (both modes vs finite differences), the tuner's guard, and its
+saved state (one checked file that matches its settings)."""
 
+import importlib.util
 import json
 import os
 import pathlib
+import re
+import shlex
 import subprocess
 import sys
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 
 import armimp_jax as aj
 from armimp_jax import Welch, tune
 from armimp_jax import paper as presets
+from armimp_jax import results as res
 from armimp_jax._batch import make_mesh
 from armimp_jax.paper import tune as paper_tune
 
 WELCH = Welch(512, 384)
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "sweeps" / "tune_mhat.py"
+
+
+def strict_loads(text):
+    def refuse(token):
+        raise AssertionError(f"non-standard JSON constant {token}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
 NUM = paper_tune.training_numerics(4)  # the tuner's: "grad" kernel, a carry per substep on the tape
 
 
@@ -104,9 +121,9 @@ def test_short_tuning_run_lowers_the_loss_from_a_poor_start():
     state = tune.tune(
         tune.theta_from_mhat(1.5 * np.eye(2), "diagonal"), params, f_delta, WELCH, config, log=logs.append
     )
-    losses = [h["loss"] for h in state["history"] if "loss" in h]
+    losses = state.history.loss[state.history.accepted]
     assert len(losses) >= 3 and losses[-1] < losses[0]
-    assert np.all(np.diag(tune.mhat_from_theta(state["theta"], "diagonal")) < 1.5)
+    assert np.all(np.diag(tune.mhat_from_theta(state.theta, "diagonal")) < 1.5)
 
 
 def test_divergence_guard_on_unstable_start_and_on_unstable_steps(tmp_path):
@@ -118,10 +135,13 @@ def test_divergence_guard_on_unstable_start_and_on_unstable_steps(tmp_path):
         tune.theta_from_mhat(40.0 * np.eye(2), "diagonal"), params, f_delta, WELCH, config, log=logs.append
     )
     assert any(r.get("event") == "start diverged" for r in logs)
-    assert np.isfinite(state["value"])
+    assert np.isfinite(state.value)
     # steps that land on unstable gains (a deliberately huge ascent step) are rejected, not taken
     logs.clear()
     config = tune.TuneConfig(learning_rate=-6.0, iterations=2, numerics=NUM)
+    settings = dict(tuner=tune.config_settings(config), problem="friction 1, location 1, seed 0")
+    path = tmp_path / "state.npz"
+    saved = []
     state = tune.tune(
         tune.theta_from_mhat(0.3 * np.eye(2), "diagonal"),
         params,
@@ -129,16 +149,16 @@ def test_divergence_guard_on_unstable_start_and_on_unstable_steps(tmp_path):
         WELCH,
         config,
         log=logs.append,
-        on_iteration=lambda st: tune.save_state(tmp_path / "s", st, config),
+        on_iteration=lambda st: saved.append(tune.save_state(path, st, settings)),
     )
     rejected = [r for r in logs if str(r.get("event", "")).startswith("rejected")]
-    assert rejected and state["rejected"] >= 1 and state["step_scale"] < 1.0
-    assert np.all(np.isfinite(np.asarray(state["theta"]))) and np.isfinite(state["value"])
-    # ...and the saved state resumes where it stopped
-    tune.save_state(tmp_path / "s", state, config)
-    again = tune.load_state(tmp_path / "s", config)
-    np.testing.assert_array_equal(again["theta"], state["theta"])
-    assert again["iteration"] == state["iteration"] and again["history"] == state["history"]
+    assert rejected and state.rejected >= 1 and state.step_scale < 1.0
+    assert np.all(np.isfinite(np.asarray(state.theta))) and np.isfinite(state.value)
+    assert rejected[-1] == state.history.record(-1) and not state.history.accepted[-1]
+    # ...every iteration, rejected ones too, was saved, and the state resumes where it stopped
+    assert len(saved) == 1 + state.iteration
+    again = tune.load_state(path, settings, config)
+    jax.tree.map(np.testing.assert_array_equal, again, state)  # NaN (rejected rows) equal to NaN
 
 
 SHARDED_GRADIENT = """
@@ -147,6 +167,7 @@ from armimp_jax.runtime import configure
 configure(host_devices=3)
 import jax, numpy as np
 from armimp_jax import Welch, tune
+from armimp_jax import results as res
 from armimp_jax.paper import tune as paper_tune
 params, f_delta = paper_tune.training_batch((0, 2), (1,), (0,), seconds=1.6)
 NUM = paper_tune.training_numerics(4)
@@ -174,7 +195,7 @@ config = tune.TuneConfig(learning_rate=0.1, iterations=2, numerics=NUM)
 logs = []
 with jax.log_compiles():
     state = tune.tune(theta, params, f_delta, Welch(512, 384), config, log=logs.append)
-out["tune"] = dict(compiles=len(compiled), steps=state["iteration"], first=logs[0])
+out["tune"] = dict(compiles=len(compiled), steps=state.iteration, first=logs[0])
 print(json.dumps(out))
 """
 
@@ -246,10 +267,135 @@ def test_tune_script_quick_produces_its_outputs(tmp_path):
         timeout=900,
     )
     assert proc.returncode == 0, proc.stderr
-    mhat = np.array(json.loads((tmp_path / "mhat.json").read_text())["mhat"])
+    mhat = np.array(strict_loads((tmp_path / "mhat.json").read_text())["mhat"])
     assert mhat.shape == (2, 2) and np.all(np.linalg.eigvalsh(mhat) > 0)
-    for name in ("loss_curve.png", "comparison.md", "comparison.json", "tune_state.json", "tune_state.npz"):
+    for name in ("loss_curve.png", "comparison.md", "comparison.json", "tune_state.npz"):
         assert (tmp_path / name).stat().st_size > 0, name
+    assert strict_loads((tmp_path / "comparison.json").read_text())["best"] in ("tuned", "0.25 I")
     assert "| tuned |" in (tmp_path / "comparison.md").read_text()
+    state = res.load_record(tmp_path / "tune_state.npz")
+    assert state.settings["tuner"]["parameterisation"] == "diagonal" and state.meta["options"]["quick"]
     # two host devices (runtime.configure keeps a count that is set): 8 training trials span both
     assert '"event": "training batch", "trials": 8, "devices": 2' in proc.stdout
+
+
+# --- the saved state: a checked pytree that matches its settings -----------------------------
+
+
+@pytest.fixture(scope="module")
+def script():
+    """sweeps/tune_mhat.py as a module (its top level imports the standard library only)."""
+    spec = importlib.util.spec_from_file_location("tune_mhat", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _fake_state(parameterisation="diagonal", n_trials=2):
+    """A TuneState after one accepted and one rejected step, built without simulating."""
+    theta = tune.theta_from_mhat(0.25 * np.eye(2), parameterisation)
+    grad = jnp.full(theta.shape, 0.5)
+    opt_state = optax.adam(0.1).update(grad, optax.adam(0.1).init(theta), theta)[1]
+    history = (
+        tune.History.empty(n_trials)
+        .append(iteration=0, accepted=True, loss=800.0, grad_norm=1.0, mhat=0.25 * np.eye(2), step_scale=1.0,
+                time_s=2.0, phi_T=[700.0, 900.0])
+        .append(iteration=1, accepted=False, mhat=9 * np.eye(2), step_scale=0.5, time_s=0.5)
+    )  # fmt: skip
+    return tune.TuneState(theta, opt_state, grad, 800.0, 1, 0.5, 1, history)
+
+
+def test_state_is_a_pytree_saved_in_one_checked_file(tmp_path):
+    state, config = _fake_state(), tune.TuneConfig()
+    settings = dict(tuner=tune.config_settings(config), training="test")
+    path = tmp_path / "state.npz"
+    tune.save_state(path, state, settings)
+    assert [p.name for p in tmp_path.iterdir()] == ["state.npz"]
+    again = tune.load_state(path, settings, config)
+    assert jax.tree.structure(again) == jax.tree.structure(state)
+    jax.tree.map(np.testing.assert_array_equal, again, state)
+    assert again.history.records() == state.history.records()
+    assert [r["event"] for r in again.history.records()] == ["start", "rejected: diverged or non-finite"]
+    # iterations is not a setting: a run may be resumed with a larger budget
+    assert tune.config_settings(tune.TuneConfig(iterations=99)) == tune.config_settings(config)
+
+
+def test_state_with_other_settings_is_refused_in_one_line(tmp_path):
+    # The defect: resuming with another --parameterisation ran, rejected every step and
+    # printed a NaN table.
+    path = tmp_path / "state.npz"
+    config = tune.TuneConfig()
+    tune.save_state(path, _fake_state(), dict(tuner=tune.config_settings(config)))
+    full = tune.TuneConfig(parameterisation="full", learning_rate=0.3)
+    with pytest.raises(res.ResultsError) as err:
+        tune.load_state(path, dict(tuner=tune.config_settings(full)), full)
+    message = str(err.value)
+    assert "\n" not in message and str(path) in message
+    assert "tuner.learning_rate=0.1 (you asked 0.3), tuner.parameterisation=diagonal (you asked full)" in message
+    with pytest.raises(ValueError, match="the state has 2 parameters; parameterisation 'full' has 3"):
+        tune.tune(None, None, None, WELCH, full, state=_fake_state())
+
+
+def test_torn_or_altered_state_is_named(tmp_path):
+    path = tmp_path / "state.npz"
+    config = tune.TuneConfig()
+    settings = dict(tuner=tune.config_settings(config))
+    tune.save_state(path, _fake_state(), settings)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 3])
+    with pytest.raises(res.ResultsError, match=re.escape(f"{path}: unreadable, truncated")):
+        tune.load_state(path, settings, config)
+    path.write_bytes(data)
+    with np.load(path) as d:
+        entries = {k: d[k] for k in d.files}
+    entries["theta"] = entries["theta"] + 1.0
+    np.savez(path, **entries)
+    with pytest.raises(res.ResultsError, match="checksum mismatch"):
+        tune.load_state(path, settings, config)
+
+
+def test_nan_is_never_the_lowest_candidate():
+    table = {
+        "tuned": np.full((1, 2, 1), np.nan),
+        "0.25 I": np.full((1, 2, 1), 700.0),
+        "huge": np.full((1, 2, 1), 1.0),
+        "_diverged": ["tuned", "huge"],
+    }
+    assert paper_tune.best_candidate(table) == "0.25 I"
+    evals = dict(seconds=2.5, substeps=20, welch=WELCH)
+    md = paper_tune.comparison_markdown(table, 0.25 * np.eye(2), locations=(1, 2), evals=evals, seeds=(0,))
+    assert "Lowest mean phi_T: **0.25 I**" in md and "| tuned (diverged) | — | — | — |" in md
+    table["0.25 I"][0, 0, 0] = np.nan
+    assert paper_tune.best_candidate(table) is None
+    md = paper_tune.comparison_markdown(table, 0.25 * np.eye(2), locations=(1, 2), evals=evals, seeds=(0,))
+    assert "Lowest mean phi_T: none" in md
+
+
+def test_resume_hint_is_the_full_command(script):
+    options = script.DEFAULTS | dict(lr=0.3, parameterisation="full", frictions=[2], quick=True)
+    line = script.command_line(pathlib.Path("out dir"), options)
+    argv = shlex.split(line)
+    assert argv[:4] == ["python", "sweeps/tune_mhat.py", "--resume", "out dir"]
+    assert script.explicit(script.parse(argv[2:])) == options
+
+
+def _run_tune_script(*args):
+    return subprocess.run(
+        [sys.executable, str(SCRIPT), *args], capture_output=True, text=True, env=CPU_ENV, timeout=300
+    )
+
+
+def test_script_resume_refuses_other_settings_and_a_torn_state_in_one_line(tmp_path, script):
+    options = script.DEFAULTS | dict(quick=True)
+    config, *_, settings = script.setup(options, tune, paper_tune, Welch)
+    tune.save_state(tmp_path / script.STATE, _fake_state(), settings, meta=dict(options=options))
+    proc = _run_tune_script("--resume", str(tmp_path), "--parameterisation", "full")
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+    assert proc.stderr.startswith(f"tune_mhat: error: --resume {tmp_path}: that run has tuner.parameterisation=")
+    data = (tmp_path / script.STATE).read_bytes()
+    (tmp_path / script.STATE).write_bytes(data[:100])
+    proc = _run_tune_script("--resume", str(tmp_path))
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+    assert (
+        f"{tmp_path / script.STATE}: unreadable, truncated" in proc.stderr and "delete it to start over" in proc.stderr
+    )

@@ -1,17 +1,28 @@
-"""The paper's two experiments as data, per-trial summary metrics, and the claims (a)-(f).
+"""The paper's two experiments as data, per-trial summary metrics, seed statistics, and the
+claims (a)-(f).
 
 Spec section 12. A *condition* fixes controller, location, friction level, perturbation
 level and acquisition; a *trial* is a condition plus a seed. The claims are judged from
 numbers by explicit, documented thresholds (``CLAIM_RULES``), never by hand, so a
 report can be regenerated from saved results and the rules can be tested on synthetic
 numbers.
+
+The paper ran one trial per condition; we run several seeds. ``condition_summary``
+averages each metric over the seeds whose trial did not diverge (with the sample standard
+deviation and the 95% t-interval of the mean); a diverged trial is counted and left out.
+``evaluate_claims`` judges each claim on those means, then again on every seed alone,
+and gives each threshold comparison the 95% t-interval of its quantity over the seeds:
+a verdict is *robust* when every seed gives it and every relevant interval lies on the
+side of its threshold that the verdict says.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import stats
 
 from .._metrics import largest_singular_value
 from ._presets import arm
@@ -81,9 +92,82 @@ def trial_metrics(f, Z, est_arrays: dict, location: int) -> dict:
     return m
 
 
+# --- Seed statistics ----------------------------------------------------------------------
+CI_LEVEL = 0.95  # two-sided level of every interval in the report
+
+
+def mean_ci(values, level: float = CI_LEVEL):
+    """Mean, sample standard deviation and half-width of the t-interval of the mean of
+    ``values`` along axis 0 (elementwise for arrays; ``n - 1`` degrees of freedom).
+
+    Returns ``(mean, sd, half)``; ``half`` is ``None`` for fewer than two values (one seed
+    gives no interval), ``mean`` and ``sd`` are NaN for none.
+    """
+    v = np.asarray(values, dtype=float)
+    n = v.shape[0]
+    if n == 0:
+        nan = np.full(v.shape[1:], np.nan)
+        return nan, nan, None
+    mean = v.mean(axis=0)
+    if n == 1:
+        return mean, np.zeros_like(mean), None
+    sd = v.std(axis=0, ddof=1)
+    return mean, sd, stats.t.ppf(0.5 + level / 2, n - 1) * sd / np.sqrt(n)
+
+
+def _plain(x):
+    if x is None:
+        return None
+    x = np.asarray(x, dtype=float)
+    return float(x) if x.ndim == 0 else x.tolist()
+
+
+def condition_summary(metas: list[dict]) -> dict:
+    """``Condition -> stats`` over the trials of each condition that did not diverge.
+
+    ``metas`` are trial records (``condition``, ``seed``, ``diverged``, ``metrics``). For
+    every metric ``m`` of ``trial_metrics``: ``m`` (mean), ``m_sd`` (sample standard
+    deviation), ``m_ci`` (half-width of the 95% t-interval of the mean; ``None`` with fewer
+    than two trials); and ``n`` (trials averaged), ``trials``, ``diverged`` (count),
+    ``seeds`` and ``diverged_seeds``. A condition whose every trial diverged has ``n = 0``
+    and NaN metrics.
+    """
+    by_cond: dict[Condition, list] = {}
+    for m in metas:
+        by_cond.setdefault(Condition(**m["condition"]), []).append(m)
+    out = {}
+    for cond, group in sorted(by_cond.items()):
+        good = [g for g in group if not g["diverged"]]
+        agg: dict = {}
+        for k in group[0]["metrics"]:
+            mean, sd, half = mean_ci(
+                [g["metrics"][k] for g in good] or np.empty((0,) + np.shape(group[0]["metrics"][k]))
+            )
+            agg[k], agg[k + "_sd"], agg[k + "_ci"] = _plain(mean), _plain(sd), _plain(half)
+        agg |= dict(
+            n=len(good),
+            trials=len(group),
+            diverged=len(group) - len(good),
+            seeds=sorted(g["seed"] for g in good),
+            diverged_seeds=sorted(g["seed"] for g in group if g["diverged"]),
+        )
+        out[cond] = agg
+    return out
+
+
+def seed_summaries(metas: list[dict]) -> dict[int, dict[Condition, dict]]:
+    """``seed -> {Condition: metrics}`` of the trials that did not diverge (each seed alone)."""
+    out: dict[int, dict] = {}
+    for m in metas:
+        if not m["diverged"]:
+            out.setdefault(m["seed"], {})[Condition(**m["condition"])] = m["metrics"]
+    return dict(sorted(out.items()))
+
+
 # --- Claims -----------------------------------------------------------------------------
 # Each rule reads condition means of the instant-acquisition trials. "Reproduced" needs
-# every part of a claim, "partly" some, "not" none.
+# every part of a claim, "partly" some, "not" none; for (d) and (f) "partly" is a looser
+# second threshold.
 CLAIM_RULES = {
     "a": "PD, friction 0: median multiple coherence (x and F_h) >= 0.95, and phi_T <= 10% of mean ||Z_h||",
     "b": "PD, friction 1-2: min multiple coherence of x below 2 Hz <= 0.5; phi_T >= 5x the frictionless value; "
@@ -106,112 +190,305 @@ CLAIM_TEXT = {
     "f": "IMBIC: no noticeable change across the four arm locations",
 }
 
+# The conditions each claim reads (to say which all-diverged ones it had to leave out).
+CLAIM_READS: dict[str, Callable[[Condition], bool]] = {
+    "a": lambda c: c.experiment == "pd" and c.friction == 0,
+    "b": lambda c: c.experiment == "pd",
+    "c": lambda c: c.experiment == "pd" and c.friction > 0 and c.perturbation in (1, 3),
+    "d": lambda c: c.experiment == "imbic",
+    "e": lambda c: c.experiment == "imbic" or (c.experiment == "pd" and c.perturbation == 1 and c.friction > 0),
+    "f": lambda c: c.experiment == "imbic",
+}
 
-@dataclass
-class Claim:
-    key: str
-    claim: str
-    rule: str
+_OPS = {">=": np.greater_equal, "<=": np.less_equal, ">": np.greater, "<": np.less}
+
+
+def _compare(value, op: str, threshold: float) -> bool:
+    return bool(np.isfinite(value) and _OPS[op](value, threshold))
+
+
+@dataclass(frozen=True)
+class Part:
+    """One threshold comparison of a claim: ``value op threshold``."""
+
+    label: str
+    value: float
+    op: str
+    threshold: float
+
+    @property
+    def holds(self) -> bool:
+        return _compare(self.value, self.op, self.threshold)
+
+
+@dataclass(frozen=True)
+class Judgement:
+    """A claim's quantities on one summary: the text and the threshold comparisons.
+    ``tiered``: reproduced when ``parts[0]`` holds, partly when ``parts[1]`` does."""
+
     ours: str
-    verdict: str  # "reproduced", "partly", "not", or "n/a" (conditions missing)
+    parts: tuple[Part, ...]
+    tiered: bool = False
+
+    @property
+    def verdict(self) -> str:
+        ok = [p.holds for p in self.parts]
+        if self.tiered:
+            return "reproduced" if ok[0] else ("partly" if ok[1] else "not")
+        return "reproduced" if all(ok) else ("partly" if any(ok) else "not")
+
+    @property
+    def deciding(self) -> tuple[int, ...]:
+        """Indices of the parts whose outcome fixes the verdict."""
+        if self.tiered and self.parts[0].holds:
+            return (0,)
+        return tuple(range(len(self.parts)))
 
 
-def _verdict(parts: list[bool]) -> str:
-    return "reproduced" if all(parts) else ("partly" if any(parts) else "not")
+Get = Callable[[str, int, int, int], "dict | None"]
 
 
-def evaluate_claims(summary: dict) -> list[Claim]:
-    """Judge claims (a)-(f) from condition means.
+def _judge_a(get: Get) -> Judgement | None:
+    pd0 = [m for m in (get("pd", 1, 0, p) for p in (1, 2, 3)) if m]
+    if not pd0:
+        return None
+    coh = min(min(m["coh_multiple_x_median"], m["coh_multiple_fh_median"]) for m in pd0)
+    rel = max(m["rel_error"] for m in pd0)
+    return Judgement(
+        f"median multiple coherence >= {coh:.3f}; phi_T = {100 * rel:.1f}% of mean ||Z_h|| (worst level)",
+        (Part("lowest median multiple coherence", coh, ">=", 0.95), Part("phi_T / mean ||Z_h||", rel, "<=", 0.10)),
+    )
 
-    ``summary`` maps ``Condition`` -> dict of mean metrics (the keys of ``trial_metrics``).
-    Only instant-acquisition conditions are read. A claim whose conditions are missing
-    gets verdict ``"n/a"``.
-    """
-    s = {c: m for c, m in summary.items() if c.acquisition == "instant"}
 
-    def get(exp, loc, fr, pert):
-        return s.get(Condition(exp, exp, loc, fr, pert))
+def _judge_b(get: Get) -> Judgement | None:
+    pdf = [(p, m) for fr in (1, 2) for p in (1, 2, 3) if (m := get("pd", 1, fr, p))]
+    base = {p: m for p in (1, 2, 3) if (m := get("pd", 1, 0, p))}
+    if not pdf or not base:
+        return None
+    coh_low = max(m["coh_multiple_x_min_low"] for _, m in pdf)
+    ratios = [m["phi_T"] / base[p]["phi_T"] for p, m in pdf if p in base]
+    phase = min(m["phase_error_deg"] for _, m in pdf)
+    parts = [Part("highest min coherence below 2 Hz", coh_low, "<=", 0.5)]
+    text = f"min coherence below 2 Hz <= {coh_low:.2f}; "
+    if ratios:
+        parts.append(Part("smallest phi_T / frictionless", min(ratios), ">=", 5.0))
+        text += f"phi_T {min(ratios):.1f}-{max(ratios):.1f}x frictionless; "
+    parts.append(Part("smallest phase error [deg]", phase, ">=", 20.0))
+    return Judgement(text + f"phase error >= {phase:.0f} deg", tuple(parts))
 
-    claims = []
 
-    def add(key, ours, parts):
-        claims.append(Claim(key, CLAIM_TEXT[key], CLAIM_RULES[key], ours, _verdict(parts) if parts else "n/a"))
+def _judge_c(get: Get) -> Judgement | None:
+    ratios = {fr: b["phi_T"] / a["phi_T"] for fr in (1, 2) if (a := get("pd", 1, fr, 1)) and (b := get("pd", 1, fr, 3))}
+    if not ratios:
+        return None
+    return Judgement(
+        "phi_T(level 3) / phi_T(level 1): " + ", ".join(f"{r:.2f} at friction {fr}" for fr, r in ratios.items()),
+        tuple(Part(f"phi_T(3) / phi_T(1) at friction {fr}", r, ">=", 2 / 3) for fr, r in ratios.items()),
+    )
 
-    pd0 = [get("pd", 1, 0, p) for p in (1, 2, 3)]
-    pd0 = [m for m in pd0 if m]
-    if pd0:
-        coh = min(min(m["coh_multiple_x_median"], m["coh_multiple_fh_median"]) for m in pd0)
-        rel = max(m["rel_error"] for m in pd0)
-        add(
-            "a",
-            f"median multiple coherence >= {coh:.3f}; phi_T = {100 * rel:.1f}% of mean ||Z_h|| (worst level)",
-            [coh >= 0.95, rel <= 0.10],
-        )
-    else:
-        add("a", "conditions missing", [])
 
-    pdf = [(fr, p, get("pd", 1, fr, p)) for fr in (1, 2) for p in (1, 2, 3)]
-    pdf = [(fr, p, m) for fr, p, m in pdf if m]
-    if pdf and pd0:
-        coh_low = max(m["coh_multiple_x_min_low"] for _, _, m in pdf)
-        base = {p: get("pd", 1, 0, p) for p in (1, 2, 3)}
-        ratios = [m["phi_T"] / base[p]["phi_T"] for _, p, m in pdf if base.get(p)]
-        phase = min(m["phase_error_deg"] for _, _, m in pdf)
-        add(
-            "b",
-            f"min coherence below 2 Hz <= {coh_low:.2f}; phi_T {min(ratios):.1f}-{max(ratios):.1f}x "
-            f"frictionless; phase error >= {phase:.0f} deg",
-            [coh_low <= 0.5, min(ratios) >= 5.0, phase >= 20.0],
-        )
-    else:
-        add("b", "conditions missing", [])
+def _imbic(get: Get) -> dict:
+    return {(loc, fr): m for loc in (1, 2, 3, 4) for fr in (0, 1, 2) if (m := get("imbic", loc, fr, 1))}
 
-    pairs = [(fr, get("pd", 1, fr, 1), get("pd", 1, fr, 3)) for fr in (1, 2)]
-    ratios_c = {fr: b["phi_T"] / a["phi_T"] for fr, a, b in pairs if a and b}
-    if ratios_c:
-        add(
-            "c",
-            "phi_T(level 3) / phi_T(level 1): " + ", ".join(f"{r:.2f} at friction {fr}" for fr, r in ratios_c.items()),
-            [r >= 2 / 3 for r in ratios_c.values()],
-        )
-    else:
-        add("c", "conditions missing", [])
 
-    im = {(loc, fr): get("imbic", loc, fr, 1) for loc in (1, 2, 3, 4) for fr in (0, 1, 2)}
-    im = {k: v for k, v in im.items() if v}
-    if im:
-        worst_min = min(min(m["coh_multiple_x_min_low"], m["coh_multiple_x_min_high"]) for m in im.values())
-        worst_med = min(m["coh_multiple_x_median"] for m in im.values())
-        parts = [worst_min > 0.9] if worst_min > 0.9 else [False, worst_med > 0.9]
-        add("d", f"min multiple coherence {worst_min:.3f}, lowest median {worst_med:.3f}", parts)
-    else:
-        add("d", "conditions missing", [])
+def _judge_d(get: Get) -> Judgement | None:
+    im = _imbic(get)
+    if not im:
+        return None
+    worst_min = min(min(m["coh_multiple_x_min_low"], m["coh_multiple_x_min_high"]) for m in im.values())
+    worst_med = min(m["coh_multiple_x_median"] for m in im.values())
+    return Judgement(
+        f"min multiple coherence {worst_min:.3f}, lowest median {worst_med:.3f}",
+        (Part("lowest min multiple coherence", worst_min, ">", 0.9), Part("lowest median", worst_med, ">", 0.9)),
+        tiered=True,
+    )
 
-    e_parts, e_text = [], []
-    ratios_e = [im[(loc, fr)]["phi_T"] / im[(loc, 0)]["phi_T"] for (loc, fr) in im if fr > 0 and (loc, 0) in im]
-    if ratios_e:
-        e_parts.append(max(ratios_e) <= 2.0)
-        e_text.append(f"IMBIC phi_T {min(ratios_e):.2f}-{max(ratios_e):.2f}x frictionless")
-    vs_pd = [
-        im[(1, fr)]["phi_T"] / get("pd", 1, fr, 1)["phi_T"] for fr in (1, 2) if (1, fr) in im and get("pd", 1, fr, 1)
-    ]
+
+def _judge_e(get: Get) -> Judgement | None:
+    im = _imbic(get)
+    parts, text = [], []
+    ratios = [im[(loc, fr)]["phi_T"] / im[(loc, 0)]["phi_T"] for (loc, fr) in im if fr > 0 and (loc, 0) in im]
+    if ratios:
+        parts.append(Part("largest IMBIC phi_T / frictionless", max(ratios), "<=", 2.0))
+        text.append(f"IMBIC phi_T {min(ratios):.2f}-{max(ratios):.2f}x frictionless")
+    vs_pd = [im[(1, fr)]["phi_T"] / pd["phi_T"] for fr in (1, 2) if (1, fr) in im and (pd := get("pd", 1, fr, 1))]
     if vs_pd:
-        e_parts.append(max(vs_pd) <= 0.2)
-        e_text.append(f"{100 * max(vs_pd):.1f}% of PD's at most")
-    add("e", "; ".join(e_text) or "conditions missing", e_parts)
+        parts.append(Part("largest IMBIC / PD phi_T", max(vs_pd), "<=", 0.2))
+        text.append(f"{100 * max(vs_pd):.1f}% of PD's at most")
+    return Judgement("; ".join(text), tuple(parts)) if parts else None
 
+
+def _judge_f(get: Get) -> Judgement | None:
+    im = _imbic(get)
     spreads = []
     for fr in (0, 1, 2):
         vals = [im[(loc, fr)]["phi_T"] for loc in (1, 2, 3, 4) if (loc, fr) in im]
         if len(vals) == 4:
             spreads.append(max(vals) / min(vals))
-    if spreads:
-        worst = max(spreads)
-        add(
-            "f",
-            f"max/min phi_T over locations <= {worst:.2f}",
-            [worst <= 2.0] if worst <= 2.0 else [False, worst <= 4.0],
+    if not spreads:
+        return None
+    worst = max(spreads)
+    return Judgement(
+        f"max/min phi_T over locations <= {worst:.2f}",
+        (
+            Part("max/min phi_T over locations", worst, "<=", 2.0),
+            Part("max/min phi_T over locations", worst, "<=", 4.0),
+        ),
+        tiered=True,
+    )
+
+
+JUDGES: dict[str, Callable[[Get], Judgement | None]] = dict(
+    a=_judge_a, b=_judge_b, c=_judge_c, d=_judge_d, e=_judge_e, f=_judge_f
+)
+
+
+@dataclass
+class Claim:
+    """A claim judged on the seed ensemble.
+
+    ``verdict`` comes from the condition means; ``seed_verdicts`` counts the verdict of
+    each seed judged alone (``seeds`` of them: those with every condition the claim read);
+    ``parts`` lists each threshold comparison with its value on the means, its 95%
+    t-interval over the seeds (``ci``, ``None`` under two seeds) and what the interval
+    says (``"holds"``, ``"fails"`` or ``"straddles"``); ``robust`` is ``None`` under two
+    seeds; ``left_out`` names conditions the claim reads whose every trial diverged.
+    """
+
+    key: str
+    claim: str
+    rule: str
+    ours: str
+    verdict: str  # "reproduced", "partly", "not", or "n/a" (conditions missing)
+    robustness: str = "no interval"
+    robust: bool | None = None
+    seeds: int = 0
+    seed_verdicts: dict = field(default_factory=dict)
+    parts: list = field(default_factory=list)
+    left_out: list = field(default_factory=list)
+
+
+def _interval_says(lo: float, hi: float, op: str, threshold: float) -> str:
+    a, b = _compare(lo, op, threshold), _compare(hi, op, threshold)
+    return "holds" if a and b else ("fails" if not (a or b) and np.isfinite(lo) and np.isfinite(hi) else "straddles")
+
+
+def _robustness(
+    judged: Judgement, parts: list[dict], seed_verdicts: list[str], n_total: int
+) -> tuple[str, bool | None]:
+    n = len(seed_verdicts)
+    skipped = f"; {n_total - n} seed(s) left out (a trial the claim needs diverged)" if n < n_total else ""
+    if n < 2:
+        return f"{n} seed{'s' if n != 1 else ''}: no interval{skipped}", None
+    verdict = judged.verdict
+    agree = seed_verdicts.count(verdict)
+    others = {v: seed_verdicts.count(v) for v in ("reproduced", "partly", "not") if v != verdict and v in seed_verdicts}
+    text = f"{verdict} on {agree}/{n} seeds" + (
+        " (" + ", ".join(f"{v} on {k}" for v, k in others.items()) + ")" if others else ""
+    )
+    bad = []
+    for i in judged.deciding:
+        p = parts[i]
+        want = "holds" if p["holds"] else "fails"
+        if p["ci_says"] != want:
+            lo, hi = p["ci"]
+            bad.append(f"95% CI of {p['label']} [{lo:.3g}, {hi:.3g}] {p['ci_says']} {p['op']} {p['threshold']:.3g}")
+    text += "; " + ("; ".join(bad) if bad else "every deciding 95% CI clears its threshold")
+    return text + skipped, agree == n and not bad
+
+
+def evaluate_claims(summary: Mapping, per_seed: Mapping | None = None) -> list[Claim]:
+    """Judge claims (a)-(f) on the seed ensemble.
+
+    Args:
+        summary: ``Condition`` -> mean metrics (``condition_summary``; the keys of
+            ``trial_metrics``). Conditions with ``n == 0`` (every trial diverged) are left
+            out, and the claims that read them say so.
+        per_seed: ``seed -> {Condition: metrics}`` (``seed_summaries``): each seed is judged
+            alone, and each comparison gets a t-interval over the seeds. ``None``: no
+            per-seed judgement (robustness ``"no interval"``).
+
+    Only instant-acquisition conditions are read. A claim whose conditions are missing
+    gets verdict ``"n/a"``.
+    """
+    instant = {c: m for c, m in summary.items() if c.acquisition == "instant"}
+    dead = sorted(c for c, m in instant.items() if m.get("n", 1) == 0)
+    s = {c: m for c, m in instant.items() if m.get("n", 1) != 0}
+    seeds = {sd: {c: m for c, m in ms.items() if c.acquisition == "instant"} for sd, ms in (per_seed or {}).items()}
+    claims = []
+    for key, judge in JUDGES.items():
+        reads: set[Condition] = set()
+
+        def get(exp, loc, fr, pert, reads=reads):
+            m = s.get(Condition(exp, exp, loc, fr, pert))
+            if m is not None:
+                reads.add(Condition(exp, exp, loc, fr, pert))
+            return m
+
+        judged = judge(get)
+        left_out = [c.label for c in dead if CLAIM_READS[key](c)]
+        note = f"; left out (every trial diverged): {', '.join(left_out)}" if left_out else ""
+        if judged is None:
+            claims.append(
+                Claim(
+                    key,
+                    CLAIM_TEXT[key],
+                    CLAIM_RULES[key],
+                    "conditions missing" + note,
+                    "n/a",
+                    robustness="n/a",
+                    left_out=left_out,
+                )
+            )
+            continue
+        verdicts, values = [], []
+        for ms in seeds.values():
+            if not reads <= ms.keys():
+                continue  # a trial this claim needs diverged on this seed
+            one = judge(lambda exp, loc, fr, pert, ms=ms: ms.get(Condition(exp, exp, loc, fr, pert)))
+            if one is None or [p.label for p in one.parts] != [p.label for p in judged.parts]:
+                continue
+            verdicts.append(one.verdict)
+            values.append([p.value for p in one.parts])
+        parts = []
+        for i, p in enumerate(judged.parts):
+            col = np.array([v[i] for v in values], dtype=float)
+            col = col[np.isfinite(col)]
+            mean, _, half = mean_ci(col)
+            ci = None if half is None else [float(mean - half), float(mean + half)]
+            parts.append(
+                dict(
+                    label=p.label,
+                    op=p.op,
+                    threshold=p.threshold,
+                    value=float(p.value),
+                    holds=p.holds,
+                    seed_values=col.tolist(),
+                    ci=ci,
+                    ci_says=None if ci is None else _interval_says(*ci, p.op, p.threshold),
+                )
+            )
+        robustness, robust = (
+            _robustness(judged, parts, verdicts, len(seeds))
+            if per_seed is not None
+            else (
+                "no per-seed data: no interval",
+                None,
+            )
         )
-    else:
-        add("f", "conditions missing", [])
+        claims.append(
+            Claim(
+                key,
+                CLAIM_TEXT[key],
+                CLAIM_RULES[key],
+                judged.ours + note,
+                judged.verdict,
+                robustness=robustness,
+                robust=robust,
+                seeds=len(verdicts),
+                seed_verdicts={v: verdicts.count(v) for v in dict.fromkeys(verdicts)},
+                parts=parts,
+                left_out=left_out,
+            )
+        )
     return claims

@@ -30,19 +30,19 @@ def _save(fig, path: pathlib.Path) -> pathlib.Path:
 ELEMENTS = ((0, 0), (0, 1), (1, 0), (1, 1))
 
 
-def _pick(results, arrays, *, experiment, location, perturbation, acquisition="instant", seed=0):
-    """``{friction: arrays}`` of the chosen trials (seed 0 by default)."""
+def _pick(results, arrays, *, experiment, location, perturbation, acquisition="instant"):
+    """``{friction: arrays}`` of the chosen trials: the lowest seed that did not diverge."""
     out = {}
-    for t in results["trials"]:
+    for t in sorted(results["trials"], key=lambda t: t["seed"]):
         c = t["condition"]
-        if (c["experiment"], c["location"], c["perturbation"], c["acquisition"], t["seed"]) == (
+        if t["diverged"] or (c["experiment"], c["location"], c["perturbation"], c["acquisition"]) != (
             experiment,
             location,
             perturbation,
             acquisition,
-            seed,
         ):
-            out[c["friction"]] = arrays[t["id"]]
+            continue
+        out.setdefault(c["friction"], arrays[t["id"]])
     return dict(sorted(out.items()))
 
 
@@ -110,10 +110,23 @@ def _cond_table(results, experiment, acquisition="instant"):
     }
 
 
+def _phi_value(c, sel):
+    """Mean and 95% CI half-width of phi_T (``sel`` None) or of element ``sel`` of phi_ij."""
+    if sel is None:
+        return c["phi_T"], c.get("phi_T_ci")
+    mean, half = c["phi_ij"], c.get("phi_ij_ci")
+    return (
+        None if mean is None else mean[sel[0]][sel[1]],
+        None if half is None else half[sel[0]][sel[1]],
+    )
+
+
 def phi_bars(results, path: pathlib.Path, *, experiment: str):
     """phi_T and the four phi_ij as grouped bars: PD over friction x perturbation level,
-    IMBIC over location x friction. Error bars: spread (sd) over seeds."""
-    table = _cond_table(results, experiment)
+    IMBIC over location x friction. Bars: means over the seeds that did not diverge; error
+    bars: the 95% t-interval of the mean (none with one seed)."""
+    # conditions whose every trial diverged have no numbers (and cannot go on a log axis)
+    table = {k: c for k, c in _cond_table(results, experiment).items() if c["phi_T"] is not None}
     if not table:
         return None
     if experiment == "pd":
@@ -132,15 +145,9 @@ def phi_bars(results, path: pathlib.Path, *, experiment: str):
             vals, errs = [], []
             for g in groups:
                 c = table.get(key(g, m))
-                if c is None:
-                    vals.append(np.nan)
-                    errs.append(0)
-                elif sel is None:
-                    vals.append(c["phi_T"])
-                    errs.append(c["phi_T_sd"])
-                else:
-                    vals.append(c["phi_ij"][sel[0]][sel[1]])
-                    errs.append(c["phi_ij_sd"][sel[0]][sel[1]])
+                value, half = (None, None) if c is None else _phi_value(c, sel)
+                vals.append(np.nan if value is None else value)
+                errs.append(0.0 if half is None else half)
             ax.bar(
                 np.arange(len(groups)) + (m_i - (len(members) - 1) / 2) * width,
                 vals,
@@ -174,7 +181,8 @@ def ablation_figure(results, path: pathlib.Path):
         )
         if twin is not None:
             label = f"{cond['experiment'].upper()} L{cond['location']} F{cond['friction']} P{cond['perturbation']}"
-            rows.append((label, c["phi_T"], twin["phi_T"]))
+            if c["phi_T"] is not None and twin["phi_T"] is not None:
+                rows.append((label, c["phi_T"], twin["phi_T"]))
     if not rows:
         return None
     fig, ax = plt.subplots(figsize=(max(8, 0.45 * len(rows)), 4.5))

@@ -1,24 +1,34 @@
-"""Run the paper reproduction: batched trials, per-trial files, resume, aggregation.
+"""Run the paper reproduction: batched trials, checked per-trial records, resume, aggregation.
 
-``run_reproduction`` simulates every (condition, seed) trial that is not on disk yet, in
-vmapped, sharded batches grouped by the static settings (controller, acquisition), and
-writes each trial as soon as its batch finishes (``trials/<id>.json`` and ``.npz``,
-written atomically). An interrupted run therefore keeps every finished batch, and
-``resume=True`` computes only the missing trials. ``aggregate`` gathers the trial files
-into ``results.json`` / ``results.npz``, from which the report and figures are drawn.
+A run folder holds one run (``docs/results.md``):
+
+- ``run.json``: the run's settings (``ReproSettings``, the condition set included, and the
+  package version), their key, the library versions and the accumulated wall time.
+- ``trials/<id>.npz``: one checked record per finished trial (``armimp_jax.results``): the
+  estimate's arrays, the trial's metrics, and the settings that fix its numbers
+  (``trial_settings``: record length, substeps, Welch, base seed, condition, seed, and
+  ``mhat`` for IMBIC) with their key.
+- ``results.json`` / ``results.npz``: the aggregate, from which the report and figures are
+  drawn (``load_results`` checks that the two belong together).
+
+``run_reproduction`` refuses a folder that holds a run with other settings, takes the
+folder's lock (``RunLock``) for as long as it runs, and simulates every trial whose record
+is missing or fails its check (truncated, altered, or made with other settings: named in
+a warning and recomputed), in vmapped, sharded batches grouped by the static settings
+(controller, acquisition). It writes each trial as soon as its batch finishes, atomically,
+so an interrupted run keeps every finished batch and a later call computes only the rest.
 
 Seeds: trial seed ``s`` draws its perturbation from ``fold_in(PRNGKey(base_seed), s)``
 (and further attempts, if input coherence is capped); every condition sees the same
 signal shape for the same seed (common random numbers), scaled to its level's peak.
+Diverged trials are saved and counted, and left out of every mean and claim.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
-import os
-import pathlib
 import platform
+import sys
 import time
 from collections.abc import Callable
 
@@ -30,26 +40,70 @@ from .._estimate import input_coherence
 from .._numerics import Numerics
 from .._perturbation import perturbation
 from .._simulate import stack_trials
+from ..results import (
+    ResultsError,
+    RunLock,
+    atomic_write_json,
+    describe_difference,
+    load_record,
+    read_json,
+    save_record,
+    settings_key,
+    stamped,
+    to_jsonable,
+)
 from ._presets import perturbation_peak, trial
-from .claims import Condition, evaluate_claims, paper_conditions, trial_id, trial_metrics
+from .claims import (
+    Condition,
+    condition_summary,
+    evaluate_claims,
+    paper_conditions,
+    seed_summaries,
+    trial_id,
+    trial_metrics,
+)
 
 ESTIMATE_FIELDS = ("f", "Z", "coh_multiple_x", "coh_partial_x", "coh_multiple_fh", "coh_partial_fh", "coh_inputs")
+DEFAULT_SEEDS = 3  # seeds per condition: the README's main command within ~3 minutes on 2 cores
+RUN_FORMAT = 2  # run.json layout (1: settings without a key, trials as .json/.npz pairs)
+LEVELS = dict(location=(1, 2, 3, 4), friction=(0, 1, 2), perturbation=(1, 2, 3))
 
 
 @dataclasses.dataclass(frozen=True)
 class ReproSettings:
-    """Everything that fixes the numbers of a reproduction run."""
+    """Everything that fixes the numbers of a reproduction run, the condition set included.
+
+    Record length ``seconds`` [s], RK4 ``substeps`` per 1 ms period, Welch segment and
+    overlap [samples] and ``fmax`` [Hz], ``seeds`` per condition from ``base_seed``, the
+    interval-mean ``ablation``, ``max_input_coherence`` (redraw a seed's perturbation until
+    below it; ``None``: never), IMBIC's ``mhat`` [kg] (times the identity), and the
+    experiments' ``locations``, ``frictions`` and ``perturbations`` levels (stored sorted,
+    without repeats).
+    """
 
     seconds: float = 50.0
     substeps: int = 100
     nperseg: int = 8192
     noverlap: int = 6144
     fmax: float = 15.0
-    seeds: int = 1
+    seeds: int = DEFAULT_SEEDS
     base_seed: int = 0
     ablation: bool = True
-    max_input_coherence: float | None = None  # redraw a seed's perturbation until below this
-    mhat: float = 0.25  # IMBIC gain, times the identity [kg]
+    max_input_coherence: float | None = None
+    mhat: float = 0.25
+    locations: tuple[int, ...] = LEVELS["location"]
+    frictions: tuple[int, ...] = LEVELS["friction"]
+    perturbations: tuple[int, ...] = LEVELS["perturbation"]
+
+    def __post_init__(self):
+        # one spelling per setting, so that equal settings compare (and hash) equal
+        for name in ("locations", "frictions", "perturbations"):
+            object.__setattr__(self, name, tuple(sorted({int(v) for v in getattr(self, name)})))
+        for name in ("seconds", "fmax", "mhat"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+        if self.max_input_coherence is not None:
+            object.__setattr__(self, "max_input_coherence", float(self.max_input_coherence))
+        object.__setattr__(self, "ablation", bool(self.ablation))
 
     @property
     def n_samples(self) -> int:
@@ -59,19 +113,66 @@ class ReproSettings:
     def welch(self) -> Welch:
         return Welch(self.nperseg, self.noverlap, self.fmax)
 
+    @property
+    def numerics(self) -> Numerics:
+        return Numerics(substeps=self.substeps)
+
+    @property
+    def conditions(self) -> list[Condition]:
+        return paper_conditions(
+            ablation=self.ablation, locations=self.locations, frictions=self.frictions, perturbations=self.perturbations
+        )
+
     def validate(self) -> None:
+        """Raise ``ValueError`` (one line) for settings that cannot run."""
+        for name, allowed in LEVELS.items():
+            values = getattr(self, name + "s")
+            bad = [v for v in values if v not in allowed]
+            if bad or not values:
+                raise ValueError(f"unknown {name} level(s) {bad}; allowed: {', '.join(map(str, allowed))}")
         if self.seeds < 1:
             raise ValueError(f"seeds must be >= 1, got {self.seeds}")
         if self.substeps < 1 or int(self.substeps) != self.substeps:
             raise ValueError(f"substeps must be an integer >= 1, got {self.substeps}")
         if not self.mhat > 0:
             raise ValueError(f"mhat must be > 0 kg, got {self.mhat}")
+        if not self.seconds > 0:
+            raise ValueError(f"seconds must be > 0, got {self.seconds}")
         if self.max_input_coherence is not None and not 0 < self.max_input_coherence <= 1:
             raise ValueError(f"max_input_coherence must be in (0, 1], got {self.max_input_coherence}")
         try:
             self.welch.check(self.n_samples)
         except ValueError as err:
             raise ValueError(f"--seconds {self.seconds:g}: {err}") from None
+
+    def run_settings(self) -> dict:
+        """The run's settings as saved in ``run.json`` (package version included)."""
+        return stamped(dataclasses.asdict(self))
+
+    @classmethod
+    def from_saved(cls, saved: dict, *, where: str = "run.json") -> ReproSettings:
+        """Settings from ``run_settings()`` output (the package version entry is dropped)."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        missing = names - saved.keys()
+        if missing:
+            raise ResultsError(f"{where}: settings lack {', '.join(sorted(missing))} (written by another armimp_jax?)")
+        return cls(**{k: v for k, v in saved.items() if k in names})
+
+    def trial_settings(self, cond: Condition, seed: int) -> dict:
+        """Every value that changes the numbers of one trial (and nothing else: the seed
+        count, the condition set and the batch size do not; ``mhat`` only for IMBIC)."""
+        out = dict(
+            condition=dataclasses.asdict(cond),
+            seed=int(seed),
+            base_seed=self.base_seed,
+            seconds=self.seconds,
+            numerics=dataclasses.asdict(self.numerics),
+            welch=self.welch._asdict(),
+            max_input_coherence=self.max_input_coherence,
+        )
+        if cond.controller == "imbic":
+            out["mhat"] = self.mhat
+        return stamped(out)
 
 
 QUICK = ReproSettings(seconds=6.0, substeps=10, nperseg=1024, noverlap=768)
@@ -90,24 +191,6 @@ def draw_perturbations(settings: ReproSettings, seed: int, levels) -> tuple[dict
     raise RuntimeError(
         f"seed {seed}: no perturbation with input coherence < {settings.max_input_coherence} in 100 draws"
     )
-
-
-def _write_atomic(path: pathlib.Path, write: Callable[[pathlib.Path], None]) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    write(tmp)
-    os.replace(tmp, path)
-
-
-def _save_npz(path, arrays):
-    def write(tmp):
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **arrays)
-
-    _write_atomic(path, write)
-
-
-def _save_json(path, obj):
-    _write_atomic(path, lambda tmp: tmp.write_text(json.dumps(obj, indent=1)))
 
 
 def versions() -> dict:
@@ -130,44 +213,120 @@ def versions() -> dict:
     )
 
 
-def prepare_output(out: pathlib.Path, settings: ReproSettings, *, resume: bool) -> None:
-    """Check the output folder is writable and (when resuming) that settings match."""
+def _warn_stderr(message: str) -> None:
+    sys.stderr.write(f"warning: {message}\n")
+
+
+def trial_path(out, cond: Condition, seed: int):
+    return out / "trials" / f"{trial_id(cond, seed)}.npz"
+
+
+def read_run(out) -> dict:
+    """``run.json`` of the run in ``out``, checked (``ResultsError`` naming what is wrong)."""
+    run_file = out / "run.json"
+    if not out.is_dir():
+        raise ResultsError(f"{out}: no such folder")
+    if not run_file.exists():
+        raise ResultsError(f"{out} holds no run (no run.json)")
+    run = read_json(run_file)
+    if not isinstance(run, dict) or run.get("format") != RUN_FORMAT or "key" not in run:
+        raise ResultsError(
+            f"{run_file}: written by an older armimp_jax (no settings key): use another output folder, or delete it"
+        )
+    if settings_key(run["settings"]) != run["key"]:
+        raise ResultsError(f"{run_file}: its settings were edited after the run (key mismatch)")
+    return run
+
+
+def saved_settings(out) -> ReproSettings:
+    """The ``ReproSettings`` of the run in ``out`` (for resuming it)."""
+    return ReproSettings.from_saved(read_run(out)["settings"], where=str(out / "run.json"))
+
+
+def prepare_output(out, settings: ReproSettings, *, resume: bool) -> None:
+    """Make ``out`` ready for a run with ``settings``: create it, check it is writable, and
+    write ``run.json`` unless it is there.
+
+    A folder that holds a run with other settings is refused with one line naming the
+    differences (its trials would not match); so is ``resume`` on a folder with no run.
+    """
+    run_file = out / "run.json"
+    if resume and not run_file.exists():
+        raise ResultsError(f"{out} holds no run to resume (no run.json)")
     try:
         (out / "trials").mkdir(parents=True, exist_ok=True)
-        probe = out / ".write-test"
+        probe = out / f".write-test-{time.time_ns()}"
         probe.write_text("ok")
         probe.unlink()
     except OSError as err:
-        raise ValueError(f"output folder {out} is not writable: {err}") from None
-    run_file = out / "run.json"
-    if resume and run_file.exists():
-        saved = json.loads(run_file.read_text())["settings"]
-        if saved != dataclasses.asdict(settings):
-            raise ValueError(f"--resume {out}: saved settings {saved} differ from these {dataclasses.asdict(settings)}")
-    _save_json(run_file, dict(settings=dataclasses.asdict(settings), versions=versions()))
+        raise ResultsError(f"output folder {out} is not writable: {err}") from None
+    wanted = settings.run_settings()
+    if run_file.exists():
+        run = read_run(out)
+        if run["key"] != settings_key(wanted):
+            raise ResultsError(
+                f"{out} holds a run with {describe_difference(run['settings'], wanted)}: use another output folder "
+                f"(--out), or resume that run with its own settings (--resume {out})"
+            )
+        return
+    atomic_write_json(
+        run_file, dict(format=RUN_FORMAT, settings=wanted, key=settings_key(wanted), versions=versions(), wall_s=0.0)
+    )
+
+
+def add_wall_time(out, seconds: float) -> None:
+    """Add ``seconds`` of computing to the run's ``wall_s`` in ``run.json``."""
+    run = read_run(out)
+    run["wall_s"] = (run.get("wall_s") or 0.0) + seconds
+    atomic_write_json(out / "run.json", run)
+
+
+def trial_status(settings: ReproSettings, out, *, warn: Callable[[str], None] = _warn_stderr) -> tuple[list, list]:
+    """``(done, todo)`` lists of ``(Condition, seed)``: a trial is done when its record
+    passes its check under ``settings``; any other existing record is named in a warning."""
+    done, todo = [], []
+    for c in settings.conditions:
+        for s in range(settings.seeds):
+            path = trial_path(out, c, s)
+            if path.exists():
+                try:
+                    load_record(path, settings=settings.trial_settings(c, s))
+                    done.append((c, s))
+                    continue
+                except ResultsError as err:
+                    warn(f"{err}; recomputing it")
+            todo.append((c, s))
+    return done, todo
 
 
 def run_reproduction(
     settings: ReproSettings,
-    out: pathlib.Path,
+    out,
     *,
-    conditions: list[Condition] | None = None,
     batch_size: int = 48,
     chunk_seconds: float = 5.0,
     progress: Callable[[dict], None] | None = None,
     stop_after_batches: int | None = None,
+    warn: Callable[[str], None] = _warn_stderr,
 ) -> list[str]:
-    """Simulate, estimate and score every missing trial; returns the ids computed now.
+    """Simulate, estimate and score every trial of ``settings`` that has no valid record in
+    ``out``; returns the ids computed now.
 
-    ``progress`` receives a dict (``done``/``total`` substep counts, ``trials_done``,
-    ``trials_total``, ``elapsed_s``, ``eta_s``) after every chunk. ``stop_after_batches``
-    stops early (used to test resuming).
+    Holds ``out``'s ``RunLock`` throughout and calls ``prepare_output`` first (a folder
+    holding another run is refused). ``progress`` receives a dict (``done``/``total``
+    substep counts, ``trials_done``, ``trials_total``, ``elapsed_s``, ``eta_s``) after
+    every chunk. ``stop_after_batches`` stops early (used to test resuming). ``warn``
+    receives one line per trial record that failed its check.
     """
     settings.validate()
-    conditions = paper_conditions(ablation=settings.ablation) if conditions is None else conditions
-    trials = [(c, s) for c in conditions for s in range(settings.seeds)]
-    todo = [(c, s) for c, s in trials if not (out / "trials" / f"{trial_id(c, s)}.json").exists()]
-    levels = sorted({c.perturbation for c in conditions})
+    with RunLock(out):
+        prepare_output(out, settings, resume=False)
+        _, todo = trial_status(settings, out, warn=warn)
+        return _compute(settings, out, todo, batch_size, chunk_seconds, progress, stop_after_batches)
+
+
+def _compute(settings, out, todo, batch_size, chunk_seconds, progress, stop_after_batches) -> list[str]:
+    levels = sorted({c.perturbation for c in settings.conditions})  # IMBIC runs at level 1 whatever PD's
     mesh = make_mesh()
     per_trial = settings.n_samples * settings.substeps
     total, done_substeps, computed = len(todo) * per_trial, 0, []
@@ -215,7 +374,7 @@ def run_reproduction(
         sim = simulate_batch(
             params,
             f_delta,
-            numerics=Numerics(substeps=settings.substeps),
+            numerics=settings.numerics,
             mesh=mesh,
             chunk_samples=int(chunk_seconds * 1000),
             progress=on_chunk,
@@ -225,88 +384,97 @@ def run_reproduction(
         wall = time.perf_counter() - t_batch
         for i, (c, s) in enumerate(batch):
             est = {name: np.asarray(getattr(outcome.estimate, name)[i]) for name in ESTIMATE_FIELDS}
-            metrics = trial_metrics(est["f"], est["Z"], est, c.location)
             _, coh, attempt = signals(s)
             tid = trial_id(c, s)
-            _save_npz(out / "trials" / f"{tid}.npz", est)
-            _save_json(
-                out / "trials" / f"{tid}.json",
-                dict(
-                    id=tid,
-                    condition=dataclasses.asdict(c),
-                    seed=s,
-                    perturbation_attempt=attempt,
-                    input_coherence_max=coh,
-                    diverged=bool(sim.diverged[i]),
-                    diverged_at=int(sim.diverged_at[i]),
-                    batch_wall_s=wall,
-                    batch_size=len(batch),
-                    metrics=metrics,
-                ),
+            meta = dict(
+                id=tid,
+                condition=dataclasses.asdict(c),
+                seed=s,
+                perturbation_attempt=attempt,
+                input_coherence_max=coh,
+                diverged=bool(sim.diverged[i]),
+                diverged_at=int(sim.diverged_at[i]),
+                batch_wall_s=wall,
+                batch_size=len(batch),
+                metrics=trial_metrics(est["f"], est["Z"], est, c.location),
             )
+            save_record(trial_path(out, c, s), settings=settings.trial_settings(c, s), arrays=est, meta=meta)
             computed.append(tid)
     return computed
 
 
-def load_trials(out: pathlib.Path) -> tuple[list[dict], dict]:
-    """All finished trials in ``out/trials``: metadata list and ``{id: arrays}``."""
-    metas, arrays = [], {}
-    for path in sorted((out / "trials").glob("*.json")):
-        meta = json.loads(path.read_text())
-        with np.load(path.with_suffix(".npz")) as data:
-            arrays[meta["id"]] = {k: data[k] for k in data.files}
-        metas.append(meta)
-    return metas, arrays
+def load_trials(
+    out, settings: ReproSettings, *, warn: Callable[[str], None] = _warn_stderr
+) -> tuple[list[dict], dict, list[str]]:
+    """The run's trials that pass their check: metadata list, ``{id: arrays}``, and the ids
+    of the trials that are missing or failed (the latter named in a warning)."""
+    metas, arrays, missing = [], {}, []
+    for c in settings.conditions:
+        for s in range(settings.seeds):
+            path, tid = trial_path(out, c, s), trial_id(c, s)
+            try:
+                rec = load_record(path, settings=settings.trial_settings(c, s))
+            except ResultsError as err:
+                if path.exists():
+                    warn(f"{err}; left out")
+                missing.append(tid)
+                continue
+            metas.append(rec.meta)
+            arrays[tid] = rec.arrays
+    return metas, arrays, missing
 
 
-def condition_summary(metas: list[dict]) -> dict:
-    """``Condition -> {metric: mean over seeds, metric + "_sd": spread, "n": seeds}``."""
-    by_cond: dict[Condition, list] = {}
-    for m in metas:
-        by_cond.setdefault(Condition(**m["condition"]), []).append(m)
-    out = {}
-    for cond, group in sorted(by_cond.items()):
-        keys = group[0]["metrics"].keys()
-        agg = {}
-        for k in keys:
-            vals = np.array([g["metrics"][k] for g in group], dtype=float)
-            agg[k] = vals.mean(axis=0).tolist() if vals.ndim > 1 else float(vals.mean())
-            agg[k + "_sd"] = vals.std(axis=0).tolist() if vals.ndim > 1 else float(vals.std())
-        agg["n"] = len(group)
-        agg["diverged"] = int(sum(g["diverged"] for g in group))
-        out[cond] = agg
-    return out
+def aggregate(out, *, warn: Callable[[str], None] = _warn_stderr) -> tuple[dict, dict]:
+    """Write ``results.json`` and ``results.npz`` from the run's valid trial records; return
+    the results dict and the per-trial arrays (as ``load_results`` would read them back).
 
-
-def aggregate(out: pathlib.Path, *, complete: bool) -> tuple[dict, dict]:
-    """Write ``results.json`` and ``results.npz`` from the trial files; return the results dict
-    and the per-trial arrays (as ``load_results`` would read them back)."""
-    metas, arrays = load_trials(out)
-    run = json.loads((out / "run.json").read_text())
-    summary = condition_summary(metas)
-    claims = [dataclasses.asdict(c) for c in evaluate_claims(summary)]
-    results = dict(
-        complete=complete,
-        settings=run["settings"],
-        versions=run["versions"],
-        trials=metas,
-        conditions=[dict(condition=dataclasses.asdict(c), **m) for c, m in summary.items()],
-        claims=claims,
-        wall_s=run.get("wall_s"),
-    )
-    _save_json(out / "results.json", results)
-    ids = [m["id"] for m in metas]
-    stacked = {"trial_ids": np.array(ids)}
-    if ids:
-        stacked |= {name: np.stack([arrays[i][name] for i in ids]) for name in ESTIMATE_FIELDS}
-    _save_npz(out / "results.npz", stacked)
+    ``complete`` is true when every trial of the run's condition set and seeds is there;
+    ``diverged`` lists the trials left out of the means and claims.
+    """
+    with RunLock(out):
+        run = read_run(out)
+        settings = ReproSettings.from_saved(run["settings"], where=str(out / "run.json"))
+        metas, arrays, missing = load_trials(out, settings, warn=warn)
+        summary = condition_summary(metas)
+        claims = [dataclasses.asdict(c) for c in evaluate_claims(summary, seed_summaries(metas))]
+        results = to_jsonable(  # as load_results reads it back: NaN -> None
+            dict(
+                format=RUN_FORMAT,
+                complete=not missing,
+                settings=run["settings"],
+                key=run["key"],
+                versions=run["versions"],
+                trials_expected=len(settings.conditions) * settings.seeds,
+                missing=missing,
+                diverged=[m["id"] for m in metas if m["diverged"]],
+                trials=metas,
+                conditions=[dict(condition=dataclasses.asdict(c), **m) for c, m in summary.items()],
+                claims=claims,
+                wall_s=run.get("wall_s"),
+            )
+        )
+        atomic_write_json(out / "results.json", results)
+        ids = [m["id"] for m in metas]
+        stacked = {"trial_ids": np.array(ids, dtype=str)}
+        if ids:
+            stacked |= {name: np.stack([arrays[i][name] for i in ids]) for name in ESTIMATE_FIELDS}
+        save_record(out / "results.npz", settings=run["settings"], arrays=stacked)
     return results, arrays
 
 
-def load_results(out: pathlib.Path) -> tuple[dict, dict]:
-    """``results.json`` and the per-trial arrays from ``results.npz`` (for ``--replot``)."""
-    results = json.loads((out / "results.json").read_text())
-    with np.load(out / "results.npz") as data:
-        ids = [str(i) for i in data["trial_ids"]]
-        arrays = {tid: {k: data[k][j] for k in ESTIMATE_FIELDS if k in data.files} for j, tid in enumerate(ids)}
+def load_results(out) -> tuple[dict, dict]:
+    """``results.json`` and the per-trial arrays from ``results.npz`` (for ``--replot``),
+    checked to belong to each other and to the run's settings."""
+    if not out.is_dir():
+        raise ResultsError(f"{out}: no such folder")
+    results = read_json(out / "results.json")
+    if not isinstance(results, dict) or results.get("format") != RUN_FORMAT:
+        raise ResultsError(f"{out / 'results.json'}: written by an older armimp_jax: rerun the reproduction")
+    if settings_key(results["settings"]) != results["key"]:
+        raise ResultsError(f"{out / 'results.json'}: its settings were edited (key mismatch)")
+    rec = load_record(out / "results.npz", settings=results["settings"])
+    ids = [str(i) for i in rec.arrays["trial_ids"]]
+    if ids != [t["id"] for t in results["trials"]]:
+        raise ResultsError(f"{out / 'results.npz'}: holds other trials than results.json")
+    arrays = {tid: {k: rec.arrays[k][j] for k in ESTIMATE_FIELDS if k in rec.arrays} for j, tid in enumerate(ids)}
     return results, arrays

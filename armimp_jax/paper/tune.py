@@ -14,6 +14,7 @@ from .._batch import Welch, assess_batch, simulate_batch
 from .._numerics import Numerics
 from .._perturbation import perturbation
 from .._simulate import stack_trials
+from ..tune import TuneConfig, config_settings
 from ._presets import perturbation_peak, trial
 
 TRAIN_SEED_OFFSET = 100  # training and held-out perturbation seeds never overlap
@@ -46,6 +47,29 @@ def training_batch(frictions, locations, seeds, *, seconds: float, base_seed: in
                 params.append(trial("imbic", fr, loc))
                 f_delta.append(signals[i])
     return stack_trials(params), jnp.asarray(np.stack(f_delta))
+
+
+def training_settings(
+    config: TuneConfig, *, frictions, locations, seeds, seconds: float, welch: Welch, start_mhat, base_seed: int = 0
+) -> dict:
+    """The settings a tuning state of this experiment is saved with (``tune.save_state``):
+    the tuner's options (``config_settings``), the training batch (friction levels,
+    locations, seeds, record length [s], Welch settings, base seed) and the starting
+    ``Mhat`` [kg]."""
+    return dict(
+        tuner=config_settings(config),
+        training=dict(
+            frictions=[int(f) for f in frictions],
+            locations=[int(loc) for loc in locations],
+            seeds=[int(s) for s in seeds],
+            seed_offset=TRAIN_SEED_OFFSET,
+            perturbation_level=1,
+            seconds=float(seconds),
+            welch=welch._asdict(),
+            base_seed=int(base_seed),
+        ),
+        start_mhat=np.asarray(start_mhat, dtype=float).tolist(),
+    )
 
 
 def heldout_phi(
@@ -88,6 +112,18 @@ def heldout_phi(
     return out
 
 
+def best_candidate(table: dict) -> str | None:
+    """The candidate with the lowest mean held-out ``phi_T`` among those that neither
+    diverged nor gave a non-finite value (NaN is never lowest); ``None`` if there is none."""
+    names = [k for k in table if not k.startswith("_")]
+    valid = [n for n in names if n not in table["_diverged"] and np.all(np.isfinite(table[n]))]
+    return min(valid, key=lambda n: float(np.mean(table[n]))) if valid else None
+
+
+def _cell(x: float, fmt: str) -> str:
+    return format(x, fmt) if np.isfinite(x) else "—"
+
+
 def comparison_markdown(table: dict, mhat, *, locations, evals: dict, seeds) -> str:
     """The held-out comparison as Markdown: mean phi_T per friction level and location."""
     names = [k for k in table if not k.startswith("_")]
@@ -106,9 +142,12 @@ def comparison_markdown(table: dict, mhat, *, locations, evals: dict, seeds) -> 
         flag = " (diverged)" if n in table["_diverged"] else ""
         lines.append(
             f"| {n}{flag} | "
-            + " | ".join(f"{cells[f, i]:.0f}" for f in frictions for i in range(len(locations)))
-            + f" | {table[n].mean():.1f} |"
+            + " | ".join(_cell(cells[f, i], ".0f") for f in frictions for i in range(len(locations)))
+            + f" | {_cell(table[n].mean(), '.1f')} |"
         )
-    best = min(names, key=lambda n: table[n].mean())
-    lines += ["", f"Lowest mean phi_T: **{best}**."]
+    best = best_candidate(table)
+    if best is None:
+        lines += ["", "Lowest mean phi_T: none (every candidate diverged or gave a non-finite phi_T)."]
+    else:
+        lines += ["", f"Lowest mean phi_T: **{best}** (candidates that diverged are left out)."]
     return "\n".join(lines) + "\n"
