@@ -10,10 +10,12 @@ Float64 is required: call ``jax.config.update("jax_enable_x64", True)`` before u
 
 from . import runtime as runtime
 from ._arm import Arm as Arm
+from ._batch import NumericsCheck as NumericsCheck
 from ._batch import TrialOutcome as TrialOutcome
 from ._batch import Welch as Welch
 from ._batch import assess as assess
 from ._batch import assess_batch as assess_batch
+from ._batch import check_numerics as check_numerics
 from ._batch import simulate_batch as simulate_batch
 from ._control import IMBIC as IMBIC
 from ._control import PD as PD
@@ -27,6 +29,7 @@ from ._friction import NO_FRICTION as NO_FRICTION
 from ._friction import LuGre as LuGre
 from ._friction import lugre as lugre
 from ._metrics import accuracy as accuracy
+from ._numerics import SWEEP_NUMERICS as SWEEP_NUMERICS
 from ._numerics import Numerics as Numerics
 from ._perturbation import perturbation as perturbation
 from ._plant import PlantState as PlantState

@@ -26,6 +26,7 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from ._arm import impedance_response
+from ._checks import check_int
 from ._estimate import ESTIMATION_FMAX, SAMPLE_RATE, WELCH_NOVERLAP, WELCH_NPERSEG, Estimate, check_welch, estimate
 from ._metrics import impedance_error
 from ._numerics import Numerics
@@ -287,3 +288,75 @@ def assess_batch(
         (p, f, s), _ = shard_batch(_rows((trials, f_delta, sim), lo, hi), mesh, size=size)
         outcomes.append(to_host(_assess(p, f, s, welch), hi - lo))
     return jax.tree.map(lambda *parts: np.concatenate(parts), *outcomes)
+
+
+class NumericsCheck(NamedTuple):
+    """What ``check_numerics`` observed: the re-run trials' ``indices`` ``(S,)``, their
+    ``phi_T`` [N/m] at the batch's numerics and at ``refined``, the relative differences
+    ``rel_error`` ``(S,)`` (NaN where either run diverged), their maximum over the sound
+    trials ``max_rel_error`` (NaN if none is sound) and the count of ``diverged`` ones."""
+
+    indices: np.ndarray
+    phi_T: np.ndarray
+    phi_T_refined: np.ndarray
+    rel_error: np.ndarray
+    max_rel_error: float
+    diverged: int
+    refined: Numerics
+
+
+def refined_numerics(numerics: Numerics, factor: int = 4) -> Numerics:
+    """``numerics`` with ``factor`` times the substeps (same method and kernel)."""
+    return Numerics(
+        substeps=numerics.substeps * factor,
+        kernel=numerics.kernel,
+        checkpoint=numerics.checkpoint,
+        method=numerics.method,
+    )
+
+
+def check_numerics(
+    trials: Trial,
+    f_delta,
+    *,
+    numerics: Numerics,
+    sample: int = 4,
+    refine: int = 4,
+    phi_T=None,
+    welch: Welch = Welch(),
+    keys=None,
+    mesh: Mesh | None = None,
+) -> NumericsCheck:
+    """Re-run ``sample`` trials of a batch at ``refine`` times the substeps and report the
+    observed relative error of ``phi_T``: how far a coarse sweep is from converged.
+
+    The trials are spread evenly over the batch (first and last included). ``phi_T``
+    ``(B,)`` is the batch's own result, if at hand, with NaN for diverged trials (otherwise
+    the sample is also run at ``numerics``). Costs about ``refine`` times the sample's share of the batch.
+    """
+    sample = check_int("sample", sample, minimum=1)
+    refine = check_int("refine", refine, minimum=2)
+    b = _batch_size(f_delta)
+    idx = np.unique(np.linspace(0, b - 1, min(sample, b)).round().astype(int))
+    sub = jax.tree.map(lambda leaf: leaf[idx], (trials, np.asarray(f_delta)))
+    sub_keys = None if keys is None else keys[idx]
+    fine = refined_numerics(numerics, refine)
+
+    def run(num):
+        sim = simulate_batch(*sub, keys=sub_keys, numerics=num, mesh=mesh)
+        out = assess_batch(*sub, sim, welch, mesh=mesh)
+        return np.where(out.diverged, np.nan, out.phi_T)
+
+    coarse = run(numerics) if phi_T is None else np.asarray(phi_T, dtype=float)[idx]
+    refined = run(fine)
+    err = np.abs(coarse - refined) / np.abs(refined)
+    sound = np.isfinite(err)
+    return NumericsCheck(
+        indices=idx,
+        phi_T=coarse,
+        phi_T_refined=refined,
+        rel_error=err,
+        max_rel_error=float(np.max(err[sound])) if sound.any() else float("nan"),
+        diverged=int(np.sum(~sound)),
+        refined=fine,
+    )

@@ -157,6 +157,24 @@ def _sharer(one):
     return share
 
 
+def coupled_inertia(model: PlantModel, j, m):
+    """Entries ``(a11, a12, a21, a22)`` [kg m^2] of ``A = M + J^T M_h J`` from the Jacobian
+    entries ``j`` and the robot's ``m = (M11, M12, M22)``; not symmetric (``M_h`` is not)."""
+    j11, j12, j21, j22 = j
+    m11, m12, m22 = m
+    mh11, mh12, mh21, mh22 = model.mh
+    p11 = mh11 * j11 + mh12 * j21
+    p12 = mh11 * j12 + mh12 * j22
+    p21 = mh21 * j11 + mh22 * j21
+    p22 = mh21 * j12 + mh22 * j22
+    return (
+        m11 + (j11 * p11 + j21 * p21),
+        m12 + (j11 * p12 + j21 * p22),
+        m12 + (j12 * p11 + j22 * p21),
+        m22 + (j12 * p12 + j22 * p22),
+    )
+
+
 def _dynamics(s: PlantState, fu, model: PlantModel, trig: Trig | None = None, share=_sharer(None)):
     """Joint accelerations and the pieces needed for the hand force, at command ``fu`` [N] ``(2,)``.
 
@@ -193,16 +211,7 @@ def _dynamics(s: PlantState, fu, model: PlantModel, trig: Trig | None = None, sh
     b2 = (j12 * rx + j22 * ry) + hc * qd1sq - tau_f2
     b1, b2 = share("b", b1, b2)
 
-    # A = M + J^T M_h J (not symmetric: M_h is not).
-    p11 = mh11 * j11 + mh12 * j21
-    p12 = mh11 * j12 + mh12 * j22
-    p21 = mh21 * j11 + mh22 * j21
-    p22 = mh21 * j12 + mh22 * j22
-    a11 = m11 + (j11 * p11 + j21 * p21)
-    a12 = m12 + (j11 * p12 + j21 * p22)
-    a21 = m12 + (j12 * p11 + j22 * p21)
-    a22 = m22 + (j12 * p12 + j22 * p22)
-    a11, a12, a21, a22 = share("a", a11, a12, a21, a22)
+    a11, a12, a21, a22 = share("a", *coupled_inertia(model, (j11, j12, j21, j22), (m11, m12, m22)))
     det = a11 * a22 - a12 * a21
     qdd1 = (a22 * b1 - a12 * b2) / det
     qdd2 = (a11 * b2 - a21 * b1) / det

@@ -25,6 +25,7 @@ from ._arm import Arm
 from ._checks import as_float64, check_choice, require_x64
 from ._control import matvec
 from ._friction import LuGre
+from ._imex import integrate_period_imex
 from ._numerics import Numerics
 from ._plant import PlantState, Trig, displacement, integrate_period, measure, plant_model, rest_state, trig_of
 from ._pytree import params
@@ -301,15 +302,27 @@ def simulate_chunk(
         fu, memory = controller.step(carry.memory, x_m, xd_m, fh_m, fd, x0, period)
         fu, memory, x, xd = jax.lax.optimization_barrier((fu, memory, x, xd))
         zero = jnp.zeros_like(state.xi1)
-        new_state = integrate_period(
-            state._replace(xi1=zero, xi2=zero),
-            fu,
-            model,
-            period=period,
-            substeps=substeps,
-            kernel=numerics.kernel,
-            checkpoint=numerics.checkpoint,
-        )
+        start = state._replace(xi1=zero, xi2=zero)
+        if numerics.method != "rk4":
+            new_state = integrate_period_imex(
+                start,
+                fu,
+                model,
+                period=period,
+                substeps=substeps,
+                method=numerics.method,
+                rotating=numerics.kernel != "reference",
+            )
+        else:
+            new_state = integrate_period(
+                start,
+                fu,
+                model,
+                period=period,
+                substeps=substeps,
+                kernel=numerics.kernel,
+                checkpoint=numerics.checkpoint,
+            )
 
         finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(leaf)) for leaf in jax.tree.leaves((new_state, fu))]))
         in_range = (jnp.abs(new_state.q1 - trial.q0[0]) < DIVERGENCE_ANGLE) & (

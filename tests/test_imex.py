@@ -1,0 +1,136 @@
+"""The stiff-friction integrator (``Numerics(method="ark3")``): stable and continuous for every
+Coulomb torque, convergent, equal to RK4 where RK4 works, differentiable near zero friction."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import armimp_jax as aj
+from armimp_jax import paper
+from armimp_jax._imex import ARK3, ARK4, from_momentum, to_momentum
+from armimp_jax._plant import PlantState, plant_model
+
+TAUS = (0.0, 1e-4, 1e-3, 1e-2, 0.05, 0.2, 1.0, 4.0)  # Coulomb torques [N m], stiction 1.5x
+
+
+def _fd():
+    return aj.perturbation(jax.random.PRNGKey(7), 1500, 2.25)
+
+
+def _phi(trial, fd, numerics):
+    sim = aj.simulate(trial, fd, numerics=numerics)
+    est = aj.estimate(fd, sim.x, sim.fh, nperseg=512, noverlap=384)
+    return aj.accuracy(est.Z, est.f, trial.arm)[0], sim.diverged
+
+
+def _batch(controller, taus, tau_s_ratio=1.5):
+    ctrl = paper.trial(controller, 0, 1).controller
+    return aj.stack_trials([aj.make_trial(ctrl, arm=paper.arm(1), friction=aj.LuGre(t, tau_s_ratio * t)) for t in taus])
+
+
+def _phis(trials, numerics):
+    fd = _fd()
+    phi, diverged = jax.jit(jax.vmap(lambda t: _phi(t, fd, numerics)))(trials)
+    return np.asarray(phi), np.asarray(diverged)
+
+
+@pytest.mark.parametrize("tableau, order", [(ARK3, 3), (ARK4, 4)])
+def test_tableaus_meet_their_order_conditions(tableau, order):
+    """Both halves of each pair satisfy the Runge-Kutta order conditions (to ``order``), so
+    a typo in a coefficient cannot pass."""
+    s = len(tableau.c)
+    b, c = np.array(tableau.b), np.array(tableau.c)
+    for rows, diag in ((tableau.explicit, 0.0), (tableau.implicit, tableau.gamma)):
+        a = np.zeros((s, s))
+        for i, row in enumerate(rows):
+            a[i + 1, : len(row)] = row
+            a[i + 1, i + 1] = diag
+        np.testing.assert_allclose(a.sum(axis=1), c, atol=1e-15)
+        conditions = [b.sum() - 1, b @ c - 1 / 2, b @ c**2 - 1 / 3, b @ a @ c - 1 / 6]
+        if order >= 4:
+            conditions += [b @ c**3 - 1 / 4, b @ (c * (a @ c)) - 1 / 8, b @ a @ c**2 - 1 / 12, b @ a @ a @ c - 1 / 24]
+        np.testing.assert_allclose(conditions, 0.0, atol=1e-15)
+
+
+def test_momentum_form_round_trips_and_keeps_bristle_free_joints_at_zero():
+    trial = paper.trial("pd", 1, 2)
+    model = plant_model(trial.q0, trial.x0, trial.arm, aj.LuGre([0.3, 0.0], [0.45, 0.0]), trial.robot)
+    s = PlantState(trial.q0[0] + 0.01, trial.q0[1] - 0.02, 0.3, -0.2, 2e-6, 0.0, 1e-4, -2e-4)
+    back = from_momentum(to_momentum(s, model), model)
+    np.testing.assert_allclose(np.array(back), np.array(s), rtol=1e-14, atol=1e-20)
+    fu = jnp.array([3.0, -2.0])
+    from armimp_jax._imex import integrate_period_imex
+
+    out = integrate_period_imex(s, fu, model, period=1e-3, substeps=4)
+    assert float(out.z2) == 0.0 and float(out.z1) != 2e-6  # joint 2 has no bristles (g = 0)
+
+
+@pytest.mark.parametrize("controller", ["pd", "imbic"])
+def test_every_coulomb_torque_is_stable_and_continuous_at_zero(controller):
+    """From 0 to 4 N m at 10 substeps: nothing diverges (classical RK4 diverges at
+    1e-4 and 1e-3 N m even at 100 substeps), and phi_T at 1e-4 N m is within 1% of no
+    Coulomb friction (spec section 4: the model's limit is continuous)."""
+    phi, diverged = _phis(_batch(controller, TAUS), aj.Numerics(substeps=10, method="ark3"))
+    assert not diverged.any() and np.all(np.isfinite(phi)), phi
+    assert abs(phi[1] - phi[0]) < 0.01 * phi[0], phi
+
+
+def test_refinement_converges_at_small_and_paper_friction():
+    """Errors against 80 substeps shrink as the step does (order reduced from 3 by the
+    stick-slip kinks: about 2), for stiff (1e-4, 1e-2 N m) and paper-level (1 N m) friction."""
+    taus = (1e-4, 1e-2, 1.0)
+    trials = _batch("pd", taus)
+    phi = {k: _phis(trials, aj.Numerics(substeps=k, method="ark3"))[0] for k in (5, 20, 80)}
+    e5, e20 = (np.max(np.abs(phi[k] - phi[80]) / phi[80]) for k in (5, 20))
+    assert e20 < e5 / 4 and e5 < 1e-3, (e5, e20)
+
+
+def test_agrees_with_rk4_at_the_paper_friction_levels():
+    """Where classical RK4 is stable (levels 1 and 2, spec section 4): phi_T within 1e-6."""
+    trials = aj.stack_trials([paper.trial("imbic", level, 1) for level in (1, 2)])
+    ark, _ = _phis(trials, aj.Numerics(substeps=40, method="ark3"))
+    rk4, _ = _phis(trials, aj.Numerics(substeps=100))
+    np.testing.assert_allclose(ark, rk4, rtol=1e-6)
+
+
+def test_gradients_near_zero_friction_are_finite_and_match_central_differences():
+    """d phi_T / d tau_c (stiction 1.5 tau_c): at 1e-3 N m equal to a central difference; at
+    exactly 0 (no bristles) finite: there the function has no derivative from the right
+    (difference quotients do not settle), and the gradient is that of the bristle-free branch."""
+    fd = _fd()
+    ctrl = paper.trial("pd", 0, 1).controller
+    numerics = aj.Numerics(substeps=10, method="ark3")
+
+    def phi(tc):
+        return _phi(aj.make_trial(ctrl, arm=paper.arm(1), friction=aj.LuGre(tc, 1.5 * tc)), fd, numerics)[0]
+
+    f, g = jax.jit(phi), jax.jit(jax.grad(phi))
+    assert np.isfinite(float(g(0.0)))
+    tc, eps = 1e-3, 1e-7
+    central = (float(f(tc + eps)) - float(f(tc - eps))) / (2 * eps)
+    np.testing.assert_allclose(float(g(tc)), central, rtol=1e-3)
+
+
+def test_bad_numerics_get_a_clear_error():
+    with pytest.raises(ValueError, match="method.*'rk4', 'ark3', 'ark4'"):
+        aj.Numerics(method="euler")
+    with pytest.raises(ValueError, match="kernel='grad' is a kernel of method='rk4'"):
+        aj.Numerics(method="ark3", kernel="grad")
+    with pytest.raises(ValueError, match="substeps"):
+        aj.Numerics(substeps=0, method="ark3")
+
+
+def test_check_numerics_reports_the_error_of_a_coarse_batch():
+    """The observed error is the difference from a run at 4x the substeps, on an even sample."""
+    trials = aj.stack_trials([paper.trial("pd", 1, loc) for loc in (1, 2, 3, 4)])
+    fd = np.stack([np.asarray(_fd())] * 4)
+    welch = aj.Welch(512, 384)
+    coarse = aj.Numerics(substeps=2)
+    check = aj.check_numerics(trials, fd, numerics=coarse, sample=2, welch=welch)
+    np.testing.assert_array_equal(check.indices, [0, 3])
+    assert check.refined == aj.Numerics(substeps=8) and check.diverged == 0
+    fine = aj.assess_batch(trials, fd, aj.simulate_batch(trials, fd, numerics=check.refined), welch)
+    np.testing.assert_allclose(check.phi_T_refined, fine.phi_T[[0, 3]], rtol=1e-12)
+    expected = np.abs(check.phi_T - check.phi_T_refined) / check.phi_T_refined
+    assert check.max_rel_error == pytest.approx(expected.max()) and 0 < check.max_rel_error < 1e-2
