@@ -13,6 +13,7 @@ then the full record timed once (``block_until_ready`` via the host copy), amort
 trial. The reference runs are timed too, but not reported.
 
     python sweeps/bench_convergence.py [--seconds 50] [--settings rk4:25,ark3:20,...] [--out DIR]
+    python sweeps/bench_convergence.py --timing [--batch 24] [--repeats 3]   # cost only
 
 Writes ``DIR/convergence.json`` (every number) and ``DIR/convergence.md`` (the tables).
 """
@@ -40,6 +41,9 @@ def parse(argv):
     ap.add_argument("--controllers", nargs="+", default=["pd", "imbic"], choices=["pd", "imbic"])
     ap.add_argument("--settings", type=str, default=DEFAULT_SETTINGS, help="METHOD:SUBSTEPS,... to assess")
     ap.add_argument("--reference", type=str, help="METHOD:SUBSTEPS (default ark4 at 4x the finest setting)")
+    ap.add_argument("--timing", action="store_true", help="instead: cost per trial only (median of --repeats)")
+    ap.add_argument("--batch", type=int, default=24, help="--timing: IMBIC trials per batch (default 24)")
+    ap.add_argument("--repeats", type=int, default=3, help="--timing: timed runs per setting (default 3)")
     ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/bench"))
     args = ap.parse_args(argv)
 
@@ -63,6 +67,53 @@ def parse(argv):
     return args
 
 
+def timing(args, n, fd1, n_devices):
+    """Cost per trial of each setting: ``args.batch`` IMBIC trials cycling through the
+    Coulomb torques and arms, compile excluded, median of ``args.repeats`` runs, settings
+    alternated run by run so the host's drift hits all alike."""
+    import numpy as np
+
+    import armimp_jax as aj
+    from armimp_jax import paper
+
+    points = [(tau, loc) for tau in args.taus for loc in args.locations]
+    trials = []
+    for i in range(args.batch):
+        tau, loc = points[i % len(points)]
+        base = paper.trial("imbic", 0, loc)
+        trials.append(aj.make_trial(base.controller, arm=base.arm, friction=aj.LuGre(tau, 1.5 * tau)))
+    batch = aj.stack_trials(trials)
+    fd = np.broadcast_to(fd1, (args.batch, n, 2))
+    settings = args.settings
+    compile_s, times = {}, {s: [] for s in settings}
+    for method, k in settings:
+        t0 = time.perf_counter()
+        aj.simulate_batch(batch, fd[:, :CHUNK], numerics=aj.Numerics(substeps=k, method=method), chunk_samples=CHUNK)
+        compile_s[(method, k)] = time.perf_counter() - t0
+    for _ in range(args.repeats):
+        for method, k in settings:
+            t0 = time.perf_counter()
+            aj.simulate_batch(batch, fd, numerics=aj.Numerics(substeps=k, method=method), chunk_samples=CHUNK)
+            times[(method, k)].append((time.perf_counter() - t0) / args.batch)
+    rows = [
+        dict(
+            setting=f"{m}:{k}",
+            seconds_per_trial=float(np.median(times[(m, k)])),
+            runs=times[(m, k)],
+            warmup_with_compile_s=compile_s[(m, k)],
+        )
+        for m, k in settings
+    ]
+    lines = [
+        f"Cost per {n / 1000:g} s IMBIC trial, batch {args.batch} on {n_devices} device(s), "
+        f"median of {args.repeats} (compile excluded)",
+        "",
+        "| setting | s/trial | warm-up incl. compile [s] |",
+        "|---|---|---|",
+    ] + [f"| {r['setting']} | {r['seconds_per_trial']:.4f} | {r['warmup_with_compile_s']:.1f} |" for r in rows]
+    return dict(rows=rows, batch=args.batch, repeats=args.repeats), "\n".join(lines) + "\n"
+
+
 def main(argv=None):
     args = parse(argv)
     os.environ["ARMIMP_JAX_XLA_DEFAULTS"] = "0"  # configure() below sets code generation
@@ -78,6 +129,15 @@ def main(argv=None):
     n = int(round(args.seconds * 1000))
     n = -(-n // CHUNK) * CHUNK
     fd1 = np.asarray(aj.perturbation(jax.random.key(0), n, peak=paper.perturbation_peak(1)))
+    host = dict(platform=platform.platform(), cpus=os.cpu_count(), devices=n_devices, python=sys.version)
+    if args.timing:
+        results, table = timing(args, n, fd1, n_devices)
+        results["host"] = host
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "convergence_timing.json").write_text(json.dumps(results, indent=1, allow_nan=False))
+        (args.out / "convergence_timing.md").write_text(table)
+        print(table)
+        return
     settings = args.settings + [args.reference]
     results = {"settings": [f"{m}:{k}" for m, k in settings], "reference": "{}:{}".format(*args.reference), "rows": []}
     for ctrl in args.controllers:
@@ -123,7 +183,7 @@ def main(argv=None):
                     ],
                 )
             )
-    results["host"] = dict(platform=platform.platform(), cpus=os.cpu_count(), devices=n_devices, python=sys.version)
+    results["host"] = host
     results["seconds"] = n / 1000
     args.out.mkdir(parents=True, exist_ok=True)
     tables = markdown(results, args.taus)
