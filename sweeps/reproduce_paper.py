@@ -5,12 +5,16 @@
     python sweeps/reproduce_paper.py --seeds 5       # every condition over 5 perturbation seeds
     python sweeps/reproduce_paper.py --resume DIR    # finish an interrupted run with its own settings
     python sweeps/reproduce_paper.py --replot DIR    # redraw figures and report from saved results
+    python sweeps/reproduce_paper.py --coordinator HOST:PORT --num-processes N --process-id I
+                                                     # one process of an N-process job (docs/cluster.md)
 
 Writes ``DIR/REPORT.md``, PNG figures, ``results.json`` / ``results.npz``, ``run.json`` (the
 run's settings and their key) and one checked record per finished trial under
 ``DIR/trials`` (default DIR: results/paper or results/paper-quick). A folder holds one
 run: a command with the same settings reuses its finished trials, one with other settings
-is refused, and so is a folder another run is using (docs/results.md).
+is refused, and so is a folder another run is using (docs/results.md). In a job of several
+processes (``--coordinator``/``--num-processes``/``--process-id`` or ``--auto-cluster``) every
+process computes its shards of every batch and process 0 alone writes DIR.
 """
 
 from __future__ import annotations
@@ -53,6 +57,19 @@ def fail(message: str):
     sys.exit(2)
 
 
+def distributed_options():
+    """``armimp_jax/distributed.py`` loaded on its own, for its option helpers: they need no
+    JAX, and importing the package would start it (``--help`` stays fast)."""
+    import importlib.util
+
+    package = importlib.util.find_spec("armimp_jax")
+    path = pathlib.Path(package.submodule_search_locations[0]) / "distributed.py"
+    spec = importlib.util.spec_from_file_location("_armimp_jax_distributed_options", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def parse(argv):
     ap = Parser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", default=None, help="6 s records, 10 substeps, 1024-sample segments")
@@ -72,6 +89,7 @@ def parse(argv):
     ap.add_argument("--out", type=pathlib.Path, help="output folder")
     ap.add_argument("--resume", type=pathlib.Path, metavar="DIR", help="finish the run in DIR with its own settings")
     ap.add_argument("--replot", type=pathlib.Path, metavar="DIR", help="redraw figures and report from DIR")
+    distributed_options().add_arguments(ap)
     return ap.parse_args(argv)
 
 
@@ -103,6 +121,12 @@ def check_args(args) -> None:
             fail(f"--{name} {folder}: no such folder")
     if args.replot is not None and requested(args):
         fail("--replot redraws a finished run: it takes no simulation options")
+    try:
+        distributed_options().check_arguments(args)
+    except ValueError as err:
+        fail(str(err))
+    if args.replot is not None and (args.coordinator or args.num_processes or args.auto_cluster):
+        fail("--replot runs in one process: drop --coordinator, --num-processes, --process-id and --auto-cluster")
 
 
 class ProgressBar:
@@ -158,6 +182,9 @@ def settings_for(args, repro):
 def main(argv=None):
     args = parse(argv)
     check_args(args)
+    from armimp_jax import distributed
+
+    distributed.initialize(args)  # before the backend starts (configure starts it)
     from armimp_jax.runtime import configure
 
     configure()
@@ -173,14 +200,15 @@ def main(argv=None):
         return 0
     settings, out = settings_for(args, repro)
     settings.validate()
-    with RunLock(out):
-        repro.prepare_output(out, settings, resume=args.resume is not None)
-        done, todo = repro.trial_status(settings, out, warn=warn)
-        print(
-            f"{len(settings.conditions)} conditions x {settings.seeds} seed(s), {settings.seconds:g} s records, "
-            f"{settings.substeps} substeps -> {out} ({len(done)} trials on disk, {len(todo)} to run)",
-            flush=True,
-        )
+    writer = distributed.is_writer()
+    # the writer holds the lock and reads the folder; every process gets its list of trials to run
+    with repro.open_run(settings, out, resume=args.resume is not None, warn=warn) as (done, todo):
+        if writer:
+            print(
+                f"{len(settings.conditions)} conditions x {settings.seeds} seed(s), {settings.seconds:g} s records, "
+                f"{settings.substeps} substeps -> {out} ({len(done)} trials on disk, {len(todo)} to run)",
+                flush=True,
+            )
         start = time.perf_counter()
         try:
             repro.run_reproduction(
@@ -188,16 +216,23 @@ def main(argv=None):
                 out,
                 batch_size=args.batch_size,
                 chunk_seconds=min(5.0, settings.seconds),
-                progress=ProgressBar(),
+                progress=ProgressBar() if writer else None,
                 warn=lambda _: None,  # the scan above named every record that failed its check
             )
         except KeyboardInterrupt:
+            if not writer:
+                raise
             repro.add_wall_time(out, time.perf_counter() - start)
             sys.stderr.write("\ninterrupted: finished trials are saved\n")
             _, path = finish(repro, plots, report, out)
             print(f"partial report: {path}\nresume with: python sweeps/reproduce_paper.py --resume {out}")
             return 130
         wall = time.perf_counter() - start
+        if not writer:
+            import jax
+
+            print(f"process {jax.process_index()}: computed its shards of {len(todo)} trial(s); process 0 writes {out}")
+            return 0
         repro.add_wall_time(out, wall)
         results, path = finish(repro, plots, report, out)
     sys.stderr.write("\n")

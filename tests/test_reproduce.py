@@ -16,13 +16,16 @@ import pytest
 from armimp_jax import results as res
 from armimp_jax.paper import plots, report
 from armimp_jax.paper import reproduce as repro
+from armimp_jax.paper._presets import arm
 from armimp_jax.paper.claims import (
     Condition,
     condition_summary,
     evaluate_claims,
+    fit_metrics,
     mean_ci,
     seed_summaries,
     trial_id,
+    true_matrices,
 )
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -96,6 +99,46 @@ def test_quick_run_produces_everything(quick_run):
     with np.load(out / "results.npz") as data:
         assert data["Z"].shape[0] == n and np.iscomplexobj(data["Z"])
     assert "done in" in proc.stdout and "seeds" in proc.stdout
+
+
+def test_report_tables_fitted_matrices_and_the_sampled_data_bias(quick_run, tmp_path):
+    out, _ = quick_run
+    results = strict_loads((out / "results.json").read_text())
+    md = (out / "REPORT.md").read_text()
+    assert "## Fitted M, B, K" in md and "| condition | n | M error | B error | K error | VAF [%] |" in md
+    assert "| element | true | pd-L1-F0-P1 fit | err | pd-L1-F0-P1 mean fit | err |" in md
+    assert all({"fit_M", "fit_B", "fit_K", "fit_vaf"} <= t["metrics"].keys() for t in results["trials"])
+    conds = {Condition(**c["condition"]): c for c in results["conditions"]}
+    instant, mean = conds[Condition("pd", "pd", 1, 0, 1)], conds[Condition("pd", "pd", 1, 0, 1, "interval_mean")]
+    assert instant["truth"] == true_matrices(1)
+    # frictionless PD: the mass is well identified (6 s records, 1 Hz bins: a loose tolerance)
+    np.testing.assert_allclose(instant["fit_M"], arm(1).mass, atol=0.1)
+    assert instant["fit_M_rel_error"] < 0.05 and instant["fit_vaf"] > 95 and len(instant["fit_M_ci"]) == 2
+    # instant samples bias the damping upwards; interval means take most of it away
+    assert instant["fit_B"][0][0] > 1.3 * arm(1).damping[0, 0]
+    assert mean["fit_B_rel_error"] < instant["fit_B_rel_error"] / 2
+    paragraph = next(line for line in md.splitlines() if line.startswith("Sampled-data bias"))
+    assert f"with instant acquisition B is off by {100 * instant['fit_B_rel_error']:.1f}%" in paragraph
+    assert f"with interval-mean acquisition B is off by {100 * mean['fit_B_rel_error']:.1f}%" in paragraph
+    # results without fits (an older armimp_jax) still give a report, which says so
+    for c in results["conditions"]:
+        for k in [k for k in c if k.startswith("fit_") or k == "truth"]:
+            del c[k]
+    old = report.write_report(results, tmp_path, []).read_text()
+    assert "hold no fitted matrices" in old and "Sampled-data bias" not in old
+
+
+def test_fit_metrics_recover_exact_matrices_and_give_nan_for_diverged_trials():
+    f = np.linspace(0.5, 15.0, 30)
+    z = np.stack([np.asarray(arm(loc).impedance(f)) for loc in (1, 3)] + [np.full((30, 2, 2), np.nan + 0j)])
+    fits = fit_metrics(f, z, [1, 3, 2])
+    for fit, loc in zip(fits[:2], (1, 3)):
+        a = arm(loc)
+        np.testing.assert_allclose(fit["fit_M"], a.mass, atol=1e-9)
+        np.testing.assert_allclose(fit["fit_B"], a.damping, atol=1e-9)
+        np.testing.assert_allclose(fit["fit_K"], a.stiffness, atol=1e-7)
+        assert max(fit[f"fit_{m}_rel_error"] for m in "MBK") < 1e-10 and fit["fit_vaf"] == pytest.approx(100.0)
+    assert np.isnan(fits[2]["fit_B"]).all() and np.isnan(fits[2]["fit_vaf"])
 
 
 def test_replot_redraws_from_saved_results(quick_run):

@@ -14,6 +14,9 @@ deviation and the 95% t-interval of the mean); a diverged trial is counted and l
 and gives each threshold comparison the 95% t-interval of its quantity over the seeds:
 a verdict is *robust* when every seed gives it and every relevant interval lies on the
 side of its threshold that the verdict says.
+
+``fit_metrics`` fits ``M, B, K`` to each trial's estimate (``fit_impedance``, uniform
+weights) and scores them against the arm's (``true_matrices``); the report tables them.
 """
 
 from __future__ import annotations
@@ -21,9 +24,11 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
+import jax
 import numpy as np
 from scipy import stats
 
+from .._fit import fit_impedance
 from .._metrics import largest_singular_value
 from ._presets import arm
 
@@ -90,6 +95,43 @@ def trial_metrics(f, Z, est_arrays: dict, location: int) -> dict:
         m[f"{name}_median"] = float(np.median(c))
     m["input_coherence_max"] = float(np.max(est_arrays["coh_inputs"]))
     return m
+
+
+# --- Fitted M, B, K ----------------------------------------------------------------------
+FIT_MATRICES = (("M", "mass"), ("B", "damping"), ("K", "stiffness"))  # symbol, ImpedanceFit field
+
+
+def true_matrices(location: int) -> dict:
+    """The arm's ``M`` [kg], ``B`` [N s/m], ``K`` [N/m] at ``location`` as nested lists."""
+    a = arm(location)
+    return dict(M=np.asarray(a.mass).tolist(), B=np.asarray(a.damping).tolist(), K=np.asarray(a.stiffness).tolist())
+
+
+def fit_metrics(f, Z, locations) -> list[dict]:
+    """``M, B, K`` fitted to each estimate of a batch (``fit_impedance``, uniform weights).
+
+    ``f`` ``(F,)`` [Hz], ``Z`` ``(T, F, 2, 2)`` [N/m], ``locations`` ``(T,)``. Per trial:
+    ``fit_M``, ``fit_B``, ``fit_K`` ``(2, 2)``; ``fit_M_rel_error`` (and B, K): the relative
+    error ``||fit - true||_F / ||true||_F``; ``fit_vaf``: the fit's overall VAF [%]. A trial
+    with a non-finite ``Z`` (diverged) gets NaN.
+    """
+    Z = np.asarray(Z)
+    if Z.shape[0] == 0:
+        return []
+    finite = np.isfinite(Z).all(axis=(1, 2, 3))
+    fits = jax.vmap(fit_impedance, in_axes=(0, None))(np.where(finite[:, None, None, None], Z, 1.0), np.asarray(f))
+    out = []
+    for i, loc in enumerate(locations):
+        truth = true_matrices(int(loc))
+        m = {}
+        for sym, field_name in FIT_MATRICES:
+            fitted = np.asarray(getattr(fits, field_name)[i]) if finite[i] else np.full((2, 2), np.nan)
+            true = np.asarray(truth[sym])
+            m[f"fit_{sym}"] = fitted.tolist()
+            m[f"fit_{sym}_rel_error"] = float(np.linalg.norm(fitted - true) / np.linalg.norm(true))
+        m["fit_vaf"] = float(fits.vaf_overall[i]) if finite[i] else float("nan")
+        out.append(m)
+    return out
 
 
 # --- Seed statistics ----------------------------------------------------------------------

@@ -22,10 +22,18 @@ Seeds: trial seed ``s`` draws its perturbation from ``fold_in(PRNGKey(base_seed)
 (and further attempts, if input coherence is capped); every condition sees the same
 signal shape for the same seed (common random numbers), scaled to its level's peak.
 Diverged trials are saved and counted, and left out of every mean and claim.
+
+Fits: ``aggregate`` adds each trial's fitted ``M, B, K`` (``claims.fit_metrics``, from its
+stored ``f`` and ``Z``) to its metrics, so the records stay as written.
+
+Many processes (``armimp_jax.distributed``, ``docs/cluster.md``): ``open_run`` lets process 0
+hold the lock and read the folder and sends its list of trials to run to every process;
+every process computes its shards of every batch, and only process 0 writes.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import platform
 import sys
@@ -35,6 +43,7 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
+from .. import distributed
 from .._batch import Welch, assess_batch, make_mesh, simulate_batch
 from .._estimate import input_coherence
 from .._numerics import Numerics
@@ -57,10 +66,12 @@ from .claims import (
     Condition,
     condition_summary,
     evaluate_claims,
+    fit_metrics,
     paper_conditions,
     seed_summaries,
     trial_id,
     trial_metrics,
+    true_matrices,
 )
 
 ESTIMATE_FIELDS = ("f", "Z", "coh_multiple_x", "coh_partial_x", "coh_multiple_fh", "coh_partial_fh", "coh_inputs")
@@ -299,6 +310,59 @@ def trial_status(settings: ReproSettings, out, *, warn: Callable[[str], None] = 
     return done, todo
 
 
+def _share_start(settings: ReproSettings, status, error) -> tuple[list, list]:
+    """``(done, todo)`` of process 0 in every process, after checking that every process runs
+    the same settings; process 0's ``error`` (a refused folder, a held lock) is raised in
+    every process, so none waits for the others in a collective."""
+    if not distributed.is_distributed():
+        if error is not None:
+            raise error
+        return status
+    from jax.experimental import multihost_utils
+
+    order = [(c, s) for c in settings.conditions for s in range(settings.seeds)]
+    key = np.frombuffer(bytes.fromhex(settings_key(settings.run_settings())), dtype=np.uint8).astype(np.int64)
+    header = distributed.broadcast_from_writer(np.concatenate([[int(error is None), len(order)], key]))
+    same = bool(header[1] == len(order) and np.array_equal(header[2:], key))
+    agree = np.asarray(multihost_utils.process_allgather(np.array([int(same)]))).ravel()
+    if not header[0]:
+        if error is not None:
+            raise error
+        raise ResultsError("process 0 could not start the run (its error says why)")
+    if not agree.all():
+        raise ResultsError(
+            f"process(es) {', '.join(map(str, np.flatnonzero(agree == 0)))} have other run settings than process 0: "
+            "give every process the same options"
+        )
+    wanted = set(status[1]) if status is not None else set()
+    mask = distributed.broadcast_from_writer(np.array([cs in wanted for cs in order], dtype=np.int64))
+    return [cs for cs, m in zip(order, mask) if not m], [cs for cs, m in zip(order, mask) if m]
+
+
+@contextlib.contextmanager
+def open_run(settings: ReproSettings, out, *, resume: bool = False, warn: Callable[[str], None] = _warn_stderr):
+    """Context manager that starts (or resumes) the run of ``settings`` in ``out`` and yields
+    ``(done, todo)`` lists of ``(Condition, seed)`` (``trial_status``).
+
+    The writing process (``distributed.is_writer()``: process 0, or the only one) holds
+    ``out``'s ``RunLock`` until the block ends and calls ``prepare_output`` (a folder holding
+    another run is refused; so is ``resume`` on a folder with no run). In a
+    ``jax.distributed`` job every process gets process 0's lists, so all run the same
+    batches in the same order, and a refusal is raised in every process.
+    """
+    settings.validate()
+    with contextlib.ExitStack() as stack:
+        status = error = None
+        if distributed.is_writer():
+            try:
+                stack.enter_context(RunLock(out))
+                prepare_output(out, settings, resume=resume)
+                status = trial_status(settings, out, warn=warn)
+            except Exception as err:  # shared with the other processes, then raised
+                error = err
+        yield _share_start(settings, status, error)
+
+
 def run_reproduction(
     settings: ReproSettings,
     out,
@@ -312,16 +376,17 @@ def run_reproduction(
     """Simulate, estimate and score every trial of ``settings`` that has no valid record in
     ``out``; returns the ids computed now.
 
-    Holds ``out``'s ``RunLock`` throughout and calls ``prepare_output`` first (a folder
+    Runs inside ``open_run`` (the writer holds ``out``'s ``RunLock`` throughout; a folder
     holding another run is refused). ``progress`` receives a dict (``done``/``total``
     substep counts, ``trials_done``, ``trials_total``, ``elapsed_s``, ``eta_s``) after
     every chunk. ``stop_after_batches`` stops early (used to test resuming). ``warn``
     receives one line per trial record that failed its check.
+
+    In a ``jax.distributed`` job (``armimp_jax.distributed``) call it in every process with
+    the same arguments: each process computes its shards of every batch, and only process
+    0 writes the trial records.
     """
-    settings.validate()
-    with RunLock(out):
-        prepare_output(out, settings, resume=False)
-        _, todo = trial_status(settings, out, warn=warn)
+    with open_run(settings, out, warn=warn) as (_, todo):
         return _compute(settings, out, todo, batch_size, chunk_seconds, progress, stop_after_batches)
 
 
@@ -332,6 +397,7 @@ def _compute(settings, out, todo, batch_size, chunk_seconds, progress, stop_afte
     total, done_substeps, computed = len(todo) * per_trial, 0, []
     start = time.perf_counter()
     cache: dict[int, tuple] = {}
+    write = distributed.is_writer()  # every process gets every result (to_host); one writes
 
     def signals(seed):
         if seed not in cache:
@@ -398,7 +464,8 @@ def _compute(settings, out, todo, batch_size, chunk_seconds, progress, stop_afte
                 batch_size=len(batch),
                 metrics=trial_metrics(est["f"], est["Z"], est, c.location),
             )
-            save_record(trial_path(out, c, s), settings=settings.trial_settings(c, s), arrays=est, meta=meta)
+            if write:
+                save_record(trial_path(out, c, s), settings=settings.trial_settings(c, s), arrays=est, meta=meta)
             computed.append(tid)
     return computed
 
@@ -424,6 +491,20 @@ def load_trials(
     return metas, arrays, missing
 
 
+def add_fits(metas: list[dict], arrays: dict) -> None:
+    """Add the fitted ``M, B, K`` of each trial (``claims.fit_metrics``, from its stored ``f``
+    and ``Z``) to its ``metrics``, in place. Done when aggregating, so that every record,
+    older ones included, gets the same fit, and the records stay as they were written."""
+    groups: dict[bytes, list] = {}
+    for m in metas:
+        groups.setdefault(np.asarray(arrays[m["id"]]["f"]).tobytes(), []).append(m)
+    for group in groups.values():
+        z = np.stack([arrays[m["id"]]["Z"] for m in group])
+        fits = fit_metrics(arrays[group[0]["id"]]["f"], z, [m["condition"]["location"] for m in group])
+        for m, fit in zip(group, fits):
+            m["metrics"] = m["metrics"] | fit
+
+
 def aggregate(out, *, warn: Callable[[str], None] = _warn_stderr) -> tuple[dict, dict]:
     """Write ``results.json`` and ``results.npz`` from the run's valid trial records; return
     the results dict and the per-trial arrays (as ``load_results`` would read them back).
@@ -435,6 +516,7 @@ def aggregate(out, *, warn: Callable[[str], None] = _warn_stderr) -> tuple[dict,
         run = read_run(out)
         settings = ReproSettings.from_saved(run["settings"], where=str(out / "run.json"))
         metas, arrays, missing = load_trials(out, settings, warn=warn)
+        add_fits(metas, arrays)
         summary = condition_summary(metas)
         claims = [dataclasses.asdict(c) for c in evaluate_claims(summary, seed_summaries(metas))]
         results = to_jsonable(  # as load_results reads it back: NaN -> None
@@ -448,7 +530,10 @@ def aggregate(out, *, warn: Callable[[str], None] = _warn_stderr) -> tuple[dict,
                 missing=missing,
                 diverged=[m["id"] for m in metas if m["diverged"]],
                 trials=metas,
-                conditions=[dict(condition=dataclasses.asdict(c), **m) for c, m in summary.items()],
+                conditions=[
+                    dict(condition=dataclasses.asdict(c), truth=true_matrices(c.location), **m)
+                    for c, m in summary.items()
+                ],
                 claims=claims,
                 wall_s=run.get("wall_s"),
             )
