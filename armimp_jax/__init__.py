@@ -44,6 +44,6 @@ from ._simulate import simulate_chunk as simulate_chunk
 from ._simulate import simulate_init as simulate_init
 from ._simulate import stack_trials as stack_trials
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 runtime.apply_cpu_defaults()

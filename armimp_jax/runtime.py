@@ -105,7 +105,7 @@ def configure(
     one kernel. ``unroll_loops=False`` adds the option that stops LLVM unrolling the
     short per-fusion loops over the batch inside that kernel (faster at small per-device
     batches). Both change where LLVM contracts ``a*b + c`` into an FMA, so
-    results may move in their last bits (bounded in ``tests/test_kernels.py``).
+    results may move in their last bits (bounded in ``tests/test_plant.py``).
     ``vector_width`` (bits) is XLA:CPU's preferred SIMD width: ``"auto"`` asks for 512 on
     AVX-512 hosts and leaves the default elsewhere, ``None`` leaves it alone.
     Flags already in ``XLA_FLAGS`` win. Must run before the first JAX computation; on

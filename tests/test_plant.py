@@ -1,4 +1,5 @@
-"""The fast and grad RK4 kernels against the reference one, and sharded against unsharded runs."""
+"""The plant's integration kernels (fast and grad RK4 against the reference), and the code
+generation and sharding they run under."""
 
 import functools
 import json
