@@ -80,13 +80,25 @@ def stribeck(v, p: LuGre):
     return p.tau_c + (p.tau_s - p.tau_c) * jnp.exp(-(r * r))
 
 
+# Where tau_c = 0 < tau_s, g(v) = tau_s exp(-(v/v_s)^2) underflows to 0 beyond ~27 v_s, and the
+# bristle rate sigma0 |v| / g with it: g is held at least G_FLOOR tau_s (a Coulomb torque of
+# 1e-9 tau_s at speed), so a joint with stiction keeps its bristles at every velocity.
+G_FLOOR = 1e-9
+
+
+def bristle_g(v, p: LuGre):
+    """``g(v)`` [N m] as the bristle equations use it: ``stribeck`` held at least
+    ``G_FLOOR tau_s`` (0 only where ``tau_s = 0``: no bristles)."""
+    return jnp.maximum(stribeck(v, p), G_FLOOR * p.tau_s)
+
+
 def lugre(v, z, p: LuGre):
     """Friction torque and bristle rate at joint velocity ``v`` [rad/s], bristle state ``z`` [rad].
 
     ``p`` holds one joint's parameters (``LuGre.joint``). Returns ``(tau_f, zd)``. Where
     ``g(v) = 0`` there are no bristles: ``zd = 0`` and ``tau_f = sigma2 v``.
     """
-    g = stribeck(v, p)
+    g = bristle_g(v, p)
     positive = g > 0.0
     g_safe = jnp.where(positive, g, 1.0)
     # Written so that the g > 0 lanes compute bitwise what the unguarded formula does.
