@@ -1,0 +1,210 @@
+"""Sweep any settings of a trial over a grid (or a list of points) times seeds.
+
+    python sweeps/sweep.py --set controller=pd,imbic --set tau_c=0,0.1,1 --seeds 5 --out results/my-sweep
+    python sweeps/sweep.py --set tau_c=geom:0.001:4:13 --set arm=1,2,3,4 --seconds 20 --out DIR
+    python sweeps/sweep.py --config grid.toml --out DIR      # [grid], [[points]], [run] tables
+    python sweeps/sweep.py --resume DIR                      # finish an interrupted sweep
+
+Settings (``--set NAME=V1,V2,...``, or ``[grid]``/``[[points]]`` in TOML; see docs/sweeps.md):
+controller, tau_c [N m], stiction_ratio, sigma0, sigma1, sigma2, v_s, arm (1-4 or a user
+arm in TOML), perturbation_level or peak [N], seconds, force_noise [N], encoder_counts,
+velocity_noise [rad/s], acquisition, mhat [kg], nperseg, noverlap, fmax [Hz], window, nfft.
+
+Writes DIR/trials.csv (one row per trial), DIR/summary.csv and summary.json (per point
+over seeds: mean, sd, 95% CI, diverged count), DIR/<swept>.png, DIR/run.json and one
+checked record per trial under DIR/trials. A folder holds one sweep: the same command
+reuses its finished trials; other settings are refused (docs/results.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import pathlib
+import sys
+import time
+
+PROG = "sweep"
+SHORTCUTS = ("seconds", "nperseg", "noverlap", "mhat")  # options that set one value of a point setting
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (``sweep: error: ...``, exit status 2)."""
+
+    def error(self, message):
+        fail(message)
+
+
+def fail(message: str, prog: str = PROG):
+    sys.stderr.write(f"{prog}: error: {message}\n")
+    sys.exit(2)
+
+
+def parser(prog: str = PROG, description: str | None = __doc__) -> Parser:
+    ap = Parser(prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=V1,V2", help="sweep (or fix) a setting")
+    ap.add_argument("--config", type=pathlib.Path, metavar="TOML", help="grid and points from a TOML file")
+    ap.add_argument("--seconds", type=float, help="record length [s] (default 50)")
+    ap.add_argument("--nperseg", type=int, help="Welch segment [samples] (default 8192)")
+    ap.add_argument("--noverlap", type=int, help="Welch overlap [samples] (default 3/4 nperseg)")
+    ap.add_argument("--mhat", type=float, help="IMBIC Mhat, times the identity [kg] (default 0.25)")
+    ap.add_argument("--seeds", type=int, help="perturbation seeds per point (default 3)")
+    ap.add_argument("--base-seed", type=int, help="PRNG seed the perturbations are folded from (default 0)")
+    ap.add_argument("--method", choices=("rk4", "ark3", "ark4"), help="integrator (default ark3)")
+    ap.add_argument("--substeps", type=int, help="integration steps per 1 ms period (default 20)")
+    ap.add_argument("--check", type=int, default=0, metavar="N", help="re-run N trials per group at 4x substeps")
+    ap.add_argument("--batch-size", type=int, default=64, help="trials per vmapped batch (does not change results)")
+    ap.add_argument("--x", metavar="NAME", help="setting on the figure's x axis (default: the first swept number)")
+    ap.add_argument("--out", type=pathlib.Path, help="output folder")
+    ap.add_argument("--resume", type=pathlib.Path, metavar="DIR", help="finish the sweep in DIR with its own settings")
+    return ap
+
+
+def check_args(args, prog: str = PROG) -> None:
+    """Checks that need no simulation (before JAX is imported)."""
+    if (args.out is None) == (args.resume is None):
+        fail("give one of --out DIR and --resume DIR", prog)
+    if args.resume is not None and not args.resume.is_dir():
+        fail(f"--resume {args.resume}: no such folder", prog)
+    for name in ("batch_size", "seeds", "substeps"):
+        v = getattr(args, name, None)
+        if v is not None and v < 1:
+            fail(f"--{name.replace('_', '-')} must be >= 1, got {v}", prog)
+    if args.check < 0:
+        fail(f"--check must be >= 0, got {args.check}", prog)
+    if args.base_seed is not None and args.base_seed < 0:
+        fail(f"--base-seed must be >= 0, got {args.base_seed}", prog)
+
+
+def run_options(args, toml_run: dict) -> dict:
+    """``SweepSettings`` keyword arguments other than the points (command line over TOML)."""
+    out = {k: v for k, v in toml_run.items()}
+    for name in ("seeds", "base_seed", "method", "substeps"):
+        if getattr(args, name) is not None:
+            out[name] = getattr(args, name)
+    return out
+
+
+def requested(args, sweep):
+    """``SweepSettings`` from the command line and ``--config``."""
+    grid, points, run = sweep.read_toml(args.config) if args.config else ({}, None, {})
+    cli = sweep.parse_set(args.set)
+    both = sorted(set(cli) & set(grid))
+    if both:
+        raise ValueError(f"setting(s) {', '.join(both)} given both in --set and in {args.config}")
+    grid = dict(grid) | cli
+    for name in SHORTCUTS:
+        value = getattr(args, name)
+        if value is not None:
+            if name in grid:
+                raise ValueError(f"--{name} and --set {name} (or the TOML grid) both given")
+            grid[name] = [value]
+    return sweep.SweepSettings(tuple(sweep.expand(grid, points)), **run_options(args, run))
+
+
+class Progress:
+    """A tqdm bar in trials, with the library's ETA (compilation excluded); ends at 100%."""
+
+    def __init__(self, total: int):
+        from tqdm import tqdm
+
+        self.bar = tqdm(
+            total=total, unit="trial", bar_format="{l_bar}{bar}| {n:.1f}/{total_fmt} trials [{elapsed}{postfix}]"
+        )
+
+    def __call__(self, p):
+        self.bar.n = p["trials_total"] * p["done"] / p["total"] if p["total"] else 0.0
+        eta = p["eta_s"]
+        self.bar.set_postfix_str(
+            f"ETA {int(eta // 60)}:{int(eta % 60):02d}" if eta == eta else "ETA ? (compiling)", refresh=False
+        )
+        self.bar.refresh()
+
+    def close(self):
+        self.bar.n = self.bar.total
+        self.bar.set_postfix_str("done", refresh=False)
+        self.bar.close()
+
+
+def warn(message: str) -> None:
+    sys.stderr.write(f"{PROG}: warning: {message}\n")
+
+
+def settings_for(args, sweep):
+    """``(settings, out)``; for ``--resume`` the saved settings (options given must agree)."""
+    from armimp_jax.results import ResultsError
+
+    if args.resume is None:
+        return requested(args, sweep), args.out
+    saved = sweep.saved_settings(args.resume)
+    if args.set or args.config:
+        wanted = requested(args, sweep)
+    else:  # options given with --resume apply to every saved point
+        given = {k: getattr(args, k) for k in SHORTCUTS if getattr(args, k) is not None}
+        points = tuple(sweep.normalize_point(dict(p) | given) for p in saved.points)
+        wanted = dataclasses.replace(saved, points=points, **run_options(args, {}))
+    if wanted != saved:
+        raise ResultsError(
+            f"--resume {args.resume}: that sweep has {sweep.describe_run_difference(saved, wanted)}; "
+            "drop those options to finish it, or start a new sweep with --out"
+        )
+    return saved, args.resume
+
+
+def run(args, *, prog: str = PROG, settings=None, out=None, quiet: bool = False):
+    """Run (or resume) a sweep from parsed options; returns ``(summary, out)``."""
+    from armimp_jax import sweep
+    from armimp_jax.results import RunLock
+
+    if settings is None:
+        settings, out = settings_for(args, sweep)
+    settings.validate()
+    with RunLock(out):
+        sweep.prepare_output(out, settings)
+        _, todo = sweep.trial_status(settings, out, warn=lambda m: sys.stderr.write(f"{prog}: warning: {m}\n"))
+        if not quiet:
+            print(
+                f"{len(settings.points)} point(s) x {settings.seeds} seed(s), {settings.method} with "
+                f"{settings.substeps} substeps -> {out} ({len(settings.points) * settings.seeds - len(todo)} trials "
+                f"on disk, {len(todo)} to run)",
+                flush=True,
+            )
+        bar = Progress(len(todo)) if todo and not quiet else None
+        start = time.perf_counter()
+        try:
+            result = sweep.run_sweep(
+                settings, out, batch_size=args.batch_size, check=args.check, x=args.x, progress=bar, warn=lambda _: None
+            )
+        finally:
+            if bar is not None:
+                bar.close()
+    if not quiet:
+        print(
+            f"done in {time.perf_counter() - start:.1f} s: {len(result['computed'])} trial(s) run, "
+            f"{len(result['diverged'])} diverged (left out of the summary); {out}/trials.csv, summary.csv, "
+            f"{result['figure']}"
+        )
+        chk = result.get("numerics_check")
+        if chk:
+            print(
+                f"numerics check: {chk['trials_checked']} trial(s) at {chk['refined_substeps']} substeps, "
+                f"max relative phi_T error {chk['max_rel_error']}"
+            )
+    return result, out
+
+
+def main(argv=None):
+    args = parser().parse_args(argv)
+    check_args(args)
+    from armimp_jax.runtime import configure
+
+    configure()
+    try:
+        result, _ = run(args)
+    except ValueError as err:  # bad settings and ResultsError: one line, no traceback
+        fail(str(err))
+    return 0 if result["complete"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
