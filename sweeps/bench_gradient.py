@@ -37,16 +37,23 @@ import time
 # (the children inherit this). No JAX backend starts on import, so configure() still applies.
 os.environ["ARMIMP_JAX_XLA_DEFAULTS"] = "0"
 
-from armimp_jax._plant import CHECKPOINTS  # noqa: E402
-
+# armimp_jax._plant.CHECKPOINTS, spelled out so that --help needs no JAX (checked in the children)
+CHECKPOINTS = ("period", "substep")
 MODES = ("primal", "reverse-diagonal", "reverse-full", "forward-diagonal", "forward-full")
 KERNELS = ("fast", "grad", "reference")
+
+
+def _check_checkpoints():
+    from armimp_jax._plant import CHECKPOINTS as LIBRARY_CHECKPOINTS
+
+    assert LIBRARY_CHECKPOINTS == CHECKPOINTS, (LIBRARY_CHECKPOINTS, CHECKPOINTS)
 
 
 def child(mode, kernel, checkpoint, seconds, substeps, repeats, codegen):
     from armimp_jax.runtime import configure
 
     configure(host_devices=1, **codegen)
+    _check_checkpoints()
     import jax
     import numpy as np
 
@@ -107,6 +114,7 @@ def child_training(repeats, codegen):
     from armimp_jax.runtime import configure
 
     configure(**codegen)
+    _check_checkpoints()
     import jax
     import numpy as np
     from jax.sharding import NamedSharding, PartitionSpec

@@ -46,20 +46,49 @@ import subprocess
 import sys
 import time
 
+# The set-ups that --library-path compares, each in a child process ("--library-child SETUP").
+SETUPS = ("library", "configured", "plain")
+
+
+def parser() -> argparse.ArgumentParser:
+    """The command line (built before JAX is imported, so that ``--help`` is instant)."""
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--substeps", type=int, default=100)
+    ap.add_argument("--quick", action="store_true", help="tiny sizes, to check the script runs")
+    ap.add_argument("--no-numba", action="store_true", help="skip the numba baseline")
+    ap.add_argument("--no-wide-vectors", action="store_true", help="XLA:CPU's default vector width")
+    ap.add_argument("--unroll-loops", action="store_true", help="leave LLVM's loop unrolling on (XLA's default)")
+    ap.add_argument("--compare-unrolling", action="store_true", help="paired runs with and without loop unrolling")
+    ap.add_argument("--lanes", action="store_true", help="unpadded batch sizes around the vector width, one device")
+    ap.add_argument("--large-batch", action="store_true", help="large batches: one device, and grouped simulate_batch")
+    ap.add_argument(
+        "--library-path",
+        action="store_true",
+        help="simulate_batch as a library user runs it vs configured vs plain XLA",
+    )
+    ap.add_argument("--seconds", type=float, default=5.0, help="record length of the simulation timings")
+    ap.add_argument("--serve", help=argparse.SUPPRESS)
+    ap.add_argument("--library-child", choices=SETUPS, help=argparse.SUPPRESS)
+    ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/bench"))
+    return ap
+
+
+# parsed before JAX starts: --help needs no JAX, and configure() must run before the backend starts
+ARGS = parser().parse_args() if __name__ == "__main__" else None
+
 # The children of --compare-unrolling and --library-path start from the caller's
 # environment and flags, not this process's.
 CALLER_ENV = dict(os.environ)
 CALLER_XLA_FLAGS = CALLER_ENV.get("XLA_FLAGS", "")
-# The set-ups that --library-path compares, each in a child process ("--library-child SETUP").
-SETUPS = ("library", "configured", "plain")
-SETUP = sys.argv[sys.argv.index("--library-child") + 1] if "--library-child" in sys.argv else None
+SETUP = ARGS.library_child if ARGS is not None else None
 if SETUP is None:
     # configure() below sets code generation: keep the import-time options out of it.
     os.environ["ARMIMP_JAX_XLA_DEFAULTS"] = "0"
 
 from armimp_jax import runtime  # noqa: E402
 
-# configure() must run before JAX starts, so these options are read before argparse.
+# configure() must run before JAX starts: hence the options parsed above, before any JAX import.
 if SETUP in ("library", "plain"):
     import jax
 
@@ -69,7 +98,8 @@ elif SETUP == "configured":
     N_DEVICES = runtime.configure(host_devices=1)
 else:
     N_DEVICES = runtime.configure(
-        vector_width=None if "--no-wide-vectors" in sys.argv else "auto", unroll_loops="--unroll-loops" in sys.argv
+        vector_width=None if ARGS is not None and ARGS.no_wide_vectors else "auto",
+        unroll_loops=ARGS is not None and ARGS.unroll_loops,
     )
 
 import jax  # noqa: E402
@@ -584,26 +614,7 @@ def markdown(sim, full, est, numba_row=None, library=None, library_repeats=None)
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--substeps", type=int, default=100)
-    ap.add_argument("--quick", action="store_true", help="tiny sizes, to check the script runs")
-    ap.add_argument("--no-numba", action="store_true", help="skip the numba baseline")
-    ap.add_argument("--no-wide-vectors", action="store_true", help="XLA:CPU's default vector width")
-    ap.add_argument("--unroll-loops", action="store_true", help="leave LLVM's loop unrolling on (XLA's default)")
-    ap.add_argument("--compare-unrolling", action="store_true", help="paired runs with and without loop unrolling")
-    ap.add_argument("--lanes", action="store_true", help="unpadded batch sizes around the vector width, one device")
-    ap.add_argument("--large-batch", action="store_true", help="large batches: one device, and grouped simulate_batch")
-    ap.add_argument(
-        "--library-path",
-        action="store_true",
-        help="simulate_batch as a library user runs it vs configured vs plain XLA",
-    )
-    ap.add_argument("--seconds", type=float, default=5.0, help="record length of the simulation timings")
-    ap.add_argument("--serve", help=argparse.SUPPRESS)
-    ap.add_argument("--library-child", choices=SETUPS, help=argparse.SUPPRESS)
-    ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/bench"))
-    args = ap.parse_args()
+    args = ARGS if ARGS is not None else parser().parse_args()
     if args.serve:
         return serve([tuple(c) for c in json.loads(args.serve)], args.seconds, args.substeps)
     if args.library_child:
@@ -652,6 +663,11 @@ def main():
         (args.out / "bench_library.md").write_text(table + "\n")
         (args.out / "bench_library.json").write_text(json.dumps(dict(env=environment(), library=rows), indent=1))
         return None
+    if not args.no_numba:
+        try:
+            import numba  # noqa: F401
+        except ImportError:
+            sys.exit("bench_simulate: error: the numba baseline needs numba (pip install -e '.[bench]'); or --no-numba")
     if args.quick:
         kernels = ("fast", "reference")
         sim = bench_simulation([(k, d, b) for k in kernels for d in devs for b in (1, 4)], 0.5, 10, 1)

@@ -14,15 +14,40 @@ from __future__ import annotations
 import argparse
 import math
 import statistics
+import sys
 import time
 
-import numpy as np
-from numba import njit, prange
+NEEDS_NUMBA = "needs numba (pip install -e '.[bench]')"
 
-from armimp_jax._control import IMBIC, PD
-from armimp_jax._robot import MIT_MANUS_ELBOW_LINK as LE
-from armimp_jax._robot import MIT_MANUS_INERTIA
-from armimp_jax._robot import MIT_MANUS_SHOULDER_LINK as LS
+
+def parser() -> argparse.ArgumentParser:
+    """The command line (built before numba and JAX are imported: ``--help`` needs neither)."""
+    ap = argparse.ArgumentParser(
+        prog="numba_baseline", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("--batch", type=int, default=4, help="trials (default 4)")
+    ap.add_argument("--seconds", type=float, default=0.5, help="record length [s] (default 0.5)")
+    ap.add_argument("--substeps", type=int, default=10, help="RK4 substeps per 1 ms (default 10)")
+    ap.add_argument("--controller", choices=("imbic", "pd"), default="imbic")
+    ap.add_argument("--repeats", type=int, default=3, help="timed runs, median reported (default 3)")
+    return ap
+
+
+if __name__ == "__main__":
+    ARGS = parser().parse_args()
+    try:
+        import numba  # noqa: F401
+    except ImportError:
+        sys.stderr.write(f"numba_baseline: error: {NEEDS_NUMBA}\n")
+        sys.exit(2)
+
+import numpy as np  # noqa: E402
+from numba import njit, prange  # noqa: E402
+
+from armimp_jax._control import IMBIC, PD  # noqa: E402
+from armimp_jax._robot import MIT_MANUS_ELBOW_LINK as LE  # noqa: E402
+from armimp_jax._robot import MIT_MANUS_INERTIA  # noqa: E402
+from armimp_jax._robot import MIT_MANUS_SHOULDER_LINK as LS  # noqa: E402
 
 C1, C2, C3 = MIT_MANUS_INERTIA
 
@@ -193,15 +218,8 @@ def run(trials, f_delta, substeps):
     return x, fh
 
 
-def main():
+def main(args):
     """Time the numba loop on a small batch and compare it with the JAX simulator."""
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--batch", type=int, default=4)
-    ap.add_argument("--seconds", type=float, default=0.5)
-    ap.add_argument("--substeps", type=int, default=10)
-    ap.add_argument("--controller", choices=("imbic", "pd"), default="imbic")
-    ap.add_argument("--repeats", type=int, default=3)
-    args = ap.parse_args()
     from armimp_jax import runtime
 
     runtime.configure()
@@ -237,4 +255,4 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    main(ARGS)

@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import pathlib
+import statistics
 import sys
 import time
 
@@ -129,24 +131,101 @@ def check_args(args) -> None:
         fail("--replot runs in one process: drop --coordinator, --num-processes, --process-id and --auto-cluster")
 
 
-class ProgressBar:
-    def __init__(self, stream=sys.stderr):
-        self.stream, self.last = stream, 0.0
+def batch_sizes(todo, batch_size: int) -> list[int]:
+    """Trials per batch, in the order ``reproduce.run_reproduction`` runs them (one group per
+    controller and acquisition, split into ``batch_size`` pieces); the bar only uses it to
+    name what runs between chunks."""
+    groups: dict[tuple, int] = {}
+    for c, _ in todo:
+        groups[(c.controller, c.acquisition)] = groups.get((c.controller, c.acquisition), 0) + 1
+    return [min(batch_size, n - i) for n in groups.values() for i in range(0, n, batch_size)]
 
-    def __call__(self, p):
+
+def _clock(seconds: float) -> str:
+    return f"{int(seconds // 60)}:{int(seconds % 60):02d}"
+
+
+class ProgressBar:
+    """The run's progress on one line of ``stream``, then its finishing steps, one line each.
+
+    The ETA leaves compilation out: it counts the rate over the chunks that did not start a
+    batch (a batch's first chunk also compiles it, after the previous batch's estimation),
+    plus the measured cost of each batch start for the batches still to come; until a
+    steady rate is known it says "compiling". The bar ends at 100% with every trial.
+    """
+
+    def __init__(self, trials_total: int, batches: list[int], per_trial: int, stream=sys.stderr):
+        self.stream, self.trials_total, self.per_trial = stream, trials_total, per_trial
+        self.ends = [per_trial * v for v in itertools.accumulate(batches)]
+        self.total = per_trial * trials_total
+        self.start = time.monotonic()
+        self.last_draw = -1.0
+        self.prev = None  # (time, done, trials_done) of the previous call
+        self.steady_s = self.steady_work = 0.0  # time and substeps of chunks that did not start a batch
+        self.starts: list[float] = []  # measured extra cost of starting a batch (estimation, compilation)
+
+    def begin(self) -> None:
+        first = f" ({self.ends[0] // self.per_trial} trials)" if self.ends else ""
+        self._draw(0, 0, f"compiling the first batch{first}...", force=True)
+
+    def _rate(self):
+        return self.steady_work / self.steady_s if self.steady_s > 0 and self.steady_work > 0 else None
+
+    def __call__(self, p: dict) -> None:
         now = time.monotonic()
-        if now - self.last < 0.5 and p["done"] < p["total"]:
+        done, trials = p["done"], p["trials_done"]
+        rate = self._rate()
+        if self.prev is not None:
+            t_prev, done_prev, trials_prev = self.prev
+            if trials == trials_prev:
+                self.steady_s += now - t_prev
+                self.steady_work += done - done_prev
+            elif rate is not None:  # a batch started: what it cost beyond its simulation
+                self.starts.append(max(0.0, now - t_prev - (done - done_prev) / rate))
+        self.prev = (now, done, trials)
+        rate = self._rate()
+        batch = sum(1 for e in self.ends if e <= done)  # batches whose simulation is over
+        if done >= self.total:
+            status = "simulated; estimating the last batch..."
+        elif done in self.ends:
+            status = f"estimating batch {batch}/{len(self.ends)}, then compiling the next..."
+        elif rate is None:  # the first chunk (and compilation) is over; the rate needs one more
+            status = "ETA after the next chunk"
+        else:
+            per_start = statistics.fmean(self.starts) if self.starts else 0.0
+            eta = (self.total - done) / rate + per_start * max(0, len(self.ends) - batch - 1)
+            status = f"ETA {_clock(eta)}"
+        self._draw(done, trials, status, force=done in self.ends or done >= self.total)
+
+    def _draw(self, done, trials, status, *, force=False) -> None:
+        now = time.monotonic()
+        if not force and now - self.last_draw < 0.5:
             return
-        self.last = now
-        frac = p["done"] / p["total"] if p["total"] else 1.0
-        eta = p["eta_s"]
-        eta_s = f"{int(eta // 60)}:{int(eta % 60):02d}" if eta == eta else "?"
+        self.last_draw = now
+        frac = min(1.0, done / self.total) if self.total else 1.0
         bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
         self.stream.write(
-            f"\r[{bar}] {100 * frac:5.1f}%  trials {p['trials_done']}/{p['trials_total']}  "
-            f"elapsed {p['elapsed_s']:.0f} s  ETA {eta_s}  "
+            f"\r[{bar}] {100 * frac:5.1f}%  trials {trials}/{self.trials_total}  "
+            f"elapsed {_clock(now - self.start)}  {status:<50s}"
         )
         self.stream.flush()
+
+    def end(self, trials_done: int) -> None:
+        """The last line of the bar: every trial simulated, estimated and saved."""
+        self._draw(self.total, trials_done, "done", force=True)
+        self.stream.write("\n")
+        self.stream.flush()
+
+
+def step(name: str, fn, stream=sys.stderr):
+    """Run ``fn()``, one finishing step, saying what it is and how long it took."""
+    stream.write(f"{name}...")
+    stream.flush()
+    t0 = time.perf_counter()
+    result = fn()
+    stream.write(f" {time.perf_counter() - t0:.1f} s\n")
+    stream.flush()
+    return result
 
 
 def warn(message: str) -> None:
@@ -154,9 +233,9 @@ def warn(message: str) -> None:
 
 
 def finish(repro, plots, report, out):
-    results, arrays = repro.aggregate(out, warn=warn)
-    figures = plots.all_figures(results, arrays, out)
-    path = report.write_report(results, out, figures)
+    results, arrays = step("aggregating", lambda: repro.aggregate(out, warn=warn))
+    figures = step("plotting", lambda: plots.all_figures(results, arrays, out))
+    path = step("writing the report", lambda: report.write_report(results, out, figures))
     return results, path
 
 
@@ -195,8 +274,9 @@ def main(argv=None):
     if args.replot:
         with RunLock(args.replot):
             results, arrays = repro.load_results(args.replot)
-            figures = plots.all_figures(results, arrays, args.replot)
-            print(f"redrew {len(figures)} figures and {report.write_report(results, args.replot, figures)}")
+            figures = step("plotting", lambda: plots.all_figures(results, arrays, args.replot))
+            path = step("writing the report", lambda: report.write_report(results, args.replot, figures))
+            print(f"redrew {len(figures)} figures and {path}")
         return 0
     settings, out = settings_for(args, repro)
     settings.validate()
@@ -209,14 +289,18 @@ def main(argv=None):
                 f"{settings.substeps} substeps -> {out} ({len(done)} trials on disk, {len(todo)} to run)",
                 flush=True,
             )
+        bar = None
+        if writer and todo:
+            bar = ProgressBar(len(todo), batch_sizes(todo, args.batch_size), settings.n_samples * settings.substeps)
+            bar.begin()
         start = time.perf_counter()
         try:
-            repro.run_reproduction(
+            computed = repro.run_reproduction(
                 settings,
                 out,
                 batch_size=args.batch_size,
                 chunk_seconds=min(5.0, settings.seconds),
-                progress=ProgressBar() if writer else None,
+                progress=bar,
                 warn=lambda _: None,  # the scan above named every record that failed its check
             )
         except KeyboardInterrupt:
@@ -233,9 +317,10 @@ def main(argv=None):
 
             print(f"process {jax.process_index()}: computed its shards of {len(todo)} trial(s); process 0 writes {out}")
             return 0
+        if bar is not None:
+            bar.end(len(computed))
         repro.add_wall_time(out, wall)
         results, path = finish(repro, plots, report, out)
-    sys.stderr.write("\n")
     for c in results["claims"]:
         print(f"  ({c['key']}) {c['verdict']:10s} {c['ours']}\n      {'':10s} {c['robustness']}")
     if results["diverged"]:

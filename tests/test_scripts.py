@@ -1,0 +1,85 @@
+"""Every script in sweeps/ answers ``--help`` at once (its options are parsed before JAX is
+imported), and numba_baseline.py says what it needs when numba is missing."""
+
+import collections
+import importlib.util
+import io
+import os
+import pathlib
+import subprocess
+import sys
+import time
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SCRIPTS = sorted((ROOT / "sweeps").glob("*.py"))
+Cond = collections.namedtuple("Cond", "controller acquisition")
+HELP_LIMIT_S = 3.0  # importing JAX alone takes longer than this on a loaded 2-core host
+
+
+def run(*args, **kwargs):
+    return subprocess.run([sys.executable, *map(str, args)], capture_output=True, text=True, cwd=ROOT, **kwargs)
+
+
+@pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: p.name)
+def test_help_is_fast(script):
+    t0 = time.perf_counter()
+    proc = run(script, "--help", timeout=60)
+    wall = time.perf_counter() - t0
+    assert proc.returncode == 0, proc.stderr
+    assert "usage:" in proc.stdout
+    assert wall < HELP_LIMIT_S, f"{script.name} --help took {wall:.1f} s (JAX imported before the options?)"
+
+
+def test_numba_baseline_without_numba(tmp_path):
+    """A stand-in ``numba`` package that fails to import, as on a machine without the bench extra."""
+    (tmp_path / "numba").mkdir()
+    (tmp_path / "numba" / "__init__.py").write_text("raise ImportError('numba is not installed')\n")
+    env = dict(os.environ, PYTHONPATH=str(tmp_path))
+    script = ROOT / "sweeps" / "numba_baseline.py"
+    assert run(script, "--help", env=env, timeout=60).returncode == 0
+    proc = run(script, env=env, timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == ["numba_baseline: error: needs numba (pip install -e '.[bench]')"]
+
+
+def test_reproduce_progress_bar_leaves_compilation_out_and_ends_at_100(monkeypatch):
+    """Two batches of 2 trials, 3 chunks each: the first chunk of a batch (compilation) is
+    left out of the rate, chunk ends that finish a batch say what runs next, and the bar
+    ends at 100% with every trial."""
+    spec = importlib.util.spec_from_file_location("reproduce_paper_bar", ROOT / "sweeps" / "reproduce_paper.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    clock = [0.0]
+    monkeypatch.setattr(script.time, "monotonic", lambda: clock[0])
+    stream = io.StringIO()
+    per_trial = 30
+    bar = script.ProgressBar(4, [2, 2], per_trial, stream=stream)
+    bar.begin()
+    total = 4 * per_trial
+    # (time, substeps done, trials done): 10 s to compile, then 1 s per chunk of 20 substeps
+    calls = [(10, 20, 0), (11, 40, 0), (12, 60, 0), (25, 80, 2), (26, 100, 2), (27, 120, 2)]
+    lines = []
+    for t, done, trials in calls:
+        clock[0] = t
+        bar(dict(done=done, total=total, trials_done=trials, trials_total=4))
+        lines.append(stream.getvalue().rsplit("\r", 1)[-1])
+    assert "compiling the first batch (2 trials)" in stream.getvalue()
+    assert "ETA after the next chunk" in lines[0]
+    assert "ETA 0:04" in lines[1]  # 4 chunks left at 1 s each: the 10 s of compilation left out
+    assert "estimating batch 1/2, then compiling the next" in lines[2]
+    # the second batch's start took 13 s for a 1 s chunk, and no batch start remains
+    assert "ETA 0:02" in lines[3] and "ETA 0:01" in lines[4]
+    assert "estimating the last batch" in lines[5]
+    clock[0] = 30
+    bar.end(4)
+    last = stream.getvalue().rstrip("\n").rsplit("\r", 1)[-1]
+    assert "100.0%" in last and "trials 4/4" in last and "done" in last
+    assert script.batch_sizes([(Cond("pd", "instant"), 0)] * 5 + [(Cond("imbic", "instant"), 0)] * 3, 2) == [
+        2,
+        2,
+        1,
+        2,
+        1,
+    ]
