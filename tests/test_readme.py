@@ -3,6 +3,8 @@
 import pathlib
 import re
 
+import numpy as np
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
@@ -21,7 +23,7 @@ def test_readme_main_command_runs_the_reproduction():
 
 
 def test_readme_library_example_runs():
-    """The README's library example, verbatim: a custom arm and friction, noise, a batch, a gradient."""
+    """The README's quick start, verbatim: a custom arm and friction, noise, a fit, a batch, a gradient."""
     import jax
 
     readme = (ROOT / "README.md").read_text()
@@ -30,4 +32,7 @@ def test_readme_library_example_runs():
     exec(compile(code, "README.md", "exec"), scope)
     assert 100.0 < float(scope["phi_T"]) < 1000.0
     assert scope["sims"].x.shape == (3, 20_000, 2)
+    fit, arm = scope["fit"], scope["arm"]
+    np.testing.assert_allclose(fit.mass, arm.mass, atol=0.15)  # [kg]
+    assert fit.vaf_overall > 95.0
     jax.config.update("jax_enable_x64", True)
