@@ -66,7 +66,7 @@ class Numerics:
 
 
 # The setting for sweeps and tuning over arbitrary friction: stable for every tau_c >= 0
-# and within 1e-4 of a 8x-refined phi_T across 0-4 N m, PD and IMBIC, the four paper arms
-# (sweeps/bench_convergence.py; table in docs/performance.md). The paper's reproduction
-# keeps Numerics() (RK4, 100 substeps).
+# and the cheapest measured within 1e-4 of an 8x-refined phi_T from 0 to 4 N m, PD and
+# IMBIC, the four paper arms (sweeps/bench_convergence.py; table in docs/performance.md).
+# Not within 1e-6 at the paper's levels: the reproduction keeps Numerics() (RK4, 100).
 SWEEP_NUMERICS = Numerics(substeps=20, method="ark3")

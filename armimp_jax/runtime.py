@@ -56,7 +56,7 @@ def cpu_defaults_active() -> bool:
 def vector_lanes() -> int:
     """float64 lanes of the SIMD vectors XLA:CPU generates code for: the width set by
     ``--xla_cpu_prefer_vector_width`` in ``XLA_FLAGS`` (XLA's default 256 bits if unset),
-    divided by 64. ``sweep`` pads per-device batches to whole vectors of this size."""
+    divided by 64. ``simulate_batch`` pads per-device batches to whole vectors of this size."""
     match = re.search(rf"{_VECTOR_FLAG}=(\d+)", os.environ.get("XLA_FLAGS", ""))
     return max(1, (int(match.group(1)) if match else _DEFAULT_VECTOR_WIDTH) // 64)
 
@@ -99,7 +99,7 @@ def configure(
     """Switch float64 on, set XLA:CPU code generation, and optionally split the CPU into devices.
 
     One jitted computation runs on one core of XLA:CPU; ``host_devices`` devices let a
-    sharded batch use that many cores (see ``sweep.make_mesh``). ``0`` (default) means one
+    sharded batch use that many cores (see ``armimp_jax._batch.make_mesh``). ``0`` (default) means one
     per core (``os.cpu_count()``), ``None`` leaves the platform alone.
     ``hoist_small_loops`` adds the XLA:CPU option that compiles the inner RK4 loop into
     one kernel. ``unroll_loops=False`` adds the option that stops LLVM unrolling the

@@ -285,7 +285,7 @@ def place_batch(params: Trial, f_delta, *, mesh: Mesh | None = None):
     Args:
         params: stacked trials, leading axis ``B`` (``stack_trials``).
         f_delta: perturbations ``(B, N, 2)`` [N].
-        mesh: a one-axis mesh named ``"batch"`` (``sweep.make_mesh``); default every device.
+        mesh: a one-axis mesh named ``"batch"`` (``armimp_jax._batch.make_mesh``); default every device.
 
     The batch is never padded: repeated trials would re-weight the mean loss. It spans the
     largest number of the mesh's devices that divides ``B`` (16 trials on 6 devices: 4;

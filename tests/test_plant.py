@@ -126,7 +126,7 @@ def _library_batch():
     return jax.jit(jax.vmap(lambda t, f: aj.simulate(t, f, numerics=aj.Numerics(substeps=5))))(params, fd)
 
 
-@pytest.mark.parametrize("codegen", ["plain", "entry_point"])
+@pytest.mark.parametrize("codegen", [pytest.param("plain", marks=pytest.mark.slow), "entry_point"])
 def test_sharded_over_two_devices_equals_one_device(codegen):
     options = PLAIN_XLA if codegen == "plain" else ENTRY_POINT
     one, two = _run_sharded(1, options), _run_sharded(2, options)

@@ -31,7 +31,7 @@ def test_readme_library_example_runs():
     scope: dict = {}
     exec(compile(code, "README.md", "exec"), scope)
     assert 100.0 < float(scope["phi_T"]) < 1000.0
-    assert scope["sims"].x.shape == (3, 20_000, 2)
+    assert scope["sims"].x.shape == (3, 12_000, 2)
     fit, arm = scope["fit"], scope["arm"]
     np.testing.assert_allclose(fit.mass, arm.mass, atol=0.15)  # [kg]
     assert fit.vaf_overall > 95.0

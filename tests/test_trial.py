@@ -145,7 +145,13 @@ def _fd():
 
 @pytest.mark.parametrize(
     "controller, name",
-    [("imbic", "mhat"), ("imbic", "kp"), ("pd", "kp"), ("pd", "tau_c"), ("pd", "sigma1")],
+    [
+        ("imbic", "mhat"),
+        pytest.param("imbic", "kp", marks=pytest.mark.slow),
+        pytest.param("pd", "kp", marks=pytest.mark.slow),
+        ("pd", "tau_c"),
+        ("pd", "sigma1"),
+    ],
 )
 def test_gradients_of_phi_agree_with_central_differences(controller, name):
     """d phi_T / d(scale of a gain or LuGre parameter). IMBIC's gains are checked without

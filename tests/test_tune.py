@@ -65,6 +65,7 @@ def test_gradient_matches_finite_differences_at_friction_0_and_2(short_batch):
     np.testing.assert_allclose(jac, fd, rtol=2e-5)
 
 
+@pytest.mark.slow  # the fast suite checks the gradient against finite differences
 def test_forward_and_reverse_modes_agree(short_batch):
     params, f_delta = short_batch
     theta = tune.theta_from_mhat(np.array([[0.4, 0.05], [0.05, 0.3]]), "full")
@@ -91,7 +92,7 @@ def test_grad_and_fast_kernels_give_the_same_gradient(short_batch):
     np.testing.assert_allclose(g_g, g_f, rtol=1e-9)
 
 
-@pytest.mark.parametrize("kernel", ["fast", "grad"])
+@pytest.mark.parametrize("kernel", [pytest.param("fast", marks=pytest.mark.slow), "grad"])
 def test_no_nan_in_the_gradient_at_friction_0(kernel):
     params = aj.stack_trials([presets.trial("imbic", 0, loc) for loc in (1, 3)])
     f_delta = jnp.asarray(paper_tune.seed_perturbations(0, [5, 6], 1200))
@@ -203,6 +204,7 @@ print(json.dumps(out))
 CPU_ENV = dict(os.environ, XLA_FLAGS="", JAX_PLATFORMS="cpu")
 
 
+@pytest.mark.slow  # sharded forward runs are checked fast in test_plant
 def test_training_batch_sharded_over_devices_gives_the_same_gradient():
     proc = subprocess.run(
         [sys.executable, "-c", SHARDED_GRADIENT], capture_output=True, text=True, env=CPU_ENV, timeout=600
@@ -227,6 +229,7 @@ def test_place_batch_on_one_device_leaves_the_batch_alone(short_batch):
         tune.place_batch(params, f_delta[:1])
 
 
+@pytest.mark.slow  # the fast suite checks the gradient against finite differences
 def test_substep_and_period_checkpoints_give_the_same_gradient(short_batch):
     # What reverse mode keeps changes the work, not the maths.
     params, f_delta = short_batch
@@ -247,6 +250,7 @@ def test_unknown_mode_and_parameterisation_are_rejected():
         tune.value_and_grad_fn(parameterisation="lower", welch=WELCH)
 
 
+@pytest.mark.slow  # a full quick tuning run; --help and the loop are checked fast
 def test_tune_script_quick_produces_its_outputs(tmp_path):
     root = pathlib.Path(__file__).resolve().parents[1]
     proc = subprocess.run(
