@@ -121,3 +121,37 @@ def broadcast_from_writer(values):
     from jax.experimental import multihost_utils
 
     return multihost_utils.broadcast_one_to_all(values, is_source=is_writer())
+
+
+def share_start(run_key: str, order: list, todo, error) -> list:
+    """Process 0's ``todo`` (a sub-list of ``order``, the trials every process enumerates
+    alike) in every process, after checking that every process runs the same settings
+    (``run_key``, a hex digest); process 0's ``error`` (a refused folder, a held lock) is
+    raised in every process, so none waits for the others in a collective. In a single
+    process: ``todo``, or ``error`` raised."""
+    import numpy as np
+
+    from .results import ResultsError
+
+    if not is_distributed():
+        if error is not None:
+            raise error
+        return todo
+    from jax.experimental import multihost_utils
+
+    key = np.frombuffer(bytes.fromhex(run_key), dtype=np.uint8).astype(np.int64)
+    header = broadcast_from_writer(np.concatenate([[int(error is None), len(order)], key]))
+    same = bool(header[1] == len(order) and np.array_equal(header[2:], key))
+    agree = np.asarray(multihost_utils.process_allgather(np.array([int(same)]))).ravel()
+    if not header[0]:
+        if error is not None:
+            raise error
+        raise ResultsError("process 0 could not start the run (its error says why)")
+    if not agree.all():
+        raise ResultsError(
+            f"process(es) {', '.join(map(str, np.flatnonzero(agree == 0)))} have other run settings than process 0: "
+            "give every process the same options"
+        )
+    wanted = set(todo) if todo is not None else set()
+    mask = broadcast_from_writer(np.array([item in wanted for item in order], dtype=np.int64))
+    return [item for item, m in zip(order, mask, strict=True) if m]

@@ -25,6 +25,7 @@ its sensor noise, if any, from ``fold_in`` of that key with 1.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import io
@@ -43,6 +44,7 @@ import jax
 import numpy as np
 from scipy import stats
 
+from . import distributed
 from ._arm import Arm
 from ._batch import Welch, assess_batch, check_numerics, make_mesh, simulate_batch
 from ._control import IMBIC, PD
@@ -713,9 +715,10 @@ def compute(
             point = settings.points[i]
             tid = trial_id(settings, point, s)
             meta = dict(id=tid, point_index=i, seed=s, metrics=row, batch_wall_s=wall, batch_size=len(batch))
-            save_record(
-                out / "trials" / f"{tid}.npz", settings=settings.trial_settings(point, s), arrays=arr, meta=meta
-            )
+            if distributed.is_writer():  # every process holds every row (gathered); one writes
+                save_record(
+                    out / "trials" / f"{tid}.npz", settings=settings.trial_settings(point, s), arrays=arr, meta=meta
+                )
             computed.append(tid)
         state["trials"] += len(batch)
     return computed
@@ -1023,9 +1026,21 @@ def run_sweep(
     if batch_size < 1:
         raise ValueError(f"batch_size must be >= 1, got {batch_size}")
     out = pathlib.Path(out)
-    with RunLock(out):
-        prepare_output(out, settings)
-        _, todo = trial_status(settings, out, warn=warn)
+    if check > 0 and distributed.is_distributed():
+        raise ValueError("check re-runs trials on one process: run it without the distributed options")
+    with contextlib.ExitStack() as stack:
+        # In a jax.distributed job only process 0 touches the folder; every process gets its
+        # list of trials to run, so all run the same batches in the same order.
+        todo = error = None
+        if distributed.is_writer():
+            try:
+                stack.enter_context(RunLock(out))
+                prepare_output(out, settings)
+                _, todo = trial_status(settings, out, warn=warn)
+            except Exception as err:  # shared with the other processes, then raised
+                error = err
+        order = [(i, s) for i in range(len(settings.points)) for s in range(settings.seeds)]
+        todo = distributed.share_start(settings_key(settings.run_settings()), order, todo, error)
         computed = compute(
             settings,
             out,
@@ -1035,6 +1050,8 @@ def run_sweep(
             progress=progress,
             stop_after_batches=stop_after_batches,
         )
+        if not distributed.is_writer():
+            return dict(computed=computed)
         report = None
         if check > 0:
             rows, _ = collect(settings, out, warn=lambda _: None)

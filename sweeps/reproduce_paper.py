@@ -27,6 +27,9 @@ import statistics
 import sys
 import time
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from _cli import distributed_options  # noqa: E402
+
 PROG = "reproduce_paper"
 DEFAULT_SEEDS = 3  # keep equal to armimp_jax.paper.reproduce.DEFAULT_SEEDS (read here before importing jax)
 QUICK = dict(seconds=6.0, substeps=10, nperseg=1024, noverlap=768)
@@ -57,19 +60,6 @@ class Parser(argparse.ArgumentParser):
 def fail(message: str):
     sys.stderr.write(f"{PROG}: error: {message}\n")
     sys.exit(2)
-
-
-def distributed_options():
-    """``armimp_jax/distributed.py`` loaded on its own, for its option helpers: they need no
-    JAX, and importing the package would start it (``--help`` stays fast)."""
-    import importlib.util
-
-    package = importlib.util.find_spec("armimp_jax")
-    path = pathlib.Path(package.submodule_search_locations[0]) / "distributed.py"
-    spec = importlib.util.spec_from_file_location("_armimp_jax_distributed_options", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def parse(argv):

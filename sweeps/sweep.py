@@ -24,6 +24,9 @@ import pathlib
 import sys
 import time
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from _cli import distributed_options  # noqa: E402
+
 PROG = "sweep"
 SHORTCUTS = ("seconds", "nperseg", "noverlap", "mhat")  # options that set one value of a point setting
 
@@ -153,12 +156,17 @@ def settings_for(args, sweep):
 
 def run(args, *, prog: str = PROG, settings=None, out=None, quiet: bool = False):
     """Run (or resume) a sweep from parsed options; returns ``(summary, out)``."""
-    from armimp_jax import sweep
+    from armimp_jax import distributed, sweep
     from armimp_jax.results import RunLock
 
     if settings is None:
         settings, out = settings_for(args, sweep)
     settings.validate()
+    if distributed.is_distributed():  # run_sweep shares process 0's folder and trial list
+        result = sweep.run_sweep(settings, out, batch_size=args.batch_size, check=args.check, x=args.x)
+        if distributed.is_writer() and not quiet:
+            print(f"{len(result['computed'])} trial(s) run; {out}/trials.csv, summary.csv, {result['figure']}")
+        return result, out
     with RunLock(out):
         sweep.prepare_output(out, settings)
         _, todo = sweep.trial_status(settings, out, warn=lambda m: sys.stderr.write(f"{prog}: warning: {m}\n"))
@@ -194,8 +202,18 @@ def run(args, *, prog: str = PROG, settings=None, out=None, quiet: bool = False)
 
 
 def main(argv=None):
-    args = parser().parse_args(argv)
+    ap = parser()
+    options = distributed_options()
+    options.add_arguments(ap)
+    args = ap.parse_args(argv)
     check_args(args)
+    try:
+        options.check_arguments(args)
+    except ValueError as err:
+        fail(str(err))
+    from armimp_jax import distributed
+
+    distributed.initialize(args)  # before the backend starts (configure starts it)
     from armimp_jax.runtime import configure
 
     configure()
@@ -203,7 +221,16 @@ def main(argv=None):
         result, _ = run(args)
     except ValueError as err:  # bad settings and ResultsError: one line, no traceback
         fail(str(err))
+    if not distributed.is_writer():
+        print(f"{PROG}: process {jax_process_index()} done; process 0 wrote the results")
+        return 0
     return 0 if result["complete"] else 1
+
+
+def jax_process_index() -> int:
+    import jax
+
+    return jax.process_index()
 
 
 if __name__ == "__main__":

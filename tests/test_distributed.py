@@ -54,6 +54,23 @@ def cpu_env(devices: int) -> dict:
     return env
 
 
+def launch(script, args_of_process) -> list:
+    """One process per entry of ``args_of_process`` (each with one CPU device) joined by a
+    coordinator on a free local port; returns the ``Popen``s."""
+    common = ["--coordinator", f"127.0.0.1:{free_port()}", "--num-processes", str(len(args_of_process))]
+    return [
+        subprocess.Popen(
+            [sys.executable, str(script), *args, *common, "--process-id", str(i)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=ROOT,
+            env=cpu_env(1),
+        )
+        for i, args in enumerate(args_of_process)
+    ]
+
+
 def parser():
     ap = argparse.ArgumentParser()
     distributed.add_arguments(ap)
@@ -114,19 +131,7 @@ def test_two_processes_give_the_single_process_results_bit_for_bit(tmp_path):
     single, multi, other = tmp_path / "single", tmp_path / "multi", tmp_path / "not-written"
     ref = run_script(*TINY, "--out", str(single), env=cpu_env(2))
     assert ref.returncode == 0, ref.stdout + ref.stderr
-    port = free_port()
-    common = ["--coordinator", f"127.0.0.1:{port}", "--num-processes", "2"]
-    procs = [
-        subprocess.Popen(
-            [sys.executable, str(SCRIPT), *TINY, *common, "--process-id", str(i), "--out", str(out)],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            cwd=ROOT,
-            env=cpu_env(1),
-        )
-        for i, out in ((0, multi), (1, other))
-    ]
+    procs = launch(SCRIPT, [[*TINY, "--out", str(out)] for out in (multi, other)])
     outputs = [p.communicate(timeout=300) for p in procs]
     for p, (stdout, stderr) in zip(procs, outputs):
         assert p.returncode == 0, stdout + stderr
@@ -148,19 +153,7 @@ def test_two_processes_give_the_single_process_results_bit_for_bit(tmp_path):
 
 @pytest.mark.slow
 def test_processes_with_other_settings_are_refused_in_every_process(tmp_path):
-    port = free_port()
-    common = ["--coordinator", f"127.0.0.1:{port}", "--num-processes", "2"]
-    procs = [
-        subprocess.Popen(
-            [sys.executable, str(SCRIPT), *TINY, *common, "--process-id", str(i), "--out", str(tmp_path), *extra],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            cwd=ROOT,
-            env=cpu_env(1),
-        )
-        for i, extra in ((0, []), (1, ["--mhat", "0.5"]))
-    ]
+    procs = launch(SCRIPT, [[*TINY, "--out", str(tmp_path), *extra] for extra in ([], ["--mhat", "0.5"])])
     for p in procs:
         _, stderr = p.communicate(timeout=300)
         assert p.returncode == 2 and "process(es) 1 have other run settings than process 0" in stderr, stderr
@@ -172,3 +165,43 @@ def test_the_script_parses_the_distributed_options():
     spec.loader.exec_module(module)
     args = module.parse(["--auto-cluster", "--compilation-cache", "/tmp/cache"])
     assert args.auto_cluster and args.compilation_cache == pathlib.Path("/tmp/cache")
+
+
+SWEEP = ROOT / "sweeps" / "sweep.py"
+TINY_SWEEP = [
+    *("--set", "controller=pd,imbic", "--set", "tau_c=0,0.5", "--seeds", "2", "--seconds", "2.2"),
+    *("--nperseg", "512", "--substeps", "4", "--batch-size", "8"),
+]
+
+
+@pytest.mark.slow
+def test_a_two_process_sweep_gives_the_single_process_table(tmp_path):
+    single, multi, other = tmp_path / "single", tmp_path / "multi", tmp_path / "not-written"
+    ref = subprocess.run(
+        [sys.executable, str(SWEEP), *TINY_SWEEP, "--out", str(single)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env=cpu_env(2),
+        timeout=300,
+    )
+    assert ref.returncode == 0, ref.stdout + ref.stderr
+    procs = launch(SWEEP, [[*TINY_SWEEP, "--out", str(out)] for out in (multi, other)])
+    for p in procs:
+        stdout, stderr = p.communicate(timeout=300)
+        assert p.returncode == 0, stdout + stderr
+    assert not other.exists()  # only process 0 writes
+    assert (multi / "trials.csv").read_text() == (single / "trials.csv").read_text()
+
+
+def test_the_sweep_script_refuses_bad_distributed_options_in_one_line():
+    proc = subprocess.run(
+        [sys.executable, str(SWEEP), "--set", "tau_c=0", "--out", "x", "--coordinator", "127.0.0.1:1234"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+    )
+    assert proc.returncode == 2 and proc.stderr.strip().splitlines() == [
+        "sweep: error: --coordinator needs --num-processes and --process-id as well (or --auto-cluster)"
+    ], proc.stderr

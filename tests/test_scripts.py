@@ -13,7 +13,7 @@ import time
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-SCRIPTS = sorted((ROOT / "sweeps").glob("*.py"))
+SCRIPTS = sorted(p for p in (ROOT / "sweeps").glob("*.py") if not p.name.startswith("_"))  # _cli.py: a module
 Cond = collections.namedtuple("Cond", "controller acquisition")
 HELP_LIMIT_S = 3.0  # importing JAX alone takes longer than this on a loaded 2-core host
 

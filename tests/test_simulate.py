@@ -173,7 +173,7 @@ def test_divergence_is_flagged_per_trial_without_poisoning_the_batch(sim, batch_
     assert tree_equal(jax.tree.map(lambda a: a[0], r), jax.tree.map(lambda a: a[0], alone))
 
 
-@pytest.mark.parametrize("friction_level", [0, 2])
+@pytest.mark.parametrize("friction_level", [0, pytest.param(2, marks=pytest.mark.slow)])
 def test_gradient_wrt_mhat_is_finite(friction_level):
     fd = _fd(120)
 

@@ -150,7 +150,7 @@ def _fd():
         pytest.param("imbic", "kp", marks=pytest.mark.slow),
         pytest.param("pd", "kp", marks=pytest.mark.slow),
         ("pd", "tau_c"),
-        ("pd", "sigma1"),
+        pytest.param("pd", "sigma1", marks=pytest.mark.slow),
     ],
 )
 def test_gradients_of_phi_agree_with_central_differences(controller, name):

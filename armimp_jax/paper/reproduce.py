@@ -311,32 +311,17 @@ def trial_status(settings: ReproSettings, out, *, warn: Callable[[str], None] = 
 
 
 def _share_start(settings: ReproSettings, status, error) -> tuple[list, list]:
-    """``(done, todo)`` of process 0 in every process, after checking that every process runs
-    the same settings; process 0's ``error`` (a refused folder, a held lock) is raised in
-    every process, so none waits for the others in a collective."""
+    """``(done, todo)`` of process 0 in every process (``distributed.share_start``)."""
     if not distributed.is_distributed():
         if error is not None:
             raise error
         return status
-    from jax.experimental import multihost_utils
-
     order = [(c, s) for c in settings.conditions for s in range(settings.seeds)]
-    key = np.frombuffer(bytes.fromhex(settings_key(settings.run_settings())), dtype=np.uint8).astype(np.int64)
-    header = distributed.broadcast_from_writer(np.concatenate([[int(error is None), len(order)], key]))
-    same = bool(header[1] == len(order) and np.array_equal(header[2:], key))
-    agree = np.asarray(multihost_utils.process_allgather(np.array([int(same)]))).ravel()
-    if not header[0]:
-        if error is not None:
-            raise error
-        raise ResultsError("process 0 could not start the run (its error says why)")
-    if not agree.all():
-        raise ResultsError(
-            f"process(es) {', '.join(map(str, np.flatnonzero(agree == 0)))} have other run settings than process 0: "
-            "give every process the same options"
-        )
-    wanted = set(status[1]) if status is not None else set()
-    mask = distributed.broadcast_from_writer(np.array([cs in wanted for cs in order], dtype=np.int64))
-    return [cs for cs, m in zip(order, mask) if not m], [cs for cs, m in zip(order, mask) if m]
+    todo = distributed.share_start(
+        settings_key(settings.run_settings()), order, status[1] if status is not None else None, error
+    )
+    wanted = set(todo)
+    return [cs for cs in order if cs not in wanted], todo
 
 
 @contextlib.contextmanager

@@ -1,0 +1,17 @@
+"""What the scripts share before they import JAX (kept free of it so ``--help`` stays fast)."""
+
+from __future__ import annotations
+
+import importlib.util
+import pathlib
+
+
+def distributed_options():
+    """``armimp_jax/distributed.py`` loaded on its own, for its option helpers: they need no
+    JAX, and importing the package would start it."""
+    package = importlib.util.find_spec("armimp_jax")
+    path = pathlib.Path(package.submodule_search_locations[0]) / "distributed.py"
+    spec = importlib.util.spec_from_file_location("_armimp_jax_distributed_options", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
