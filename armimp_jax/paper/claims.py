@@ -211,7 +211,7 @@ def seed_summaries(metas: list[dict]) -> dict[int, dict[Condition, dict]]:
 # every part of a claim, "partly" some, "not" none; for (d) and (f) "partly" is a looser
 # second threshold.
 CLAIM_RULES = {
-    "a": "PD, friction 0: median multiple coherence (x and F_h) >= 0.95, and phi_T <= 10% of mean ||Z_h||",
+    "a": "PD, friction 0: median multiple coherence (x and F_h) >= 0.95, and phi_T <= 10% of mean ‖Z_h‖",
     "b": "PD, friction 1-2: min multiple coherence of x below 2 Hz <= 0.5; phi_T >= 5x the frictionless value; "
     "mean phase error >= 20 deg",
     "c": "PD, friction 1 and 2 each: phi_T at perturbation level 3 >= 2/3 of its value at level 1 "
@@ -297,8 +297,8 @@ def _judge_a(get: Get) -> Judgement | None:
     coh = min(min(m["coh_multiple_x_median"], m["coh_multiple_fh_median"]) for m in pd0)
     rel = max(m["rel_error"] for m in pd0)
     return Judgement(
-        f"median multiple coherence >= {coh:.3f}; phi_T = {100 * rel:.1f}% of mean ||Z_h|| (worst level)",
-        (Part("lowest median multiple coherence", coh, ">=", 0.95), Part("phi_T / mean ||Z_h||", rel, "<=", 0.10)),
+        f"median multiple coherence >= {coh:.3f}; phi_T = {100 * rel:.1f}% of mean ‖Z_h‖ (worst level)",
+        (Part("lowest median multiple coherence", coh, ">=", 0.95), Part("phi_T / mean ‖Z_h‖", rel, "<=", 0.10)),
     )
 
 
