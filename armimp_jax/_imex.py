@@ -254,10 +254,10 @@ def ark_step(m: MomentumState, fu, model: PlantModel, h, *, tableau: Tableau = A
     carries ``cos/sin`` through the stages by ``rotate`` (as the ``"fast"`` RK4 kernel
     does) instead of evaluating them."""
     bristled = _bristled(model)
-    # XLA:CPU copies chains of cheap operations into every fusion that uses them; a later
-    # stage's fusion would recompute the earlier stages (measured: 1.8x the operations
-    # of the program, 2-3x the time). XLA never duplicates a division, so each stage's
-    # inputs, solve and rates are divided by a runtime 1.0 (exact) and computed once.
+    # XLA:CPU copies chains of cheap operations into every fusion that uses them, so a later
+    # stage's fusion would recompute the earlier stages (docs/performance.md has the cost).
+    # XLA never duplicates a division: each stage's inputs, solve and rates are divided by a
+    # runtime 1.0 (exact) and so computed once.
     one = jax.lax.stop_gradient(1.0 + 0.0 * m.q[0])
 
     def share(tree):

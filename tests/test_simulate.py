@@ -251,38 +251,6 @@ def test_bad_perturbation_and_batches_are_rejected():
             sweep.simulate_batch(batch, np.zeros((1, 0, 2)), chunk_samples=chunk)
 
 
-def test_batch_groups_are_equal_and_bounded():
-    assert sweep.batch_groups(5, 1, max_per_device=2, lanes=4) == ([(0, 2), (2, 4), (4, 5)], 4)
-    assert sweep.batch_groups(256, 2, max_per_device=128) == ([(0, 256)], 256)
-    assert sweep.batch_groups(1000, 2, max_per_device=128) == ([(0, 250), (250, 500), (500, 750), (750, 1000)], 250)
-    assert sweep.batch_groups(300, 2, max_per_device=128, lanes=4) == ([(0, 150), (150, 300)], 152)
-    assert sweep.batch_groups(300, 2, max_per_device=None) == ([(0, 300)], 300)
-    with pytest.raises(ValueError, match="max_per_device must be a positive number of trials or None, got 0"):
-        sweep.batch_groups(3, 1, max_per_device=0)
-
-
-def test_grouped_chunked_batches_give_the_numbers_of_one_vmapped_batch(batch_sim):
-    cases = [("imbic", f, loc) for f, loc in ((0, 1), (1, 2), (2, 3), (2, 4), (1, 1))]
-    params = aj.stack_trials([paper.trial(c, f, loc) for c, f, loc in cases])
-    fd = np.stack([np.asarray(_fd(300, seed=i)) for i in range(len(cases))])
-    ref = jax.tree.map(np.asarray, batch_sim(params, jnp.asarray(fd), substeps=4))
-    seen = []
-    grouped = sweep.simulate_batch(
-        params,
-        fd,
-        numerics=aj.Numerics(substeps=4),
-        chunk_samples=120,
-        max_per_device=2,
-        progress=lambda done, total, _: seen.append((done, total)),
-    )
-    assert tree_equal(grouped, ref)  # three groups (2, 2, 1 trials, each padded to 4) x three chunks
-    assert [d for d, _ in seen] == sorted(d for d, _ in seen) and len(seen) == 9
-    assert seen[-1] == (5 * 300, 5 * 300)
-    welch = sweep.Welch(nperseg=128, noverlap=64, fmax=15.0)
-    one = sweep.assess_batch(params, fd, grouped, welch, max_per_device=None)
-    assert tree_equal(sweep.assess_batch(params, fd, grouped, welch, max_per_device=2), one)
-
-
 def test_integrate_period_rejects_unknown_kernels():
     from armimp_jax._plant import integrate_period
 
