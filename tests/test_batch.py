@@ -94,6 +94,7 @@ def test_sharded_over_two_devices_equals_one_device(codegen):
                 np.testing.assert_array_equal(np.array(two[name]), getattr(here, name))
 
 
+@pytest.mark.slow  # 512-bit vectors matter on AVX-512 hosts; the default code generation is checked fast
 def test_wide_vectors_change_no_bit():
     # 512-bit vectors (configure on AVX-512 hosts) run the same elementwise arithmetic per lane.
     wide, plain = _run_sharded(2, dict(vector_width=512)), _library_batch()

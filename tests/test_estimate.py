@@ -150,6 +150,7 @@ def test_end_to_end_pd_frictionless_is_accurate_and_friction_ruins_it():
     assert np.asarray(results[2][1].coh_multiple_x)[low].min() < np.asarray(results[0][1].coh_multiple_x)[low].min()
 
 
+@pytest.mark.slow  # test_trial checks phi_T gradients through the estimator fast
 def test_gradient_of_phi_through_estimate_matches_finite_differences():
     fd, r = _short_trial(0, n=4096, substeps=10)
     kw = dict(nperseg=1024, noverlap=768)

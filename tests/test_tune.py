@@ -79,6 +79,7 @@ def test_forward_and_reverse_modes_agree(short_batch):
     np.testing.assert_allclose(aux_f.phi_T, aux_r.phi_T, rtol=1e-13)
 
 
+@pytest.mark.slow  # the grad kernel is checked fast against finite differences and by a tuning run
 def test_grad_and_fast_kernels_give_the_same_gradient(short_batch):
     # The tuner's "grad" kernel shares stage values for reverse mode; the maths is "fast"'s.
     params, f_delta = short_batch
