@@ -12,6 +12,7 @@ call of ``simulate``.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import time
@@ -307,12 +308,7 @@ class NumericsCheck(NamedTuple):
 
 def refined_numerics(numerics: Numerics, factor: int = 4) -> Numerics:
     """``numerics`` with ``factor`` times the substeps (same method and kernel)."""
-    return Numerics(
-        substeps=numerics.substeps * factor,
-        kernel=numerics.kernel,
-        checkpoint=numerics.checkpoint,
-        method=numerics.method,
-    )
+    return dataclasses.replace(numerics, substeps=numerics.substeps * factor)
 
 
 def check_numerics(

@@ -86,10 +86,21 @@ def stribeck(v, p: LuGre):
 G_FLOOR = 1e-9
 
 
+def bristle_g_and_slope(v, p: LuGre):
+    """``g(v)`` [N m] as the bristle equations use it, ``stribeck`` held at least
+    ``G_FLOOR tau_s`` (0 only where ``tau_s = 0``: no bristles), and ``dg/dv`` [N m s/rad]
+    (0 where held; the stiff integrator's Newton step needs it)."""
+    r = v * (1.0 / p.v_s)
+    e = jnp.exp(-(r * r))
+    g = p.tau_c + (p.tau_s - p.tau_c) * e  # stribeck(v, p), with its exponential kept for the slope
+    floor = G_FLOOR * p.tau_s
+    slope = jnp.where(g > floor, -2.0 * (p.tau_s - p.tau_c) * e * r * (1.0 / p.v_s), 0.0)
+    return jnp.maximum(g, floor), slope
+
+
 def bristle_g(v, p: LuGre):
-    """``g(v)`` [N m] as the bristle equations use it: ``stribeck`` held at least
-    ``G_FLOOR tau_s`` (0 only where ``tau_s = 0``: no bristles)."""
-    return jnp.maximum(stribeck(v, p), G_FLOOR * p.tau_s)
+    """``g(v)`` [N m] of ``bristle_g_and_slope``."""
+    return bristle_g_and_slope(v, p)[0]
 
 
 def lugre(v, z, p: LuGre):

@@ -36,7 +36,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ._friction import G_FLOOR
+from ._friction import bristle_g_and_slope
 from ._plant import PlantModel, PlantState, Trig, coupled_inertia, displacement, rotate, trig_of
 from ._robot import jacobian_from_trig, mass_matrix_entries
 
@@ -141,12 +141,8 @@ def _velocity(fr: _Frame, p, z, model: PlantModel):
 def _relaxation(v, p, bristled):
     """``lambda = sigma0 |v| / g(v)`` [1/s] of one joint and ``d lambda / dv`` [1/rad] (both 0
     where it has no bristles)."""
-    r = v * (1.0 / p.v_s)
-    e = jnp.exp(-(r * r))
-    g = p.tau_c + (p.tau_s - p.tau_c) * e
-    floor = G_FLOOR * p.tau_s  # as _friction.bristle_g
-    inv_g = 1.0 / jnp.where(bristled, jnp.maximum(g, floor), 1.0)
-    dg = jnp.where(g > floor, -2.0 * (p.tau_s - p.tau_c) * e * r * (1.0 / p.v_s), 0.0)
+    g, dg = bristle_g_and_slope(v, p)
+    inv_g = 1.0 / jnp.where(bristled, g, 1.0)
     lam = jnp.where(bristled, p.sigma0 * jnp.abs(v) * inv_g, 0.0)
     dlam = jnp.where(bristled, p.sigma0 * (jnp.sign(v) - jnp.abs(v) * dg * inv_g) * inv_g, 0.0)
     return lam, dlam

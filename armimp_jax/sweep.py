@@ -1010,6 +1010,7 @@ def run_sweep(
     progress: Callable[[dict], None] | None = None,
     stop_after_batches: int | None = None,
     warn: Callable[[str], None] = _warn_stderr,
+    on_start: Callable[[int, int], None] | None = None,
 ) -> dict:
     """Run a sweep in folder ``out`` (created if needed) and write its tables and figure.
 
@@ -1018,7 +1019,9 @@ def run_sweep(
     others (missing, truncated, altered, foreign: named in a warning) are computed.
     ``check`` > 0 re-runs that many trials per static group at 4x the substeps and puts
     the observed maximum relative ``phi_T`` error into ``summary.json``. Returns the
-    ``summary.json`` contents plus ``computed`` (ids of the trials run now).
+    ``summary.json`` contents plus ``computed`` (ids of the trials run now). ``on_start``
+    is called as ``on_start(trials_on_disk, trials_to_run)`` once the folder is checked,
+    before any computation (by process 0 only, in a ``jax.distributed`` job).
     """
     settings.validate()
     if x is not None and x not in POINT_DEFAULTS:
@@ -1041,6 +1044,8 @@ def run_sweep(
                 error = err
         order = [(i, s) for i in range(len(settings.points)) for s in range(settings.seeds)]
         todo = distributed.share_start(settings_key(settings.run_settings()), order, todo, error)
+        if on_start is not None and distributed.is_writer():
+            on_start(len(order) - len(todo), len(todo))
         computed = compute(
             settings,
             out,

@@ -2,8 +2,24 @@
 
 from __future__ import annotations
 
+import argparse
 import importlib.util
 import pathlib
+import sys
+
+
+def fail(message: str, prog: str):
+    """One line ``PROG: error: MESSAGE`` on stderr and exit status 2 (no traceback)."""
+    sys.stderr.write(f"{prog}: error: {message}\n")
+    sys.exit(2)
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (``PROG: error: ...``, exit status 2), under the
+    parser's own ``prog``."""
+
+    def error(self, message):
+        fail(message, self.prog)
 
 
 def distributed_options():

@@ -28,7 +28,8 @@ import sys
 import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _cli import distributed_options  # noqa: E402
+from _cli import Parser, distributed_options  # noqa: E402
+from _cli import fail as cli_fail  # noqa: E402
 
 PROG = "reproduce_paper"
 DEFAULT_SEEDS = 3  # keep equal to armimp_jax.paper.reproduce.DEFAULT_SEEDS (read here before importing jax)
@@ -50,16 +51,8 @@ SETTING_OPTIONS = (
 )
 
 
-class Parser(argparse.ArgumentParser):
-    """argparse with one-line errors (``reproduce_paper: error: ...``, exit status 2)."""
-
-    def error(self, message):
-        fail(message)
-
-
 def fail(message: str):
-    sys.stderr.write(f"{PROG}: error: {message}\n")
-    sys.exit(2)
+    cli_fail(message, PROG)
 
 
 def parse(argv):

@@ -25,22 +25,15 @@ import sys
 import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _cli import distributed_options  # noqa: E402
+from _cli import Parser, distributed_options  # noqa: E402
+from _cli import fail as cli_fail  # noqa: E402
 
 PROG = "sweep"
 SHORTCUTS = ("seconds", "nperseg", "noverlap", "mhat")  # options that set one value of a point setting
 
 
-class Parser(argparse.ArgumentParser):
-    """argparse with one-line errors (``sweep: error: ...``, exit status 2)."""
-
-    def error(self, message):
-        fail(message)
-
-
 def fail(message: str, prog: str = PROG):
-    sys.stderr.write(f"{prog}: error: {message}\n")
-    sys.exit(2)
+    cli_fail(message, prog)
 
 
 def parser(prog: str = PROG, description: str | None = __doc__) -> Parser:
@@ -155,49 +148,54 @@ def settings_for(args, sweep):
 
 
 def run(args, *, prog: str = PROG, settings=None, out=None, quiet: bool = False):
-    """Run (or resume) a sweep from parsed options; returns ``(summary, out)``."""
+    """Run (or resume) a sweep from parsed options; returns ``(summary, out)`` (in a
+    ``jax.distributed`` job, the processes other than 0 get only ``computed``)."""
     from armimp_jax import distributed, sweep
-    from armimp_jax.results import RunLock
 
     if settings is None:
         settings, out = settings_for(args, sweep)
     settings.validate()
-    if distributed.is_distributed():  # run_sweep shares process 0's folder and trial list
-        result = sweep.run_sweep(settings, out, batch_size=args.batch_size, check=args.check, x=args.x)
-        if distributed.is_writer() and not quiet:
-            print(f"{len(result['computed'])} trial(s) run; {out}/trials.csv, summary.csv, {result['figure']}")
-        return result, out
-    with RunLock(out):
-        sweep.prepare_output(out, settings)
-        _, todo = sweep.trial_status(settings, out, warn=lambda m: sys.stderr.write(f"{prog}: warning: {m}\n"))
-        if not quiet:
-            print(
-                f"{len(settings.points)} point(s) x {settings.seeds} seed(s), {settings.method} with "
-                f"{settings.substeps} substeps -> {out} ({len(settings.points) * settings.seeds - len(todo)} trials "
-                f"on disk, {len(todo)} to run)",
-                flush=True,
-            )
-        bar = Progress(len(todo)) if todo and not quiet else None
-        start = time.perf_counter()
-        try:
-            result = sweep.run_sweep(
-                settings, out, batch_size=args.batch_size, check=args.check, x=args.x, progress=bar, warn=lambda _: None
-            )
-        finally:
-            if bar is not None:
-                bar.close()
-    if not quiet:
+    bar = None
+
+    def on_start(on_disk: int, to_run: int):
+        nonlocal bar
+        if quiet:
+            return
         print(
-            f"done in {time.perf_counter() - start:.1f} s: {len(result['computed'])} trial(s) run, "
-            f"{len(result['diverged'])} diverged (left out of the summary); {out}/trials.csv, summary.csv, "
-            f"{result['figure']}"
+            f"{len(settings.points)} point(s) x {settings.seeds} seed(s), {settings.method} with "
+            f"{settings.substeps} substeps -> {out} ({on_disk} trials on disk, {to_run} to run)",
+            flush=True,
         )
-        chk = result.get("numerics_check")
-        if chk:
-            print(
-                f"numerics check: {chk['trials_checked']} trial(s) at {chk['refined_substeps']} substeps, "
-                f"max relative phi_T error {chk['max_rel_error']}"
-            )
+        bar = Progress(to_run) if to_run else None
+
+    start = time.perf_counter()
+    try:
+        result = sweep.run_sweep(
+            settings,
+            out,
+            batch_size=args.batch_size,
+            check=args.check,
+            x=args.x,
+            progress=lambda p: bar(p) if bar is not None else None,
+            warn=lambda m: sys.stderr.write(f"{prog}: warning: {m}\n"),
+            on_start=on_start,
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+    if not distributed.is_writer() or quiet:
+        return result, out
+    print(
+        f"done in {time.perf_counter() - start:.1f} s: {len(result['computed'])} trial(s) run, "
+        f"{len(result['diverged'])} diverged (left out of the summary); {out}/trials.csv, summary.csv, "
+        f"{result['figure']}"
+    )
+    chk = result.get("numerics_check")
+    if chk:
+        print(
+            f"numerics check: {chk['trials_checked']} trial(s) at {chk['refined_substeps']} substeps, "
+            f"max relative phi_T error {chk['max_rel_error']}"
+        )
     return result, out
 
 

@@ -23,6 +23,10 @@ import shlex
 import sys
 import time
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from _cli import Parser  # noqa: E402
+from _cli import fail as cli_fail  # noqa: E402
+
 PROG = "tune_mhat"
 STATE = "tune_state.npz"
 DEFAULTS = dict(
@@ -44,16 +48,8 @@ DEFAULTS = dict(
 )
 
 
-class Parser(argparse.ArgumentParser):
-    """argparse with one-line errors (``tune_mhat: error: ...``, exit status 2)."""
-
-    def error(self, message):
-        fail(message)
-
-
 def fail(message: str):
-    sys.stderr.write(f"{PROG}: error: {message}\n")
-    sys.exit(2)
+    cli_fail(message, PROG)
 
 
 def parse(argv):

@@ -32,6 +32,13 @@ def test_help_is_fast(script):
     assert wall < HELP_LIMIT_S, f"{script.name} --help took {wall:.1f} s (JAX imported before the options?)"
 
 
+@pytest.mark.parametrize("name", ["reproduce_paper", "tune_mhat", "sweep", "friction_threshold"])
+def test_an_unknown_option_gets_one_line_under_the_script_s_own_name(name):
+    proc = run(ROOT / "sweeps" / f"{name}.py", "--bogus", timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [f"{name}: error: unrecognized arguments: --bogus"]
+
+
 def test_numba_baseline_without_numba(tmp_path):
     """A stand-in ``numba`` package that fails to import, as on a machine without the bench extra."""
     (tmp_path / "numba").mkdir()
