@@ -9,7 +9,6 @@ Float64 is required: call ``jax.config.update("jax_enable_x64", True)`` before u
 """
 
 from . import runtime as runtime
-from ._arm import Arm as Arm
 from ._batch import NumericsCheck as NumericsCheck
 from ._batch import TrialOutcome as TrialOutcome
 from ._batch import Welch as Welch
@@ -17,25 +16,24 @@ from ._batch import assess as assess
 from ._batch import assess_batch as assess_batch
 from ._batch import check_numerics as check_numerics
 from ._batch import simulate_batch as simulate_batch
-from ._control import IMBIC as IMBIC
-from ._control import PD as PD
-from ._estimate import Estimate as Estimate
-from ._estimate import cross_spectral_matrix as cross_spectral_matrix
-from ._estimate import estimate as estimate
-from ._estimate import input_coherence as input_coherence
-from ._fit import ImpedanceFit as ImpedanceFit
-from ._fit import fit_impedance as fit_impedance
-from ._friction import NO_FRICTION as NO_FRICTION
-from ._friction import LuGre as LuGre
-from ._friction import lugre as lugre
-from ._metrics import accuracy as accuracy
-from ._numerics import SWEEP_NUMERICS as SWEEP_NUMERICS
-from ._numerics import Numerics as Numerics
-from ._perturbation import perturbation as perturbation
-from ._plant import PlantState as PlantState
-from ._robot import MIT_MANUS as MIT_MANUS
-from ._robot import Robot as Robot
-from ._sensors import Sensors as Sensors
+from ._estimation.fit import ImpedanceFit as ImpedanceFit
+from ._estimation.fit import fit_impedance as fit_impedance
+from ._estimation.metrics import accuracy as accuracy
+from ._estimation.welch import Estimate as Estimate
+from ._estimation.welch import cross_spectral_matrix as cross_spectral_matrix
+from ._estimation.welch import estimate as estimate
+from ._estimation.welch import input_coherence as input_coherence
+from ._model.arm import Arm as Arm
+from ._model.control import IMBIC as IMBIC
+from ._model.control import PD as PD
+from ._model.friction import NO_FRICTION as NO_FRICTION
+from ._model.friction import LuGre as LuGre
+from ._model.friction import lugre as lugre
+from ._model.perturbation import perturbation as perturbation
+from ._model.plant import PlantState as PlantState
+from ._model.robot import MIT_MANUS as MIT_MANUS
+from ._model.robot import Robot as Robot
+from ._model.sensors import Sensors as Sensors
 from ._simulate import SimResult as SimResult
 from ._simulate import Trial as Trial
 from ._simulate import make_trial as make_trial
@@ -43,6 +41,8 @@ from ._simulate import simulate as simulate
 from ._simulate import simulate_chunk as simulate_chunk
 from ._simulate import simulate_init as simulate_init
 from ._simulate import stack_trials as stack_trials
+from ._solver.numerics import SWEEP_NUMERICS as SWEEP_NUMERICS
+from ._solver.numerics import Numerics as Numerics
 
 __version__ = "0.3.0"
 

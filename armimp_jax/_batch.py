@@ -26,12 +26,20 @@ from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from ._arm import impedance_response
 from ._checks import check_int
-from ._estimate import ESTIMATION_FMAX, SAMPLE_RATE, WELCH_NOVERLAP, WELCH_NPERSEG, Estimate, check_welch, estimate
-from ._metrics import impedance_error
-from ._numerics import Numerics
+from ._estimation.metrics import impedance_error
+from ._estimation.welch import (
+    ESTIMATION_FMAX,
+    SAMPLE_RATE,
+    WELCH_NOVERLAP,
+    WELCH_NPERSEG,
+    Estimate,
+    check_welch,
+    estimate,
+)
+from ._model.arm import impedance_response
 from ._simulate import SimResult, Trial, simulate_chunk, simulate_init
+from ._solver.numerics import Numerics
 from .runtime import vector_lanes
 
 

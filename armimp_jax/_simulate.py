@@ -21,16 +21,16 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ._arm import Arm
 from ._checks import as_float64, check_choice, require_x64
-from ._control import matvec
-from ._friction import LuGre
-from ._imex import integrate_period_imex
-from ._numerics import Numerics
-from ._plant import PlantState, Trig, displacement, integrate_period, measure, plant_model, rest_state, trig_of
+from ._model.arm import Arm
+from ._model.control import matvec
+from ._model.friction import LuGre
+from ._model.plant import PlantState, Trig, displacement, integrate_period, measure, plant_model, rest_state, trig_of
+from ._model.robot import MIT_MANUS, Robot, fk, ik, jacobian_from_trig
+from ._model.sensors import IDEAL, Sensors, quantise, sample_noise
 from ._pytree import params
-from ._robot import MIT_MANUS, Robot, fk, ik, jacobian_from_trig
-from ._sensors import IDEAL, Sensors, quantise, sample_noise
+from ._solver.ark import integrate_period_imex
+from ._solver.numerics import Numerics
 
 ACQUISITIONS = ("instant", "interval_mean")
 CONTROL_PERIOD = 1e-3  # L [s], control and acquisition period (spec section 6)
@@ -80,7 +80,7 @@ def make_trial(
 
     Args:
         controller: ``PD(...)``, ``IMBIC(...)`` or any value with ``bind``, ``init`` and
-            ``step`` (see ``armimp_jax._control``). Its defaults that depend on the
+            ``step`` (see ``armimp_jax._model.control``). Its defaults that depend on the
             equilibrium (IMBIC's ``M_rd = M_x(q0)``) are resolved here.
         arm: the human arm, with its equilibrium ``endpoint`` [m] in the world frame.
         friction: joint friction, ``LuGre(...)`` or ``NO_FRICTION``.

@@ -23,10 +23,10 @@ class Parser(argparse.ArgumentParser):
 
 
 def distributed_options():
-    """``armimp_jax/distributed.py`` loaded on its own, for its option helpers: they need no
+    """``armimp_jax/study/distributed.py`` loaded on its own, for its option helpers: they need no
     JAX, and importing the package would start it."""
     package = importlib.util.find_spec("armimp_jax")
-    path = pathlib.Path(package.submodule_search_locations[0]) / "distributed.py"
+    path = pathlib.Path(package.submodule_search_locations[0]) / "study" / "distributed.py"
     spec = importlib.util.spec_from_file_location("_armimp_jax_distributed_options", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

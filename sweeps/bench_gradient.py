@@ -37,14 +37,14 @@ import time
 # (the children inherit this). No JAX backend starts on import, so configure() still applies.
 os.environ["ARMIMP_JAX_XLA_DEFAULTS"] = "0"
 
-# armimp_jax._plant.CHECKPOINTS, spelled out so that --help needs no JAX (checked in the children)
+# armimp_jax._model.plant.CHECKPOINTS, spelled out so that --help needs no JAX (checked in the children)
 CHECKPOINTS = ("period", "substep")
 MODES = ("primal", "reverse-diagonal", "reverse-full", "forward-diagonal", "forward-full")
 KERNELS = ("fast", "grad", "reference")
 
 
 def _check_checkpoints():
-    from armimp_jax._plant import CHECKPOINTS as LIBRARY_CHECKPOINTS
+    from armimp_jax._model.plant import CHECKPOINTS as LIBRARY_CHECKPOINTS
 
     assert LIBRARY_CHECKPOINTS == CHECKPOINTS, (LIBRARY_CHECKPOINTS, CHECKPOINTS)
 

@@ -85,7 +85,7 @@ def main(argv=None) -> int:
 
     jax.config.update("jax_enable_x64", True)
     from armimp_jax import recording
-    from armimp_jax._estimate import check_welch
+    from armimp_jax._estimation.welch import check_welch
 
     try:
         columns = recording.parse_columns(args.columns)

@@ -310,7 +310,7 @@ def write_report(settings, result, table, out, wall_s: float, figure) -> pathlib
         "",
     ]
     path = pathlib.Path(out) / "report.md"
-    from armimp_jax.results import atomic_write_text
+    from armimp_jax.study.results import atomic_write_text
 
     atomic_write_text(path, "\n".join(lines))
     return path

@@ -44,10 +44,10 @@ if __name__ == "__main__":
 import numpy as np  # noqa: E402
 from numba import njit, prange  # noqa: E402
 
-from armimp_jax._control import IMBIC, PD  # noqa: E402
-from armimp_jax._robot import MIT_MANUS_ELBOW_LINK as LE  # noqa: E402
-from armimp_jax._robot import MIT_MANUS_INERTIA  # noqa: E402
-from armimp_jax._robot import MIT_MANUS_SHOULDER_LINK as LS  # noqa: E402
+from armimp_jax._model.control import IMBIC, PD  # noqa: E402
+from armimp_jax._model.robot import MIT_MANUS_ELBOW_LINK as LE  # noqa: E402
+from armimp_jax._model.robot import MIT_MANUS_INERTIA  # noqa: E402
+from armimp_jax._model.robot import MIT_MANUS_SHOULDER_LINK as LS  # noqa: E402
 
 C1, C2, C3 = MIT_MANUS_INERTIA
 

@@ -225,7 +225,7 @@ def finish(repro, plots, report, out):
 def settings_for(args, repro):
     """``(settings, out)``: from the command line, or for ``--resume`` from the run's
     ``run.json`` (options given as well must agree with it)."""
-    from armimp_jax.results import ResultsError, describe_difference
+    from armimp_jax.study.results import ResultsError, describe_difference
 
     asked = requested(args)
     if args.resume is None:
@@ -252,7 +252,7 @@ def main(argv=None):
     configure()
     from armimp_jax.paper import plots, report
     from armimp_jax.paper import reproduce as repro
-    from armimp_jax.results import RunLock
+    from armimp_jax.study.results import RunLock
 
     if args.replot:
         with RunLock(args.replot):

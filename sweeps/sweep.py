@@ -128,7 +128,7 @@ def warn(message: str) -> None:
 
 def settings_for(args, sweep):
     """``(settings, out)``; for ``--resume`` the saved settings (options given must agree)."""
-    from armimp_jax.results import ResultsError
+    from armimp_jax.study.results import ResultsError
 
     if args.resume is None:
         return requested(args, sweep), args.out

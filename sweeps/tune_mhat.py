@@ -169,7 +169,7 @@ def main(argv=None):
 
     from armimp_jax import Welch, tune
     from armimp_jax.paper import tune as paper_tune
-    from armimp_jax.results import (
+    from armimp_jax.study.results import (
         ResultsError,
         RunLock,
         atomic_write_json,

@@ -1,4 +1,4 @@
-"""armimp_jax.distributed: the command-line options (one-line refusals before JAX starts), and a
+"""armimp_jax.study.distributed: the command-line options (one-line refusals before JAX starts), and a
 two-process ``jax.distributed`` job on one machine (one CPU device each, Gloo collectives)
 that gives the single-process results bit for bit."""
 

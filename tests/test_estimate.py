@@ -8,8 +8,8 @@ import scipy.signal
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._estimate import cross_spectral_matrix
-from armimp_jax._metrics import largest_singular_value
+from armimp_jax._estimation.metrics import largest_singular_value
+from armimp_jax._estimation.welch import cross_spectral_matrix
 
 
 @pytest.mark.parametrize("n, nperseg, noverlap", [(50_000, 8192, 6144), (3000, 256, 192), (1000, 300, 100)])

@@ -8,8 +8,8 @@ import scipy.stats
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._estimate import Estimate
-from armimp_jax._fit import coherence_weights
+from armimp_jax._estimation.fit import coherence_weights
+from armimp_jax._estimation.welch import Estimate
 
 # Non-symmetric on purpose (spec section 2: use the matrices as given).
 M = np.array([[1.54, -0.57], [-0.65, 0.94]])

@@ -7,7 +7,7 @@ import pytest
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._friction import steady_state_friction, stribeck
+from armimp_jax._model.friction import steady_state_friction, stribeck
 
 
 @pytest.mark.parametrize("level", [1, 2])

@@ -8,8 +8,8 @@ import pytest
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._imex import ARK3, ARK4, from_momentum, to_momentum
-from armimp_jax._plant import PlantState, plant_model
+from armimp_jax._model.plant import PlantState, plant_model
+from armimp_jax._solver.ark import ARK3, ARK4, from_momentum, to_momentum
 
 TAUS = (0.0, 1e-4, 1e-3, 1e-2, 0.05, 0.2, 1.0, 4.0)  # Coulomb torques [N m], stiction 1.5x
 
@@ -60,7 +60,7 @@ def test_momentum_form_round_trips_and_keeps_bristle_free_joints_at_zero():
     back = from_momentum(to_momentum(s, model), model)
     np.testing.assert_allclose(np.array(back), np.array(s), rtol=1e-14, atol=1e-20)
     fu = jnp.array([3.0, -2.0])
-    from armimp_jax._imex import integrate_period_imex
+    from armimp_jax._solver.ark import integrate_period_imex
 
     out = integrate_period_imex(s, fu, model, period=1e-3, substeps=4)
     assert float(out.z2) == 0.0 and float(out.z1) != 2e-6  # joint 2 has no bristles (g = 0)

@@ -8,7 +8,7 @@ import scipy.signal
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._perturbation import butterworth_sos, sosfilt
+from armimp_jax._model.perturbation import butterworth_sos, sosfilt
 
 
 def test_sosfilt_matches_scipy():

@@ -10,7 +10,7 @@ import pytest
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._plant import KERNELS, Trig, rotate
+from armimp_jax._model.plant import KERNELS, Trig, rotate
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 

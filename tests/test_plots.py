@@ -11,8 +11,8 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from armimp_jax.paper import plots  # noqa: E402
-from armimp_jax.paper._presets import arm  # noqa: E402
 from armimp_jax.paper.claims import mean_ci  # noqa: E402
+from armimp_jax.presets._paper import arm  # noqa: E402
 
 F = np.linspace(1.0, 15.0, 15)
 

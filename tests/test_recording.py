@@ -1,4 +1,4 @@
-"""sweeps/estimate_recording.py and armimp_jax.recording: a simulated trial through CSV and NPZ
+"""sweeps/estimate_recording.py and armimp_jax.study.recording: a simulated trial through CSV and NPZ
 gives the library's numbers; every bad recording gets its own one-line message."""
 
 import importlib.util

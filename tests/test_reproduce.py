@@ -16,7 +16,6 @@ import pytest
 from armimp_jax import results as res
 from armimp_jax.paper import plots, report
 from armimp_jax.paper import reproduce as repro
-from armimp_jax.paper._presets import arm
 from armimp_jax.paper.claims import (
     Condition,
     condition_summary,
@@ -27,6 +26,7 @@ from armimp_jax.paper.claims import (
     trial_id,
     true_matrices,
 )
+from armimp_jax.presets._paper import arm
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "reproduce_paper.py"
@@ -164,7 +164,7 @@ def test_rerun_with_other_settings_is_refused_and_changes_nothing(quick_run):
 
 def test_a_folder_in_use_by_another_run_is_refused_at_once(tmp_path):
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from armimp_jax.results import RunLock\n"
+        [sys.executable, "-c", "import sys; from armimp_jax.study.results import RunLock\n"
          "with RunLock(sys.argv[1]):\n    print('held', flush=True); sys.stdin.read()", str(tmp_path)],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,

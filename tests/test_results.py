@@ -190,7 +190,7 @@ def test_run_lock_takes_over_a_lock_of_a_dead_process_but_not_of_another_host(tm
 
 HOLD = """
 import sys
-from armimp_jax.results import RunLock
+from armimp_jax.study.results import RunLock
 with RunLock(sys.argv[1]):
     print("held", flush=True)
     sys.stdin.read()

@@ -12,7 +12,7 @@ from helpers import tree_equal, zoh_response
 import armimp_jax as aj
 from armimp_jax import _batch as sweep
 from armimp_jax import paper
-from armimp_jax._plant import measure, plant_model, rest_state, rk4_step
+from armimp_jax._model.plant import measure, plant_model, rest_state, rk4_step
 
 CONTROLLERS = ["pd", "imbic"]
 
@@ -252,7 +252,7 @@ def test_bad_perturbation_and_batches_are_rejected():
 
 
 def test_integrate_period_rejects_unknown_kernels():
-    from armimp_jax._plant import integrate_period
+    from armimp_jax._model.plant import integrate_period
 
     p = paper.trial("pd", 0, 1)
     model = plant_model(p.q0, p.x0, p.arm, p.friction, p.robot)

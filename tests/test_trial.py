@@ -10,8 +10,8 @@ from helpers import tree_equal, zoh_response
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._plant import PlantModel, PlantState, plant_derivative, rk4_step
-from armimp_jax._robot import kinetic_energy
+from armimp_jax._model.plant import PlantModel, PlantState, plant_derivative, rk4_step
+from armimp_jax._model.robot import kinetic_energy
 
 GOLDEN = pathlib.Path(__file__).parent / "data" / "golden_presets.npz"
 
@@ -216,7 +216,7 @@ def test_encoder_quantisation_and_velocity_noise():
     # the recorded position is the forward kinematics of quantised angles
     step = 2 * np.pi / counts
     q_read = np.round(np.asarray(r.q) / step) * step
-    from armimp_jax._robot import fk
+    from armimp_jax._model.robot import fk
 
     x_expected = np.stack([np.asarray(fk(jnp.asarray(q), t.robot)) for q in q_read[::50]])
     np.testing.assert_allclose(np.asarray(r.x)[::50], x_expected, atol=1e-12)

@@ -6,9 +6,9 @@ judge claims (a)-(f); ``reproduce``, ``report`` and ``plots`` run, report and dr
 reproduction; ``tune`` is the paper's Mhat-tuning experiment.
 """
 
-from ._presets import LOCATIONS as LOCATIONS
-from ._presets import arm as arm
-from ._presets import friction as friction
-from ._presets import location_endpoint as location_endpoint
-from ._presets import perturbation_peak as perturbation_peak
-from ._presets import trial as trial
+from ..presets._paper import LOCATIONS as LOCATIONS
+from ..presets._paper import arm as arm
+from ..presets._paper import friction as friction
+from ..presets._paper import location_endpoint as location_endpoint
+from ..presets._paper import perturbation_peak as perturbation_peak
+from ..presets._paper import trial as trial

@@ -28,9 +28,9 @@ import jax
 import numpy as np
 from scipy import stats
 
-from .._fit import fit_impedance
-from .._metrics import largest_singular_value
-from ._presets import arm
+from .._estimation.fit import fit_impedance
+from .._estimation.metrics import largest_singular_value
+from ..presets._paper import arm
 
 LOW_BAND_HZ = 2.0  # the paper's "below 1-2 Hz"
 

@@ -22,7 +22,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
-from ._presets import arm  # noqa: E402
+from ..presets._paper import arm  # noqa: E402
 from .claims import mean_ci  # noqa: E402
 
 FRICTION_COLORS = {0: "tab:blue", 1: "tab:orange", 2: "tab:red"}

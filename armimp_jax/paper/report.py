@@ -12,7 +12,7 @@ import pathlib
 
 import numpy as np
 
-from ..results import atomic_write_text
+from ..study.results import atomic_write_text
 from .claims import CI_LEVEL, LOW_BAND_HZ
 
 DASH = "—"

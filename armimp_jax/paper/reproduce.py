@@ -4,7 +4,7 @@ A run folder holds one run (``docs/results.md``):
 
 - ``run.json``: the run's settings (``ReproSettings``, the condition set included, and the
   package version), their key, the library versions and the accumulated wall time.
-- ``trials/<id>.npz``: one checked record per finished trial (``armimp_jax.results``): the
+- ``trials/<id>.npz``: one checked record per finished trial (``armimp_jax.study.results``): the
   estimate's arrays, the trial's metrics, and the settings that fix its numbers
   (``trial_settings``: record length, substeps, Welch, base seed, condition, seed, and
   ``mhat`` for IMBIC) with their key.
@@ -26,7 +26,7 @@ Diverged trials are saved and counted, and left out of every mean and claim.
 Fits: ``aggregate`` adds each trial's fitted ``M, B, K`` (``claims.fit_metrics``, from its
 stored ``f`` and ``Z``) to its metrics, so the records stay as written.
 
-Many processes (``armimp_jax.distributed``, ``docs/cluster.md``): ``open_run`` lets process 0
+Many processes (``armimp_jax.study.distributed``, ``docs/cluster.md``): ``open_run`` lets process 0
 hold the lock and read the folder and sends its list of trials to run to every process;
 every process computes its shards of every batch, and only process 0 writes.
 """
@@ -43,13 +43,14 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
-from .. import distributed
 from .._batch import Welch, assess_batch, make_mesh, simulate_batch
-from .._estimate import input_coherence
-from .._numerics import Numerics
-from .._perturbation import perturbation
+from .._estimation.welch import input_coherence
+from .._model.perturbation import perturbation
 from .._simulate import stack_trials
-from ..results import (
+from .._solver.numerics import Numerics
+from ..presets._paper import perturbation_peak, trial
+from ..study import distributed
+from ..study.results import (
     ResultsError,
     RunLock,
     atomic_write_json,
@@ -61,7 +62,6 @@ from ..results import (
     stamped,
     to_jsonable,
 )
-from ._presets import perturbation_peak, trial
 from .claims import (
     Condition,
     condition_summary,
@@ -367,7 +367,7 @@ def run_reproduction(
     every chunk. ``stop_after_batches`` stops early (used to test resuming). ``warn``
     receives one line per trial record that failed its check.
 
-    In a ``jax.distributed`` job (``armimp_jax.distributed``) call it in every process with
+    In a ``jax.distributed`` job (``armimp_jax.study.distributed``) call it in every process with
     the same arguments: each process computes its shards of every batch, and only process
     0 writes the trial records.
     """

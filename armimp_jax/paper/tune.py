@@ -1,6 +1,6 @@
 """The paper's Mhat-tuning experiment: training and held-out batches, the comparison table.
 
-Built on the general tuner (``armimp_jax.tune``): IMBIC trials of the paper's arms and
+Built on the general tuner (``armimp_jax.study.tune``): IMBIC trials of the paper's arms and
 friction levels, perturbation level 1, training and held-out seeds that never overlap.
 """
 
@@ -11,11 +11,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._batch import Welch, assess_batch, simulate_batch
-from .._numerics import Numerics
-from .._perturbation import perturbation
+from .._model.perturbation import perturbation
 from .._simulate import stack_trials
-from ..tune import TuneConfig, config_settings
-from ._presets import perturbation_peak, trial
+from .._solver.numerics import Numerics
+from ..presets._paper import perturbation_peak, trial
+from ..study.tune import TuneConfig, config_settings
 
 TRAIN_SEED_OFFSET = 100  # training and held-out perturbation seeds never overlap
 HELDOUT_SEED_OFFSET = 1000

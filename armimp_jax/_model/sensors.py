@@ -18,8 +18,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import as_param, check_range, is_concrete
-from ._pytree import params
+from .._checks import as_param, check_range, is_concrete
+from .._pytree import params
 
 
 def _active(x) -> bool:

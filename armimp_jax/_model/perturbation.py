@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.signal
 
-from ._checks import as_float64, check_int, is_concrete, require_x64
+from .._checks import as_float64, check_int, is_concrete, require_x64
 
 SAMPLE_RATE = 1000.0  # [Hz], one sample per 1 ms control period
 PERTURBATION_CUTOFF = 15.0  # Butterworth cut-off f_max [Hz]

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.signal
 
-from ._checks import as_float64, check_int, is_concrete, require_x64
+from .._checks import as_float64, check_int, is_concrete, require_x64
 
 SAMPLE_RATE = 1000.0  # [Hz]
 # Table 4 of the paper (spec section 9): 21 segments in a 50 s record.

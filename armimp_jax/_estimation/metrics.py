@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from ._arm import Arm, impedance_response
+from .._model.arm import Arm, impedance_response
 
 
 def largest_singular_value(a):

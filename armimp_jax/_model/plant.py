@@ -21,10 +21,10 @@ import jax
 import jax.numpy as jnp
 from jax.ad_checkpoint import checkpoint_name
 
-from ._arm import Arm
-from ._checks import check_choice
-from ._friction import LuGre, lugre
-from ._robot import Robot, jacobian_from_trig, mass_matrix_entries
+from .._checks import check_choice
+from .arm import Arm
+from .friction import LuGre, lugre
+from .robot import Robot, jacobian_from_trig, mass_matrix_entries
 
 
 class PlantState(NamedTuple):

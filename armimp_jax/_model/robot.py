@@ -18,9 +18,9 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from ._arm import arm_endpoint
-from ._checks import as_param, check_range, is_concrete
-from ._pytree import params
+from .._checks import as_param, check_range, is_concrete
+from .._pytree import params
+from .arm import arm_endpoint
 
 # MIT-MANUS / InMotion2 (spec section 13: public control code, constant regression terms).
 MIT_MANUS_SHOULDER_LINK = 0.4064  # L_s [m]

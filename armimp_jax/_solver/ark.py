@@ -36,9 +36,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ._friction import bristle_g_and_slope
-from ._plant import PlantModel, PlantState, Trig, coupled_inertia, displacement, rotate, trig_of
-from ._robot import jacobian_from_trig, mass_matrix_entries
+from .._model.friction import bristle_g_and_slope
+from .._model.plant import PlantModel, PlantState, Trig, coupled_inertia, displacement, rotate, trig_of
+from .._model.robot import jacobian_from_trig, mass_matrix_entries
 
 
 class Tableau(NamedTuple):

@@ -16,8 +16,8 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import as_float64, is_concrete, require_x64
-from ._estimate import Estimate
+from .._checks import as_float64, is_concrete, require_x64
+from .welch import Estimate
 
 
 class ImpedanceFit(NamedTuple):

@@ -21,9 +21,9 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
-from ._checks import as_param, check_choice, check_positive_definite
-from ._pytree import params
-from ._robot import cartesian_inertia
+from .._checks import as_param, check_choice, check_positive_definite
+from .._pytree import params
+from .robot import cartesian_inertia
 
 ACCEL_ESTIMATES = ("velocity", "position")
 # Defaults as nested tuples (immutable): K_p [N/m], K_v [N s/m] (paper eq. 5), Mhat [kg] (spec 7.2)

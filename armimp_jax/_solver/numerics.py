@@ -6,9 +6,9 @@ compiled program, and two trials with different numerics cannot share a batch.
 
 from __future__ import annotations
 
-from ._checks import check_choice, check_int
-from ._plant import CHECKPOINTS, KERNELS
-from ._pytree import params
+from .._checks import check_choice, check_int
+from .._model.plant import CHECKPOINTS, KERNELS
+from .._pytree import params
 
 DEFAULT_SUBSTEPS = 100  # RK4 steps per 1 ms control period (h = 0.01 ms), spec section 6
 

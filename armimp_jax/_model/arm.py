@@ -11,8 +11,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import as_param, check_positive_definite
-from ._pytree import params
+from .._checks import as_param, check_positive_definite
+from .._pytree import params
 
 UPPER_ARM_LENGTH = 0.21  # l_u [m]
 FOREARM_LENGTH = 0.32  # l_f [m] (forearm plus hand)

@@ -16,8 +16,8 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import as_param, check_range, is_concrete
-from ._pytree import params
+from .._checks import as_param, check_range, is_concrete
+from .._pytree import params
 
 
 @params
