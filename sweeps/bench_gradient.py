@@ -57,8 +57,9 @@ def child(mode, kernel, checkpoint, seconds, substeps, repeats, codegen):
     import jax
     import numpy as np
 
-    from armimp_jax import Welch, tune
+    from armimp_jax import Welch
     from armimp_jax.paper import tune as paper_tune
+    from armimp_jax.study import tune
 
     welch = Welch() if seconds >= 10.24 else Welch(1024, 768)
     kind = "full" if mode.endswith("full") else "diagonal"
@@ -119,8 +120,9 @@ def child_training(repeats, codegen):
     import numpy as np
     from jax.sharding import NamedSharding, PartitionSpec
 
-    from armimp_jax import Welch, tune
+    from armimp_jax import Welch
     from armimp_jax.paper import tune as paper_tune
+    from armimp_jax.study import tune
 
     theta = tune.theta_from_mhat(0.25 * np.eye(2), "diagonal")
     # tune_mhat.py's defaults: friction 1-2 x 4 locations x 2 seeds, 16 s, 20 substeps

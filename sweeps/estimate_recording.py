@@ -84,8 +84,8 @@ def main(argv=None) -> int:
     import jax  # after the arguments: --help stays fast
 
     jax.config.update("jax_enable_x64", True)
-    from armimp_jax import recording
     from armimp_jax._estimation.welch import check_welch
+    from armimp_jax.study import recording
 
     try:
         columns = recording.parse_columns(args.columns)

@@ -159,7 +159,7 @@ def analyse(settings, rows):
     the curves' values at the reference torques."""
     import numpy as np
 
-    from armimp_jax import sweep
+    from armimp_jax.study import sweep
 
     table = {}
     for (ctrl, arm), (taus, phi, coh) in curves(settings, rows).items():
@@ -193,7 +193,7 @@ def plot(table, path):
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from armimp_jax import sweep
+    from armimp_jax.study import sweep
 
     fig, axes = plt.subplots(2, 2, figsize=(11, 7.5), sharex=True)
     for col, ctrl in enumerate(("pd", "imbic")):
@@ -322,7 +322,7 @@ def main(argv=None):
     from armimp_jax.runtime import configure
 
     configure()
-    from armimp_jax import sweep
+    from armimp_jax.study import sweep
 
     try:
         settings = settings_of(args, sweep)

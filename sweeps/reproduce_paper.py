@@ -244,7 +244,7 @@ def settings_for(args, repro):
 def main(argv=None):
     args = parse(argv)
     check_args(args)
-    from armimp_jax import distributed
+    from armimp_jax.study import distributed
 
     distributed.initialize(args)  # before the backend starts (configure starts it)
     from armimp_jax.runtime import configure

@@ -150,7 +150,7 @@ def settings_for(args, sweep):
 def run(args, *, prog: str = PROG, settings=None, out=None, quiet: bool = False):
     """Run (or resume) a sweep from parsed options; returns ``(summary, out)`` (in a
     ``jax.distributed`` job, the processes other than 0 get only ``computed``)."""
-    from armimp_jax import distributed, sweep
+    from armimp_jax.study import distributed, sweep
 
     if settings is None:
         settings, out = settings_for(args, sweep)
@@ -209,7 +209,7 @@ def main(argv=None):
         options.check_arguments(args)
     except ValueError as err:
         fail(str(err))
-    from armimp_jax import distributed
+    from armimp_jax.study import distributed
 
     distributed.initialize(args)  # before the backend starts (configure starts it)
     from armimp_jax.runtime import configure

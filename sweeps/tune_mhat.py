@@ -167,8 +167,9 @@ def main(argv=None):
     configure()
     import numpy as np
 
-    from armimp_jax import Welch, tune
+    from armimp_jax import Welch
     from armimp_jax.paper import tune as paper_tune
+    from armimp_jax.study import tune
     from armimp_jax.study.results import (
         ResultsError,
         RunLock,

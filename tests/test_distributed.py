@@ -14,8 +14,8 @@ import sys
 import numpy as np
 import pytest
 
-from armimp_jax import distributed
-from armimp_jax import results as res
+from armimp_jax.study import distributed
+from armimp_jax.study import results as res
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "reproduce_paper.py"

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 import armimp_jax as aj
-from armimp_jax import paper, recording
+from armimp_jax import paper
+from armimp_jax.study import recording
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "estimate_recording.py"

@@ -13,7 +13,6 @@ import sys
 import numpy as np
 import pytest
 
-from armimp_jax import results as res
 from armimp_jax.paper import plots, report
 from armimp_jax.paper import reproduce as repro
 from armimp_jax.paper.claims import (
@@ -27,6 +26,7 @@ from armimp_jax.paper.claims import (
     true_matrices,
 )
 from armimp_jax.presets._paper import arm
+from armimp_jax.study import results as res
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "reproduce_paper.py"

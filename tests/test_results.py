@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from armimp_jax import __version__
-from armimp_jax import results as res
+from armimp_jax.study import results as res
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 

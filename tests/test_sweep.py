@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from armimp_jax import sweep
+from armimp_jax.study import sweep
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "sweep.py"

@@ -17,11 +17,12 @@ import optax
 import pytest
 
 import armimp_jax as aj
-from armimp_jax import Welch, tune
+from armimp_jax import Welch
 from armimp_jax import paper as presets
-from armimp_jax import results as res
 from armimp_jax._batch import make_mesh
 from armimp_jax.paper import tune as paper_tune
+from armimp_jax.study import results as res
+from armimp_jax.study import tune
 
 WELCH = Welch(512, 384)
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -168,8 +169,9 @@ import json, logging, re
 from armimp_jax.runtime import configure
 configure(host_devices=3)
 import jax, numpy as np
-from armimp_jax import Welch, tune
-from armimp_jax import results as res
+from armimp_jax import Welch
+from armimp_jax.study import tune
+from armimp_jax.study import results as res
 from armimp_jax.paper import tune as paper_tune
 params, f_delta = paper_tune.training_batch((0, 2), (1,), (0,), seconds=1.6)
 NUM = paper_tune.training_numerics(4)
