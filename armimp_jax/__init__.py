@@ -6,44 +6,134 @@ The general simulator is at the top level (``make_trial``, ``simulate``, ``estim
 
 Float64 is required: call ``jax.config.update("jax_enable_x64", True)`` before use
 (the library never switches it on for you, and its entry points refuse to run without it).
+
+Importing ``armimp_jax`` does not import JAX: each public name is loaded on first use, so a
+script's ``--help`` answers at once. When the first of the package's JAX modules loads, and
+no JAX backend has started yet, ``runtime.apply_cpu_defaults`` asks for one CPU device per
+core and sets two XLA:CPU code-generation options (see ``armimp_jax.runtime``).
 """
 
-from . import runtime as runtime
-from ._batch import NumericsCheck as NumericsCheck
-from ._batch import TrialOutcome as TrialOutcome
-from ._batch import Welch as Welch
-from ._batch import assess as assess
-from ._batch import assess_batch as assess_batch
-from ._batch import check_numerics as check_numerics
-from ._batch import simulate_batch as simulate_batch
-from ._estimation.fit import ImpedanceFit as ImpedanceFit
-from ._estimation.fit import fit_impedance as fit_impedance
-from ._estimation.metrics import accuracy as accuracy
-from ._estimation.welch import Estimate as Estimate
-from ._estimation.welch import cross_spectral_matrix as cross_spectral_matrix
-from ._estimation.welch import estimate as estimate
-from ._estimation.welch import input_coherence as input_coherence
-from ._model.arm import Arm as Arm
-from ._model.control import IMBIC as IMBIC
-from ._model.control import PD as PD
-from ._model.friction import NO_FRICTION as NO_FRICTION
-from ._model.friction import LuGre as LuGre
-from ._model.friction import lugre as lugre
-from ._model.perturbation import perturbation as perturbation
-from ._model.plant import PlantState as PlantState
-from ._model.robot import MIT_MANUS as MIT_MANUS
-from ._model.robot import Robot as Robot
-from ._model.sensors import Sensors as Sensors
-from ._simulate import SimResult as SimResult
-from ._simulate import Trial as Trial
-from ._simulate import make_trial as make_trial
-from ._simulate import simulate as simulate
-from ._simulate import simulate_chunk as simulate_chunk
-from ._simulate import simulate_init as simulate_init
-from ._simulate import stack_trials as stack_trials
-from ._solver.numerics import SWEEP_NUMERICS as SWEEP_NUMERICS
-from ._solver.numerics import Numerics as Numerics
+from __future__ import annotations
 
-__version__ = "0.3.0"
+import importlib
+import importlib.metadata
+from typing import TYPE_CHECKING
 
-runtime.apply_cpu_defaults()
+from . import runtime as runtime  # JAX-free
+
+__version__ = importlib.metadata.version("armimp_jax")  # pyproject.toml's, the one place it is written
+
+# Public name -> the module that defines it, imported on first use (PEP 562).
+_EXPORTS = {
+    "MAX_PER_DEVICE": "._batch",
+    "NumericsCheck": "._batch",
+    "TrialOutcome": "._batch",
+    "Welch": "._batch",
+    "assess": "._batch",
+    "assess_batch": "._batch",
+    "batch_groups": "._batch",
+    "check_numerics": "._batch",
+    "default_lanes": "._batch",
+    "make_mesh": "._batch",
+    "padded_batch_size": "._batch",
+    "shard_batch": "._batch",
+    "simulate_batch": "._batch",
+    "fit_warnings": "._estimation.diagnose",
+    "ImpedanceFit": "._estimation.fit",
+    "fit_impedance": "._estimation.fit",
+    "accuracy": "._estimation.metrics",
+    "Estimate": "._estimation.welch",
+    "ZError": "._estimation.welch",
+    "cross_spectral_matrix": "._estimation.welch",
+    "estimate": "._estimation.welch",
+    "input_coherence": "._estimation.welch",
+    "Arm": "._model.arm",
+    "IMBIC": "._model.control",
+    "PD": "._model.control",
+    "NO_FRICTION": "._model.friction",
+    "LuGre": "._model.friction",
+    "lugre": "._model.friction",
+    "perturbation": "._model.perturbation",
+    "PlantState": "._model.plant",
+    "MIT_MANUS": "._model.robot",
+    "Robot": "._model.robot",
+    "Sensors": "._model.sensors",
+    "VoluntaryForce": "._model.voluntary",
+    "SimResult": "._simulate",
+    "Trial": "._simulate",
+    "make_trial": "._simulate",
+    "simulate": "._simulate",
+    "simulate_chunk": "._simulate",
+    "simulate_init": "._simulate",
+    "stack_trials": "._simulate",
+    "ARK3": "._solver.ark",
+    "ARK4": "._solver.ark",
+    "GradedARK4": "._solver.graded",
+    "SWEEP_NUMERICS": "._solver.numerics",
+    "Numerics": "._solver.numerics",
+    "RK4": "._solver.rk4",
+}
+__all__ = sorted([*_EXPORTS, "runtime"])
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))
+
+
+if TYPE_CHECKING:  # what static tools and editors see
+    from ._batch import MAX_PER_DEVICE as MAX_PER_DEVICE
+    from ._batch import NumericsCheck as NumericsCheck
+    from ._batch import TrialOutcome as TrialOutcome
+    from ._batch import Welch as Welch
+    from ._batch import assess as assess
+    from ._batch import assess_batch as assess_batch
+    from ._batch import batch_groups as batch_groups
+    from ._batch import check_numerics as check_numerics
+    from ._batch import default_lanes as default_lanes
+    from ._batch import make_mesh as make_mesh
+    from ._batch import padded_batch_size as padded_batch_size
+    from ._batch import shard_batch as shard_batch
+    from ._batch import simulate_batch as simulate_batch
+    from ._estimation.diagnose import fit_warnings as fit_warnings
+    from ._estimation.fit import ImpedanceFit as ImpedanceFit
+    from ._estimation.fit import fit_impedance as fit_impedance
+    from ._estimation.metrics import accuracy as accuracy
+    from ._estimation.welch import Estimate as Estimate
+    from ._estimation.welch import ZError as ZError
+    from ._estimation.welch import cross_spectral_matrix as cross_spectral_matrix
+    from ._estimation.welch import estimate as estimate
+    from ._estimation.welch import input_coherence as input_coherence
+    from ._model.arm import Arm as Arm
+    from ._model.control import IMBIC as IMBIC
+    from ._model.control import PD as PD
+    from ._model.friction import NO_FRICTION as NO_FRICTION
+    from ._model.friction import LuGre as LuGre
+    from ._model.friction import lugre as lugre
+    from ._model.perturbation import perturbation as perturbation
+    from ._model.plant import PlantState as PlantState
+    from ._model.robot import MIT_MANUS as MIT_MANUS
+    from ._model.robot import Robot as Robot
+    from ._model.sensors import Sensors as Sensors
+    from ._model.voluntary import VoluntaryForce as VoluntaryForce
+    from ._simulate import SimResult as SimResult
+    from ._simulate import Trial as Trial
+    from ._simulate import make_trial as make_trial
+    from ._simulate import simulate as simulate
+    from ._simulate import simulate_chunk as simulate_chunk
+    from ._simulate import simulate_init as simulate_init
+    from ._simulate import stack_trials as stack_trials
+    from ._solver.ark import ARK3 as ARK3
+    from ._solver.ark import ARK4 as ARK4
+    from ._solver.graded import GradedARK4 as GradedARK4
+    from ._solver.numerics import SWEEP_NUMERICS as SWEEP_NUMERICS
+    from ._solver.numerics import Numerics as Numerics
+    from ._solver.rk4 import RK4 as RK4

@@ -74,7 +74,7 @@ class TrialOutcome(NamedTuple):
 def assess(trial: Trial, f_delta, sim: SimResult, welch: Welch = Welch()) -> TrialOutcome:
     """Estimate the impedance from a simulated record and score it against the trial's arm
     (single trial; vmap it, or use ``assess_batch``)."""
-    est = estimate(f_delta, sim.x, sim.fh, **welch._asdict())
+    est = estimate(f_delta, sim.x, sim.fh, errors=True, **welch._asdict())
     phi_t, phi_ij = impedance_error(est.Z, impedance_response(trial.arm, est.f))
     return TrialOutcome(phi_t, phi_ij, jnp.max(est.coh_inputs), sim.diverged, sim.diverged_at, est)
 

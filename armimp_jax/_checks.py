@@ -1,10 +1,26 @@
-"""Input validation shared by the public entry points: x64, choices, shapes, concreteness."""
+"""Input validation shared by the public entry points: x64, choices, shapes, values.
+
+A value check sees concrete values at once and raises a one-line ``ValueError`` naming the
+value and the allowed range. A traced value (a parameter built inside ``jit``, ``vmap`` or
+``grad``) cannot be inspected then, so the same rule is attached to it with
+``equinox.error_if``: the check runs when the compiled program runs, and a violation raises
+there with the same message (raised by equinox as a runtime error of the computation;
+under ``vmap`` one bad lane fails the call, as a concrete bad value would). Gradients pass
+through the checks unchanged. What is checked where: docs/design.md.
+"""
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from . import runtime
+
+# Every JAX module of the package imports this one first: the place to set up XLA:CPU
+# (devices, code generation) before any backend can start, once per process.
+runtime.apply_cpu_defaults()
 
 
 def require_x64(where: str) -> None:
@@ -34,6 +50,11 @@ def is_concrete(x) -> bool:
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(x))
 
 
+def _traced_rule(x, bad, message: str):
+    """``x`` with the rule "not ``bad``" attached (checked when the program runs)."""
+    return eqx.error_if(x, bad, message)
+
+
 def as_float64(name: str, x, shape: tuple[int, ...] | None = None, *, where: str):
     """Convert to a float64 array (keeping tracers), checking shape and refusing float32."""
     require_x64(where)
@@ -54,7 +75,7 @@ def _show(a) -> str:
 
 def as_param(name: str, x, shape: tuple[int, ...], *, where: str, broadcast: bool = False):
     """A float64 parameter of ``shape`` (a scalar broadcast to it when ``broadcast``), finite
-    when concrete. Tracers pass through unchecked so ``grad`` and ``vmap`` flow through it."""
+    (checked at once when concrete, when the program runs when traced)."""
     if isinstance(x, (jax.Array, jax.core.Tracer)):
         arr = as_float64(name, x, where=where)
         if broadcast and arr.shape == ():
@@ -69,26 +90,33 @@ def as_param(name: str, x, shape: tuple[int, ...], *, where: str, broadcast: boo
     if arr.shape != shape:
         allowed = f"a scalar or shape {shape}" if broadcast else f"shape {shape}"
         raise ValueError(f"{where}: {name} must be {allowed}, got shape {arr.shape}")
-    if is_concrete(arr) and not np.all(np.isfinite(np.asarray(arr))):
+    if not is_concrete(arr):
+        return _traced_rule(arr, ~jnp.all(jnp.isfinite(arr)), f"{where}: {name} must be finite")
+    if not np.all(np.isfinite(np.asarray(arr))):
         raise ValueError(f"{where}: {name} must be finite, got {_show(arr)}")
     return arr
 
 
-def check_range(name: str, x, *, where: str, minimum=None, exclusive: bool = False, unit: str = "") -> None:
-    """Refuse concrete values below ``minimum`` (or at it, when ``exclusive``)."""
-    if minimum is None or not is_concrete(x):
-        return
+def check_range(name: str, x, *, where: str, minimum: float, exclusive: bool = False, unit: str = ""):
+    """``x``, refused when below ``minimum`` (or at it, when ``exclusive``)."""
+    op = ">" if exclusive else ">="
+    if not is_concrete(x):
+        bad = jnp.any(x <= minimum) if exclusive else jnp.any(x < minimum)
+        return _traced_rule(x, bad, f"{where}: {name} must be {op} {minimum:g}{unit}")
     a = np.asarray(x)
-    bad = a <= minimum if exclusive else a < minimum
-    if np.any(bad):
-        op = ">" if exclusive else ">="
+    if np.any(a <= minimum if exclusive else a < minimum):
         raise ValueError(f"{where}: {name} must be {op} {minimum:g}{unit}, got {_show(a)}")
+    return x
 
 
-def check_positive_definite(name: str, a, *, where: str, unit: str = "") -> None:
-    """Refuse a concrete 2x2 matrix whose symmetric part is not positive definite."""
+def check_positive_definite(name: str, a, *, where: str, unit: str = ""):
+    """``a`` (2x2), refused when its symmetric part is not positive definite."""
     if not is_concrete(a):
-        return
+        # A symmetric 2x2 is positive definite iff its (1, 1) entry and its determinant are > 0.
+        s12 = 0.5 * (a[..., 0, 1] + a[..., 1, 0])
+        bad = jnp.any(a[..., 0, 0] <= 0) | jnp.any(a[..., 0, 0] * a[..., 1, 1] - s12 * s12 <= 0)
+        message = f"{where}: {name} must have a positive definite symmetric part (eigenvalues of (A + A^T)/2 > 0)"
+        return _traced_rule(a, bad, message + unit)
     m = np.asarray(a)
     eig = np.linalg.eigvalsh(0.5 * (m + m.T))
     if not np.all(eig > 0.0):
@@ -96,3 +124,4 @@ def check_positive_definite(name: str, a, *, where: str, unit: str = "") -> None
             f"{where}: {name} must have a positive definite symmetric part (eigenvalues of (A + A^T)/2 > 0)"
             f"{unit}; got {m.tolist()} with eigenvalues {eig.tolist()}"
         )
+    return a

@@ -1,11 +1,11 @@
-"""A trial and its simulation loop (spec sections 5-7 and 13).
+"""A trial and its simulation loop (docs/model.md sections 5-7 and 15).
 
 A trial is one record: the robot starts at rest at the arm's equilibrium, a perturbation
 ``F_Delta`` (``(N, 2)`` [N], one sample per control period) is added to the controller's
 command, and the loop records what the acquisition sees. jax-md style, the simulation is
 a pair of pure functions, ``simulate_init`` and ``simulate_chunk`` (an outer ``lax.scan``
-over control periods: measure, control, integrate; an inner fixed-step RK4 scan over the
-substeps), and ``simulate`` runs them over a whole record.
+over control periods: measure, control, integrate one period with the ``Numerics``'
+solver, which scans its fixed substeps), and ``simulate`` runs them over a whole record.
 
 ``simulate`` is a single-trial function: batch it with ``jax.vmap`` over stacked trials
 (``stack_trials``) and stacked perturbations. A batch may mix robots, arms, endpoints,
@@ -25,15 +25,15 @@ from ._checks import as_float64, check_choice, require_x64
 from ._model.arm import Arm
 from ._model.control import matvec
 from ._model.friction import LuGre
-from ._model.plant import PlantState, Trig, displacement, integrate_period, measure, plant_model, rest_state, trig_of
+from ._model.plant import PlantState, Trig, displacement, measure, plant_model, rest_state, trig_of
 from ._model.robot import MIT_MANUS, Robot, fk, ik, jacobian_from_trig
 from ._model.sensors import IDEAL, Sensors, quantise, sample_noise
+from ._model.voluntary import VoluntaryForce, voluntary_init, voluntary_key, voluntary_step
 from ._pytree import params
-from ._solver.ark import integrate_period_imex
 from ._solver.numerics import Numerics
 
 ACQUISITIONS = ("instant", "interval_mean")
-CONTROL_PERIOD = 1e-3  # L [s], control and acquisition period (spec section 6)
+CONTROL_PERIOD = 1e-3  # L [s], control and acquisition period (docs/model.md section 7)
 # A trial is flagged as diverged when its state is not finite or a joint has moved this
 # far from its equilibrium [rad] (about 0.2 m at the handle; real trials move < 1 cm).
 DIVERGENCE_ANGLE = 0.5
@@ -47,7 +47,8 @@ class Trial:
     Leaves (float64, may be tracers): ``robot`` (``Robot``), ``arm`` (``Arm``), ``friction``
     (``LuGre``), ``controller`` (a bound ``PD``, ``IMBIC`` or user controller), ``sensors``
     (``Sensors``), and the equilibrium ``q0`` ``(2,)`` [rad] with ``x0 = fk(q0)`` ``(2,)``
-    [m]. Static: ``acquisition`` and the control ``period`` [s].
+    [m]; ``voluntary``, the person's own force (``VoluntaryForce``, or ``None``: a passive
+    arm). Static: ``acquisition`` and the control ``period`` [s].
     """
 
     robot: Robot
@@ -59,6 +60,7 @@ class Trial:
     x0: jnp.ndarray
     acquisition: str = "instant"
     period: float = CONTROL_PERIOD
+    voluntary: VoluntaryForce | None = None
 
 
 def _require(name, value, cls):
@@ -75,6 +77,7 @@ def make_trial(
     robot: Robot | None = None,
     acquisition: str = "instant",
     period: float = CONTROL_PERIOD,
+    voluntary: VoluntaryForce | None = None,
 ) -> Trial:
     """One trial's parameters.
 
@@ -89,6 +92,9 @@ def make_trial(
         acquisition: ``"instant"`` (samples at ``t_k``, the paper's) or ``"interval_mean"``
             (box-car means over the period ending at ``t_k``).
         period: control and acquisition period ``L`` [s] (default 1 ms).
+        voluntary: ``VoluntaryForce(std, cutoff)``, a random force the person applies to
+            their own arm (unmeasured; docs/model.md section 17, ``_model/voluntary.py``); default
+            none. It draws from ``simulate``'s key on a stream of its own.
 
     The robot starts at rest at ``q0 = ik(endpoint)`` (the branch ``0 < q1 - q2 < pi``);
     an endpoint it cannot reach, or reaches only near a singular posture, is refused
@@ -110,6 +116,13 @@ def make_trial(
     check_choice("acquisition", acquisition, ACQUISITIONS)
     if not (isinstance(period, (int, float)) and not isinstance(period, bool) and period > 0):
         raise ValueError(f"make_trial: period must be a positive number of seconds, got {period!r}")
+    if voluntary is not None:
+        _require("voluntary", voluntary, VoluntaryForce)
+        if not voluntary.cutoff < 0.5 / period:
+            raise ValueError(
+                f"make_trial: voluntary cutoff must be below the Nyquist rate {0.5 / period:g} Hz, "
+                f"got {voluntary.cutoff:g} Hz"
+            )
     q0 = ik(jnp.asarray(arm.endpoint), robot)
     x0 = fk(q0, robot)
     return Trial(
@@ -122,6 +135,7 @@ def make_trial(
         x0=x0,
         acquisition=acquisition,
         period=float(period),
+        voluntary=voluntary,
     )
 
 
@@ -160,6 +174,12 @@ def stack_trials(trials: list[Trial]) -> Trial:
         if not isinstance(t, Trial):
             raise ValueError(f"stack_trials takes Trial values (from make_trial), got {type(t).__name__}")
     trials = _align_sensors(trials)
+    cutoffs = {None if t.voluntary is None else t.voluntary.cutoff for t in trials}
+    if len(cutoffs) > 1:
+        raise ValueError(
+            "trials in one batch must all have a voluntary force of one cutoff, or none; got cutoffs "
+            f"{sorted(cutoffs, key=str)} (None: none)"
+        )
     structures = {jax.tree.structure(t) for t in trials}
     if len(structures) > 1:
         kinds = sorted({(type(t.controller).__name__, t.acquisition, t.period) for t in trials})
@@ -174,7 +194,7 @@ class SimResult(NamedTuple):
     """What a trial records, one row per control sample ``k = 0..N-1`` (``t_k = k L``).
 
     ``x`` [m], ``fh`` [N]: what the acquisition records at ``t_k`` (world-frame position;
-    hand force per spec section 6, sensor noise included). ``xd`` [m/s]: the measured
+    hand force per docs/model.md section 7, sensor noise included). ``xd`` [m/s]: the measured
     velocity the controller used. ``q`` [rad], ``z`` [rad]: true joint angles and bristle
     states at ``t_k``. ``fu`` [N]: the command applied over ``[t_k, t_k+1)`` (it includes
     ``F_Delta``). All ``(N, 2)`` float64. ``diverged`` (bool) and ``diverged_at`` (int,
@@ -203,7 +223,8 @@ class SimCarry(NamedTuple):
     """Loop state between control periods: the plant state at ``t_k``; the command
     ``F_u,k-1`` and the true ``x_k-1``, ``xd_k-1`` (the acquisition's memory); the
     controller's memory; ``diverged_at`` (int32, -1 while the trial is sound) and ``k``,
-    the next sample index."""
+    the next sample index; ``voluntary``, the person's force's memory (``VoluntaryState``;
+    ``None`` without one)."""
 
     plant: PlantState
     fu_prev: jnp.ndarray
@@ -212,6 +233,7 @@ class SimCarry(NamedTuple):
     memory: Any
     diverged_at: jnp.ndarray
     k: jnp.ndarray
+    voluntary: Any = None
 
 
 def _check_trial(trial, where):
@@ -231,6 +253,7 @@ def simulate_init(trial: Trial) -> SimCarry:
         trial.controller.init(trial.x0),
         jnp.asarray(-1, dtype=jnp.int32),
         jnp.asarray(0, dtype=jnp.int32),
+        None if trial.voluntary is None else voluntary_init(trial.x0),
     )
 
 
@@ -268,9 +291,14 @@ def simulate_chunk(
     f_delta = check_perturbation(f_delta, where="simulate_chunk")
     if (trial.sensors.force_on or trial.sensors.velocity_on) and key is None:
         raise ValueError("simulate: the trial's sensors draw noise; pass key=jax.random.key(seed)")
+    if trial.voluntary is not None and key is None:
+        raise ValueError("simulate: the trial's voluntary force is random; pass key=jax.random.key(seed)")
+    if (trial.voluntary is None) != (carry.voluntary is None):
+        raise ValueError("simulate_chunk: the carry does not match the trial's voluntary force (use simulate_init)")
     period, substeps = trial.period, numerics.substeps
     model = plant_model(trial.q0, trial.x0, trial.arm, trial.friction, trial.robot)
     x0, arm, controller = trial.x0, trial.arm, trial.controller
+    stream = None if trial.voluntary is None else voluntary_key(key)
 
     def record(state: PlantState, x, xd, fh, carry: SimCarry):
         if trial.acquisition == "instant":
@@ -281,6 +309,8 @@ def simulate_chunk(
             + matvec(arm.damping, (x - carry.x_prev) / period)
             + matvec(arm.stiffness, xbar - x0)
         )
+        if carry.voluntary is not None:  # F_v is held over the period: its mean is F_v,k-1
+            fbar = fbar - carry.voluntary.force
         return xbar, fbar
 
     def control_period(carry: SimCarry, fd):
@@ -288,7 +318,13 @@ def simulate_chunk(
         # The barriers make each sample one materialised value: otherwise XLA may recompute
         # it in several fusions whose FMA contraction differs (batched vs unbatched programs
         # then disagree in the last bit of the outputs).
-        x, xd, fh = jax.lax.optimization_barrier(measure(*jax.lax.optimization_barrier((state, carry.fu_prev)), model))
+        if carry.voluntary is None:
+            applied = carry.fu_prev
+        else:  # the person's F_v,k-1 pushes the robot like a command and the transducer reads -F_v
+            applied = carry.fu_prev + carry.voluntary.force
+        x, xd, fh = jax.lax.optimization_barrier(measure(*jax.lax.optimization_barrier((state, applied)), model))
+        if carry.voluntary is not None:
+            fh = fh - carry.voluntary.force
         noise = sample_noise(trial.sensors, key, k)
         x_rec, fh_rec = record(state, x, xd, fh, carry)
         if not trial.sensors.ideal:
@@ -303,26 +339,14 @@ def simulate_chunk(
         fu, memory, x, xd = jax.lax.optimization_barrier((fu, memory, x, xd))
         zero = jnp.zeros_like(state.xi1)
         start = state._replace(xi1=zero, xi2=zero)
-        if numerics.method != "rk4":
-            new_state = integrate_period_imex(
-                start,
-                fu,
-                model,
-                period=period,
-                substeps=substeps,
-                method=numerics.method,
-                rotating=numerics.kernel != "reference",
-            )
+        if carry.voluntary is None:
+            voluntary, push = None, fu
         else:
-            new_state = integrate_period(
-                start,
-                fu,
-                model,
-                period=period,
-                substeps=substeps,
-                kernel=numerics.kernel,
-                checkpoint=numerics.checkpoint,
-            )
+            voluntary, fv = voluntary_step(trial.voluntary, carry.voluntary, stream, k, period)
+            push = fu + fv
+        new_state = numerics.solver.integrate_period(
+            start, push, model, period=period, substeps=substeps, checkpoint=numerics.checkpoint
+        )
 
         finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(leaf)) for leaf in jax.tree.leaves((new_state, fu))]))
         in_range = (jnp.abs(new_state.q1 - trial.q0[0]) < DIVERGENCE_ANGLE) & (
@@ -330,11 +354,11 @@ def simulate_chunk(
         )
         diverged_at = jnp.where((carry.diverged_at < 0) & ~(finite & in_range), k + 1, carry.diverged_at)
         frozen = diverged_at >= 0
-        new = (new_state, fu, x, xd, memory)
-        old = (state, carry.fu_prev, carry.x_prev, carry.xd_prev, carry.memory)
+        new = (new_state, fu, x, xd, memory, voluntary)
+        old = (state, carry.fu_prev, carry.x_prev, carry.xd_prev, carry.memory, carry.voluntary)
         keep = jax.tree.map(lambda n, o: jnp.where(frozen, o, n), new, old)
         out = (x_rec, xd_m, fh_rec, fu, jnp.stack([state.q1, state.q2]), jnp.stack([state.z1, state.z2]))
-        return SimCarry(*keep, diverged_at, k + 1), out
+        return SimCarry(*keep[:5], diverged_at, k + 1, keep[5]), out
 
     # What reverse mode keeps (inert when nothing is differentiated): with "period" the
     # tape holds one carry per period and the backward pass recomputes its substeps; with

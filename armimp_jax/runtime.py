@@ -1,12 +1,17 @@
 """Entry-point set-up: float64, one XLA device per CPU core, and XLA:CPU code-generation flags.
 
-Scripts call ``configure`` once at start (float64, devices, code generation). Importing
-``armimp_jax`` only adds the two XLA:CPU code-generation options of ``apply_cpu_defaults``
-when no JAX backend has started yet, so that the documented library path runs at full
-speed without a set-up call: XLA refuses them as per-compilation options (they live in
-``xla_backend_extra_options``, a map that ``jax.jit(compiler_options=...)`` cannot set),
-so the environment is the only place for them. Set ``ARMIMP_JAX_XLA_DEFAULTS=0`` to
-leave XLA's own code generation alone.
+What importing ``armimp_jax`` does, and when: if no JAX backend has started yet,
+``apply_cpu_defaults`` (1) asks JAX for one CPU device per core (``jax_num_cpu_devices``),
+because one jitted computation runs on one core of XLA:CPU and ``simulate_batch``, the
+sweeps and the tests shard their batches over the devices they find; and (2) adds two
+XLA:CPU code-generation options that XLA refuses as per-compilation options (they live in
+``xla_backend_extra_options``, a map that ``jax.jit(compiler_options=...)`` cannot set), so
+the environment is the only place for them. Nothing else changes: single computations still
+run on the first device, and a caller's own settings win (a device count already set in
+``XLA_FLAGS`` or ``jax_num_cpu_devices``, options already in ``XLA_FLAGS``). If a backend has
+already started, importing changes nothing. Opt out with ``ARMIMP_JAX_CPU_DEVICES=1`` (or
+any count) for the devices and ``ARMIMP_JAX_XLA_DEFAULTS=0`` for both. Scripts call
+``configure`` once at start (float64, devices, code generation, SIMD width).
 """
 
 from __future__ import annotations
@@ -14,8 +19,6 @@ from __future__ import annotations
 import os
 import re
 import warnings
-
-import jax
 
 _FLAG = "--xla_force_host_platform_device_count"
 _EXTRA = "--xla_backend_extra_options"
@@ -38,14 +41,35 @@ def apply_cpu_defaults() -> bool:
     has started yet (and ``ARMIMP_JAX_XLA_DEFAULTS`` is not ``0``); options already there win.
     They change code generation only (results may move in their last bits: FMA contraction).
     Returns whether they are in effect for this process."""
-    from jax._src import xla_bridge
+    from jax._src import xla_bridge  # imported here: importing armimp_jax does not import JAX
 
     if os.environ.get("ARMIMP_JAX_XLA_DEFAULTS", "1") == "0":
         return False
     if not xla_bridge.backends_are_initialized():
         _add_extra_option(*_LOOP_OPTION)
         _add_extra_option(*_NO_UNROLL_OPTION)
+        _default_cpu_devices()
     return cpu_defaults_active()
+
+
+def default_cpu_devices() -> int:
+    """The CPU device count importing ``armimp_jax`` asks for: ``ARMIMP_JAX_CPU_DEVICES`` if
+    set (a whole number >= 1), else one per core (``os.cpu_count()``)."""
+    text = os.environ.get("ARMIMP_JAX_CPU_DEVICES")
+    if text is None:
+        return os.cpu_count() or 1
+    if not text.strip().isdigit() or int(text) < 1:
+        raise ValueError(f"ARMIMP_JAX_CPU_DEVICES must be a whole number >= 1, got {text!r}")
+    return int(text)
+
+
+def _default_cpu_devices() -> None:
+    """One CPU device per core unless the caller chose a count (before the backend starts)."""
+    import jax
+
+    if _FLAG in os.environ.get("XLA_FLAGS", "") or jax.config.jax_num_cpu_devices != -1:
+        return
+    jax.config.update("jax_num_cpu_devices", default_cpu_devices())
 
 
 def cpu_defaults_active() -> bool:
@@ -112,6 +136,8 @@ def configure(
     GPU/TPU hosts the CPU options are harmless and unused. Returns the number of devices
     JAX then sees.
     """
+    import jax
+
     jax.config.update("jax_enable_x64", True)
     present = os.environ.get("XLA_FLAGS", "")
     if (not hoist_small_loops and _LOOP_OPTION[0] in present) or (unroll_loops and _NO_UNROLL_OPTION[0] in present):
@@ -131,10 +157,14 @@ def configure(
     if not unroll_loops:
         _add_extra_option(*_NO_UNROLL_OPTION)
     if host_devices is not None:
+        from jax._src import xla_bridge
+
         n = host_devices or os.cpu_count() or 1
-        flags = os.environ.get("XLA_FLAGS", "")
-        _add_flag(f"{_FLAG}={n}", _FLAG)
-        if jax.default_backend() == "cpu" and jax.device_count() != n and _FLAG not in flags:
+        if _FLAG in os.environ.get("XLA_FLAGS", ""):
+            pass  # the caller's own count wins
+        elif not xla_bridge.backends_are_initialized():
+            jax.config.update("jax_num_cpu_devices", n)
+        elif jax.default_backend() == "cpu" and jax.device_count() != n:
             warnings.warn(
                 f"configure(host_devices={n}) came after JAX started; it sees {jax.device_count()} device(s)",
                 stacklevel=2,

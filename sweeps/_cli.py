@@ -1,11 +1,12 @@
-"""What the scripts share before they import JAX (kept free of it so ``--help`` stays fast)."""
+"""What the scripts share: one-line errors, the parser, the many-process options, and running a
+sweep with a progress bar. Importing it imports no JAX (so ``--help`` stays fast): the
+library is imported inside the functions that run something."""
 
 from __future__ import annotations
 
 import argparse
-import importlib.util
-import pathlib
 import sys
+import time
 
 
 def fail(message: str, prog: str):
@@ -23,11 +24,85 @@ class Parser(argparse.ArgumentParser):
 
 
 def distributed_options():
-    """``armimp_jax/study/distributed.py`` loaded on its own, for its option helpers: they need no
-    JAX, and importing the package would start it."""
-    package = importlib.util.find_spec("armimp_jax")
-    path = pathlib.Path(package.submodule_search_locations[0]) / "study" / "distributed.py"
-    spec = importlib.util.spec_from_file_location("_armimp_jax_distributed_options", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    """``armimp_jax.study.distributed``, for its option helpers (``add_arguments``,
+    ``check_arguments``): they need no JAX (the module imports it only to start a job)."""
+    from armimp_jax.study import distributed
+
+    return distributed
+
+
+class Progress:
+    """A tqdm bar in trials, with the library's ETA (compilation excluded); ends at 100%."""
+
+    def __init__(self, total: int):
+        from tqdm import tqdm
+
+        self.bar = tqdm(
+            total=total, unit="trial", bar_format="{l_bar}{bar}| {n:.1f}/{total_fmt} trials [{elapsed}{postfix}]"
+        )
+
+    def __call__(self, p):
+        self.bar.n = p["trials_total"] * p["done"] / p["total"] if p["total"] else 0.0
+        eta = p["eta_s"]
+        self.bar.set_postfix_str(
+            f"ETA {int(eta // 60)}:{int(eta % 60):02d}" if eta == eta else "ETA ? (compiling)", refresh=False
+        )
+        self.bar.refresh()
+
+    def close(self):
+        self.bar.n = self.bar.total
+        self.bar.set_postfix_str("done", refresh=False)
+        self.bar.close()
+
+
+def run_sweep(
+    settings, out, *, prog: str, batch_size: int = 64, check: int = 0, x: str | None = None, quiet: bool = False
+) -> dict:
+    """Run (or resume) the sweep of ``settings`` (``SweepSettings``) in folder ``out`` with a
+    progress bar, saying what it does; returns ``run_sweep``'s result (in a
+    ``jax.distributed`` job, the processes other than 0 get only ``computed``)."""
+    from armimp_jax.study import distributed, sweep
+
+    settings.validate()
+    bar = None
+
+    def on_start(on_disk: int, to_run: int):
+        nonlocal bar
+        if quiet:
+            return
+        print(
+            f"{len(settings.points)} point(s) x {settings.seeds} seed(s), {settings.method} with "
+            f"{settings.substeps} substeps -> {out} ({on_disk} trials on disk, {to_run} to run)",
+            flush=True,
+        )
+        bar = Progress(to_run) if to_run else None
+
+    start = time.perf_counter()
+    try:
+        result = sweep.run_sweep(
+            settings,
+            out,
+            batch_size=batch_size,
+            check=check,
+            x=x,
+            progress=lambda p: bar(p) if bar is not None else None,
+            warn=lambda m: sys.stderr.write(f"{prog}: warning: {m}\n"),
+            on_start=on_start,
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+    if not distributed.is_writer() or quiet:
+        return result
+    print(
+        f"done in {time.perf_counter() - start:.1f} s: {len(result['computed'])} trial(s) run, "
+        f"{len(result['diverged'])} diverged (left out of the summary); {out}/trials.csv, summary.csv, "
+        f"{result['figure']}"
+    )
+    chk = result.get("numerics_check")
+    if chk:
+        print(
+            f"numerics check: {chk['trials_checked']} trial(s) at {chk['refined_substeps']} substeps, "
+            f"max relative phi_T error {chk['max_rel_error']}"
+        )
+    return result

@@ -1,21 +1,29 @@
-"""Convergence study: phi_T error and cost per trial, per integration method and substeps.
+"""Convergence study: phi_T and estimated K errors and cost per trial, per solver and substeps.
 
 For every controller (PD, IMBIC), Coulomb torque ``tau_c`` (stiction ``1.5 tau_c``, the
 paper's bristle and viscous parameters; 0 is ``tau_c = tau_s = 0``) and paper arm, one trial
-is simulated under each setting ``METHOD:SUBSTEPS`` and under the reference setting (by
-default ``ark4`` at 4x the finest substeps tested), all with the same seeded perturbation
-(paper level 1). The error of a setting is ``|phi_T - phi_T,ref| / phi_T,ref``; the tables
-give its maximum over the arms per ``tau_c``, divergences, and the cost per trial.
+is simulated under each setting ``METHOD:SUBSTEPS`` (``rk4``, ``ark3``, ``ark4``, ``gark4``:
+``GradedARK4``) with the same seeded perturbation (paper level 1), and scored: ``phi_T``
+(``assess_batch``) and the stiffness ``K`` of ``fit_impedance``. A setting's error is
+measured against the same solver at ``--refine`` (default 4) times the substeps, the
+convergence criterion of issue 26, or against one common ``--reference`` setting:
+``|phi_T - phi_T,ref| / phi_T,ref`` and ``||K - K_ref||_F / ||K_ref||_F``. The tables give
+their maximum over the arms per ``tau_c`` and controller, divergences, and a summary per
+setting (largest errors, converged: no divergence and both errors <= 1e-4).
 
-Cost: the batch of one controller's trials (``simulate_batch`` over every device of
-``runtime.configure``), compiled on a one-chunk warm-up (compile time reported apart),
-then the full record timed once (``block_until_ready`` via the host copy), amortised per
-trial. The reference runs are timed too, but not reported.
+Cost: in the accuracy run each setting's batch is compiled on a one-chunk warm-up and the
+full record timed once (rough: the batch is not the timing batch). ``--timing`` instead
+measures the cost per trial properly: ``--batch`` IMBIC trials cycling through the Coulomb
+torques and arms, ``simulate_batch`` over every device of ``runtime.configure``, compile
+excluded and reported, ``block_until_ready`` (the host copy), median of ``--repeats`` runs
+alternated across settings; the host's load average is recorded with every run.
 
-    python sweeps/bench_convergence.py [--seconds 50] [--settings rk4:25,ark3:20,...] [--out DIR]
-    python sweeps/bench_convergence.py --timing [--batch 24] [--repeats 3]   # cost only
+    python sweeps/bench_convergence.py [--seconds 50] [--settings gark4:4,ark3:20] [--refine 4] [--out DIR]
+    python sweeps/bench_convergence.py --reference ark3:160 [--settings ...]   # one common reference
+    python sweeps/bench_convergence.py --timing [--batch 24] [--repeats 3]     # cost only
 
-Writes ``DIR/convergence.json`` (every number) and ``DIR/convergence.md`` (the tables).
+Writes ``DIR/convergence.json`` (every number) and ``DIR/convergence.md`` (the tables), or
+``convergence_timing.*`` with ``--timing``.
 """
 
 from __future__ import annotations
@@ -25,12 +33,15 @@ import json
 import os
 import pathlib
 import platform
+import statistics
 import sys
 import time
 
-DEFAULT_TAUS = (0.0, 1e-4, 1e-3, 1e-2, 0.05, 0.2, 1.0, 4.0)
-DEFAULT_SETTINGS = "rk4:10,rk4:25,rk4:100,ark3:10,ark3:20,ark3:40,ark4:10,ark4:20,ark4:40"
+DEFAULT_TAUS = (0.0, 1e-4, 1e-3, 1e-2, 0.1, 1.0, 4.0)  # issue 26's Coulomb torques [N m]
+DEFAULT_SETTINGS = "rk4:25,rk4:100,ark3:10,ark3:20,ark4:5,ark4:10,gark4:4,gark4:5"
+METHODS = ("rk4", "ark3", "ark4", "gark4")
 CHUNK = 5000  # samples per compiled chunk: the warm-up runs one chunk
+TOLERANCE = 1e-4  # issue 26: converged means both errors at most this, and no divergence
 
 
 def parse(argv):
@@ -40,7 +51,9 @@ def parse(argv):
     ap.add_argument("--locations", type=int, nargs="+", default=[1, 2, 3, 4], choices=[1, 2, 3, 4])
     ap.add_argument("--controllers", nargs="+", default=["pd", "imbic"], choices=["pd", "imbic"])
     ap.add_argument("--settings", type=str, default=DEFAULT_SETTINGS, help="METHOD:SUBSTEPS,... to assess")
-    ap.add_argument("--reference", type=str, help="METHOD:SUBSTEPS (default ark4 at 4x the finest setting)")
+    ap.add_argument("--refine", type=int, default=4, help="each setting against itself at this many times the substeps")
+    ap.add_argument("--reference", type=str, help="METHOD:SUBSTEPS: one common reference instead of --refine")
+    ap.add_argument("--seed", type=int, default=0, help="perturbation seed (default 0)")
     ap.add_argument("--timing", action="store_true", help="instead: cost per trial only (median of --repeats)")
     ap.add_argument("--batch", type=int, default=24, help="--timing: IMBIC trials per batch (default 24)")
     ap.add_argument("--repeats", type=int, default=3, help="--timing: timed runs per setting (default 3)")
@@ -49,13 +62,15 @@ def parse(argv):
 
     def setting(text):
         method, _, n = text.partition(":")
-        if method not in ("rk4", "ark3", "ark4") or not n.isdigit() or int(n) < 1:
-            ap.error(f"a setting is METHOD:SUBSTEPS with METHOD rk4, ark3 or ark4 and SUBSTEPS >= 1, got {text!r}")
+        if method not in METHODS or not n.isdigit() or int(n) < 1:
+            allowed = ", ".join(METHODS)
+            ap.error(f"a setting is METHOD:SUBSTEPS with METHOD in {allowed} and SUBSTEPS >= 1, got {text!r}")
         return method, int(n)
 
     args.settings = [setting(s) for s in args.settings.split(",")]
-    finest = max(n for _, n in args.settings)
-    args.reference = setting(args.reference) if args.reference else ("ark4", 4 * finest)
+    args.reference = setting(args.reference) if args.reference else None
+    if args.refine < 2:
+        ap.error(f"--refine must be >= 2, got {args.refine}")
     try:
         args.taus = [float(t) for t in args.taus.split(",")]
     except ValueError:
@@ -65,6 +80,18 @@ def parse(argv):
     if args.seconds * 1000 < 2 * CHUNK:
         ap.error(f"--seconds must be >= {2 * CHUNK / 1000:g} (two chunks), got {args.seconds}")
     return args
+
+
+def numerics(method, substeps):
+    """The ``Numerics`` of a ``METHOD:SUBSTEPS`` setting (the solver's default kernel)."""
+    import armimp_jax as aj
+
+    solvers = {"rk4": aj.RK4, "ark3": aj.ARK3, "ark4": aj.ARK4, "gark4": aj.GradedARK4}
+    return aj.Numerics(solver=solvers[method](), substeps=substeps)
+
+
+def label(setting):
+    return "{}:{}".format(*setting)
 
 
 def timing(args, n, fd1, n_devices):
@@ -85,33 +112,77 @@ def timing(args, n, fd1, n_devices):
     batch = aj.stack_trials(trials)
     fd = np.broadcast_to(fd1, (args.batch, n, 2))
     settings = args.settings
-    compile_s, times = {}, {s: [] for s in settings}
-    for method, k in settings:
+    compile_s, times, loads = {}, {s: [] for s in settings}, {s: [] for s in settings}
+    for s in settings:
         t0 = time.perf_counter()
-        aj.simulate_batch(batch, fd[:, :CHUNK], numerics=aj.Numerics(substeps=k, method=method), chunk_samples=CHUNK)
-        compile_s[(method, k)] = time.perf_counter() - t0
+        aj.simulate_batch(batch, fd[:, :CHUNK], numerics=numerics(*s), chunk_samples=CHUNK)
+        compile_s[s] = time.perf_counter() - t0
     for _ in range(args.repeats):
-        for method, k in settings:
+        for s in settings:
+            loads[s].append(os.getloadavg()[0])
             t0 = time.perf_counter()
-            aj.simulate_batch(batch, fd, numerics=aj.Numerics(substeps=k, method=method), chunk_samples=CHUNK)
-            times[(method, k)].append((time.perf_counter() - t0) / args.batch)
+            aj.simulate_batch(batch, fd, numerics=numerics(*s), chunk_samples=CHUNK)
+            times[s].append((time.perf_counter() - t0) / args.batch)
     rows = [
         dict(
-            setting=f"{m}:{k}",
-            seconds_per_trial=float(np.median(times[(m, k)])),
-            runs=times[(m, k)],
-            warmup_with_compile_s=compile_s[(m, k)],
+            setting=label(s),
+            seconds_per_trial=statistics.median(times[s]),
+            runs=times[s],
+            load_average=loads[s],
+            warmup_with_compile_s=compile_s[s],
         )
-        for m, k in settings
+        for s in settings
     ]
     lines = [
         f"Cost per {n / 1000:g} s IMBIC trial, batch {args.batch} on {n_devices} device(s), "
-        f"median of {args.repeats} (compile excluded)",
+        f"median of {args.repeats} (compile excluded); load average {min(min(v) for v in loads.values()):.1f}-"
+        f"{max(max(v) for v in loads.values()):.1f}",
         "",
-        "| setting | s/trial | warm-up incl. compile [s] |",
-        "|---|---|---|",
-    ] + [f"| {r['setting']} | {r['seconds_per_trial']:.4f} | {r['warmup_with_compile_s']:.1f} |" for r in rows]
+        "| setting | s/trial | runs [s/trial] | warm-up incl. compile [s] |",
+        "|---|---|---|---|",
+    ] + [
+        f"| {r['setting']} | {r['seconds_per_trial']:.4f} | {', '.join(f'{t:.4f}' for t in r['runs'])} | "
+        f"{r['warmup_with_compile_s']:.1f} |"
+        for r in rows
+    ]
     return dict(rows=rows, batch=args.batch, repeats=args.repeats), "\n".join(lines) + "\n"
+
+
+def run_setting(batch, fd, setting, labels):
+    """Simulate, assess and fit one controller's batch under ``setting``: a result row."""
+    import jax
+    import numpy as np
+
+    import armimp_jax as aj
+
+    num = numerics(*setting)
+    t0 = time.perf_counter()
+    aj.simulate_batch(batch, fd[:, :CHUNK], numerics=num, chunk_samples=CHUNK)
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    sim = aj.simulate_batch(batch, fd, numerics=num, chunk_samples=CHUNK)
+    wall = time.perf_counter() - t0
+    out = aj.assess_batch(batch, fd, sim)
+    stiffness = np.asarray(jax.jit(jax.vmap(lambda e: aj.fit_impedance(e).stiffness))(out.estimate))
+    trials = []
+    for i, (tau, loc) in enumerate(labels):
+        sound = bool(np.isfinite(out.phi_T[i]) and np.all(np.isfinite(stiffness[i])) and not out.diverged[i])
+        trials.append(
+            dict(
+                tau_c=tau,
+                location=loc,
+                phi_T=float(out.phi_T[i]) if sound else None,
+                K=stiffness[i].tolist() if sound else None,
+                diverged=bool(out.diverged[i]),
+            )
+        )
+    return dict(
+        setting=label(setting),
+        seconds_per_trial=wall / len(labels),
+        warmup_with_compile_s=compile_s,
+        load_average=os.getloadavg()[0],
+        trials=trials,
+    )
 
 
 def main(argv=None):
@@ -128,18 +199,28 @@ def main(argv=None):
 
     n = int(round(args.seconds * 1000))
     n = -(-n // CHUNK) * CHUNK
-    fd1 = np.asarray(aj.perturbation(jax.random.key(0), n, peak=paper.perturbation_peak(1)))
+    fd1 = np.asarray(aj.perturbation(jax.random.key(args.seed), n, peak=paper.perturbation_peak(1)))
     host = dict(platform=platform.platform(), cpus=os.cpu_count(), devices=n_devices, python=sys.version)
+    args.out.mkdir(parents=True, exist_ok=True)
     if args.timing:
         results, table = timing(args, n, fd1, n_devices)
         results["host"] = host
-        args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "convergence_timing.json").write_text(json.dumps(results, indent=1, allow_nan=False))
         (args.out / "convergence_timing.md").write_text(table)
         print(table)
         return
-    settings = args.settings + [args.reference]
-    results = {"settings": [f"{m}:{k}" for m, k in settings], "reference": "{}:{}".format(*args.reference), "rows": []}
+    if args.reference:
+        references = {s: args.reference for s in args.settings}
+    else:
+        references = {(m, k): (m, args.refine * k) for m, k in args.settings}
+    runs = list(dict.fromkeys(list(args.settings) + list(references.values())))
+    results = dict(
+        settings=[label(s) for s in args.settings],
+        references={label(s): label(r) for s, r in references.items()},
+        seed=args.seed,
+        seconds=n / 1000,
+        rows=[],
+    )
     for ctrl in args.controllers:
         trials, labels = [], []
         for tau in args.taus:
@@ -150,88 +231,83 @@ def main(argv=None):
                 labels.append((tau, loc))
         batch = aj.stack_trials(trials)
         fd = np.broadcast_to(fd1, (len(trials), n, 2))
-        per_setting = {}
-        for method, k in settings:
-            numerics = aj.Numerics(substeps=k, method=method)
-            t0 = time.perf_counter()
-            aj.simulate_batch(batch, fd[:, :CHUNK], numerics=numerics, chunk_samples=CHUNK)
-            compile_s = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            sim = aj.simulate_batch(batch, fd, numerics=numerics, chunk_samples=CHUNK)
-            wall = time.perf_counter() - t0
-            out = aj.assess_batch(batch, fd, sim)
-            per_setting[(method, k)] = out
+        for s in runs:
+            row = dict(controller=ctrl, **run_setting(batch, fd, s, labels))
+            results["rows"].append(row)
+            diverged = sum(t["diverged"] for t in row["trials"])
             print(
-                f"{ctrl} {method}:{k}: {wall / len(trials):.4f} s/trial "
-                f"(warm-up incl. compile {compile_s:.1f} s), diverged {int(np.sum(out.diverged))}",
+                f"{ctrl} {row['setting']}: {row['seconds_per_trial']:.4f} s/trial (warm-up incl. compile "
+                f"{row['warmup_with_compile_s']:.1f} s, load {row['load_average']:.1f}), diverged {diverged}",
                 flush=True,
             )
-            results["rows"].append(
-                dict(
-                    controller=ctrl,
-                    setting=f"{method}:{k}",
-                    seconds_per_trial=wall / len(trials),
-                    warmup_with_compile_s=compile_s,
-                    trials=[
-                        dict(
-                            tau_c=tau,
-                            location=loc,
-                            phi_T=float(out.phi_T[i]) if np.isfinite(out.phi_T[i]) else None,
-                            diverged=bool(out.diverged[i]),
-                        )
-                        for i, (tau, loc) in enumerate(labels)
-                    ],
-                )
-            )
     results["host"] = host
-    results["seconds"] = n / 1000
-    args.out.mkdir(parents=True, exist_ok=True)
     tables = markdown(results, args.taus)
     (args.out / "convergence.json").write_text(json.dumps(results, indent=1, allow_nan=False))
     (args.out / "convergence.md").write_text(tables)
     print(tables)
 
 
-def _errors(results):
-    """``{(controller, setting): {tau: (max relative error, diverged count)}}`` against the reference."""
-    ref = {
-        (r["controller"], t["tau_c"], t["location"]): t
-        for r in results["rows"]
-        if r["setting"] == results["reference"]
-        for t in r["trials"]
+def errors(results):
+    """``{(controller, setting): {tau: (phi_T error, K error, diverged count)}}``, each error the
+    largest over the arms against the setting's reference."""
+    import numpy as np
+
+    by = {
+        (r["controller"], r["setting"]): {(t["tau_c"], t["location"]): t for t in r["trials"]} for r in results["rows"]
     }
     out = {}
-    for r in results["rows"]:
-        if r["setting"] == results["reference"]:
+    for (ctrl, setting), trials in by.items():
+        if setting not in results["settings"]:
             continue
-        cell = out.setdefault((r["controller"], r["setting"]), {})
-        for t in r["trials"]:
-            rt = ref[(r["controller"], t["tau_c"], t["location"])]
-            err, div = cell.get(t["tau_c"], (0.0, 0))
-            if t["diverged"] or t["phi_T"] is None or rt["phi_T"] is None or rt["diverged"]:
-                cell[t["tau_c"]] = (err, div + 1)
-            else:
-                cell[t["tau_c"]] = (max(err, abs(t["phi_T"] - rt["phi_T"]) / rt["phi_T"]), div)
+        ref = by[(ctrl, results["references"][setting])]
+        cell = out.setdefault((ctrl, setting), {})
+        for key, t in trials.items():
+            rt = ref[key]
+            phi, k, div = cell.get(key[0], (0.0, 0.0, 0))
+            if t["phi_T"] is None or rt["phi_T"] is None:
+                cell[key[0]] = (phi, k, div + 1)
+                continue
+            phi = max(phi, abs(t["phi_T"] - rt["phi_T"]) / rt["phi_T"])
+            kt, kr = np.asarray(t["K"]), np.asarray(rt["K"])
+            k = max(k, float(np.linalg.norm(kt - kr) / np.linalg.norm(kr)))
+            cell[key[0]] = (phi, k, div)
     return out
 
 
 def markdown(results, taus) -> str:
-    errors = _errors(results)
+    errs = errors(results)
     cost = {(r["controller"], r["setting"]): r["seconds_per_trial"] for r in results["rows"]}
-    head = "| controller | setting | s/trial | " + " | ".join(f"tau_c={t:g}" for t in taus) + " |"
-    lines = [
-        f"phi_T relative error against {results['reference']} (max over arms; D: diverged trials), "
-        f"{results['seconds']:g} s records, cost per trial amortised over the batch",
+    refs = sorted(set(results["references"].values()))
+    against = (
+        f"against {refs[0]}"
+        if len(refs) == 1 and len(results["settings"]) > 1
+        else "against the same solver at the refined substeps"
+    )
+    head = "| controller | setting | " + " | ".join(f"tau_c={t:g}" for t in taus) + " |"
+    rule = "|" + "---|" * (2 + len(taus))
+    lines = [f"Errors {against} (max over arms; D: diverged trials), {results['seconds']:g} s records, seed "]
+    lines[0] += f"{results['seed']}; references: " + ", ".join(f"{s} -> {r}" for s, r in results["references"].items())
+    for title, index in (("phi_T relative error", 0), ("K relative error (Frobenius)", 1)):
+        lines += ["", f"{title}:", "", head, rule]
+        for (ctrl, setting), cells in errs.items():
+            row = [ctrl, setting]
+            for t in taus:
+                e = cells[t]
+                row.append(f"{e[2]}D" if e[2] else f"{e[index]:.1e}")
+            lines.append("| " + " | ".join(row) + " |")
+    lines += [
         "",
-        head,
-        "|" + "---|" * (3 + len(taus)),
+        f"Summary (converged: no divergence and both errors <= {TOLERANCE:g}; s/trial from the accuracy run, rough):",
+        "",
+        "| setting | largest phi_T error | largest K error | diverged | converged | s/trial (PD, IMBIC) |",
+        "|---|---|---|---|---|---|",
     ]
-    for (ctrl, setting), cells in errors.items():
-        row = [ctrl, setting, f"{cost[(ctrl, setting)]:.4f}"]
-        for t in taus:
-            err, div = cells[t]
-            row.append(f"{div}D" if div else f"{err:.1e}")
-        lines.append("| " + " | ".join(row) + " |")
+    for setting in results["settings"]:
+        cells = [c for (ctrl, s), cs in errs.items() if s == setting for c in cs.values()]
+        phi, k, div = max(c[0] for c in cells), max(c[1] for c in cells), sum(c[2] for c in cells)
+        ok = "yes" if div == 0 and max(phi, k) <= TOLERANCE else "no"
+        costs = ", ".join(f"{cost[(c, setting)]:.3f}" for c in dict.fromkeys(ctrl for ctrl, s in errs if s == setting))
+        lines.append(f"| {setting} | {phi:.1e} | {k:.1e} | {div} | {ok} | {costs} |")
     return "\n".join(lines) + "\n"
 
 

@@ -18,6 +18,15 @@ and ``--unroll-loops`` then really leave them off.
 (16 trials of 16 s at 20 substeps, nperseg 4096) with each checkpoint, on one device and
 sharded over every core by ``tune.place_batch`` (theta replicated, as ``tune.tune`` does),
 alternating, in one process.
+
+``--jacobian`` instead times forward-mode Jacobians: ``jax.jacfwd`` of the simulated ``x``
+and ``fh`` of one trial (IMBIC, friction 2, location 1) with respect to 16 floats (the arm's
+12 entries of ``M``, ``B``, ``K`` and ``tau_c``, ``tau_s`` of both joints), against one
+forward run and 16 separate forward runs (at 16 nearby parameter vectors), per solver
+setting ``METHOD:KERNEL:SUBSTEPS`` (``--jac-settings``), each in its own process: compile
+excluded and reported, ``block_until_ready``, the three alternated, median of repeats.
+
+    python sweeps/bench_gradient.py --jacobian [--seconds 10] [--jac-settings rk4:fast:100,gark4:fast:4]
 """
 
 from __future__ import annotations
@@ -37,16 +46,17 @@ import time
 # (the children inherit this). No JAX backend starts on import, so configure() still applies.
 os.environ["ARMIMP_JAX_XLA_DEFAULTS"] = "0"
 
-# armimp_jax._model.plant.CHECKPOINTS, spelled out so that --help needs no JAX (checked in the children)
+# aj.Numerics.CHECKPOINTS and aj.RK4.KERNELS, spelled out so that --help needs no JAX (checked in the children)
 CHECKPOINTS = ("period", "substep")
 MODES = ("primal", "reverse-diagonal", "reverse-full", "forward-diagonal", "forward-full")
 KERNELS = ("fast", "grad", "reference")
 
 
 def _check_checkpoints():
-    from armimp_jax._model.plant import CHECKPOINTS as LIBRARY_CHECKPOINTS
+    import armimp_jax as aj
 
-    assert LIBRARY_CHECKPOINTS == CHECKPOINTS, (LIBRARY_CHECKPOINTS, CHECKPOINTS)
+    assert aj.Numerics.CHECKPOINTS == CHECKPOINTS, (aj.Numerics.CHECKPOINTS, CHECKPOINTS)
+    assert set(aj.RK4.KERNELS) == set(KERNELS), (aj.RK4.KERNELS, KERNELS)
 
 
 def child(mode, kernel, checkpoint, seconds, substeps, repeats, codegen):
@@ -110,6 +120,78 @@ def child(mode, kernel, checkpoint, seconds, substeps, repeats, codegen):
     )
 
 
+JAC_SETTINGS = "rk4:fast:100,rk4:grad:100,ark3:fast:20,gark4:fast:4"
+JAC_PARAMETERS = 16  # the arm's M, B, K (12) and tau_c, tau_s of both joints (4)
+
+
+def child_jacobian(setting, seconds, repeats, codegen):
+    """``jax.jacfwd`` of ``(x, fh)`` with respect to 16 trial parameters against one forward
+    run and 16 separate ones, one solver setting ``METHOD:KERNEL:SUBSTEPS``."""
+    from armimp_jax.runtime import configure
+
+    configure(host_devices=1, **codegen)
+    import dataclasses
+
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    import armimp_jax as aj
+    from armimp_jax import paper
+
+    method, kernel, substeps = setting.split(":")
+    solvers = {"rk4": aj.RK4, "ark3": aj.ARK3, "ark4": aj.ARK4, "gark4": aj.GradedARK4}
+    numerics = aj.Numerics(solver=solvers[method](kernel=kernel), substeps=int(substeps))
+    n = int(round(seconds * 1000))
+    trial = paper.trial("imbic", 2, 1)
+    f_delta = jnp.asarray(aj.perturbation(jax.random.key(0), n, peak=paper.perturbation_peak(1)))
+    arm, fr = trial.arm, trial.friction
+    theta0 = jnp.concatenate([arm.mass.ravel(), arm.damping.ravel(), arm.stiffness.ravel(), fr.tau_c, fr.tau_s])
+    assert theta0.shape == (JAC_PARAMETERS,)
+
+    def record(theta):
+        m, b, k = (theta[4 * i : 4 * i + 4].reshape(2, 2) for i in range(3))
+        bristles = dict(sigma0=fr.sigma0, sigma1=fr.sigma1, sigma2=fr.sigma2, v_s=fr.v_s)
+        friction = aj.LuGre(theta[12:14], theta[14:16], **bristles)
+        t = dataclasses.replace(trial, arm=aj.Arm(m, b, k, arm.endpoint), friction=friction)
+        sim = aj.simulate(t, f_delta, numerics=numerics)
+        return sim.x, sim.fh
+
+    def compiled(fn):
+        t0 = time.perf_counter()
+        out = jax.jit(fn).lower(theta0).compile()
+        return out, time.perf_counter() - t0
+
+    forward, forward_compile_s = compiled(record)
+    jacobian, jacobian_compile_s = compiled(jax.jacfwd(record))
+    thetas = [theta0 * (1.0 + 1e-3 * i) for i in range(JAC_PARAMETERS)]
+    runs = dict(forward=lambda: forward(theta0), jacobian=lambda: jacobian(theta0))
+    runs["16 forwards"] = lambda: [forward(t) for t in thetas]
+    jac = jax.block_until_ready(runs["jacobian"]())
+    jax.block_until_ready(runs["forward"]())
+    times = {name: [] for name in runs}
+    for _ in range(repeats):
+        for name, run in runs.items():
+            t0 = time.perf_counter()
+            jax.block_until_ready(run())
+            times[name].append(time.perf_counter() - t0)
+    med = {name: statistics.median(t) for name, t in times.items()}
+    return dict(
+        setting=setting,
+        seconds=seconds,
+        parameters=JAC_PARAMETERS,
+        forward_s=med["forward"],
+        jacobian_s=med["jacobian"],
+        forwards_16_s=med["16 forwards"],
+        jacobian_in_forwards=med["jacobian"] / med["forward"],
+        runs_s=times,
+        forward_compile_s=forward_compile_s,
+        jacobian_compile_s=jacobian_compile_s,
+        jacobian_finite=bool(all(np.all(np.isfinite(np.asarray(j))) for j in jac)),
+        load=os.getloadavg(),
+    )
+
+
 def child_training(repeats, codegen):
     """The tuner's default training batch: one gradient per (checkpoint, placement)."""
     from armimp_jax.runtime import configure
@@ -161,7 +243,10 @@ def main():
     ap.add_argument("--substeps", type=int, default=100)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--training-batch", action="store_true", help="also time the tuner's batch gradient")
-    ap.add_argument("--child", choices=MODES + ("training",))
+    ap.add_argument("--jacobian", action="store_true", help="instead: forward-mode Jacobians of 16 parameters")
+    ap.add_argument("--jac-settings", default=JAC_SETTINGS, help="METHOD:KERNEL:SUBSTEPS,... for --jacobian")
+    ap.add_argument("--child", choices=MODES + ("training", "jacobian"))
+    ap.add_argument("--child-setting", help=argparse.SUPPRESS)
     ap.add_argument("--child-kernel", choices=KERNELS)
     ap.add_argument("--child-checkpoint", choices=CHECKPOINTS)
     ap.add_argument("--no-hoist", action="store_true", help="without the XLA small-loop option")
@@ -182,6 +267,9 @@ def main():
     if args.child == "training":
         print(json.dumps(child_training(args.repeats, codegen)))
         return
+    if args.child == "jacobian":
+        print(json.dumps(child_jacobian(args.child_setting, args.seconds, args.repeats, codegen)))
+        return
     if args.child:
         result = child(
             args.child, args.child_kernel, args.child_checkpoint, args.seconds, args.substeps, args.repeats, codegen
@@ -195,6 +283,9 @@ def main():
         if proc.returncode != 0:
             sys.exit(proc.stderr)
         return json.loads(proc.stdout.strip().splitlines()[-1])
+
+    if args.jacobian:
+        return jacobian_table(args, run_child)
 
     runs = [("primal", "fast", "period")] + [("primal", k, "period") for k in args.kernels if k != "fast"]
     runs += [(mode, k, c) for k in args.kernels for c in args.checkpoints for mode in args.modes]
@@ -246,6 +337,38 @@ def main():
     (args.out / "bench_gradient.json").write_text(
         json.dumps(dict(single_trial=rows, training_batch=training), indent=1)
     )
+
+
+def jacobian_table(args, run_child):
+    """``--jacobian``: one child per setting, then the table (Markdown and JSON under ``--out``)."""
+    rows = []
+    for setting in args.jac_settings.split(","):
+        r = run_child("--child", "jacobian", "--child-setting", setting, "--seconds", str(args.seconds))
+        rows.append(r)
+        print(
+            f"  {setting}: jacfwd {r['jacobian_s']:.3f} s = {r['jacobian_in_forwards']:.2f} forwards "
+            f"({r['forward_s']:.3f} s), 16 forwards {r['forwards_16_s']:.3f} s, load {r['load'][0]:.1f}",
+            flush=True,
+        )
+    lines = [
+        f"Forward-mode Jacobian of one trial's x and fh ({args.seconds:g} s record, IMBIC, friction 2, location 1) "
+        f"with respect to {JAC_PARAMETERS} parameters, one device, compile excluded, median of {args.repeats}:",
+        "",
+        "| solver:kernel:substeps | forward s | jacfwd s | jacfwd in forwards (target <= 8) | 16 forwards s "
+        "| compile forward / jacfwd s | load |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| {r['setting']} | {r['forward_s']:.3f} | {r['jacobian_s']:.3f} | {r['jacobian_in_forwards']:.2f} | "
+        f"{r['forwards_16_s']:.3f} | {r['forward_compile_s']:.1f} / {r['jacobian_compile_s']:.1f} | "
+        f"{r['load'][0]:.1f} |"
+        for r in rows
+    ]
+    table = "\n".join(lines)
+    print("\n" + table)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "bench_jacobian.md").write_text(table + "\n")
+    (args.out / "bench_jacobian.json").write_text(json.dumps(rows, indent=1))
 
 
 if __name__ == "__main__":

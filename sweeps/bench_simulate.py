@@ -19,9 +19,9 @@ each compiled once, run the same configurations in alternation (so the host's dr
 both alike) and report whether their outputs agree bit for bit (a digest of each).
 
 ``--lanes`` instead times unpadded batches of 1 to two vectors' worth of trials on one
-device, the data behind ``_batch.padded_batch_size``; ``--large-batch`` times large
+device, the data behind ``aj.padded_batch_size``; ``--large-batch`` times large
 batches on one device and ``simulate_batch`` in groups against one group (the data
-behind ``_batch.MAX_PER_DEVICE``).
+behind ``aj.MAX_PER_DEVICE``).
 
 ``--library-path`` instead (and the default run, as an extra table) times one device
 running 24 IMBIC trials (5 s, 100 substeps) the way a library user would,
@@ -86,12 +86,19 @@ if SETUP is None:
     # configure() below sets code generation: keep the import-time options out of it.
     os.environ["ARMIMP_JAX_XLA_DEFAULTS"] = "0"
 
+from _bench_tables import markdown, markdown_lanes, markdown_large, markdown_library, markdown_unrolling  # noqa: E402
+
 from armimp_jax import runtime  # noqa: E402
 
 # configure() must run before JAX starts: hence the options parsed above, before any JAX import.
 if SETUP in ("library", "plain"):
     import jax
 
+    import armimp_jax
+
+    # A library user's first use of the package (it loads the package's JAX modules, and
+    # with them the import-time defaults) comes before JAX starts: touch it here too.
+    armimp_jax.simulate  # noqa: B018
     jax.config.update("jax_enable_x64", True)  # all a library user does
     N_DEVICES = jax.device_count()
 elif SETUP == "configured":
@@ -107,7 +114,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import armimp_jax as aj  # noqa: E402
-from armimp_jax import _batch, paper  # noqa: E402
+from armimp_jax import paper  # noqa: E402
 
 LIBRARY_BATCH = 24  # trials of --library-path
 
@@ -119,12 +126,18 @@ def environment():
         jax=jax.__version__,
         devices=N_DEVICES,
         backend=jax.default_backend(),
+        device_kind=device_kind(),
         cpu=model or platform.processor() or platform.machine(),
         avx512=runtime.cpu_has_avx512(),
         vector_lanes=runtime.vector_lanes(),
         python=platform.python_version(),
         xla_flags=os.environ.get("XLA_FLAGS", ""),
     )
+
+
+def device_kind():
+    """The accelerator or CPU the simulations ran on, in words (``jax.devices()[0].device_kind``)."""
+    return f"{jax.default_backend()}: {jax.devices()[0].device_kind} x {N_DEVICES}"
 
 
 def _cpuinfo():
@@ -163,15 +176,17 @@ def timed(fn, repeats):
 def build_cases(configs, seconds, substeps, *, lanes=None):
     """Compile and run once each (kernel, devices, batch) configuration: a list of
     ``(kernel, devices, batch, run, padded batch, compile s)``, ``run()`` the compiled call.
-    ``lanes`` as in ``_batch.shard_batch`` (default: pad to whole vectors; 1: no padding)."""
+    ``lanes`` as in ``aj.shard_batch`` (default: pad to whole vectors; 1: no padding)."""
     n = int(seconds * 1000)
     cases = []
     for kernel, n_dev, b in configs:
-        mesh = _batch.make_mesh(jax.devices()[:n_dev])
+        mesh = aj.make_mesh(jax.devices()[:n_dev])
         trials, f_delta = batch_inputs(b, n)
-        (p_s, f_s), _ = _batch.shard_batch((trials, f_delta), mesh, lanes=lanes)
+        (p_s, f_s), _ = aj.shard_batch((trials, f_delta), mesh, lanes=lanes)
         t0 = time.perf_counter()
-        compiled = vmapped_simulate(aj.Numerics(substeps=substeps, kernel=kernel)).lower(p_s, f_s).compile()
+        compiled = (
+            vmapped_simulate(aj.Numerics(solver=aj.RK4(kernel=kernel), substeps=substeps)).lower(p_s, f_s).compile()
+        )
         compile_s = time.perf_counter() - t0
         jax.block_until_ready(compiled(p_s, f_s))
         cases.append((kernel, n_dev, b, functools.partial(compiled, p_s, f_s), int(p_s.q0.shape[0]), compile_s))
@@ -198,6 +213,7 @@ def bench_simulation(configs, seconds, substeps, repeats, *, lanes=None):
         rows.append(
             dict(
                 kernel=kernel,
+                device=jax.devices()[0].device_kind,
                 devices=n_dev,
                 batch=b,
                 padded_batch=padded,
@@ -288,22 +304,6 @@ def compare_unrolling(configs, seconds, substeps, repeats, wide_vectors=True):
     return rows
 
 
-def markdown_unrolling(rows, seconds, substeps, repeats):
-    lines = [
-        f"LLVM loop unrolling on (XLA default) vs off (`configure` default): {seconds:g} s records, "
-        f"{substeps} substeps, median of {repeats}, alternating between the two processes.",
-        "",
-        "| kernel | devices | batch | M substeps/s, unrolled | M substeps/s, not unrolled | speed-up | same bits |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    lines += [
-        f"| {r['kernel']} | {r['devices']} | {r['batch']} | {r['msubsteps_per_s_unrolled']:.2f} | "
-        f"{r['msubsteps_per_s_not_unrolled']:.2f} | {r['speedup']:.2f}x | {'yes' if r['same_bits'] else 'no'} |"
-        for r in rows
-    ]
-    return "\n".join(lines)
-
-
 def _strip_device_count(flags):
     """``XLA_FLAGS`` without a host device count (the library path runs on one device)."""
     return " ".join(f for f in flags.split() if not f.startswith("--xla_force_host_platform_device_count"))
@@ -324,7 +324,8 @@ def serve_library(setup, seconds, substeps):
     line and print its seconds."""
     trials, f_delta = batch_inputs(LIBRARY_BATCH, int(seconds * 1000))
     f_delta = np.asarray(f_delta)
-    run = functools.partial(aj.simulate_batch, trials, f_delta, numerics=aj.Numerics(substeps=substeps))
+    numerics = aj.Numerics(solver=aj.RK4(), substeps=substeps)  # pinned: comparable whatever the default
+    run = functools.partial(aj.simulate_batch, trials, f_delta, numerics=numerics)
     t0 = time.perf_counter()
     out = jax.block_until_ready(run())  # compiles
     first_s = time.perf_counter() - t0
@@ -344,6 +345,7 @@ def library_path(seconds, substeps, repeats):
     XLA), compiled once each, timed in alternation (so the host's drift hits all alike)."""
     base = {k: v for k, v in CALLER_ENV.items() if k != "ARMIMP_JAX_XLA_DEFAULTS"}
     base["XLA_FLAGS"] = _strip_device_count(CALLER_XLA_FLAGS)
+    base["ARMIMP_JAX_CPU_DEVICES"] = "1"  # one device each (the library's own default is one per core)
     envs = dict(library=base, configured=base, plain=dict(base, ARMIMP_JAX_XLA_DEFAULTS="0"))
     cmd = [sys.executable, __file__, "--seconds", str(seconds), "--substeps", str(substeps), "--library-child"]
     children, ready = {}, {}
@@ -397,60 +399,19 @@ def library_path(seconds, substeps, repeats):
     return rows
 
 
-def markdown_library(rows, repeats):
-    r0 = rows[0]
-    how = {
-        "library": "library: `import armimp_jax`, float64 only",
-        "configured": "configured: `runtime.configure(host_devices=1)`",
-        "plain": "plain XLA: `ARMIMP_JAX_XLA_DEFAULTS=0`, float64 only",
-    }
-    lines = [
-        f"Library path: `aj.simulate_batch(trials, f_delta, numerics=aj.Numerics(substeps={r0['substeps']}))`, "
-        f"{r0['batch']} IMBIC trials of {r0['record_s']:g} s, one device, compile excluded, median of {repeats}, "
-        "alternating between three processes:",
-        "",
-        "| process | XLA:CPU code generation | devices | M substeps/s | vs configured | same bits as configured |",
-        "|---|---|---|---|---|---|",
-    ]
-    lines += [
-        f"| {how[r['setup']]} | {r['codegen']} | {r['devices']} | {r['msubsteps_per_s']:.2f} | "
-        f"{r['vs_configured']:.2f}x | {'yes' if r['same_bits_as_configured'] else 'no'} |"
-        for r in rows
-    ]
-    return "\n".join(lines)
-
-
-def markdown_lanes(rows, lanes):
-    """Unpadded batches on one device, and what padding each to ``_batch.padded_batch_size``
-    would deliver (the padded batch's rate times the real share), where that size was run."""
-    rate = {r["batch"]: r["msubsteps_per_s"] for r in rows}
-    lines = [
-        f"One device, unpadded batches ({lanes} float64 lanes per vector); 'padded' is the measured rate of "
-        "the padded batch times its share of real trials:",
-        "",
-        "| batch | M substeps/s | padded to | M real substeps/s padded |",
-        "|---|---|---|---|",
-    ]
-    for r in rows:
-        p = _batch.padded_batch_size(r["batch"], 1, lanes)
-        padded = f"{rate[p] * r['batch'] / p:.2f}" if p in rate else "-"
-        lines.append(f"| {r['batch']} | {r['msubsteps_per_s']:.2f} | {p} | {padded} |")
-    return "\n".join(lines)
-
-
 def bench_grouped(b, seconds, substeps, repeats):
     """``simulate_batch`` on all devices for a large batch: in groups of at most
-    ``_batch.MAX_PER_DEVICE`` trials per device (the default) against one group."""
+    ``aj.MAX_PER_DEVICE`` trials per device (the default) against one group."""
     n = int(seconds * 1000)
     trials, f_delta = batch_inputs(b, n)
     f_delta = np.asarray(f_delta)
-    numerics = aj.Numerics(substeps=substeps)
-    lanes = _batch.default_lanes(_batch.make_mesh())  # what simulate_batch pads to
+    numerics = aj.Numerics(solver=aj.RK4(), substeps=substeps)
+    lanes = aj.default_lanes(aj.make_mesh())  # what simulate_batch pads to
     rows = []
-    for cap in (_batch.MAX_PER_DEVICE, None):
+    for cap in (aj.MAX_PER_DEVICE, None):
         run = functools.partial(aj.simulate_batch, trials, f_delta, numerics=numerics, max_per_device=cap)
         first, run_s = timed(run, repeats)
-        groups, size = _batch.batch_groups(b, N_DEVICES, max_per_device=cap, lanes=lanes)
+        groups, size = aj.batch_groups(b, N_DEVICES, max_per_device=cap, lanes=lanes)
         rows.append(
             dict(
                 max_per_device=cap,
@@ -468,29 +429,10 @@ def bench_grouped(b, seconds, substeps, repeats):
     return rows
 
 
-def markdown_large(sim, grouped):
-    lines = [
-        "| batch on one device | M substeps/s | compile s |",
-        "|---|---|---|",
-    ]
-    lines += [f"| {r['batch']} | {r['msubsteps_per_s']:.2f} | {r['compile_s']:.1f} |" for r in sim]
-    lines += [
-        "",
-        "| `simulate_batch` | batch | devices | groups x padded size | M substeps/s |",
-        "|---|---|---|---|---|",
-    ]
-    lines += [
-        f"| max_per_device={r['max_per_device']} | {r['batch']} | {r['devices']} | {r['groups']} x {r['group_size']} | "
-        f"{r['msubsteps_per_s']:.2f} |"
-        for r in grouped
-    ]
-    return "\n".join(lines)
-
-
 def bench_full_trial(b, substeps, kernel="fast"):
     """A real 50 s batch, all devices, in 5 s chunks (one compile), host copies included, one run."""
     trials, f_delta = batch_inputs(b, 50_000)
-    numerics = aj.Numerics(substeps=substeps, kernel=kernel)
+    numerics = aj.Numerics(solver=aj.RK4(kernel=kernel), substeps=substeps)
     aj.simulate_batch(trials, np.asarray(f_delta)[:, :10_000], numerics=numerics, chunk_samples=5000)  # compile
     t0 = time.perf_counter()
     aj.simulate_batch(trials, f_delta, numerics=numerics, chunk_samples=5000)
@@ -516,7 +458,9 @@ def bench_numba(b, seconds, substeps, repeats):
         x, _ = numba_baseline.run(trials, f_np, substeps)
         runs.append(time.perf_counter() - t0)
     run_s = statistics.median(runs)
-    ref = np.asarray(vmapped_simulate(aj.Numerics(substeps=substeps, kernel="reference"))(trials, f_delta).x)
+    ref = np.asarray(
+        vmapped_simulate(aj.Numerics(solver=aj.RK4(kernel="reference"), substeps=substeps))(trials, f_delta).x
+    )
     agree = float(np.abs(x - ref).max() / np.abs(ref - ref[:, :1]).max())
     total = b * f_np.shape[1] * substeps
     row = dict(
@@ -568,49 +512,6 @@ def bench_estimator(batches, repeats, n=50_000):
             )
             print(f"  est {name} batch={b}: {run_s:.3f} s, temp {temp:.0f} MiB (compile {compile_s:.1f} s)", flush=True)
     return rows
-
-
-def markdown(sim, full, est, numba_row=None, library=None, library_repeats=None):
-    lines = [
-        "| kernel | devices | batch (padded) | M substeps/s | s per 50 s trial (from 5 s) | compile s |",
-        "|---|---|---|---|---|---|",
-    ]
-    lines += [
-        f"| {r['kernel']} | {r['devices']} | {r['batch']} ({r['padded_batch']}) | {r['msubsteps_per_s']:.2f} | "
-        f"{r['s_per_50s_trial']:.3f} | {r['compile_s']:.1f} |"
-        for r in sim
-    ]
-    by = {(r["kernel"], r["devices"], r["batch"]): r["msubsteps_per_s"] for r in sim}
-    for kernel in ("fast",):
-        scal = [
-            f"batch {b}: {by[(kernel, 2, b)] / by[(kernel, 1, b)]:.2f}x"
-            for (k, d, b) in by
-            if k == kernel and d == 1 and (kernel, 2, b) in by
-        ]
-        if scal:
-            lines += ["", f"Scaling from 1 to 2 devices ({kernel} kernel): " + ", ".join(scal) + "."]
-    if numba_row:
-        best = max((v for (k, d, b), v in by.items() if k == "fast" and (b >= 24 or len(by) < 9)), default=0.0)
-        lines += [
-            "",
-            f"numba baseline ({numba_row['threads']} threads, one trajectory per core, batch "
-            f"{numba_row['batch']}): {numba_row['msubsteps_per_s']:.2f} M substeps/s; best JAX at batch >= 24 "
-            f"is {best / numba_row['msubsteps_per_s']:.1f}x that (fast kernel). numba agrees with JAX to "
-            f"{numba_row['rel_diff_vs_jax']:.1e} (relative, x).",
-        ]
-    for f in full or []:
-        lines += [
-            "",
-            f"Measured 50 s batch ({f['kernel']} kernel): {f['batch']} trials on {f['devices']} device(s) in "
-            f"{f['wall_s']:.1f} s = **{f['s_per_trial']:.2f} s per 50 s trial**.",
-        ]
-    lines += ["", "| estimator (50 s records) | batch | run s | XLA temp MiB | inputs MiB |", "|---|---|---|---|---|"]
-    lines += [
-        f"| {r['method']} | {r['batch']} | {r['run_s']:.3f} | {r['temp_mib']:.0f} | {r['input_mib']:.0f} |" for r in est
-    ]
-    if library:
-        lines += ["", markdown_library(library, library_repeats)]
-    return "\n".join(lines)
 
 
 def main():
@@ -682,7 +583,7 @@ def main():
         est = bench_estimator([24, 96], args.repeats)
     library = library_path(lib_seconds, lib_substeps, lib_repeats)
     env = environment()
-    table = markdown(sim, full, est, numba_row, library, lib_repeats)
+    table = markdown(sim, full, est, numba_row, library, lib_repeats, device=device_kind())
     print("\n" + table + f"\n\n{env}")
     (args.out / "bench_simulate.md").write_text(table + f"\n\n{env}\n")
     (args.out / "bench_simulate.json").write_text(

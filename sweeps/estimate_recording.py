@@ -1,17 +1,18 @@
-"""Estimate a human arm's impedance, and fit its M, B, K, from a lab's own recording.
+"""Estimate a human arm's impedance, and fit its M, B, K with 95% intervals, from a lab's own recording.
 
-    python sweeps/estimate_recording.py RECORDING --fs HZ --out DIR [Welch options]
+    python sweeps/estimate_recording.py RECORDING --fs HZ --out DIR [Welch and fit options]
 
 RECORDING is a CSV file (a header row, one sample per row; delimiter ',' ';' or tab;
-leading '#' lines skipped; extra columns ignored) or an NPZ file, with the columns
+leading '#' lines skipped; extra columns ignored), an NPZ file or a MATLAB MAT-file (v7 or
+older: save(file, ..., '-v7')), with the columns
 
     f_delta_x, f_delta_y   perturbation force [N] (the estimator's inputs)
     x, y                   hand (= handle) position [m]
     fh_x, fh_y             force [N] applied TO the hand by the robot handle
 
 all sampled together at --fs [Hz]. --columns maps other names, e.g.
---columns fh_x=Fx,fh_y=Fy. An NPZ holds the six names as 1-D arrays, or f_delta, x, fh
-as (N, 2) arrays ([:, 0] the x axis, [:, 1] the y axis).
+--columns fh_x=Fx,fh_y=Fy. An NPZ or MAT-file holds the six names as vectors, or f_delta,
+x, fh as (N, 2) arrays ([:, 0] the x axis, [:, 1] the y axis).
 
 Signs and frames: x, y and fh must be in one Cartesian frame (e.g. the robot base
 frame); Z comes out in that frame's axes. Constant offsets do not matter (the mean is
@@ -20,11 +21,21 @@ is the force the hand RECEIVES from the handle. A transducer that reads the forc
 hand exerts on the handle gives -F_h: negate both fh columns, or every fitted matrix
 flips sign. f_delta may be in any fixed frame, sign or scale: it cancels in Z = T R^-1.
 
-Writes DIR/estimate.json (settings, mass [kg], damping [N s/m], stiffness [N/m] and their
-standard errors as 2x2 lists indexed [force axis, displacement axis], dof and t95 for 95%
-intervals, %VAF, coherence summaries), DIR/estimate.npz (f [Hz], R [m/N], T [N/N],
-Z [N/m], Z_fit, coherences) and DIR/bode.png, DIR/coherence.png. Every bad input gets
-one line on stderr and exit status 2, before any computation. See docs/estimation.md.
+Timing (--acquisition): how force and position were sampled decides the model fitted to
+Z. 'delay' (default, for a recording whose timing is unknown) fits a force-channel delay
+with M, B, K; 'instant' (samples at the control instants, force read just before the
+command's zero-order-hold update, as the simulator does by default), 'interval_mean'
+(box-car means over each sample period) and 'plain' (M s^2 + B s + K as it stands, the
+old fit) are the others. Standard errors (--se) come from the Welch estimate's own error
+model ('spectral', default) or from the fit's residuals ('residual', too small: the
+Welch bins are correlated).
+
+Prints the 95% intervals of M, B, K (and the delay), the lack-of-fit test, the coherence
+summary and every warning. Writes DIR/estimate.json (settings, values, standard errors,
+dof, 95% intervals, delay, lack of fit, %VAF, coherence summaries, warnings),
+DIR/estimate.npz (f [Hz], R [m/N], T [N/N], Z [N/m], Z_fit, coherences, the error model)
+and DIR/bode.png, DIR/coherence.png. Every bad input gets one line on stderr and exit
+status 2, before any computation. See docs/estimation.md.
 """
 
 from __future__ import annotations
@@ -49,7 +60,7 @@ def _window(text: str):
 
 def parse(argv):
     ap = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("recording", type=pathlib.Path, help="CSV or NPZ recording (see above)")
+    ap.add_argument("recording", type=pathlib.Path, help="CSV, NPZ or MAT recording (see above)")
     ap.add_argument("--fs", type=float, required=True, metavar="HZ", help="sample rate [Hz] of the recording")
     ap.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR", help="output folder (created)")
     ap.add_argument("--columns", default="", metavar="STD=NAME,...", help="map standard column names to the file's")
@@ -66,7 +77,34 @@ def parse(argv):
         default="uniform",
         help="least-squares weights per bin (default uniform; coherence: docs/estimation.md)",
     )
+    ap.add_argument(
+        "--acquisition",
+        choices=("delay", "instant", "interval_mean", "plain"),
+        default="delay",
+        help="how the record was sampled: the model fitted to Z (default delay: timing unknown, see above)",
+    )
+    ap.add_argument(
+        "--period",
+        type=float,
+        metavar="S",
+        help="hold period [s] of --acquisition instant (default 1/fs)",
+    )
+    ap.add_argument(
+        "--se",
+        choices=("spectral", "residual"),
+        default="spectral",
+        help="standard errors from the estimate's error model (default) or the fit's residuals",
+    )
+    ap.add_argument(
+        "--friction",
+        type=float,
+        metavar="N_M",
+        help="your robot's Coulomb friction torque [N m] if known (0: none); with instant or delay "
+        "timing a robot with friction biases M and B in ways the record cannot show, and a warning says so",
+    )
     args = ap.parse_args(argv)
+    if args.friction is not None and not args.friction >= 0:
+        ap.error(f"--friction must be >= 0 N m, got {args.friction}")
     if args.noverlap is None:
         args.noverlap = 3 * args.nperseg // 4
     return args
@@ -81,32 +119,29 @@ def main(argv=None) -> int:
     args = parse(argv)
     if not (math.isfinite(args.fs) and args.fs > 0):
         return fail(f"--fs must be a finite sample rate > 0 Hz, got {args.fs:g}")
+    period = 1.0 / args.fs if args.period is None else args.period
+    if not (math.isfinite(period) and period > 0):
+        return fail(f"--period must be a finite hold period > 0 s, got {period:g}")
     import jax  # after the arguments: --help stays fast
 
     jax.config.update("jax_enable_x64", True)
-    from armimp_jax._estimation.welch import check_welch
+    import armimp_jax as aj
     from armimp_jax.study import recording
 
     try:
         columns = recording.parse_columns(args.columns)
         rec = recording.load_recording(args.recording, columns=columns)
         n = rec["x"].shape[0]
-        n_seg = check_welch(
-            n,
-            fs=args.fs,
-            nperseg=args.nperseg,
-            noverlap=args.noverlap,
-            fmax=args.fmax,
-            nfft=args.nfft,
-            window=args.window,
+        welch = dict(
+            fs=args.fs, nperseg=args.nperseg, noverlap=args.noverlap, nfft=args.nfft, window=args.window, fmax=args.fmax
         )
+        n_seg = recording.check_settings(n, **welch)
     except ValueError as err:  # RecordingError included
         return fail(str(err))
     start = time.perf_counter()
-    welch = dict(
-        fs=args.fs, nperseg=args.nperseg, noverlap=args.noverlap, nfft=args.nfft, window=args.window, fmax=args.fmax
-    )
-    est, fit = recording.analyse(rec, weights=args.weights, **welch)
+    fit_settings = dict(weights=args.weights, acquisition=args.acquisition, period=period, se=args.se)
+    est, fit = recording.analyse(rec, **welch, **fit_settings)
+    warnings = aj.fit_warnings(fit, est, acquisition=args.acquisition, friction=args.friction)
     settings = dict(
         recording=str(args.recording),
         columns=columns,
@@ -117,6 +152,10 @@ def main(argv=None) -> int:
         window=list(args.window) if isinstance(args.window, tuple) else args.window,
         fmax_hz=args.fmax,
         weights=args.weights,
+        acquisition=args.acquisition,
+        period_s=period,
+        se=args.se,
+        friction_n_m=args.friction,
     )
     f = est.f
     record = dict(
@@ -129,14 +168,11 @@ def main(argv=None) -> int:
         resolution_hz=args.fs / settings["nfft"],
     )
     try:
-        paths = recording.write_results(args.out, est, fit, settings=settings, record=record)
+        paths = recording.write_results(args.out, est, fit, settings=settings, record=record, warnings=warnings)
     except OSError as err:
         return fail(f"cannot write to {args.out}: {err.strerror or err}")
-    print(f"{n} samples, {n_seg} segments, {f.shape[0]} bins in (0, {args.fmax:g}] Hz; VAF {fit.vaf_overall:.1f} %")
-    for name, unit in (("mass", "kg"), ("damping", "N s/m"), ("stiffness", "N/m")):
-        value, se = getattr(fit, name), getattr(fit, f"{name}_se")
-        rows = ["  ".join(f"{value[i, j]:10.4g} +- {se[i, j]:<8.2g}" for j in range(2)) for i in range(2)]
-        print(f"{name} [{unit}]:\n  " + "\n  ".join(rows))
+    print(f"{n} samples, {n_seg} segments, {f.shape[0]} bins in (0, {args.fmax:g}] Hz")
+    print("\n".join(recording.report_lines(est, fit, acquisition=args.acquisition, warnings=warnings)))
     print(f"wrote {', '.join(str(p) for p in paths)} in {time.perf_counter() - start:.1f} s")
     return 0
 

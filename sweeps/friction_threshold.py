@@ -15,14 +15,15 @@ files (docs/sweeps.md); a second call with the same options reuses the finished 
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import math
 import pathlib
 import sys
 import time
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import _cli  # noqa: E402
+
 PROG = "friction_threshold"
-HERE = pathlib.Path(__file__).resolve().parent
 FULL = dict(seconds=50.0, nperseg=8192, seeds=5, points=13)
 QUICK = dict(seconds=12.0, nperseg=2048, seeds=2, points=7)
 REFERENCES = ((0.05, "direct drive"), (1.0, "paper level 1"), (4.0, "paper level 2"))
@@ -31,15 +32,8 @@ COHERENCE_LEVEL = 0.9
 PHI_RATIO = 2.0
 
 
-def _sweep_script():
-    spec = importlib.util.spec_from_file_location("sweep_script", HERE / "sweep.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def parse(argv, cli):
-    ap = cli.Parser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def parse(argv):
+    ap = _cli.Parser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="12 s records, 2048-sample segments, 2 seeds, 7+3 points")
     ap.add_argument("--seeds", type=int, help="seeds per point (default 5; quick 2)")
     ap.add_argument("--seconds", type=float, help="record length [s] (default 50; quick 12)")
@@ -57,13 +51,13 @@ def parse(argv, cli):
             setattr(args, name, default)
     for name in ("seeds", "points", "batch_size"):
         if getattr(args, name) < 1:
-            cli.fail(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}", PROG)
+            _cli.fail(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}", PROG)
     if args.points < 2:
-        cli.fail(f"--points must be >= 2 (log spacing), got {args.points}", PROG)
+        _cli.fail(f"--points must be >= 2 (log spacing), got {args.points}", PROG)
     if args.substeps is not None and args.substeps < 1:
-        cli.fail(f"--substeps must be >= 1, got {args.substeps}", PROG)
+        _cli.fail(f"--substeps must be >= 1, got {args.substeps}", PROG)
     if args.check < 0:
-        cli.fail(f"--check must be >= 0, got {args.check}", PROG)
+        _cli.fail(f"--check must be >= 0, got {args.check}", PROG)
     if args.out is None:
         args.out = pathlib.Path("results/friction-threshold-quick" if args.quick else "results/friction-threshold")
     return args
@@ -155,11 +149,11 @@ def _fmt_tau(c: dict) -> str:
 
 
 def analyse(settings, rows):
-    """Per (controller, arm): phi_T(0), the two thresholds (``sweep.bootstrap_crossing``), and
+    """Per (controller, arm): phi_T(0), the two thresholds (``stats.bootstrap_crossing``), and
     the curves' values at the reference torques."""
     import numpy as np
 
-    from armimp_jax.study import sweep
+    from armimp_jax.study.stats import bootstrap_crossing, seed_stats
 
     table = {}
     for (ctrl, arm), (taus, phi, coh) in curves(settings, rows).items():
@@ -169,17 +163,15 @@ def analyse(settings, rows):
         refs = {}
         for tau, _ in REFERENCES:
             j = int(np.argmin(np.abs(taus - tau)))
-            refs[tau] = dict(
-                ratio=mean_r[j], lo=lo_r[j], hi=hi_r[j], coh=coh_mean[j], coh_stats=sweep.mean_ci(coh[:, j])
-            )
+            refs[tau] = dict(ratio=mean_r[j], lo=lo_r[j], hi=hi_r[j], coh=coh_mean[j], coh_stats=seed_stats(coh[:, j]))
         table[ctrl, arm] = dict(
             taus=taus,
-            phi0=sweep.mean_ci(phi[:, 0]),
-            coh0=sweep.mean_ci(coh[:, 0]),
+            phi0=seed_stats(phi[:, 0]),
+            coh0=seed_stats(coh[:, 0]),
             ratio=(mean_r, lo_r, hi_r),
             coh=coh,
-            phi_threshold=sweep.bootstrap_crossing(taus, phi, lambda m: PHI_RATIO * m[0], above=True),
-            coh_threshold=sweep.bootstrap_crossing(taus, coh, lambda m: COHERENCE_LEVEL, above=False),
+            phi_threshold=bootstrap_crossing(taus, phi, lambda m: PHI_RATIO * m[0], above=True),
+            coh_threshold=bootstrap_crossing(taus, coh, lambda m: COHERENCE_LEVEL, above=False),
             refs=refs,
             diverged=int(np.sum(~np.isfinite(phi))),
         )
@@ -193,7 +185,8 @@ def plot(table, path):
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from armimp_jax.study import sweep
+    from armimp_jax.study.figures import save_figure
+    from armimp_jax.study.stats import seed_stats
 
     fig, axes = plt.subplots(2, 2, figsize=(11, 7.5), sharex=True)
     for col, ctrl in enumerate(("pd", "imbic")):
@@ -205,7 +198,7 @@ def plot(table, path):
             (line,) = ax_phi.plot(taus, mean, "o-", ms=3, label=f"arm location {arm}")
             if np.isfinite(lo).any():
                 ax_phi.fill_between(taus, lo, hi, color=line.get_color(), alpha=0.2, lw=0)
-            st = [sweep.mean_ci(t["coh"][:, j]) for j in range(len(taus))]
+            st = [seed_stats(t["coh"][:, j]) for j in range(len(taus))]
             ax_coh.plot(taus, [s["mean"] for s in st], "o-", ms=3, color=line.get_color(), label=f"arm location {arm}")
             clo = np.array([s["ci_lo"] for s in st])
             if np.isfinite(clo).any():
@@ -240,26 +233,27 @@ def plot(table, path):
                     )
         ax_phi.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=120)
 
 
 def write_report(settings, result, table, out, wall_s: float, figure) -> pathlib.Path:
-    from armimp_jax import __version__
+    from armimp_jax.study.results import package_version
 
     s = settings
+    p = s.points[0]
+    version = package_version()
     taus = table["pd", 1]["taus"]
     lines = [
         "# The friction threshold",
         "",
-        f"armimp_jax {__version__}; {len(s.points)} points x {s.seeds} seeds = {len(s.points) * s.seeds} trials of "
+        f"armimp_jax {version}; {len(s.points)} points x {s.seeds} seeds = {len(s.points) * s.seeds} trials of "
         f"{s.points[0]['seconds']:g} s, Welch {s.points[0]['nperseg']}/{s.points[0]['noverlap']} samples to "
         f"{s.points[0]['fmax']:g} Hz, {s.method} with {s.substeps} substeps per 1 ms; this call "
         f"computed {len(result['computed'])} trials in {wall_s:.0f} s. Perturbation level 1 (2.25 N per axis), "
         "IMBIC Mhat = 0.25 I kg, LuGre with "
-        f"tau_s = {STICTION_RATIO} tau_c, sigma0 = 1e5, sigma1 = sqrt(1e5), sigma2 = 0.5, v_s = 1e-3 (the paper's "
-        "bristle and viscous parameters at every point, so tau_c = 0 keeps the viscous term).",
+        f"tau_s = {STICTION_RATIO} tau_c, sigma0 = {p['sigma0']:g}, sigma1 = {p['sigma1']:g}, sigma2 = "
+        f"{p['sigma2']:g}, v_s = {p['v_s']:g} (the paper's bristle and viscous parameters at every point, so "
+        "tau_c = 0 keeps the viscous term).",
         "",
         f"tau_c grid [N m]: {', '.join(f'{t:.3g}' for t in taus)}.",
         "",
@@ -317,8 +311,7 @@ def write_report(settings, result, table, out, wall_s: float, figure) -> pathlib
 
 
 def main(argv=None):
-    cli = _sweep_script()
-    args = parse(argv, cli)
+    args = parse(argv)
     from armimp_jax.runtime import configure
 
     configure()
@@ -327,15 +320,15 @@ def main(argv=None):
     try:
         settings = settings_of(args, sweep)
         start = time.perf_counter()
-        run_args = argparse.Namespace(batch_size=args.batch_size, check=args.check, x="tau_c")
-        result, out = cli.run(run_args, prog=PROG, settings=settings, out=args.out)
+        out = args.out
+        result = _cli.run_sweep(settings, out, prog=PROG, batch_size=args.batch_size, check=args.check, x="tau_c")
         wall = time.perf_counter() - start
         rows, _ = sweep.collect(settings, out, warn=lambda _: None)
         table = analyse(settings, rows)
         figure = plot(table, out / "friction_threshold.png")
         path = write_report(settings, result, table, out, wall, figure)
     except ValueError as err:
-        cli.fail(str(err), PROG)
+        _cli.fail(str(err), PROG)
     print(f"report: {path}")
     return 0 if result["complete"] else 1
 

@@ -44,11 +44,11 @@ if __name__ == "__main__":
 import numpy as np  # noqa: E402
 from numba import njit, prange  # noqa: E402
 
-from armimp_jax._model.control import IMBIC, PD  # noqa: E402
-from armimp_jax._model.robot import MIT_MANUS_ELBOW_LINK as LE  # noqa: E402
-from armimp_jax._model.robot import MIT_MANUS_INERTIA  # noqa: E402
-from armimp_jax._model.robot import MIT_MANUS_SHOULDER_LINK as LS  # noqa: E402
+from armimp_jax import IMBIC, MIT_MANUS, PD  # noqa: E402
 
+# MIT-MANUS's constants, compiled into the loop
+LS, LE = float(MIT_MANUS.shoulder_link), float(MIT_MANUS.elbow_link)
+MIT_MANUS_INERTIA = tuple(float(c) for c in MIT_MANUS.inertia)
 C1, C2, C3 = MIT_MANUS_INERTIA
 
 
@@ -241,7 +241,7 @@ def main(args):
         t0 = time.perf_counter()
         x, fh = run(trials, f_delta, args.substeps)
         runs.append(time.perf_counter() - t0)
-    numerics = aj.Numerics(substeps=args.substeps, kernel="reference")
+    numerics = aj.Numerics(solver=aj.RK4(kernel="reference"), substeps=args.substeps)
     ref = jax.jit(jax.vmap(lambda t, f: aj.simulate(t, f, numerics=numerics)))(trials, f_delta)
     rx, rfh = np.asarray(ref.x), np.asarray(ref.fh)
     diff_x = float(np.abs(x - rx).max() / np.abs(rx - rx[:, :1]).max())

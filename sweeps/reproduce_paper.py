@@ -225,19 +225,12 @@ def finish(repro, plots, report, out):
 def settings_for(args, repro):
     """``(settings, out)``: from the command line, or for ``--resume`` from the run's
     ``run.json`` (options given as well must agree with it)."""
-    from armimp_jax.study.results import ResultsError, describe_difference
-
     asked = requested(args)
     if args.resume is None:
         out = args.out or pathlib.Path("results/paper-quick" if args.quick else "results/paper")
         return repro.ReproSettings(**asked), out
     saved = repro.saved_settings(args.resume)
-    wanted = dataclasses.replace(saved, **asked)
-    if wanted != saved:
-        raise ResultsError(
-            f"--resume {args.resume}: that run has {describe_difference(saved.run_settings(), wanted.run_settings())}; "
-            "drop those options to finish it, or start a new run with --out"
-        )
+    repro.check_resume(args.resume, saved, dataclasses.replace(saved, **asked))
     return saved, args.resume
 
 
@@ -252,10 +245,9 @@ def main(argv=None):
     configure()
     from armimp_jax.paper import plots, report
     from armimp_jax.paper import reproduce as repro
-    from armimp_jax.study.results import RunLock
 
     if args.replot:
-        with RunLock(args.replot):
+        with repro.run_folder(args.replot).lock():
             results, arrays = repro.load_results(args.replot)
             figures = step("plotting", lambda: plots.all_figures(results, arrays, args.replot))
             path = step("writing the report", lambda: report.write_report(results, args.replot, figures))

@@ -11,9 +11,11 @@ arm in TOML), perturbation_level or peak [N], seconds, force_noise [N], encoder_
 velocity_noise [rad/s], acquisition, mhat [kg], nperseg, noverlap, fmax [Hz], window, nfft.
 
 Writes DIR/trials.csv (one row per trial), DIR/summary.csv and summary.json (per point
-over seeds: mean, sd, 95% CI, diverged count), DIR/<swept>.png, DIR/run.json and one
-checked record per trial under DIR/trials. A folder holds one sweep: the same command
-reuses its finished trials; other settings are refused (docs/results.md).
+over seeds: mean, sd, 95% CI, diverged count), the two tables as .parquet too when pyarrow
+is installed, DIR/<swept>.png, DIR/run.json and one checked record per trial under
+DIR/trials (from Python: armimp_jax.study.load_sweep(DIR), load_summary(DIR)). A folder
+holds one sweep: the same command reuses its finished trials; other settings are refused
+(docs/results.md).
 """
 
 from __future__ import annotations
@@ -22,10 +24,9 @@ import argparse
 import dataclasses
 import pathlib
 import sys
-import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _cli import Parser, distributed_options  # noqa: E402
+from _cli import Parser, distributed_options, run_sweep  # noqa: E402
 from _cli import fail as cli_fail  # noqa: E402
 
 PROG = "sweep"
@@ -98,38 +99,8 @@ def requested(args, sweep):
     return sweep.SweepSettings(tuple(sweep.expand(grid, points)), **run_options(args, run))
 
 
-class Progress:
-    """A tqdm bar in trials, with the library's ETA (compilation excluded); ends at 100%."""
-
-    def __init__(self, total: int):
-        from tqdm import tqdm
-
-        self.bar = tqdm(
-            total=total, unit="trial", bar_format="{l_bar}{bar}| {n:.1f}/{total_fmt} trials [{elapsed}{postfix}]"
-        )
-
-    def __call__(self, p):
-        self.bar.n = p["trials_total"] * p["done"] / p["total"] if p["total"] else 0.0
-        eta = p["eta_s"]
-        self.bar.set_postfix_str(
-            f"ETA {int(eta // 60)}:{int(eta % 60):02d}" if eta == eta else "ETA ? (compiling)", refresh=False
-        )
-        self.bar.refresh()
-
-    def close(self):
-        self.bar.n = self.bar.total
-        self.bar.set_postfix_str("done", refresh=False)
-        self.bar.close()
-
-
-def warn(message: str) -> None:
-    sys.stderr.write(f"{PROG}: warning: {message}\n")
-
-
 def settings_for(args, sweep):
     """``(settings, out)``; for ``--resume`` the saved settings (options given must agree)."""
-    from armimp_jax.study.results import ResultsError
-
     if args.resume is None:
         return requested(args, sweep), args.out
     saved = sweep.saved_settings(args.resume)
@@ -139,78 +110,30 @@ def settings_for(args, sweep):
         given = {k: getattr(args, k) for k in SHORTCUTS if getattr(args, k) is not None}
         points = tuple(sweep.normalize_point(dict(p) | given) for p in saved.points)
         wanted = dataclasses.replace(saved, points=points, **run_options(args, {}))
-    if wanted != saved:
-        raise ResultsError(
-            f"--resume {args.resume}: that sweep has {sweep.describe_run_difference(saved, wanted)}; "
-            "drop those options to finish it, or start a new sweep with --out"
-        )
+    sweep.check_resume(args.resume, saved, wanted)
     return saved, args.resume
 
 
-def run(args, *, prog: str = PROG, settings=None, out=None, quiet: bool = False):
+def run(args, *, prog: str = PROG, quiet: bool = False):
     """Run (or resume) a sweep from parsed options; returns ``(summary, out)`` (in a
     ``jax.distributed`` job, the processes other than 0 get only ``computed``)."""
-    from armimp_jax.study import distributed, sweep
+    from armimp_jax.study import sweep
 
-    if settings is None:
-        settings, out = settings_for(args, sweep)
-    settings.validate()
-    bar = None
-
-    def on_start(on_disk: int, to_run: int):
-        nonlocal bar
-        if quiet:
-            return
-        print(
-            f"{len(settings.points)} point(s) x {settings.seeds} seed(s), {settings.method} with "
-            f"{settings.substeps} substeps -> {out} ({on_disk} trials on disk, {to_run} to run)",
-            flush=True,
-        )
-        bar = Progress(to_run) if to_run else None
-
-    start = time.perf_counter()
-    try:
-        result = sweep.run_sweep(
-            settings,
-            out,
-            batch_size=args.batch_size,
-            check=args.check,
-            x=args.x,
-            progress=lambda p: bar(p) if bar is not None else None,
-            warn=lambda m: sys.stderr.write(f"{prog}: warning: {m}\n"),
-            on_start=on_start,
-        )
-    finally:
-        if bar is not None:
-            bar.close()
-    if not distributed.is_writer() or quiet:
-        return result, out
-    print(
-        f"done in {time.perf_counter() - start:.1f} s: {len(result['computed'])} trial(s) run, "
-        f"{len(result['diverged'])} diverged (left out of the summary); {out}/trials.csv, summary.csv, "
-        f"{result['figure']}"
-    )
-    chk = result.get("numerics_check")
-    if chk:
-        print(
-            f"numerics check: {chk['trials_checked']} trial(s) at {chk['refined_substeps']} substeps, "
-            f"max relative phi_T error {chk['max_rel_error']}"
-        )
+    settings, out = settings_for(args, sweep)
+    result = run_sweep(settings, out, prog=prog, batch_size=args.batch_size, check=args.check, x=args.x, quiet=quiet)
     return result, out
 
 
 def main(argv=None):
     ap = parser()
-    options = distributed_options()
-    options.add_arguments(ap)
+    distributed = distributed_options()
+    distributed.add_arguments(ap)
     args = ap.parse_args(argv)
     check_args(args)
     try:
-        options.check_arguments(args)
+        distributed.check_arguments(args)
     except ValueError as err:
         fail(str(err))
-    from armimp_jax.study import distributed
-
     distributed.initialize(args)  # before the backend starts (configure starts it)
     from armimp_jax.runtime import configure
 

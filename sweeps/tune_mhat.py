@@ -29,6 +29,7 @@ from _cli import fail as cli_fail  # noqa: E402
 
 PROG = "tune_mhat"
 STATE = "tune_state.npz"
+RUN_KIND, RUN_FORMAT = "tuning", 1  # run.json of a tuning folder
 DEFAULTS = dict(
     quick=False,
     iterations=30,
@@ -123,6 +124,14 @@ def command_line(out: pathlib.Path, options: dict) -> str:
     return shlex.join(words)
 
 
+def run_folder(out: pathlib.Path):
+    """The tuning run's folder (``armimp_jax.study.runfolder``): its ``run.json`` holds the
+    training settings, their key, and the options of the last command that ran it."""
+    from armimp_jax.study.runfolder import RunFolder
+
+    return RunFolder(out, kind=RUN_KIND, format=RUN_FORMAT, noun="tuning run", records=None)
+
+
 def setup(options: dict, tune, paper_tune, Welch):
     """``(config, train, evals, locations, eval_every, settings)`` of a run with ``options``."""
     import numpy as np
@@ -170,40 +179,27 @@ def main(argv=None):
     from armimp_jax import Welch
     from armimp_jax.paper import tune as paper_tune
     from armimp_jax.study import tune
-    from armimp_jax.study.results import (
-        ResultsError,
-        RunLock,
-        atomic_write_json,
-        atomic_write_text,
-        describe_difference,
-        load_record,
-        settings_key,
-    )
+    from armimp_jax.study.results import ResultsError, atomic_write_json, atomic_write_text, settings_key, to_jsonable
 
     out = args.resume or args.out or pathlib.Path("results/tune-quick" if args.quick else "results/tune")
-    with RunLock(out):
-        state_path = out / STATE
-        saved = None
-        if state_path.exists():
-            try:
-                saved = load_record(state_path)
-            except ResultsError as err:
-                raise ResultsError(f"{err}; delete it to start over") from None
-        elif args.resume is not None:
-            raise ResultsError(f"--resume {out}: holds no tuning state ({STATE})")
-        options = DEFAULTS | (saved.meta.get("options", {}) if saved and args.resume else {}) | explicit(args)
+    folder = run_folder(out)
+    with folder.lock():
+        resumed = folder.read() if args.resume is not None else None
+        options = DEFAULTS | (resumed["options"] if resumed else {}) | explicit(args)
         config, train, evals, locations, eval_every, settings = setup(options, tune, paper_tune, Welch)
         train["welch"].check(int(train["seconds"] * 1000))
+        if resumed is not None:
+            folder.check_resume(resumed["settings"], settings)
+        run = folder.prepare(settings, resume=args.resume is not None, extra=dict(options=options))
+        if run.get("options") != to_jsonable(options):  # a resume finds the options of the last command
+            folder.update(options=options)
+        state_path = out / STATE
         state = None
-        if saved is not None:
-            if saved.key != settings_key(settings):
-                diff = describe_difference(saved.settings, settings)
-                if args.resume is not None:
-                    raise ResultsError(
-                        f"--resume {out}: that run has {diff}; drop those options to continue it, or use a new --out"
-                    )
-                raise ResultsError(f"{out} holds a tuning run with {diff}: use another --out, or --resume {out}")
-            state = tune.load_state(state_path, settings, config)
+        if state_path.exists():
+            try:
+                state = tune.load_state(state_path, settings, config)
+            except ResultsError as err:
+                raise ResultsError(f"{err}; delete it to start over") from None
             print(f"continuing the tuning run in {out} from iteration {state.iteration}", flush=True)
         params, f_delta = paper_tune.training_batch(
             tuple(options["frictions"]), locations, tuple(range(options["train_seeds"])), seconds=train["seconds"]

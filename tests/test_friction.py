@@ -68,7 +68,7 @@ def test_level_0_is_exactly_zero_with_finite_gradients():
 
 
 def test_without_bristles_friction_is_viscous_only():
-    """tau_c = tau_s = 0 with the bristle parameters left in place: tau_f = sigma2 v (spec 4),
+    """tau_c = tau_s = 0 with the bristle parameters left in place: tau_f = sigma2 v (docs/model.md section 4),
     not a 1e5 N m/rad spring, whatever the (unused) bristle state."""
     p = aj.LuGre(0.0, 0.0).joint(0)
     for v, z in [(0.2, 0.0), (-0.05, 3e-4), (0.0, 1e-3)]:

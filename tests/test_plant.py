@@ -1,68 +1,49 @@
-"""The plant's integration kernels: the small-angle rotation, and the fast and grad RK4
-kernels against the reference one."""
-
-import pathlib
+"""The plant's equations (``armimp_jax._model.plant``): the hand's displacement and the force
+sensor, against the robot's kinematics differentiated by JAX."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._model.plant import KERNELS, Trig, rotate
-
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-
-
-def test_rotation_is_exact_to_round_off():
-    q = jnp.array([-0.6, -2.2, 1.3])
-    t = Trig(jnp.cos(q), jnp.sin(q), jnp.cos(-q), jnp.sin(-q))
-    for d in (0.0, 1e-9, 1e-6, 1e-4, 0.02):
-        r = rotate(t, jnp.full(3, d), jnp.full(3, -d))
-        np.testing.assert_allclose(r.c1, np.cos(q + d), rtol=0, atol=3e-16)
-        np.testing.assert_allclose(r.s1, np.sin(q + d), rtol=0, atol=3e-16)
-        np.testing.assert_allclose(r.c2, np.cos(-q - d), rtol=0, atol=3e-16)
-        np.testing.assert_allclose(r.s2, np.sin(-q - d), rtol=0, atol=3e-16)
-    same = rotate(t, jnp.zeros(3), jnp.zeros(3))  # rest stays bitwise at rest
-    assert all(np.array_equal(a, b) for a, b in zip(same, t))
+from armimp_jax._model import robot
+from armimp_jax._model.plant import PlantState, displacement, measure, plant_derivative, plant_model, trig_of_angles
 
 
-# Bound: the kernels differ only by round-off (rotated vs evaluated cos/sin, ~1 ulp per
-# substep, re-seeded every period); trajectories are not chaotic (spec section 14), so
-# over a record of seconds the relative difference stays many orders below the physics.
-BOUND = 1e-9
+def _state(p, dq, qd, z):
+    return PlantState(p.q0[0] + dq[0], p.q0[1] + dq[1], qd[0], qd[1], z[0], z[1], 0.0, 0.0)
 
 
-def _kernel_runs(controller, n_samples, locations, substeps=100):
-    """The same three trials (friction 0, 1, 2) run with each kernel, keyed by kernel name."""
-    fd = aj.perturbation(jax.random.PRNGKey(4), n_samples, paper.perturbation_peak(1))
-    params = aj.stack_trials([paper.trial(controller, f, loc) for f, loc in zip((0, 1, 2), locations)])
-    runs = {}
-    for kernel in KERNELS:
-        numerics = aj.Numerics(substeps=substeps, kernel=kernel)
-        batched = jax.jit(jax.vmap(lambda t, f, numerics=numerics: aj.simulate(t, f, numerics=numerics)))
-        runs[kernel] = batched(params, jnp.stack([fd] * 3))
-    return runs
+@pytest.mark.parametrize("location", [1, 2, 3, 4])
+def test_displacement_is_exactly_zero_at_the_equilibrium_and_fk_elsewhere(location):
+    """Rest stays bitwise rest (trig differences against q0's), and away from q0 the
+    displacement is ``fk(q) - x0``."""
+    p = paper.trial("pd", 1, location)
+    model = plant_model(p.q0, p.x0, p.arm, p.friction, p.robot)
+    assert all(float(e) == 0.0 for e in displacement(trig_of_angles(p.q0), model))
+    q = p.q0 + jnp.array([0.03, -0.05])
+    np.testing.assert_allclose(displacement(trig_of_angles(q), model), robot.fk(q, p.robot) - p.x0, rtol=1e-13)
 
 
-@pytest.mark.parametrize("controller", ["pd", "imbic"])
-def test_fast_and_grad_kernels_agree_with_reference(controller):
-    runs = _kernel_runs(controller, 1500, (1, 2, 3), substeps=50)
-    for kernel in ("fast", "grad"):
-        for name in ("x", "xd", "fh", "fu", "q"):
-            a, b = np.asarray(getattr(runs[kernel], name)), np.asarray(getattr(runs["reference"], name))
-            if name == "x":
-                a, b = a - a[:, :1], b - b[:, :1]  # compare displacements, not the 0.4 m offset
-            scale = np.abs(b).max(axis=(1, 2), keepdims=True)
-            assert np.all(np.abs(a - b) <= BOUND * scale), (kernel, name, (np.abs(a - b) / scale).max())
+@pytest.mark.parametrize("friction_level, location", [(0, 1), (1, 2), (2, 3)])
+def test_measured_hand_force_is_the_arm_impedance_force_of_the_plant_motion(friction_level, location):
+    """``F_h = M_h xdd + B_h xd + K_h (x - x0)``, with ``xd = J qd`` and ``xdd`` the time
+    derivative of ``J(q) qd`` along the plant's own ``qdd`` (forward-mode JAX of ``fk``, not
+    the plant's hand-written ``Jd qd``), while the command acts and the bristles are loaded."""
+    p = paper.trial("imbic", friction_level, location)
+    model = plant_model(p.q0, p.x0, p.arm, p.friction, p.robot)
+    s = _state(p, (0.01, -0.02), (0.3, -0.5), (2e-6, -5e-6))
+    fu = jnp.array([1.5, -2.0])
+    x, xd, fh = measure(s, fu, model)
+    d = plant_derivative(s, fu, model)
+    q, qd, qdd = jnp.array([s.q1, s.q2]), jnp.array([s.qd1, s.qd2]), jnp.array([d.qd1, d.qd2])
 
+    def hand_velocity(q, qd):
+        return jax.jvp(lambda q: robot.fk(q, p.robot), (q,), (qd,))[1]
 
-@pytest.mark.slow
-@pytest.mark.parametrize("controller", ["pd", "imbic"])
-def test_fast_and_grad_kernels_agree_with_reference_over_50_s(controller):
-    runs = _kernel_runs(controller, 50_000, (1, 1, 1))
-    xs = {kernel: np.asarray(r.x) for kernel, r in runs.items()}
-    scale = np.abs(xs["reference"] - xs["reference"][:, :1]).max(axis=(1, 2), keepdims=True)
-    for kernel in ("fast", "grad"):
-        assert np.all(np.abs(xs[kernel] - xs["reference"]) <= BOUND * scale), kernel
+    xd_ad, xdd = jax.jvp(hand_velocity, (q, qd), (qd, qdd))
+    expected = p.arm.mass @ xdd + p.arm.damping @ xd_ad + p.arm.stiffness @ (robot.fk(q, p.robot) - p.x0)
+    np.testing.assert_allclose(x, robot.fk(q, p.robot), rtol=1e-14)
+    np.testing.assert_allclose(xd, xd_ad, rtol=1e-13)
+    np.testing.assert_allclose(fh, expected, rtol=1e-11, atol=1e-12 * float(jnp.abs(expected).max()))

@@ -125,16 +125,73 @@ def test_bars_start_from_zero_on_linear_axes_with_pd_as_imbic_reference(figures,
     assert all(t.get_rotation() == 0 for t in ablation.axes[0].get_yticklabels())
 
 
-def test_phase_is_continuous(figures, tmp_path):
+def _phase_error_lines(fig, color):
+    """``(f, y)`` of the phase-error curves of ``color`` in the bottom row of a Bode figure."""
+    out = []
+    for ax in fig.axes[4:8]:
+        out += [(line.get_xdata(), line.get_ydata()) for line in ax.get_lines() if line.get_color() == color]
+    return out
+
+
+def test_phase_is_the_phase_error_on_the_truths_branch(figures, tmp_path):
+    """An estimate whose unwrapped phase slides a whole turn away from the truth, though its
+    error is 0 at both ends, is drawn at 0 there, not 360 deg off; errors stay within +-180."""
     results, arrays = synthetic(1)
+    turn = np.interp(np.arange(F.size), [0, 4, 8, F.size - 1], [0.0, 0.0, -360.0, -360.0])  # [deg]
+    truth = np.asarray(arm(1).impedance(F))
+    arrays["pd-L1-F2-P1-instant-s0"]["Z"] = truth * np.exp(1j * np.radians(turn))[:, None, None]
     plots.bode_figure(results, arrays, tmp_path / "bode.png", experiment="pd")
     (fig,) = figures
-    assert "phase" in fig.axes[4].get_ylabel()
-    for ax in fig.axes[4:]:
-        for line in ax.get_lines():
-            assert np.all(np.abs(np.diff(line.get_ydata())) < 180), line.get_label()
-    wrapped = np.degrees(np.angle(arrays["pd-L1-F2-P1-instant-s0"]["Z"][:, 0, 0]))
-    assert np.any(np.abs(np.diff(wrapped)) > 180)  # the test data does wrap
+    assert "phase error" in fig.axes[4].get_ylabel()
+    expected = (turn + 180.0) % 360.0 - 180.0
+    for f, y in _phase_error_lines(fig, plots.FRICTION_COLORS[2]):
+        drawn = ~np.isnan(y)
+        np.testing.assert_allclose(y[drawn], expected[np.searchsorted(F, f[drawn])], atol=1e-9)
+        assert np.all(np.abs(y[drawn]) <= 180.0)
+        assert y[0] == pytest.approx(0.0) and y[-1] == pytest.approx(0.0, abs=1e-9)
+    wrapped = np.degrees(np.angle(arrays["pd-L1-F1-P1-instant-s0"]["Z"][:, 0, 0]))
+    assert np.any(np.abs(np.diff(wrapped)) > 180)  # the other curves' phases do wrap
+    for f, y in _phase_error_lines(fig, plots.FRICTION_COLORS[1]):
+        step = np.diff(y)  # NaN across the breaks inserted where the error crosses +-180 deg
+        assert np.isnan(step).any() and np.all(np.abs(step[~np.isnan(step)]) < 180)  # no vertical strokes
+
+
+def test_seeds_either_side_of_180_degrees_average_to_180_not_0(figures, tmp_path):
+    results, arrays = synthetic(2)
+    truth = np.asarray(arm(1).impedance(F))
+    for seed, err in ((0, 179.0), (1, -179.0)):
+        arrays[f"pd-L1-F2-P1-instant-s{seed}"]["Z"] = truth * np.exp(1j * np.radians(err))
+    plots.bode_figure(results, arrays, tmp_path / "bode.png", experiment="pd")
+    for _, y in _phase_error_lines(figures[0], plots.FRICTION_COLORS[2]):
+        np.testing.assert_allclose(np.abs(y), 180.0, atol=1e-9)
+
+
+def test_titles_fit_and_legends_cover_no_data(monkeypatch, tmp_path):
+    """Every figure as saved: no text beyond the figure's edges, no legend over a plot area."""
+    kept, close = [], plt.close
+    monkeypatch.setattr(plt, "close", lambda fig=None: kept.append(fig))
+    results, arrays = synthetic(3)
+    paths = plots.all_figures(results, arrays, tmp_path)
+    assert len(kept) == len(paths) == 7
+    for fig in kept:
+        fig.canvas.draw()  # at the figure's own dpi, as its bbox is
+        renderer = fig.canvas.get_renderer()
+        edge = fig.bbox
+        texts = [fig._suptitle] + [t for ax in fig.axes for t in (ax.title, ax.xaxis.label, ax.yaxis.label)]
+        legends = [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
+        assert legends, fig._suptitle.get_text()
+        texts += [t for leg in legends for t in leg.get_texts()]
+        for t in texts:
+            if t is None or not t.get_text() or not t.get_visible():
+                continue
+            box = t.get_window_extent(renderer)
+            assert edge.x0 - 1 <= box.x0 and box.x1 <= edge.x1 + 1, t.get_text()
+            assert edge.y0 - 1 <= box.y0 and box.y1 <= edge.y1 + 1, t.get_text()
+        for leg in legends:
+            box = leg.get_window_extent(renderer)
+            assert edge.x0 - 1 <= box.x0 and box.x1 <= edge.x1 + 1
+            assert not any(box.overlaps(ax.bbox) for ax in fig.axes), [t.get_text() for t in leg.get_texts()]
+        close(fig)
 
 
 def test_coherence_shows_the_worst_location(figures, tmp_path):
@@ -145,4 +202,5 @@ def test_coherence_shows_the_worst_location(figures, tmp_path):
     title = fig._suptitle.get_text()
     assert "location 4" in title and "lowest minimum multiple coherence (friction 2: 0.30" in title
     assert all(ax.get_ylabel().startswith("coherence") for ax in fig.axes[::3])
-    assert any("PD" in t.get_text() for t in fig.axes[0].get_legend().get_texts())
+    legend = next(ax.get_legend() for ax in fig.axes if ax.get_legend() is not None)
+    assert any("PD" in t.get_text() for t in legend.get_texts())

@@ -115,8 +115,9 @@ def test_report_tables_fitted_matrices_and_the_sampled_data_bias(quick_run, tmp_
     np.testing.assert_allclose(instant["fit_M"], arm(1).mass, atol=0.1)
     assert instant["fit_M_rel_error"] < 0.05 and instant["fit_vaf"] > 95 and len(instant["fit_M_ci"]) == 2
     # instant samples bias the damping upwards; interval means take most of it away
-    assert instant["fit_B"][0][0] > 1.3 * arm(1).damping[0, 0]
-    assert mean["fit_B_rel_error"] < instant["fit_B_rel_error"] / 2
+    # each acquisition fitted with its own sampled-data model: no damping bias left in either
+    # (the plain M s^2 + B s + K on instant samples gave B_11 over 1.3x the truth here)
+    assert instant["fit_B_rel_error"] < 0.15 and mean["fit_B_rel_error"] < 0.15
     paragraph = next(line for line in md.splitlines() if line.startswith("Sampled-data bias"))
     assert f"with instant acquisition B is off by {100 * instant['fit_B_rel_error']:.1f}%" in paragraph
     assert f"with interval-mean acquisition B is off by {100 * mean['fit_B_rel_error']:.1f}%" in paragraph
@@ -128,10 +129,55 @@ def test_report_tables_fitted_matrices_and_the_sampled_data_bias(quick_run, tmp_
     assert "hold no fitted matrices" in old and "Sampled-data bias" not in old
 
 
+def test_the_tables_are_tidy_dataframes_and_csv_files_of_the_results(quick_run):
+    import pandas as pd
+
+    from armimp_jax.study import tables
+
+    out, _ = quick_run
+    results = strict_loads((out / "results.json").read_text())
+    frames = repro.load_tables(out)
+    dtypes = dict(conditions=repro.CONDITION_DTYPES, claims=repro.CLAIM_DTYPES, fits=repro.FIT_DTYPES)
+    for name, frame in frames.items():
+        pd.testing.assert_frame_equal(tables.read_table(out / f"{name}.csv", dtypes[name]), frame, check_exact=True)
+    conditions, claims, fits = frames["conditions"], frames["claims"], frames["fits"]
+    assert len(conditions) == 42 and (conditions["n"] + conditions["diverged"] == repro.DEFAULT_SEEDS).all()
+    for entry, (_, row) in zip(results["conditions"], conditions.iterrows(), strict=True):
+        assert row["label"] == Condition(**entry["condition"]).label and row["phi_T_mean"] == entry["phi_T"]
+        assert row["phi_T_ci_hi"] == pytest.approx(entry["phi_T"] + entry["phi_T_ci"], rel=1e-15)
+        assert row["phi_21_mean"] == entry["phi_ij"][1][0]  # [output, input]
+    assert list(claims["key"]) == list("abcdef")
+    assert list(claims["verdict"]) == [c["verdict"] for c in results["claims"]]
+    # long form: a row per condition, matrix and element, the truth beside the mean fit
+    assert len(fits) == 42 * 3 * 4
+    k21 = fits[(fits["label"] == "imbic-L3-F0-P1") & (fits["matrix"] == "K") & (fits["element"] == "21")]
+    assert k21["true"].item() == arm(3).stiffness[1, 0] and k21["unit"].item() == "N/m"
+
+
+def test_every_study_draws_one_signal_per_seed():
+    """Common random numbers: the reproduction, the tuner and a sweep give seed s the same
+    perturbation shape (scaled to the peak); another seed changes it."""
+    from armimp_jax.paper import tune as paper_tune
+    from armimp_jax.presets import perturbation_peak
+    from armimp_jax.study import sweep
+
+    settings = dataclasses.replace(TINY, base_seed=7)
+    signals, _, attempt = repro.draw_perturbations(settings, 3, [1, 3])
+    assert attempt == 0
+    n = settings.n_samples
+    tuner = paper_tune.seed_perturbations(7, [3], n, level=1)[0]
+    swept = sweep._Perturbations(7)(3, n, perturbation_peak(1))
+    np.testing.assert_array_equal(signals[1], tuner)
+    np.testing.assert_array_equal(signals[1], swept)
+    np.testing.assert_allclose(signals[3], signals[1] * 4.5 / 2.25, rtol=1e-12)  # one shape, two peaks
+    other = paper_tune.seed_perturbations(7, [4], n, level=1)[0]
+    assert np.abs(other - tuner).max() > 0.1
+
+
 def test_fit_metrics_recover_exact_matrices_and_give_nan_for_diverged_trials():
     f = np.linspace(0.5, 15.0, 30)
     z = np.stack([np.asarray(arm(loc).impedance(f)) for loc in (1, 3)] + [np.full((30, 2, 2), np.nan + 0j)])
-    fits = fit_metrics(f, z, [1, 3, 2])
+    fits = fit_metrics(f, z, [1, 3, 2], acquisition="interval_mean")  # box-car means: M s^2 + B s + K exactly
     for fit, loc in zip(fits[:2], (1, 3)):
         a = arm(loc)
         np.testing.assert_allclose(fit["fit_M"], a.mass, atol=1e-9)
@@ -447,7 +493,7 @@ def test_claims_on_a_seed_ensemble_say_how_robust_they_are():
     claims = {c.key: c for c in evaluate_claims(summary, seeds)}
     for c in claims.values():
         assert c.verdict == "reproduced" and c.robust and c.seeds == 3
-        assert c.robustness == "reproduced on 3/3 seeds; every deciding 95% CI clears its threshold"
+        assert c.robustness == "reproduced on 3/3 seeds; every deciding rule also holds on its 95% CI over the seeds"
     # one seed on which friction does not hurt PD: (b) still holds on the means, but not robustly
     mixed = {s: _synthetic(True) for s in range(3)}
     mixed[2] = _synthetic(True) | {k: v for k, v in _synthetic(False).items() if k.experiment == "pd" and k.friction}

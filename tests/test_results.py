@@ -55,6 +55,14 @@ def test_settings_key_is_canonical_and_includes_the_version():
     assert res.settings_key(a) != res.settings_key(dict(a, armimp_jax="0.0.1"))  # another package version
 
 
+def test_the_version_is_stated_once_in_pyproject():
+    import tomllib
+
+    stated = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
+    assert __version__ == res.package_version() == stated
+    assert res.stamped({})["armimp_jax"] == stated
+
+
 def test_describe_difference_is_one_line_naming_each_setting():
     saved = res.stamped(dict(seconds=6.0, mhat=0.25, welch=dict(nperseg=1024), frictions=[0, 1, 2]))
     wanted = dict(seconds=8.0, mhat=0.25, welch=dict(nperseg=512), frictions=[0], extra=1)

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import armimp_jax as aj
-from armimp_jax._model import robot
 from armimp_jax import paper
+from armimp_jax._model import robot
 from armimp_jax._model.plant import PlantState, plant_derivative, plant_model
 from armimp_jax._model.robot import MIT_MANUS_BASE as ROBOT_BASE
 from armimp_jax.paper import location_endpoint

@@ -28,3 +28,31 @@ def test_vector_lanes_follow_the_xla_vector_width(monkeypatch):
     assert runtime.vector_lanes() == 8
     monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_prefer_vector_width=128")
     assert runtime.vector_lanes() == 2
+
+
+def _devices_after_import(
+    env_extra: dict, code: str = "import armimp_jax as aj, jax; aj.simulate; print(jax.device_count())"
+) -> str:
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "ARMIMP_JAX_CPU_DEVICES")}
+    out = subprocess.run([sys.executable, "-c", code], env=env | env_extra, capture_output=True, text=True)
+    return out.stdout.strip() or out.stderr.strip().splitlines()[-1]
+
+
+def test_loading_the_library_asks_for_one_cpu_device_per_core_unless_the_caller_chose():
+    cores = os.cpu_count() or 1
+    # importing the package alone imports no JAX (a script's --help stays fast)
+    assert _devices_after_import({}, "import sys, armimp_jax; print('jax' in sys.modules)") == "False"
+    assert _devices_after_import({}) == str(cores)
+    assert _devices_after_import({"ARMIMP_JAX_CPU_DEVICES": "1"}) == "1"
+    assert _devices_after_import({"XLA_FLAGS": "--xla_force_host_platform_device_count=3"}) == "3"
+    # a backend that already started is left alone
+    assert (
+        _devices_after_import({}, "import jax; jax.devices(); import armimp_jax.paper; print(jax.device_count())")
+        == "1"
+    )
+    assert _devices_after_import({"ARMIMP_JAX_CPU_DEVICES": "two"}) == (
+        "ValueError: ARMIMP_JAX_CPU_DEVICES must be a whole number >= 1, got 'two'"
+    )

@@ -1,6 +1,7 @@
 """Every script in sweeps/ answers ``--help`` at once (its options are parsed before JAX is
 imported), and numba_baseline.py says what it needs when numba is missing."""
 
+import ast
 import collections
 import importlib.util
 import io
@@ -37,6 +38,18 @@ def test_an_unknown_option_gets_one_line_under_the_script_s_own_name(name):
     proc = run(ROOT / "sweeps" / f"{name}.py", "--bogus", timeout=60)
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines() == [f"{name}: error: unrecognized arguments: --bogus"]
+
+
+@pytest.mark.parametrize("name", ["sweep", "friction_threshold", "reproduce_paper", "tune_mhat", "_cli"])
+def test_study_scripts_use_the_public_library_and_load_no_file_by_path(name):
+    """They import the library's public modules (no ``armimp_jax._private``) and each other as
+    modules of the scripts' folder (no ``importlib`` loading by path)."""
+    tree = ast.parse((ROOT / "sweeps" / f"{name}.py").read_text())
+    imported = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+    imported += [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
+    private = [m for m in imported if m.startswith("armimp_jax.") and any(p.startswith("_") for p in m.split(".")[1:])]
+    assert not private, private
+    assert not any(m.startswith("importlib") for m in imported), imported
 
 
 def test_numba_baseline_without_numba(tmp_path):

@@ -12,7 +12,8 @@ from helpers import tree_equal, zoh_response
 import armimp_jax as aj
 from armimp_jax import _batch as sweep
 from armimp_jax import paper
-from armimp_jax._model.plant import measure, plant_model, rest_state, rk4_step
+from armimp_jax._model.plant import measure, plant_model, rest_state
+from armimp_jax._solver.rk4 import rk4_step
 
 CONTROLLERS = ["pd", "imbic"]
 
@@ -224,7 +225,7 @@ def test_bad_paper_presets_are_rejected(kwargs, message):
     [
         (dict(substeps=0), "substeps .* must be >= 1, got 0"),
         (dict(substeps=2.5), "substeps .* must be an integer >= 1, got 2.5"),
-        (dict(kernel="gpu"), "unknown kernel 'gpu'; allowed: 'fast', 'reference', 'grad'"),
+        (dict(solver="rk4"), r"solver must be RK4\(...\), ARK3\(...\), ARK4\(...\) or GradedARK4\(...\), got 'rk4'"),
         (dict(checkpoint="step"), "unknown checkpoint 'step'; allowed: 'period', 'substep'"),
     ],
 )
@@ -249,15 +250,6 @@ def test_bad_perturbation_and_batches_are_rejected():
     for chunk in (None, 5):
         with pytest.raises(ValueError, match=r"at least one sample per trial, got shape \(1, 0, 2\)"):
             sweep.simulate_batch(batch, np.zeros((1, 0, 2)), chunk_samples=chunk)
-
-
-def test_integrate_period_rejects_unknown_kernels():
-    from armimp_jax._model.plant import integrate_period
-
-    p = paper.trial("pd", 0, 1)
-    model = plant_model(p.q0, p.x0, p.arm, p.friction, p.robot)
-    with pytest.raises(ValueError, match="unknown kernel 'gpu'"):
-        integrate_period(rest_state(p.q0), jnp.zeros(2), model, period=1e-3, substeps=2, kernel="gpu")
 
 
 def test_float32_mode_is_refused():

@@ -1,4 +1,4 @@
-"""The general sweep (armimp_jax/sweep.py, sweeps/sweep.py) on a tiny grid, end to end."""
+"""The general sweep (armimp_jax/study/sweep.py, sweeps/sweep.py) on a tiny grid, end to end."""
 
 from __future__ import annotations
 
@@ -135,6 +135,30 @@ def test_outputs_are_strict_json_with_keys(tiny):
     assert result["complete"] and result["trials"] == result["trials_expected"] == 12
     assert "NaN" not in (tiny / "summary.json").read_text()
     assert result["swept"] == ["controller", "tau_c", "mhat"]
+
+
+def test_the_dataframes_are_the_csv_files_read_back(tiny):
+    """load_sweep / load_summary build the tables from the checked records; the CSV files
+    (and the Parquet ones, with pyarrow) hold the same table, every number exactly."""
+    import pandas as pd
+
+    from armimp_jax.study import load_summary, load_sweep, tables
+
+    trials = load_sweep(tiny)
+    assert len(trials) == 12 and list(trials.columns) == tables.trial_columns(sweep.saved_settings(tiny).points[0])
+    assert trials["phi_T"].dtype == "float64" and trials["diverged"].dtype == bool and trials["arm"].iloc[0] == "1"
+    assert trials.loc[trials["controller"] == "pd", "mhat"].isna().all()  # PD has no mhat
+    pd.testing.assert_frame_equal(tables.read_table(tiny / "trials.csv", sweep.TRIAL_DTYPES), trials, check_exact=True)
+    summary = load_summary(tiny)
+    pd.testing.assert_frame_equal(
+        tables.read_table(tiny / "summary.csv", sweep.SUMMARY_DTYPES), summary, check_exact=True
+    )
+    if tables.has_parquet():
+        pd.testing.assert_frame_equal(pd.read_parquet(tiny / "trials.parquet"), trials, check_exact=True)
+    # the summary is the seed statistics of the trial table
+    sound = trials[~trials["diverged"]].groupby("point_index")["phi_T"]
+    np.testing.assert_allclose(summary.loc[summary["n"] > 0, "phi_T_mean"], sound.mean(), rtol=1e-14)
+    np.testing.assert_allclose(summary.loc[summary["n"] > 0, "phi_T_sd"], sound.std(ddof=1), rtol=1e-12)
 
 
 def test_diverged_trials_are_counted_and_left_out_of_every_statistic(tiny):

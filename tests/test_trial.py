@@ -10,8 +10,9 @@ from helpers import tree_equal, zoh_response
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._model.plant import PlantModel, PlantState, plant_derivative, rk4_step
+from armimp_jax._model.plant import PlantModel, PlantState, plant_derivative
 from armimp_jax._model.robot import kinetic_energy
+from armimp_jax._solver.rk4 import rk4_step
 
 GOLDEN = pathlib.Path(__file__).parent / "data" / "golden_presets.npz"
 
@@ -28,7 +29,7 @@ def test_presets_give_the_numbers_of_the_former_trial_params(controller, acquisi
     Robot constants are now parameters and the loop's barriers moved, so XLA contracts a few
     FMAs differently: agreement to round-off (measured <= 2.5e-15 relative for PD, 1.3e-12 for
     IMBIC, whose feedback amplifies it). Two IMBIC trials at 5 substeps diverge; there only the flag is compared. At
-    friction 0 the bristle state is now held at 0 (spec 4), where it used to integrate v.
+    friction 0 the bristle state is now held at 0 (docs/model.md section 4), where it used to integrate v.
     """
     g = np.load(GOLDEN)
     cases = [(f, loc) for f in (0, 1, 2) for loc in (1, 2, 3, 4)]

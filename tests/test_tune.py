@@ -395,10 +395,16 @@ def _run_tune_script(*args):
 def test_script_resume_refuses_other_settings_and_a_torn_state_in_one_line(tmp_path, script):
     options = script.DEFAULTS | dict(quick=True)
     config, *_, settings = script.setup(options, tune, paper_tune, Welch)
+    script.run_folder(tmp_path).prepare(settings, extra=dict(options=options))  # what a run leaves
     tune.save_state(tmp_path / script.STATE, _fake_state(), settings, meta=dict(options=options))
     proc = _run_tune_script("--resume", str(tmp_path), "--parameterisation", "full")
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
     assert proc.stderr.startswith(f"tune_mhat: error: --resume {tmp_path}: that run has tuner.parameterisation=")
+    # without --resume, the same options name the run the folder holds and how to go on with it
+    proc = _run_tune_script("--quick", "--parameterisation", "full", "--out", str(tmp_path))
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+    assert f"{tmp_path} holds a tuning run with tuner.parameterisation=diagonal (you asked full)" in proc.stderr
+    assert f"(--resume {tmp_path})" in proc.stderr
     data = (tmp_path / script.STATE).read_bytes()
     (tmp_path / script.STATE).write_bytes(data[:100])
     proc = _run_tune_script("--resume", str(tmp_path))

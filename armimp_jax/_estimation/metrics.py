@@ -1,4 +1,4 @@
-"""Accuracy of an impedance estimate against the true arm (spec section 11, paper eqs. 1-2).
+"""Accuracy of an impedance estimate against the true arm (docs/model.md section 12, paper eqs. 1-2).
 
 ``phi_T`` is the bin-mean of the largest singular value of ``Z_h - Z_hat``; ``phi_ij``
 the bin-mean of ``|Z_h,ij - Z_hat,ij|``. Both [N/m]; zero means perfect. Single-trial

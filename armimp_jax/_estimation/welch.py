@@ -1,4 +1,4 @@
-"""Stochastic impedance estimation (spec section 9): Welch spectra, H1, Z, coherences.
+"""Stochastic impedance estimation (docs/model.md section 11): Welch spectra, H1, Z, coherences.
 
 All channels of a record go through one ``jnp.fft.rfft`` (of length ``nfft``, zero
 padded) per windowed, mean-removed segment; the cross-spectral matrix is the segment
@@ -6,7 +6,8 @@ average of ``conj(X_a) X_b`` (the ``scipy.signal.csd(a, b)`` convention, one-sid
 scaling). The window is the periodic Hann by default, or any window ``scipy.signal.get_window``
 knows, or an explicit array. Only the bins the caller needs are kept after the FFT, so a
 trial costs ``S x C x nperseg`` reals of segments plus ``S x C x F`` complex spectra (about
-8 + 0.3 MB for a 50 s record).
+8 + 0.3 MB for a 50 s record). With ``errors=True`` the estimate also carries ``ZError``, the
+covariance of ``Z`` that the Welch average implies (docs/estimation.md, section 3).
 
 Single-trial functions; batch with ``jax.vmap``. Differentiable end to end.
 """
@@ -23,10 +24,26 @@ import scipy.signal
 from .._checks import as_float64, check_int, is_concrete, require_x64
 
 SAMPLE_RATE = 1000.0  # [Hz]
-# Table 4 of the paper (spec section 9): 21 segments in a 50 s record.
+# Table 4 of the paper (docs/model.md section 11): 21 segments in a 50 s record.
 WELCH_NPERSEG = 8192  # = nfft
 WELCH_NOVERLAP = 6144
 ESTIMATION_FMAX = 15.0  # [Hz]
+N_INPUTS = 2  # perturbation axes: the residual spectrum loses about N_INPUTS * kappa averages
+
+
+def check_finite(name: str, a, *, where: str, index: str = "sample") -> None:
+    """Refuse a concrete array with NaN or inf in one line naming ``name`` and the first bad
+    entry (its index along axis 0 as ``index``, and the rest of its position); tracers pass."""
+    if not is_concrete(a):
+        return
+    arr = np.asarray(a)
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        pos = tuple(int(i) for i in np.unravel_index(int(np.flatnonzero(bad)[0]), arr.shape))
+        rest = {1: "", 2: f", column {pos[-1]}"}.get(len(pos), f", element {pos[1:]}")
+        raise ValueError(
+            f"{where}: {name} holds a non-finite value, {arr[pos]}, at {index} {pos[0]}{rest}; all must be finite"
+        )
 
 
 def check_welch(
@@ -42,7 +59,7 @@ def check_welch(
     """Validate Welch settings for a record of ``n_samples``; return the number of segments.
 
     Refuses a record that gives fewer than two segments: with one, every coherence is
-    identically 1 and H1 is meaningless (spec section 9).
+    identically 1 and H1 is meaningless (docs/model.md section 11).
     """
     nperseg = check_int("nperseg", nperseg, minimum=2)
     noverlap = check_int("noverlap", noverlap, minimum=0)
@@ -203,6 +220,33 @@ def ordinary_coherence(g, a: int, b: int):
     return jnp.abs(g[:, a, b]) ** 2 / jnp.real(g[:, a, a] * g[:, b, b])
 
 
+class ZError(NamedTuple):
+    """The covariance of ``Z`` that a Welch average implies (a pytree; docs/estimation.md §3).
+
+    At one bin, ``Cov(Z_ij, Z_i'j') = E[dZ_ij conj(dZ_i'j')] = force[i, i'] * position[j, j']``:
+
+    - ``force`` ``(F, 2, 2)`` complex [N^2/Hz]: cross-spectral density of the residual
+      ``e = F_h - Z x`` (what the inputs do not explain), divided by ``1 - 2 kappa / S`` for
+      the averages that fitting ``Z`` used up (``S`` segments, ``kappa = bin_corr_raw``);
+    - ``position`` ``(F, 2, 2)`` complex [Hz/m^2]: ``conj((G_xu G_uu^-1 G_ux)^-1) / n_eff``,
+      the inverse of the input-coherent position spectrum over the effective number of
+      averages ``n_eff = S / kappa`` (overlapping segments are not independent).
+
+    Between bins ``d`` apart the covariance is ``bin_corr[d]`` times the geometric mean of
+    the two bins' (the window's spectral leakage and the segments' overlap correlate them;
+    ``bin_corr[0] = 1``). ``dof`` ``(F,)``: degrees of freedom of ``force`` at each bin (a
+    scaled chi-square), NaN when the record has too few segments to estimate it.
+    ``n_eff`` (scalar): the effective number of independent averages ``S / kappa``. Under
+    ``jax.vmap`` every field gains the batch axis.
+    """
+
+    force: jnp.ndarray
+    position: jnp.ndarray
+    bin_corr: jnp.ndarray
+    dof: jnp.ndarray
+    n_eff: jnp.ndarray
+
+
 class Estimate(NamedTuple):
     """Estimator output on the bins ``0 < f <= fmax``.
 
@@ -210,7 +254,8 @@ class Estimate(NamedTuple):
     ``Z = T R^-1`` [N/m], each ``(F, 2, 2)`` complex indexed ``[output, input]``;
     ``coh_multiple_x`` ``(F, 2)`` per output; ``coh_partial_x`` ``(F, 2, 2)``
     ``[output, input]``; the same two for ``fh``; ``coh_inputs`` ``(F,)`` the ordinary
-    coherence between the two perturbation axes.
+    coherence between the two perturbation axes; ``error``: the ``ZError`` of ``Z`` when
+    ``estimate(..., errors=True)``, else ``None``.
     """
 
     f: jnp.ndarray
@@ -222,6 +267,69 @@ class Estimate(NamedTuple):
     coh_multiple_fh: jnp.ndarray
     coh_partial_fh: jnp.ndarray
     coh_inputs: jnp.ndarray
+    error: ZError | None = None
+
+
+def bin_correlation(n_seg: int, *, nperseg: int, noverlap: int, window="hann", nfft: int | None = None):
+    """``r(d)``, ``d = 0 .. D`` bins: how much the Welch average correlates errors ``d`` bins apart.
+
+    A white error's windowed DFTs correlate between segments ``l`` steps apart and bins
+    ``d`` apart by ``rho_l(d) = sum_m w_m w_(m + l step) exp(-2 pi j d m / nfft) / sum_m w_m^2``;
+    an error of ``Z`` (a product of the error's and the input's DFTs, both locally white)
+    then by ``r(d) = sum_l (1 - |l| / S) |rho_l(d)|^2`` (``S = n_seg``), relative to ``1 / S``
+    of one segment. ``r(0) = kappa``: ``S / kappa`` is the effective number of independent
+    averages (about 1.84 for Hann with 75% overlap). ``D = 8 ceil(nfft / nperseg)``.
+    Returns ``(D + 1,)`` float64.
+    """
+    nfft = nperseg if nfft is None else nfft
+    w = welch_window(window, nperseg)
+    step = nperseg - noverlap
+    n_bins_corr = 8 * (-(-nfft // nperseg)) + 1
+    r = jnp.zeros(n_bins_corr)
+    norm = jnp.sum(w**2) ** 2
+    for lag in range(min(n_seg - 1, (nperseg - 1) // step) + 1):
+        d = lag * step
+        spec = jnp.fft.fft(w[: nperseg - d] * w[d:], n=nfft)[:n_bins_corr]
+        r = r + (1.0 if lag == 0 else 2.0 * (1.0 - lag / n_seg)) * jnp.abs(spec) ** 2 / norm
+    return r
+
+
+def z_error(g, z, n_seg: int, *, nperseg: int, noverlap: int, window="hann", nfft: int | None = None) -> ZError:
+    """The ``ZError`` of ``z = T R^-1`` ``(F, 2, 2)`` from the band's cross-spectral matrix ``g``
+    ``(F, 6, 6)`` (channels ``f_delta, x, fh``, as ``band_spectra``) of ``n_seg`` segments.
+
+    First order in the error: ``dZ = G_eu G_xu^-1`` with ``e = F_h - Z x`` (``G_ab = E[A conj B]``),
+    so ``Cov(dZ_i., dZ_i'.) = G_ee,ii' conj(G_xu^-1)^H conj(G_uu) conj(G_xu^-1) kappa / S`` for
+    locally white spectra (H1 variance, Bendat & Piersol section 9.3, with overlapping
+    segments). The residual spectrum is measured at the fitted ``Z``: that removes about
+    ``2 kappa`` of the ``S`` averages, which ``force`` puts back.
+    """
+    gt = jnp.swapaxes(g, -1, -2)  # gt[a, b] = E[A conj(B)]: the textbook convention
+    guu, gxu, gxx = gt[:, 0:2, 0:2], gt[:, 2:4, 0:2], gt[:, 2:4, 2:4]
+    gff, gfx = gt[:, 4:6, 4:6], gt[:, 4:6, 2:4]
+
+    def herm(a):
+        return jnp.conj(jnp.swapaxes(a, -1, -2))
+
+    gee = gff - z @ herm(gfx) - gfx @ herm(z) + z @ gxx @ herm(z)
+    c = _inv2(gxu)
+    p = herm(c) @ guu @ c  # (G_xu G_uu^-1 G_ux)^-1
+    # tr(G_xx,coherent^-1 G_xx): 2 when the position is all explained by the inputs, more when not
+    t_x = jnp.real(jnp.trace(p @ gxx, axis1=-2, axis2=-1))
+    r = bin_correlation(n_seg, nperseg=nperseg, noverlap=noverlap, window=window, nfft=nfft)
+    kappa = r[0]
+    # E[G_ee] = G_e (S - 2 q kappa + kappa t_x) / S: fitting Z took 2 q kappa averages and the
+    # error of Z times x gave back kappa t_x (docs/estimation.md section 3)
+    left = n_seg - 2.0 * N_INPUTS * kappa + kappa * t_x
+    left = jnp.where(n_seg > N_INPUTS * kappa, left, jnp.nan)  # too few segments: no error model
+    force = 0.5 * (gee + herm(gee)) * (n_seg / left)[:, None, None]
+    return ZError(
+        force=force,
+        position=jnp.conj(0.5 * (p + herm(p))) * (kappa / n_seg),
+        bin_corr=r / kappa,
+        dof=2.0 * left**2 / (n_seg * kappa),
+        n_eff=n_seg / kappa,
+    )
 
 
 def n_bins(fmax: float, *, fs: float, nperseg: int, nfft: int | None = None) -> int:
@@ -241,8 +349,9 @@ def estimate(
     fmax: float = ESTIMATION_FMAX,
     window="hann",
     nfft: int | None = None,
+    errors: bool = False,
 ) -> Estimate:
-    """Estimate the arm impedance from a record (spec section 9, paper eq. 9).
+    """Estimate the arm impedance from a record (docs/model.md section 11, paper eq. 9).
 
     Args:
         f_delta: perturbation ``(N, 2)`` [N] (the inputs).
@@ -254,19 +363,26 @@ def estimate(
             knows (periodic), or an array ``(nperseg,)``.
         nfft: FFT length ``>= nperseg`` (zero padding; default ``nperseg``); bins are
             ``fs / nfft`` apart.
+        errors: also return ``Estimate.error``, the ``ZError`` of ``Z`` (what
+            ``fit_impedance(..., se="spectral")`` and its lack-of-fit test need). Off by
+            default: the other fields are the same either way.
 
     Single-trial; ``jax.vmap`` batches it (the settings are static). Raises ``ValueError``
-    for mismatched lengths, a record that gives fewer than two segments, ``noverlap >=
-    nperseg``, ``nfft < nperseg``, an unknown window or ``fmax`` out of range.
+    for mismatched lengths, NaN or inf in a concrete record (naming the first bad sample),
+    a record that gives fewer than two segments, ``noverlap >= nperseg``, ``nfft <
+    nperseg``, an unknown window or ``fmax`` out of range.
     """
     require_x64("estimate")
     arrays = [as_float64(name, a, where="estimate") for name, a in (("f_delta", f_delta), ("x", x), ("fh", fh))]
     shapes = [a.shape for a in arrays]
     if any(len(s) != 2 or s[1] != 2 for s in shapes) or len(set(shapes)) != 1:
         raise ValueError(f"f_delta, x and fh must all have the same shape (N, 2); got {shapes}")
+    for name, a in zip(("f_delta", "x", "fh"), arrays, strict=True):
+        check_finite(name, a, where="estimate")
     freqs, g = band_spectra(
         jnp.concatenate(arrays, axis=1), fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax, window=window, nfft=nfft
     )
+    n_seg = check_welch(shapes[0][0], fs=fs, nperseg=nperseg, noverlap=noverlap, nfft=nfft, window=window)
     u, xs, fs_ = (0, 1), (2, 3), (4, 5)
     r, t = h1(g, u, xs), h1(g, u, fs_)
     z = t @ _inv2(r)
@@ -283,6 +399,7 @@ def estimate(
         coh_multiple_fh=jnp.stack([m for m, _ in cf], -1),
         coh_partial_fh=jnp.stack([p for _, p in cf], 1),
         coh_inputs=coh_inputs,
+        error=z_error(g, z, n_seg, nperseg=nperseg, noverlap=noverlap, window=window, nfft=nfft) if errors else None,
     )
 
 
@@ -305,5 +422,6 @@ def input_coherence(
     f_delta = as_float64("f_delta", f_delta, where="input_coherence")
     if f_delta.ndim != 2 or f_delta.shape[1] != 2:
         raise ValueError(f"f_delta must have shape (N, 2), got {f_delta.shape}")
+    check_finite("f_delta", f_delta, where="input_coherence")
     _, g = band_spectra(f_delta, fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax, window=window, nfft=nfft)
     return jnp.max(ordinary_coherence(g, 0, 1))

@@ -1,4 +1,4 @@
-"""The human arm: a linear 2-DOF Cartesian impedance about an equilibrium endpoint (spec 2).
+"""The human arm: a linear 2-DOF Cartesian impedance about an equilibrium endpoint (docs/model.md section 3).
 
 ``F_h = M_h xdd + B_h xd + K_h (x - x0)`` is the force applied to the hand [N];
 ``Z_h(s) = M_h s^2 + B_h s + K_h``. The matrices need not be symmetric and are used as
@@ -20,7 +20,7 @@ FOREARM_LENGTH = 0.32  # l_f [m] (forearm plus hand)
 
 def arm_endpoint(shoulder_rad, elbow_rad, *, upper=UPPER_ARM_LENGTH, forearm=FOREARM_LENGTH):
     """World-frame hand position [m] ``(2,)`` of a two-link arm (shoulder at the origin) with
-    shoulder angle ``th_s`` and relative elbow angle ``th_e`` [rad] (spec section 2), NumPy."""
+    shoulder angle ``th_s`` and relative elbow angle ``th_e`` [rad] (docs/model.md section 3), NumPy."""
     return np.array(
         [
             upper * np.cos(shoulder_rad) + forearm * np.cos(shoulder_rad + elbow_rad),
@@ -56,7 +56,7 @@ class Arm:
         for name, unit in (("mass", "kg"), ("damping", "N s/m"), ("stiffness", "N/m")):
             object.__setattr__(self, name, as_param(f"{name} [{unit}]", getattr(self, name), (2, 2), where=w))
         object.__setattr__(self, "endpoint", as_param("endpoint [m]", self.endpoint, (2,), where=w))
-        check_positive_definite("mass", self.mass, where=w, unit=" [kg]")
+        object.__setattr__(self, "mass", check_positive_definite("mass", self.mass, where=w, unit=" [kg]"))
 
     def impedance(self, f):
         """``Z_h(j 2 pi f)`` [N/m] ``(F, 2, 2)`` complex at frequencies ``f`` [Hz] ``(F,)``."""

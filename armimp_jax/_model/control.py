@@ -1,4 +1,4 @@
-"""Controllers (spec section 7): PD and IMBIC as values with pure per-sample functions.
+"""Controllers (docs/model.md section 9): PD and IMBIC as values with pure per-sample functions.
 
 A controller is an immutable pytree of gains with three methods, which is all the
 simulation loop knows about it (so a new controller needs no change to the loop):
@@ -26,7 +26,7 @@ from .._pytree import params
 from .robot import cartesian_inertia
 
 ACCEL_ESTIMATES = ("velocity", "position")
-# Defaults as nested tuples (immutable): K_p [N/m], K_v [N s/m] (paper eq. 5), Mhat [kg] (spec 7.2)
+# Defaults as nested tuples (immutable): K_p [N/m], K_v [N s/m] (paper eq. 5), Mhat [kg] (docs/model.md section 9.2)
 PD_STIFFNESS = ((250.0, 0.0), (0.0, 250.0))
 PD_DAMPING = ((4.0, 0.0), (0.0, 4.0))
 DEFAULT_MHAT = ((0.25, 0.0), (0.0, 0.25))
@@ -40,7 +40,7 @@ def matvec(a, v):
 def _gain(name, value, unit, where, *, definite=True):
     arr = as_param(f"{name} [{unit}]", value, (2, 2), where=where)
     if definite:
-        check_positive_definite(name, arr, where=where, unit=f" [{unit}]")
+        arr = check_positive_definite(name, arr, where=where, unit=f" [{unit}]")
     return arr
 
 
@@ -83,7 +83,7 @@ class IMBICMemory(NamedTuple):
 
 @params(static=("accel_estimate",))
 class IMBIC:
-    """Internal-model-based impedance control (paper eqs. 10-17 and 30, spec 7.2).
+    """Internal-model-based impedance control (paper eqs. 10-17 and 30, docs/model.md section 9.2).
 
     Desired robot dynamics ``M_rd xdd + B_rd xd + K_rd (x - x0) = F_Delta - F_h``, realised by
     time-delay estimation with the constant gain ``mhat``.

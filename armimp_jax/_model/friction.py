@@ -1,4 +1,4 @@
-"""LuGre joint friction (spec section 4): parameters per joint and the pure model.
+"""LuGre joint friction (docs/model.md section 4): parameters per joint and the pure model.
 
 ``g(v) = tau_c + (tau_s - tau_c) exp(-(v/v_s)^2)``, ``zd = v - sigma0 |v| z / g(v)``,
 ``tau_f = sigma0 z + sigma1 zd + sigma2 v``. Where ``g(v) = 0`` (``tau_c = tau_s = 0``)
@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
@@ -49,11 +50,13 @@ class LuGre:
         units = dict(tau_c="N m", tau_s="N m", sigma0="N m/rad", sigma1="N m s/rad", sigma2="N m s/rad", v_s="rad/s")
         for name, unit in units.items():
             value = as_param(f"{name} [{unit}]", getattr(self, name), (2,), where=w, broadcast=True)
+            value = check_range(name, value, where=w, minimum=0.0, exclusive=name == "v_s", unit=f" {unit}")
             object.__setattr__(self, name, value)
-            if name != "v_s":
-                check_range(name, value, where=w, minimum=0.0, unit=f" {unit}")
-        check_range("v_s", self.v_s, where=w, minimum=0.0, exclusive=True, unit=" rad/s")
-        if is_concrete((self.tau_c, self.tau_s)) and np.any(np.asarray(self.tau_s) < np.asarray(self.tau_c)):
+        if not is_concrete((self.tau_c, self.tau_s)):
+            bad = jnp.any(self.tau_s < self.tau_c)
+            message = "LuGre: tau_s must be >= tau_c (stiction at least the Coulomb torque)"
+            object.__setattr__(self, "tau_s", eqx.error_if(self.tau_s, bad, message))
+        elif np.any(np.asarray(self.tau_s) < np.asarray(self.tau_c)):
             raise ValueError(
                 f"LuGre: tau_s must be >= tau_c (stiction at least the Coulomb torque), got tau_s = "
                 f"{np.asarray(self.tau_s).tolist()} and tau_c = {np.asarray(self.tau_c).tolist()} N m"

@@ -1,4 +1,4 @@
-"""Random force perturbations F_Delta (spec section 8): filtered uniform noise from a PRNG key.
+"""Random force perturbations F_Delta (docs/model.md section 10): filtered uniform noise from a PRNG key.
 
 Per axis: i.i.d. uniform samples on [-1, 1] at 1 kHz, an 8th-order Butterworth low-pass
 (15 Hz, second-order sections from ``scipy.signal.butter``) applied causally, the first
@@ -37,17 +37,20 @@ def sosfilt(sos, x):
     """
     sos = jnp.asarray(sos, dtype=x.dtype)
     zi0 = jnp.zeros((sos.shape[0], 2) + x.shape[1:], dtype=x.dtype)
+    return jax.lax.scan(lambda zi, xn: sos_step(sos, zi, xn), zi0, x)[1]
 
-    def step(zi, xn):
-        new = []
-        for i in range(sos.shape[0]):
-            b0, b1, b2, _, a1, a2 = (sos[i, j] for j in range(6))
-            yn = b0 * xn + zi[i, 0]
-            new.append(jnp.stack([b1 * xn - a1 * yn + zi[i, 1], b2 * xn - a2 * yn]))
-            xn = yn
-        return jnp.stack(new), xn
 
-    return jax.lax.scan(step, zi0, x)[1]
+def sos_step(sos, zi, xn):
+    """One sample of ``sosfilt``: the new state ``(S, 2, C)`` and the output ``(C,)`` for the
+    input ``xn`` ``(C,)`` and state ``zi`` (what a sample-by-sample loop such as the
+    voluntary force of ``_model/voluntary.py`` runs)."""
+    new = []
+    for i in range(sos.shape[0]):
+        b0, b1, b2, _, a1, a2 = (sos[i, j] for j in range(6))
+        yn = b0 * xn + zi[i, 0]
+        new.append(jnp.stack([b1 * xn - a1 * yn + zi[i, 1], b2 * xn - a2 * yn]))
+        xn = yn
+    return jnp.stack(new), xn
 
 
 def perturbation(

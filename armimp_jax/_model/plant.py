@@ -1,4 +1,5 @@
-"""The coupled robot + arm + friction plant (spec section 5): derivative, RK4 step, force sensor.
+"""The coupled robot + arm + friction plant (docs/model.md section 5): its equations (derivative, hand
+force, force sensor), not how they are integrated (``armimp_jax._solver``).
 
 The continuous state is ``PlantState``: joint angles ``q`` [rad], rates ``qd`` [rad/s],
 LuGre bristle states ``z`` [rad], and ``xi = int (x - x0) dt`` [m s] over the current
@@ -14,14 +15,10 @@ substituted into ``M qdd + h + tau_f = J^T (F_u - F_h)`` and solved for ``qdd``:
 
 from __future__ import annotations
 
-import functools
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
-from jax.ad_checkpoint import checkpoint_name
 
-from .._checks import check_choice
 from .arm import Arm
 from .friction import LuGre, lugre
 from .robot import Robot, jacobian_from_trig, mass_matrix_entries
@@ -94,7 +91,13 @@ class Trig(NamedTuple):
 
 
 def trig_of(s: PlantState) -> Trig:
+    """``Trig`` of a state's joint angles."""
     return Trig(jnp.cos(s.q1), jnp.sin(s.q1), jnp.cos(s.q2), jnp.sin(s.q2))
+
+
+def trig_of_angles(q) -> Trig:
+    """``Trig`` of the joint angles ``q = (q1, q2)`` [rad]."""
+    return Trig(jnp.cos(q[0]), jnp.sin(q[0]), jnp.cos(q[1]), jnp.sin(q[1]))
 
 
 def displacement(t: Trig, model: PlantModel):
@@ -103,58 +106,6 @@ def displacement(t: Trig, model: PlantModel):
     c10, s10, c20, s20 = model.cq0
     ls, le = model.robot.shoulder_link, model.robot.elbow_link
     return ls * (t.c1 - c10) + le * (t.c2 - c20), ls * (t.s1 - s10) + le * (t.s2 - s20)
-
-
-@jax.custom_jvp
-def _small_angle_cos_sin(d):
-    d2 = d * d
-    return 1.0 - d2 * (0.5 - d2 * (1.0 / 24 - d2 / 720)), d * (1.0 - d2 * (1.0 / 6 - d2 * (1.0 / 120 - d2 / 5040)))
-
-
-@_small_angle_cos_sin.defjvp
-def _small_angle_cos_sin_jvp(primals, tangents):
-    # The derivatives of cos and sin, not of the truncated series (they differ by
-    # d^7/5040, far below round-off): 4% fewer operations in the backward loop body.
-    (d,), (t,) = primals, tangents
-    c, s = _small_angle_cos_sin(d)
-    return (c, s), (-s * t, c * t)
-
-
-def rotate(t: Trig, d1, d2) -> Trig:
-    """``Trig`` of the angles advanced by ``d1``, ``d2`` [rad], by the angle-addition formulas
-    with Taylor ``cos/sin`` of the increments (to ``d^6``, ``d^7``: exact to round-off for
-    ``|d| < 0.03`` rad; an RK4 substep moves ~1e-6 rad). No transcendental is evaluated."""
-
-    cd1, sd1 = _small_angle_cos_sin(d1)
-    cd2, sd2 = _small_angle_cos_sin(d2)
-    return Trig(t.c1 * cd1 - t.s1 * sd1, t.s1 * cd1 + t.c1 * sd1, t.c2 * cd2 - t.s2 * sd2, t.s2 * cd2 + t.c2 * sd2)
-
-
-_SHARED = "armimp_shared_stage_value"
-
-# Why the "grad" kernel marks stage values. XLA:CPU copies chains of cheap operations
-# (add, multiply, sin, cos) into every fusion that uses them, and in the backward pass
-# of an RK4 substep that multiplies the work. XLA never duplicates a division, so the
-# kernel divides the stage values by a runtime 1.0 (exact) and names them for the
-# substep checkpoint (sweeps/bench_gradient.py measures the effect).
-_DIVIDED = ("trig", "stage", "a", "b")
-
-
-def _sharer(one):
-    """``share(group, *values)`` for the ``"grad"`` kernel (identity when ``one`` is None).
-
-    Values of the groups in ``_DIVIDED`` become ``x / one``, with ``one`` a runtime 1.0:
-    exact, one materialised value each, named so that the substep checkpoint saves them
-    for the backward pass instead of recomputing the stage."""
-    if one is None:
-        return lambda group, *values: values
-
-    def share(group, *values):
-        if group not in _DIVIDED:
-            return values
-        return tuple(checkpoint_name(v / one, _SHARED) for v in values)
-
-    return share
 
 
 def coupled_inertia(model: PlantModel, j, m):
@@ -175,11 +126,29 @@ def coupled_inertia(model: PlantModel, j, m):
     )
 
 
-def _dynamics(s: PlantState, fu, model: PlantModel, trig: Trig | None = None, share=_sharer(None)):
-    """Joint accelerations and the pieces needed for the hand force, at command ``fu`` [N] ``(2,)``.
+class Dynamics(NamedTuple):
+    """What one evaluation of the plant gives: the state's time ``derivative``, the hand's
+    ``displacement`` ``x - x0`` [m] and ``velocity`` [m/s], ``hand_force_rest`` (the hand
+    force without its ``M_h J qdd`` part) [N] and ``jqdd`` (``J qdd``) [m/s^2], each a pair."""
+
+    derivative: PlantState
+    displacement: tuple
+    velocity: tuple
+    hand_force_rest: tuple
+    jqdd: tuple
+
+
+def _unshared(group, *values):
+    return values
+
+
+def plant_dynamics(s: PlantState, fu, model: PlantModel, *, trig: Trig | None = None, share=_unshared) -> Dynamics:
+    """The plant's equations at state ``s`` under the Cartesian command ``fu`` [N] ``(2,)``.
 
     ``trig`` (optional) supplies ``cos/sin`` of ``q``; by default they are evaluated.
-    ``share`` (``_sharer``) marks the solve's matrix ``"a"`` and right-hand side ``"b"``."""
+    ``share(group, *values) -> values`` (default: identity) lets an integrator mark the 2x2
+    solve's matrix (group ``"a"``) and right-hand side (``"b"``); it must return the values
+    unchanged to round-off."""
     c1, s1, c2, s2 = trig_of(s) if trig is None else trig
     # Angle-difference identities instead of cos/sin(q1 - q2): two fewer transcendentals
     # per evaluation (they dominate the cost on CPU), error ~1e-16.
@@ -217,12 +186,12 @@ def _dynamics(s: PlantState, fu, model: PlantModel, trig: Trig | None = None, sh
     qdd2 = (a11 * b2 - a21 * b1) / det
     deriv = PlantState(s.qd1, s.qd2, qdd1, qdd2, zd1, zd2, ex, ey)
     jqdd = (j11 * qdd1 + j12 * qdd2, j21 * qdd1 + j22 * qdd2)
-    return deriv, (ex, ey), (xd, yd), (f0x, f0y), jqdd
+    return Dynamics(deriv, (ex, ey), (xd, yd), (f0x, f0y), jqdd)
 
 
 def plant_derivative(s: PlantState, fu, model: PlantModel) -> PlantState:
     """Time derivative of the state under the Cartesian command ``fu`` [N] ``(2,)``."""
-    return _dynamics(s, fu, model)[0]
+    return plant_dynamics(s, fu, model).derivative
 
 
 def measure(s: PlantState, fu, model: PlantModel):
@@ -231,96 +200,7 @@ def measure(s: PlantState, fu, model: PlantModel):
     ``F_h`` [N] is the transducer force (the force on the hand), from the same
     acceleration the plant integrates.
     """
-    _, (ex, ey), (xd, yd), (f0x, f0y), (ax, ay) = _dynamics(s, fu, model)
+    _, (ex, ey), (xd, yd), (f0x, f0y), (ax, ay) = plant_dynamics(s, fu, model)
     mh11, mh12, mh21, mh22 = model.mh
     fh = jnp.stack([(mh11 * ax + mh12 * ay) + f0x, (mh21 * ax + mh22 * ay) + f0y])
     return jnp.stack([model.x0[0] + ex, model.x0[1] + ey]), jnp.stack([xd, yd]), fh
-
-
-def rk4_step(s: PlantState, fu, model: PlantModel, h) -> PlantState:
-    """One classical Runge-Kutta step of size ``h`` [s] with ``fu`` held constant."""
-
-    def f(state):
-        return plant_derivative(state, fu, model)
-
-    def axpy(a, k):
-        return jax.tree.map(lambda si, ki: si + a * ki, s, k)
-
-    k1 = f(s)
-    k2 = f(axpy(0.5 * h, k1))
-    k3 = f(axpy(0.5 * h, k2))
-    k4 = f(axpy(h, k3))
-    return jax.tree.map(lambda si, a, b, c, d: si + (h / 6.0) * (a + 2.0 * b + 2.0 * c + d), s, k1, k2, k3, k4)
-
-
-def rk4_step_rotating(s: PlantState, trig: Trig, fu, model: PlantModel, h, *, share=_sharer(None)):
-    """``rk4_step`` with the stage angles' ``cos/sin`` obtained by ``rotate`` from ``trig``
-    (the values at ``s``) instead of 16 transcendental calls; returns the new state and
-    its ``Trig``. Same method, same stages; differs from ``rk4_step`` only by round-off.
-
-    ``share`` (``_sharer`` for the ``"grad"`` kernel) marks the stage ``cos/sin``
-    (``"trig"``), the stage states (``"stage"``) and, through ``_dynamics``, the 2x2 solve
-    of every stage."""
-
-    def f(state, t):
-        return _dynamics(state, fu, model, Trig(*share("trig", *t)), share)[0]
-
-    def stage(a, k):
-        return PlantState(*share("stage", *(si + a * ki for si, ki in zip(s, k)))), rotate(trig, a * k.q1, a * k.q2)
-
-    k1 = f(s, trig)
-    k2 = f(*stage(0.5 * h, k1))
-    k3 = f(*stage(0.5 * h, k2))
-    k4 = f(*stage(h, k3))
-    incr = jax.tree.map(lambda a, b, c, d: (h / 6.0) * (a + 2.0 * b + 2.0 * c + d), k1, k2, k3, k4)
-    return jax.tree.map(jnp.add, s, incr), rotate(trig, incr.q1, incr.q2)
-
-
-KERNELS = ("fast", "reference", "grad")
-CHECKPOINTS = ("period", "substep")  # how the simulation checkpoints a period for reverse mode
-
-
-def integrate_period(
-    s: PlantState,
-    fu,
-    model: PlantModel,
-    *,
-    period: float,
-    substeps: int,
-    kernel: str = "fast",
-    checkpoint: str = "period",
-) -> PlantState:
-    """Advance ``s`` over one control period with ``substeps`` fixed RK4 steps (``lax.scan``).
-
-    ``kernel="reference"`` evaluates ``cos/sin`` at every RK4 stage (``rk4_step``);
-    ``"fast"`` evaluates them once per period and carries them through the substeps by
-    small-angle rotations (``rk4_step_rotating``), re-seeded exactly every period so the
-    rotation's round-off cannot accumulate beyond one period. ``"grad"`` is ``"fast"``
-    with the stage values shared (``_sharer``) and saved for reverse mode, which makes
-    ``jax.grad`` cheaper (``sweeps/bench_gradient.py``). All agree to round-off.
-
-    ``checkpoint`` says how the caller checkpoints the period (``Numerics``): under
-    ``"period"`` the ``"grad"`` kernel's substep checkpoint saves the shared stage values,
-    which the backward pass produces one period at a time; under ``"substep"`` (the
-    period not checkpointed, every substep's carry on the tape) it saves nothing else.
-    """
-    check_choice("kernel", kernel, KERNELS)
-    check_choice("checkpoint", checkpoint, CHECKPOINTS)
-    h = period / substeps
-    if kernel == "reference":
-        body = jax.checkpoint(lambda state, _: (rk4_step(state, fu, model, h), None), prevent_cse=False)
-        return jax.lax.scan(body, s, None, length=substeps)[0]
-    # Reverse mode keeps the substep carries (and, for "grad" under period checkpoints,
-    # the shared stage values). The runtime 1.0 comes from the state so that XLA cannot
-    # fold the divisions away.
-    share, policy = _sharer(None), None
-    if kernel == "grad":
-        share = _sharer(jax.lax.stop_gradient(1.0 + 0.0 * s.q1))
-        if checkpoint == "period":
-            policy = jax.checkpoint_policies.save_only_these_names(_SHARED)
-
-    @functools.partial(jax.checkpoint, prevent_cse=False, policy=policy)
-    def body(carry, _):
-        return rk4_step_rotating(*carry, fu, model, h, share=share), None
-
-    return jax.lax.scan(body, (s, trig_of(s)), None, length=substeps)[0][0]

@@ -1,6 +1,6 @@
 """The robot: a planar five-bar (parallelogram) linkage with direct-drive motors at its base.
 
-Spec ``MODEL.md`` section 3. ``Robot`` holds the link lengths, the three inertia
+docs/model.md section 2. ``Robot`` holds the link lengths, the three inertia
 constants and the base position; ``MIT_MANUS`` is the default. Joint coordinates
 ``q = (q1, q2)`` are the absolute angles [rad] of the shoulder and elbow links from
 world +x; positions are world-frame [m]. Functions are single-configuration (``q`` of
@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
@@ -22,11 +23,11 @@ from .._checks import as_param, check_range, is_concrete
 from .._pytree import params
 from .arm import arm_endpoint
 
-# MIT-MANUS / InMotion2 (spec section 13: public control code, constant regression terms).
+# MIT-MANUS / InMotion2 (docs/model.md section 15.1: public control code, constant regression terms).
 MIT_MANUS_SHOULDER_LINK = 0.4064  # L_s [m]
 MIT_MANUS_ELBOW_LINK = 0.51435  # L_e [m]
 MIT_MANUS_INERTIA = (0.391162880843, 0.226826719396, 0.227888039765)  # c1, c2, c3 [kg m^2]
-# The base sits 0.65 m behind the handle at the paper's arm location 1 (spec 3 and 13).
+# The base sits 0.65 m behind the handle at the paper's arm location 1 (docs/model.md sections 2 and 15.1).
 MIT_MANUS_BASE = arm_endpoint(math.radians(62.708), math.radians(77.260)) + np.array([0.0, 0.65])
 
 # An endpoint is refused when |sin(q1 - q2)| is below this: |det J| = L_s L_e |sin(q1 - q2)|,
@@ -61,9 +62,14 @@ class Robot:
         set_(self, "elbow_link", as_param("elbow_link [m]", self.elbow_link, (), where=w))
         set_(self, "inertia", as_param("inertia (c1, c2, c3) [kg m^2]", self.inertia, (3,), where=w))
         set_(self, "base", as_param("base [m]", self.base, (2,), where=w))
-        check_range("shoulder_link", self.shoulder_link, where=w, minimum=0.0, exclusive=True, unit=" m")
-        check_range("elbow_link", self.elbow_link, where=w, minimum=0.0, exclusive=True, unit=" m")
-        if is_concrete(self.inertia):
+        for name in ("shoulder_link", "elbow_link"):
+            set_(self, name, check_range(name, getattr(self, name), where=w, minimum=0.0, exclusive=True, unit=" m"))
+        if not is_concrete(self.inertia):
+            c1, c2, c3 = self.inertia[0], self.inertia[1], self.inertia[2]
+            bad = (c1 <= 0) | (c3 <= 0) | (c1 * c3 <= c2 * c2)
+            message = "Robot: inertia (c1, c2, c3) must give a positive definite M(q) (c1 > 0, c3 > 0, c1 c3 > c2^2)"
+            set_(self, "inertia", eqx.error_if(self.inertia, bad, message))
+        else:
             c1, c2, c3 = np.asarray(self.inertia)
             if not (c1 > 0 and c3 > 0 and c1 * c3 > c2 * c2):
                 raise ValueError(

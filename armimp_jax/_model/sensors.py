@@ -1,4 +1,4 @@
-"""Sensor models (spec section 6): force noise, encoder quantisation, velocity noise.
+"""Sensor models (docs/model.md section 8): force noise, encoder quantisation, velocity noise.
 
 Every option is off by default, and a trial with all options off computes no noise at
 all, so its results are bitwise those of ideal sensors. The noise of sample ``k`` is drawn
@@ -61,12 +61,16 @@ class Sensors:
             "velocity_noise",
             as_param("velocity_noise [rad/s]", self.velocity_noise, (2,), where=w, broadcast=True),
         )
-        check_range("force_noise", self.force_noise, where=w, minimum=0.0, unit=" N")
-        check_range("velocity_noise", self.velocity_noise, where=w, minimum=0.0, unit=" rad/s")
+        set_(self, "force_noise", check_range("force_noise", self.force_noise, where=w, minimum=0.0, unit=" N"))
+        set_(
+            self,
+            "velocity_noise",
+            check_range("velocity_noise", self.velocity_noise, where=w, minimum=0.0, unit=" rad/s"),
+        )
         counts = self.encoder_counts
         if counts is not None:
             counts = as_param("encoder_counts [counts/rev]", counts, (), where=w)
-            check_range("encoder_counts", counts, where=w, minimum=1.0, unit=" counts per revolution")
+            counts = check_range("encoder_counts", counts, where=w, minimum=1.0, unit=" counts per revolution")
         set_(self, "encoder_counts", counts)
         set_(self, "force_on", bool(self.force_on) or _active(self.force_noise))
         set_(self, "velocity_on", bool(self.velocity_on) or _active(self.velocity_noise))

@@ -1,7 +1,7 @@
 """Stiff friction: an additive (IMEX) Runge-Kutta step of the plant in momentum form.
 
 Why not classical RK4 everywhere: the bristle state relaxes at ``lambda = sigma0 |v| / g(v)``
-[1/s], which grows without bound as ``tau_c -> 0`` (spec section 4). Explicit RK4 is
+[1/s], which grows without bound as ``tau_c -> 0`` (docs/model.md section 4). Explicit RK4 is
 stable only while ``lambda h < 2.8``, so small Coulomb torques diverge at any affordable
 step. Two changes make every ``tau_c >= 0`` stable:
 
@@ -30,15 +30,17 @@ its cost against RK4 are measured by ``sweeps/bench_convergence.py``.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
-from typing import NamedTuple
+from typing import ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from .._model.friction import bristle_g_and_slope
-from .._model.plant import PlantModel, PlantState, Trig, coupled_inertia, displacement, rotate, trig_of
+from .._model.plant import PlantModel, PlantState, Trig, coupled_inertia, displacement, trig_of, trig_of_angles
 from .._model.robot import jacobian_from_trig, mass_matrix_entries
+from .common import check_checkpoint, check_kernel, rotate
 
 
 class Tableau(NamedTuple):
@@ -96,9 +98,8 @@ def _ark436() -> Tableau:
     return Tableau(explicit, implicit, g, b, (0.0, 0.5, 83 / 250, 31 / 50, 17 / 20, 1.0))
 
 
-ARK3 = _ark324()
-ARK4 = _ark436()
-TABLEAUS = {"ark3": ARK3, "ark4": ARK4}
+ARK324 = _ark324()
+ARK436 = _ark436()
 
 
 class _Frame(NamedTuple):
@@ -245,7 +246,7 @@ def from_momentum(m: MomentumState, model: PlantModel) -> PlantState:
     return PlantState(*m.q, *_velocity(_frame(m.trig, model), m.p, m.z, model), *m.z, *m.xi)
 
 
-def ark_step(m: MomentumState, fu, model: PlantModel, h, *, tableau: Tableau = ARK3, rotating: bool = True):
+def ark_step(m: MomentumState, fu, model: PlantModel, h, *, tableau: Tableau = ARK324, rotating: bool = True):
     """One additive Runge-Kutta step of size ``h`` [s] with ``fu`` [N] held. ``rotating``
     carries ``cos/sin`` through the stages by ``rotate`` (as the ``"fast"`` RK4 kernel
     does) instead of evaluating them."""
@@ -294,21 +295,69 @@ def ark_step(m: MomentumState, fu, model: PlantModel, h, *, tableau: Tableau = A
     return MomentumState(angles(dq), advance(m.p, tableau.b, 1), z, advance(m.xi, tableau.b, 2), trig)
 
 
-def trig_of_angles(q) -> Trig:
-    return Trig(jnp.cos(q[0]), jnp.sin(q[0]), jnp.cos(q[1]), jnp.sin(q[1]))
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class _ARK:
+    """An additive Runge-Kutta pair in momentum form, the bristles implicit (a static,
+    hashable value; see the module docstring). Stable for every ``tau_c >= 0``.
+
+    Args:
+        kernel: ``"fast"`` (default: ``cos/sin`` carried through the stages by ``rotate``,
+            as RK4's ``"fast"`` kernel does) or ``"reference"`` (evaluated at every stage).
+    """
+
+    kernel: str = "fast"
+
+    KERNELS: ClassVar[tuple[str, ...]] = ("fast", "reference")
+    method: ClassVar[str]
+    tableau: ClassVar[Tableau]
+
+    def __post_init__(self):
+        check_kernel(self)
+
+    def integrate_period(
+        self, s: PlantState, fu, model: PlantModel, *, period: float, substeps: int, checkpoint: str = "period"
+    ) -> PlantState:
+        """Advance ``s`` over one control period [s] with ``substeps`` ARK steps (``lax.scan``),
+        the command ``fu`` [N] ``(2,)`` held. Reverse mode keeps one carry per substep
+        whatever ``checkpoint`` (``"period"`` or ``"substep"``, as for ``RK4``).
+
+        The momentum form lives only within the period: the state enters and leaves as
+        ``PlantState``, so controllers and sensors see the same interface as under RK4."""
+        check_checkpoint(checkpoint)
+        h = period / substeps
+        tableau, rotating = self.tableau, self.kernel != "reference"
+
+        @functools.partial(jax.checkpoint, prevent_cse=False)
+        def body(m, _):
+            return ark_step(m, fu, model, h, tableau=tableau, rotating=rotating), None
+
+        return from_momentum(jax.lax.scan(body, to_momentum(s, model), None, length=substeps)[0], model)
 
 
-def integrate_period_imex(
-    s: PlantState, fu, model: PlantModel, *, period: float, substeps: int, method: str = "ark3", rotating: bool = True
-) -> PlantState:
-    """Advance ``s`` over one control period with ``substeps`` ARK steps (``lax.scan``).
+@jax.tree_util.register_static
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class ARK3(_ARK):
+    """Kennedy & Carpenter's ARK3(2)4L[2]SA (order 3, four stages, three implicit; the one
+    ``SWEEP_NUMERICS`` uses).
 
-    The momentum form lives only within the period: the state enters and leaves as
-    ``PlantState``, so controllers and sensors see the same interface as under RK4."""
-    h = period / substeps
+    Args:
+        kernel: ``"fast"`` (default: ``cos/sin`` carried through the stages by small-angle
+            rotations) or ``"reference"`` (evaluated at every stage); equal to round-off.
+    """
 
-    @functools.partial(jax.checkpoint, prevent_cse=False)
-    def body(m, _):
-        return ark_step(m, fu, model, h, tableau=TABLEAUS[method], rotating=rotating), None
+    method: ClassVar[str] = "ark3"
+    tableau: ClassVar[Tableau] = ARK324
 
-    return from_momentum(jax.lax.scan(body, to_momentum(s, model), None, length=substeps)[0], model)
+
+@jax.tree_util.register_static
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class ARK4(_ARK):
+    """Kennedy & Carpenter's ARK4(3)6L[2]SA (order 4, six stages, five implicit).
+
+    Args:
+        kernel: ``"fast"`` (default: ``cos/sin`` carried through the stages by small-angle
+            rotations) or ``"reference"`` (evaluated at every stage); equal to round-off.
+    """
+
+    method: ClassVar[str] = "ark4"
+    tableau: ClassVar[Tableau] = ARK436

@@ -21,16 +21,18 @@ weights) and scores them against the arm's (``true_matrices``); the report table
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import jax
 import numpy as np
-from scipy import stats
 
 from .._estimation.fit import fit_impedance
 from .._estimation.metrics import largest_singular_value
-from ..presets._paper import arm
+from ..presets import arm
+from ..study.stats import CI_LEVEL as CI_LEVEL
+from ..study.stats import mean_ci
 
 LOW_BAND_HZ = 2.0  # the paper's "below 1-2 Hz"
 
@@ -107,8 +109,9 @@ def true_matrices(location: int) -> dict:
     return dict(M=np.asarray(a.mass).tolist(), B=np.asarray(a.damping).tolist(), K=np.asarray(a.stiffness).tolist())
 
 
-def fit_metrics(f, Z, locations) -> list[dict]:
-    """``M, B, K`` fitted to each estimate of a batch (``fit_impedance``, uniform weights).
+def fit_metrics(f, Z, locations, *, acquisition: str = "instant") -> list[dict]:
+    """``M, B, K`` fitted to each estimate of a batch (``fit_impedance``, uniform weights,
+    the model of the trials' ``acquisition``: the sampled-data relation of instant samples).
 
     ``f`` ``(F,)`` [Hz], ``Z`` ``(T, F, 2, 2)`` [N/m], ``locations`` ``(T,)``. Per trial:
     ``fit_M``, ``fit_B``, ``fit_K`` ``(2, 2)``; ``fit_M_rel_error`` (and B, K): the relative
@@ -119,7 +122,8 @@ def fit_metrics(f, Z, locations) -> list[dict]:
     if Z.shape[0] == 0:
         return []
     finite = np.isfinite(Z).all(axis=(1, 2, 3))
-    fits = jax.vmap(fit_impedance, in_axes=(0, None))(np.where(finite[:, None, None, None], Z, 1.0), np.asarray(f))
+    fit = functools.partial(fit_impedance, acquisition=acquisition)
+    fits = jax.vmap(fit, in_axes=(0, None))(np.where(finite[:, None, None, None], Z, 1.0), np.asarray(f))
     out = []
     for i, loc in enumerate(locations):
         truth = true_matrices(int(loc))
@@ -135,26 +139,7 @@ def fit_metrics(f, Z, locations) -> list[dict]:
 
 
 # --- Seed statistics ----------------------------------------------------------------------
-CI_LEVEL = 0.95  # two-sided level of every interval in the report
-
-
-def mean_ci(values, level: float = CI_LEVEL):
-    """Mean, sample standard deviation and half-width of the t-interval of the mean of
-    ``values`` along axis 0 (elementwise for arrays; ``n - 1`` degrees of freedom).
-
-    Returns ``(mean, sd, half)``; ``half`` is ``None`` for fewer than two values (one seed
-    gives no interval), ``mean`` and ``sd`` are NaN for none.
-    """
-    v = np.asarray(values, dtype=float)
-    n = v.shape[0]
-    if n == 0:
-        nan = np.full(v.shape[1:], np.nan)
-        return nan, nan, None
-    mean = v.mean(axis=0)
-    if n == 1:
-        return mean, np.zeros_like(mean), None
-    sd = v.std(axis=0, ddof=1)
-    return mean, sd, stats.t.ppf(0.5 + level / 2, n - 1) * sd / np.sqrt(n)
+# CI_LEVEL and mean_ci are the study layer's (one level and one interval for every study)
 
 
 def _plain(x):
@@ -182,10 +167,8 @@ def condition_summary(metas: list[dict]) -> dict:
         good = [g for g in group if not g["diverged"]]
         agg: dict = {}
         for k in group[0]["metrics"]:
-            mean, sd, half = mean_ci(
-                [g["metrics"][k] for g in good] or np.empty((0,) + np.shape(group[0]["metrics"][k]))
-            )
-            agg[k], agg[k + "_sd"], agg[k + "_ci"] = _plain(mean), _plain(sd), _plain(half)
+            st = mean_ci([g["metrics"][k] for g in good] or np.empty((0,) + np.shape(group[0]["metrics"][k])))
+            agg[k], agg[k + "_sd"], agg[k + "_ci"] = _plain(st.mean), _plain(st.sd), _plain(st.half)
         agg |= dict(
             n=len(good),
             trials=len(group),
@@ -435,7 +418,21 @@ def _robustness(
         if p["ci_says"] != want:
             lo, hi = p["ci"]
             bad.append(f"95% CI of {p['label']} [{lo:.3g}, {hi:.3g}] {p['ci_says']} {p['op']} {p['threshold']:.3g}")
-    text += "; " + ("; ".join(bad) if bad else "every deciding 95% CI clears its threshold")
+    # say what the intervals confirm: that a rule holds, or fails, not merely that they are decisive
+    outcomes = {parts[i]["holds"] for i in judged.deciding}
+    if bad:
+        text += "; " + "; ".join(bad)
+    elif outcomes == {True}:
+        text += "; every deciding rule also holds on its 95% CI over the seeds"
+    elif outcomes == {False}:
+        text += "; every deciding rule also fails on its 95% CI over the seeds"
+    else:
+        n_fail = sum(not parts[i]["holds"] for i in judged.deciding)
+        n_hold = len(judged.deciding) - n_fail
+        fails, holds = ("fails" if n_fail == 1 else "fail"), ("holds" if n_hold == 1 else "hold")
+        text += (
+            f"; the 95% CIs over the seeds confirm every deciding rule's outcome: {n_fail} {fails}, {n_hold} {holds}"
+        )
     return text + skipped, agree == n and not bad
 
 
@@ -496,8 +493,8 @@ def evaluate_claims(summary: Mapping, per_seed: Mapping | None = None) -> list[C
         for i, p in enumerate(judged.parts):
             col = np.array([v[i] for v in values], dtype=float)
             col = col[np.isfinite(col)]
-            mean, _, half = mean_ci(col)
-            ci = None if half is None else [float(mean - half), float(mean + half)]
+            st = mean_ci(col)
+            ci = None if st.half is None else [float(st.mean - st.half), float(st.mean + st.half)]
             parts.append(
                 dict(
                     label=p.label,

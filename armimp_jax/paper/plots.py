@@ -1,14 +1,17 @@
 """Figures of a reproduction run, drawn from saved results only (so ``--replot`` needs no simulation).
 
-Counterparts of the paper's figures: Bode plots of true vs estimated ``Z_h`` per friction
-level (Figs. 2 and 7), multiple and partial coherences (Figs. 3 and 8), bar charts of
-``phi_T`` and ``phi_ij`` (Figs. 4 and 9), plus the acquisition ablation.
+Counterparts of the paper's figures: true vs estimated ``Z_h`` per friction level (Figs. 2
+and 7; magnitude, and phase error in place of the two phases), multiple and partial
+coherences (Figs. 3 and 8), bar charts of ``phi_T`` and ``phi_ij`` (Figs. 4 and 9), plus the
+acquisition ablation.
 
 Conventions, so that a figure can be read at a glance: bars start from zero on linear
 axes; with several seeds, curves are the mean over the seeds that did not diverge with a
 band, and bars carry error bars, both the 95% t-interval of the mean; with one seed there
-are neither. Phases are unwrapped along frequency (continuous), each estimate on the same
-branch as the true phase. IMBIC's figures carry PD as the reference; labels are words.
+are neither. Bode figures draw the phase as the estimate's phase error, bin by bin within
++-180 deg (over seeds, around their circular mean), broken where it crosses +-180 deg.
+Legends sit outside the axes, titles wrap to the figure's width. IMBIC's figures carry PD
+as the reference; labels are words.
 """
 
 from __future__ import annotations
@@ -23,7 +26,8 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
 from ..presets._paper import arm  # noqa: E402
-from .claims import mean_ci  # noqa: E402
+from ..study.figures import save_figure  # noqa: E402
+from ..study.stats import mean_ci  # noqa: E402
 
 FRICTION_COLORS = {0: "tab:blue", 1: "tab:orange", 2: "tab:red"}
 ELEMENTS = ((0, 0), (0, 1), (1, 0), (1, 1))
@@ -33,9 +37,7 @@ PD_STYLE = dict(hatch="//", edgecolor="0.25", alpha=0.55)  # PD drawn as the ref
 
 def _save(fig, path: pathlib.Path) -> pathlib.Path:
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def condition_label(cond: dict) -> str:
@@ -85,13 +87,39 @@ def _seed_arrays(results, arrays, *, experiment, location, perturbation, acquisi
     return dict(sorted(out.items()))
 
 
-def unwrapped_phase_deg(z, reference=None):
-    """Phase of ``z`` ``(F, ...)`` in degrees, unwrapped along frequency (axis 0); with
-    ``reference`` [deg], shifted by whole turns onto the reference's branch."""
-    ph = np.degrees(np.unwrap(np.angle(z), axis=0))
-    if reference is not None:
-        ph = ph - 360.0 * np.round(np.nanmean(ph - reference, axis=0) / 360.0)
-    return ph
+def wrap_deg(d):
+    """Angles [deg] wrapped into ``[-180, 180)``."""
+    return (np.asarray(d, dtype=float) + 180.0) % 360.0 - 180.0
+
+
+def phase_error_deg(z, truth):
+    """Phase errors [deg] of the estimates ``z`` ``(S, F)`` against the complex ``truth``
+    ``(F,)``, bin by bin: ``c + wrap(e_s - c)`` with ``e_s = angle(z_s / truth)`` and ``c``
+    their circular mean. One estimate gets exactly its phase error, within 180 deg of 0 (no
+    unwrapping, so whole turns picked up from noise never show as a 360 deg gap); several
+    stay together around their circular mean, which the branch edge does not split."""
+    err = np.degrees(np.angle(np.atleast_2d(z) / truth))
+    c = np.degrees(np.angle(np.exp(1j * np.radians(err)).sum(axis=0)))
+    return c + wrap_deg(err - c)
+
+
+def _break_jumps(f, samples, limit: float = 180.0):
+    """``(f, samples)`` with a NaN bin inserted wherever the mean of ``samples`` ``(S, F)``
+    jumps by more than ``limit`` between neighbouring bins: a phase error crossing +-180 deg
+    is drawn broken, not as a vertical stroke across the panel."""
+    cut = np.flatnonzero(np.abs(np.diff(samples.mean(axis=0))) > limit)
+    if cut.size == 0:
+        return f, samples
+    return np.insert(f, cut + 1, (f[cut] + f[cut + 1]) / 2), np.insert(samples, cut + 1, np.nan, axis=1)
+
+
+def _legend_outside(ax, handles=None, labels=None, **kw):
+    """A legend to the right of ``ax``, outside every plotting area (``tight_layout`` makes room)."""
+    if handles is None:
+        handles, labels = ax.get_legend_handles_labels()
+    if labels is None:
+        labels = [h.get_label() for h in handles]
+    return ax.legend(handles, labels, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize=8, **kw)
 
 
 def _line(ax, x, samples, *, color, label, ls="-", lw=1.4, log=False, clip=(-np.inf, np.inf)):
@@ -112,8 +140,9 @@ def _line(ax, x, samples, *, color, label, ls="-", lw=1.4, log=False, clip=(-np.
 
 
 def bode_figure(results, arrays, path: pathlib.Path, *, experiment: str, location: int = 1, perturbation: int = 1):
-    """True vs estimated magnitude and (unwrapped) phase of the four elements of ``Z_h``, per
-    friction level; IMBIC's figure adds PD at the highest friction level as the reference."""
+    """True vs estimated magnitude of the four elements of ``Z_h`` (top) and the estimates'
+    phase error (bottom, ``phase_error_deg``: 0 is the true phase), per friction level;
+    IMBIC's figure adds PD at the highest friction level as the reference."""
     picked = _seed_arrays(results, arrays, experiment=experiment, location=location, perturbation=perturbation)
     if not picked:
         return None
@@ -123,39 +152,36 @@ def bode_figure(results, arrays, path: pathlib.Path, *, experiment: str, locatio
         pd = {fr: a for fr, a in pd.items() if fr > 0}
         if pd:
             refs = dict([max(pd.items())])
-    fig, axes = plt.subplots(2, 4, figsize=(15, 6.8), sharex=True)
+    fig, axes = plt.subplots(2, 4, figsize=(17, 7.2), sharex=True)
     f = picked[next(iter(picked))][0]["f"]
     zt = np.asarray(arm(location).impedance(f))
-    phase_t = unwrapped_phase_deg(zt)
     ns = []
     for col, (i, j) in enumerate(ELEMENTS):
         axes[0, col].loglog(f, np.abs(zt[:, i, j]), "k--", lw=2, label=f"true $Z_h$, location {location}")
-        axes[1, col].semilogx(f, phase_t[:, i, j], "k--", lw=2)
+        axes[1, col].semilogx(f, np.zeros_like(f), "k--", lw=2)
         curves = [(fr, runs, "-", f"{NAMES[experiment]}, friction {fr}") for fr, runs in picked.items()]
         curves += [(fr, runs, ":", f"PD, friction {fr}, location 1 (reference)") for fr, runs in refs.items()]
-        means = [phase_t[:, i, j]]
         for fr, runs, ls, label in curves:
             ref_f = runs[0]["f"]
             if ref_f.shape != f.shape or not np.allclose(ref_f, f):
                 continue
             z = np.stack([a["Z"][:, i, j] for a in runs])
-            ph = np.stack([unwrapped_phase_deg(zz, phase_t[:, i, j]) for zz in z])
+            f_ph, err = _break_jumps(f, phase_error_deg(z, zt[:, i, j]))
             color = FRICTION_COLORS.get(fr, "0.3")
             ns.append(_line(axes[0, col], f, np.abs(z), color=color, label=label, ls=ls, log=True)[0])
-            means.append(_line(axes[1, col], f, ph, color=color, label=None, ls=ls)[1])
-        # the phase axis spans the curves, not the (possibly much wider) bands of few seeds
-        lo, hi = np.nanmin(means), np.nanmax(means)
-        axes[1, col].set_ylim(lo - 0.1 * (hi - lo) - 10, hi + 0.1 * (hi - lo) + 10)
+            _line(axes[1, col], f_ph, err, color=color, label=None, ls=ls)
+        axes[1, col].set_ylim(-180, 180)
+        axes[1, col].set_yticks(np.arange(-180, 181, 90))
         axes[0, col].set_title(f"$Z_{{{i + 1}{j + 1}}}$")
         axes[1, col].set_xlabel("frequency [Hz]")
         axes[0, col].grid(alpha=0.3)
         axes[1, col].grid(alpha=0.3)
     axes[0, 0].set_ylabel("magnitude [N/m]")
-    axes[1, 0].set_ylabel("phase [deg], unwrapped")
-    axes[0, 0].legend(fontsize=8)
+    axes[1, 0].set_ylabel("phase error [deg]\n(estimate - truth; 0: exact)")
+    _legend_outside(axes[0, -1], *axes[0, 0].get_legend_handles_labels())
     fig.suptitle(
-        f"{NAMES[experiment]}: true vs estimated arm impedance, location {location}, perturbation {perturbation} "
-        f"({_spread_note(ns)})"
+        f"{NAMES[experiment]}: true vs estimated arm impedance, location {location}, perturbation {perturbation}: "
+        f"magnitude (top) and phase error (bottom)\n({_spread_note(ns)})"
     )
     return _save(fig, path)
 
@@ -204,7 +230,7 @@ def coherence_figure(results, arrays, path: pathlib.Path, *, experiment: str, lo
         if pd:
             fr, runs = max(pd.items())
             curves.append((fr, runs, ":", f"PD, friction {fr}, location 1 (reference)"))
-    fig, axes = plt.subplots(2, 3, figsize=(13, 6.8), sharex=True, sharey=True)
+    fig, axes = plt.subplots(2, 3, figsize=(15, 7.4), sharex=True, sharey=True)
     ns = []
     for fr, runs, ls, label in curves:
         f = runs[0]["f"]
@@ -230,11 +256,11 @@ def coherence_figure(results, arrays, path: pathlib.Path, *, experiment: str, lo
         ax.grid(alpha=0.3)
     for ax in axes[1]:
         ax.set_xlabel("frequency [Hz]")
-    axes[0, 0].legend(fontsize=8, loc="lower right")
+    _legend_outside(axes[0, -1], *axes[0, 0].get_legend_handles_labels())
     where = f"location {location}, perturbation {perturbation}"
     if chosen and np.isfinite(w_value):
         where += (
-            f": the run's lowest minimum multiple coherence (friction {w_fr}: {w_value:.2f}, mean of the seeds' minima)"
+            f"\nthe run's lowest minimum multiple coherence (friction {w_fr}: {w_value:.2f}, mean of the seeds' minima)"
         )
     fig.suptitle(f"{NAMES[experiment]}: coherence of the position estimate at {where}\n({_spread_note(ns)})")
     return _save(fig, path)
@@ -326,7 +352,7 @@ def phi_bars(results, path: pathlib.Path, *, experiment: str):
         return None  # no condition of the experiment has numbers (all diverged or absent)
     per_seed = _seed_metric(results)
     panels = [("$\\phi_T$", None)] + [(f"$\\phi_{{{i + 1}{j + 1}}}$", (i, j)) for i, j in ELEMENTS]
-    fig, axes = plt.subplots(2, len(panels), figsize=(19, 7.5))
+    fig, axes = plt.subplots(2, len(panels), figsize=(21, 8))
     width = 0.8 / len(frictions)
     x = np.arange(len(groups))
     ns = []
@@ -376,9 +402,9 @@ def phi_bars(results, path: pathlib.Path, *, experiment: str):
     handles, _ = axes[0, 0].get_legend_handles_labels()
     if experiment != "pd" and groups[0][1][0] == "pd":
         handles.append(Patch(facecolor="white", label="PD, location 1 (reference)", **PD_STYLE))
-    axes[0, 0].legend(handles=handles, fontsize=8)
+    _legend_outside(axes[0, -1], handles)
     where = "PD, location 1" if experiment == "pd" else "IMBIC, perturbation 1, next to PD (hatched, location 1)"
-    fig.suptitle(f"{where}: error of the impedance estimate, lower is better ({_spread_note(ns, 'error bars')})")
+    fig.suptitle(f"{where}: error of the impedance estimate, lower is better\n({_spread_note(ns, 'error bars')})")
     return _save(fig, path)
 
 
@@ -401,11 +427,11 @@ def ablation_figure(results, path: pathlib.Path):
     if not rows:
         return None
     rows.sort(key=lambda r: (r[1]["condition"]["experiment"] != "pd", r[0]))
-    fig, ax = plt.subplots(figsize=(10, 1.5 + 0.32 * len(rows)))
+    fig, ax = plt.subplots(figsize=(12, 1.5 + 0.32 * len(rows)))
     y = np.arange(len(rows))[::-1]
     ns = []
     for offset, idx, label, color in (
-        (0.2, 1, "instant samples (paper)", "tab:gray"),
+        (0.2, 1, "instant samples (the reproduction)", "tab:gray"),
         (-0.2, 2, "interval mean (anti-aliased)", "tab:green"),
     ):
         vals = [r[idx]["phi_T"] for r in rows]
@@ -417,7 +443,7 @@ def ablation_figure(results, path: pathlib.Path):
     ax.set_xlim(left=0)
     ax.set_xlabel("$\\phi_T$ [N/m] (lower is better)")
     ax.grid(alpha=0.3, axis="x")
-    ax.legend(fontsize=8, loc="lower right")
+    _legend_outside(ax)
     ax.set_title(
         f"Ablation: how much of the error is the sampling of the force signal\n({_spread_note(ns, 'error bars')})"
     )

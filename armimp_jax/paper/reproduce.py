@@ -1,6 +1,6 @@
 """Run the paper reproduction: batched trials, checked per-trial records, resume, aggregation.
 
-A run folder holds one run (``docs/results.md``):
+A run folder holds one run (``study.runfolder``, ``docs/results.md``):
 
 - ``run.json``: the run's settings (``ReproSettings``, the condition set included, and the
   package version), their key, the library versions and the accumulated wall time.
@@ -10,6 +10,9 @@ A run folder holds one run (``docs/results.md``):
   ``mhat`` for IMBIC) with their key.
 - ``results.json`` / ``results.npz``: the aggregate, from which the report and figures are
   drawn (``load_results`` checks that the two belong together).
+- ``conditions.csv``, ``claims.csv``, ``fits.csv`` (and ``.parquet``): the aggregate's tidy
+  tables, also as pandas DataFrames from ``load_tables`` (``conditions_frame``,
+  ``claims_frame``, ``fits_frame``).
 
 ``run_reproduction`` refuses a folder that holds a run with other settings, takes the
 folder's lock (``RunLock``) for as long as it runs, and simulates every trial whose record
@@ -18,8 +21,9 @@ a warning and recomputed), in vmapped, sharded batches grouped by the static set
 (controller, acquisition). It writes each trial as soon as its batch finishes, atomically,
 so an interrupted run keeps every finished batch and a later call computes only the rest.
 
-Seeds: trial seed ``s`` draws its perturbation from ``fold_in(PRNGKey(base_seed), s)``
-(and further attempts, if input coherence is capped); every condition sees the same
+Seeds (``study.seeds``): trial seed ``s`` draws its perturbation from
+``fold_in(PRNGKey(base_seed), s)`` (attempt ``a > 0``, if input coherence is capped, from
+that key folded with ``a``); every condition sees the same
 signal shape for the same seed (common random numbers), scaled to its level's peak.
 Diverged trials are saved and counted, and left out of every mean and claim.
 
@@ -33,35 +37,38 @@ every process computes its shards of every batch, and only process 0 writes.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
+import pathlib
 import platform
-import sys
 import time
 from collections.abc import Callable
 
 import jax
 import numpy as np
+import pandas as pd
 
 from .._batch import Welch, assess_batch, make_mesh, simulate_batch
 from .._estimation.welch import input_coherence
-from .._model.perturbation import perturbation
 from .._simulate import stack_trials
 from .._solver.numerics import Numerics
-from ..presets._paper import perturbation_peak, trial
+from ..presets import perturbation_peak, trial
 from ..study import distributed
 from ..study.results import (
     ResultsError,
-    RunLock,
     atomic_write_json,
-    describe_difference,
     load_record,
+    package_version,
     read_json,
     save_record,
     settings_key,
     stamped,
     to_jsonable,
 )
+from ..study.runfolder import RunFolder, warn_stderr
+from ..study.runfolder import open_run as _open_run
+from ..study.runfolder import trial_status as _record_status
+from ..study.seeds import seed_perturbation
+from ..study.tables import INTEGER, STRING, table, write_table
 from .claims import (
     Condition,
     condition_summary,
@@ -76,6 +83,7 @@ from .claims import (
 
 ESTIMATE_FIELDS = ("f", "Z", "coh_multiple_x", "coh_partial_x", "coh_multiple_fh", "coh_partial_fh", "coh_inputs")
 DEFAULT_SEEDS = 3  # seeds per condition: the README's main command within ~3 minutes on 2 cores
+RUN_KIND = "reproduction"
 RUN_FORMAT = 2  # run.json layout (1: settings without a key, trials as .json/.npz pairs)
 LEVELS = dict(location=(1, 2, 3, 4), friction=(0, 1, 2), perturbation=(1, 2, 3))
 
@@ -177,7 +185,7 @@ class ReproSettings:
             seed=int(seed),
             base_seed=self.base_seed,
             seconds=self.seconds,
-            numerics=dataclasses.asdict(self.numerics),
+            numerics=self.numerics.settings(),
             welch=self.welch._asdict(),
             max_input_coherence=self.max_input_coherence,
         )
@@ -190,12 +198,14 @@ QUICK = ReproSettings(seconds=6.0, substeps=10, nperseg=1024, noverlap=768)
 
 
 def draw_perturbations(settings: ReproSettings, seed: int, levels) -> tuple[dict, float, int]:
-    """Perturbations of one seed for each level, the input coherence and the attempt used."""
-    base = jax.random.fold_in(jax.random.PRNGKey(settings.base_seed), seed)
+    """Perturbations of one seed for each level, the input coherence and the attempt used
+    (``study.seeds``: attempt ``a > 0`` redraws from the seed's key folded with ``a``)."""
     w = settings.welch
     for attempt in range(100):
-        key = base if attempt == 0 else jax.random.fold_in(base, attempt)
-        sig = {lv: np.asarray(perturbation(key, settings.n_samples, perturbation_peak(lv))) for lv in levels}
+        sig = {
+            lv: seed_perturbation(settings.base_seed, seed, settings.n_samples, perturbation_peak(lv), redraw=attempt)
+            for lv in levels
+        }
         coh = float(input_coherence(sig[levels[0]], fs=w.fs, nperseg=w.nperseg, noverlap=w.noverlap, fmax=w.fmax))
         if settings.max_input_coherence is None or coh < settings.max_input_coherence:
             return sig, coh, attempt
@@ -209,14 +219,13 @@ def versions() -> dict:
     import matplotlib
     import scipy
 
-    from .. import __version__
-
     return dict(
-        armimp_jax=__version__,
+        armimp_jax=package_version(),
         jax=jax.__version__,
         jaxlib=jaxlib.__version__,
         numpy=np.__version__,
         scipy=scipy.__version__,
+        pandas=pd.__version__,
         matplotlib=matplotlib.__version__,
         python=platform.python_version(),
         backend=jax.default_backend(),
@@ -224,29 +233,18 @@ def versions() -> dict:
     )
 
 
-def _warn_stderr(message: str) -> None:
-    sys.stderr.write(f"warning: {message}\n")
-
-
 def trial_path(out, cond: Condition, seed: int):
     return out / "trials" / f"{trial_id(cond, seed)}.npz"
 
 
+def run_folder(out) -> RunFolder:
+    """The run folder ``out`` of a reproduction (``study.runfolder``)."""
+    return RunFolder(out, kind=RUN_KIND, format=RUN_FORMAT, noun="run")
+
+
 def read_run(out) -> dict:
     """``run.json`` of the run in ``out``, checked (``ResultsError`` naming what is wrong)."""
-    run_file = out / "run.json"
-    if not out.is_dir():
-        raise ResultsError(f"{out}: no such folder")
-    if not run_file.exists():
-        raise ResultsError(f"{out} holds no run (no run.json)")
-    run = read_json(run_file)
-    if not isinstance(run, dict) or run.get("format") != RUN_FORMAT or "key" not in run:
-        raise ResultsError(
-            f"{run_file}: written by an older armimp_jax (no settings key): use another output folder, or delete it"
-        )
-    if settings_key(run["settings"]) != run["key"]:
-        raise ResultsError(f"{run_file}: its settings were edited after the run (key mismatch)")
-    return run
+    return run_folder(out).read()
 
 
 def saved_settings(out) -> ReproSettings:
@@ -254,80 +252,46 @@ def saved_settings(out) -> ReproSettings:
     return ReproSettings.from_saved(read_run(out)["settings"], where=str(out / "run.json"))
 
 
+def check_resume(out, saved: ReproSettings, wanted: ReproSettings) -> None:
+    """Refuse (one line) options given with ``--resume out`` that change the run there."""
+    run_folder(out).check_resume(saved.run_settings(), wanted.run_settings())
+
+
 def prepare_output(out, settings: ReproSettings, *, resume: bool) -> None:
     """Make ``out`` ready for a run with ``settings``: create it, check it is writable, and
-    write ``run.json`` unless it is there.
+    write ``run.json`` (with the library versions and ``wall_s``) unless it is there.
 
     A folder that holds a run with other settings is refused with one line naming the
     differences (its trials would not match); so is ``resume`` on a folder with no run.
     """
-    run_file = out / "run.json"
-    if resume and not run_file.exists():
-        raise ResultsError(f"{out} holds no run to resume (no run.json)")
-    try:
-        (out / "trials").mkdir(parents=True, exist_ok=True)
-        probe = out / f".write-test-{time.time_ns()}"
-        probe.write_text("ok")
-        probe.unlink()
-    except OSError as err:
-        raise ResultsError(f"output folder {out} is not writable: {err}") from None
-    wanted = settings.run_settings()
-    if run_file.exists():
-        run = read_run(out)
-        if run["key"] != settings_key(wanted):
-            raise ResultsError(
-                f"{out} holds a run with {describe_difference(run['settings'], wanted)}: use another output folder "
-                f"(--out), or resume that run with its own settings (--resume {out})"
-            )
-        return
-    atomic_write_json(
-        run_file, dict(format=RUN_FORMAT, settings=wanted, key=settings_key(wanted), versions=versions(), wall_s=0.0)
-    )
+    run_folder(out).prepare(settings.run_settings(), resume=resume, extra=dict(versions=versions(), wall_s=0.0))
 
 
 def add_wall_time(out, seconds: float) -> None:
     """Add ``seconds`` of computing to the run's ``wall_s`` in ``run.json``."""
-    run = read_run(out)
-    run["wall_s"] = (run.get("wall_s") or 0.0) + seconds
-    atomic_write_json(out / "run.json", run)
+    folder = run_folder(out)
+    folder.update(wall_s=(folder.read().get("wall_s") or 0.0) + seconds)
 
 
-def trial_status(settings: ReproSettings, out, *, warn: Callable[[str], None] = _warn_stderr) -> tuple[list, list]:
+def _trials(settings: ReproSettings, out) -> list:
+    """``((Condition, seed), record path, trial settings)`` of every trial, in run order."""
+    return [
+        ((c, s), trial_path(out, c, s), settings.trial_settings(c, s))
+        for c in settings.conditions
+        for s in range(settings.seeds)
+    ]
+
+
+def trial_status(settings: ReproSettings, out, *, warn: Callable[[str], None] = warn_stderr) -> tuple[list, list]:
     """``(done, todo)`` lists of ``(Condition, seed)``: a trial is done when its record
     passes its check under ``settings``; any other existing record is named in a warning."""
-    done, todo = [], []
-    for c in settings.conditions:
-        for s in range(settings.seeds):
-            path = trial_path(out, c, s)
-            if path.exists():
-                try:
-                    load_record(path, settings=settings.trial_settings(c, s))
-                    done.append((c, s))
-                    continue
-                except ResultsError as err:
-                    warn(f"{err}; recomputing it")
-            todo.append((c, s))
-    return done, todo
+    records, todo = _record_status(_trials(settings, out), warn=warn)
+    return list(records), todo
 
 
-def _share_start(settings: ReproSettings, status, error) -> tuple[list, list]:
-    """``(done, todo)`` of process 0 in every process (``distributed.share_start``)."""
-    if not distributed.is_distributed():
-        if error is not None:
-            raise error
-        return status
-    order = [(c, s) for c in settings.conditions for s in range(settings.seeds)]
-    todo = distributed.share_start(
-        settings_key(settings.run_settings()), order, status[1] if status is not None else None, error
-    )
-    wanted = set(todo)
-    return [cs for cs in order if cs not in wanted], todo
-
-
-@contextlib.contextmanager
-def open_run(settings: ReproSettings, out, *, resume: bool = False, warn: Callable[[str], None] = _warn_stderr):
+def open_run(settings: ReproSettings, out, *, resume: bool = False, warn: Callable[[str], None] = warn_stderr):
     """Context manager that starts (or resumes) the run of ``settings`` in ``out`` and yields
-    ``(done, todo)`` lists of ``(Condition, seed)`` (``trial_status``).
+    ``(done, todo)`` lists of ``(Condition, seed)`` (``study.runfolder.open_run``).
 
     The writing process (``distributed.is_writer()``: process 0, or the only one) holds
     ``out``'s ``RunLock`` until the block ends and calls ``prepare_output`` (a folder holding
@@ -336,16 +300,10 @@ def open_run(settings: ReproSettings, out, *, resume: bool = False, warn: Callab
     batches in the same order, and a refusal is raised in every process.
     """
     settings.validate()
-    with contextlib.ExitStack() as stack:
-        status = error = None
-        if distributed.is_writer():
-            try:
-                stack.enter_context(RunLock(out))
-                prepare_output(out, settings, resume=resume)
-                status = trial_status(settings, out, warn=warn)
-            except Exception as err:  # shared with the other processes, then raised
-                error = err
-        yield _share_start(settings, status, error)
+    extra = dict(versions=versions(), wall_s=0.0)
+    return _open_run(
+        run_folder(out), settings.run_settings(), _trials(settings, out), resume=resume, extra=extra, warn=warn
+    )
 
 
 def run_reproduction(
@@ -356,7 +314,7 @@ def run_reproduction(
     chunk_seconds: float = 5.0,
     progress: Callable[[dict], None] | None = None,
     stop_after_batches: int | None = None,
-    warn: Callable[[str], None] = _warn_stderr,
+    warn: Callable[[str], None] = warn_stderr,
 ) -> list[str]:
     """Simulate, estimate and score every trial of ``settings`` that has no valid record in
     ``out``; returns the ids computed now.
@@ -456,48 +414,40 @@ def _compute(settings, out, todo, batch_size, chunk_seconds, progress, stop_afte
 
 
 def load_trials(
-    out, settings: ReproSettings, *, warn: Callable[[str], None] = _warn_stderr
+    out, settings: ReproSettings, *, warn: Callable[[str], None] = warn_stderr
 ) -> tuple[list[dict], dict, list[str]]:
     """The run's trials that pass their check: metadata list, ``{id: arrays}``, and the ids
     of the trials that are missing or failed (the latter named in a warning)."""
-    metas, arrays, missing = [], {}, []
-    for c in settings.conditions:
-        for s in range(settings.seeds):
-            path, tid = trial_path(out, c, s), trial_id(c, s)
-            try:
-                rec = load_record(path, settings=settings.trial_settings(c, s))
-            except ResultsError as err:
-                if path.exists():
-                    warn(f"{err}; left out")
-                missing.append(tid)
-                continue
-            metas.append(rec.meta)
-            arrays[tid] = rec.arrays
-    return metas, arrays, missing
+    records, missing = _record_status(_trials(settings, out), warn=warn, note="left out")
+    metas = [rec.meta for rec in records.values()]
+    arrays = {rec.meta["id"]: rec.arrays for rec in records.values()}
+    return metas, arrays, [trial_id(c, s) for c, s in missing]
 
 
 def add_fits(metas: list[dict], arrays: dict) -> None:
     """Add the fitted ``M, B, K`` of each trial (``claims.fit_metrics``, from its stored ``f``
     and ``Z``) to its ``metrics``, in place. Done when aggregating, so that every record,
     older ones included, gets the same fit, and the records stay as they were written."""
-    groups: dict[bytes, list] = {}
+    groups: dict[tuple, list] = {}
     for m in metas:
-        groups.setdefault(np.asarray(arrays[m["id"]]["f"]).tobytes(), []).append(m)
-    for group in groups.values():
-        z = np.stack([arrays[m["id"]]["Z"] for m in group])
-        fits = fit_metrics(arrays[group[0]["id"]]["f"], z, [m["condition"]["location"] for m in group])
+        groups.setdefault((np.asarray(arrays[m["id"]]["f"]).tobytes(), m["condition"]["acquisition"]), []).append(m)
+    for (_, acquisition), group in groups.items():
+        z, locs = np.stack([arrays[m["id"]]["Z"] for m in group]), [m["condition"]["location"] for m in group]
+        fits = fit_metrics(arrays[group[0]["id"]]["f"], z, locs, acquisition=acquisition)
         for m, fit in zip(group, fits):
             m["metrics"] = m["metrics"] | fit
 
 
-def aggregate(out, *, warn: Callable[[str], None] = _warn_stderr) -> tuple[dict, dict]:
-    """Write ``results.json`` and ``results.npz`` from the run's valid trial records; return
-    the results dict and the per-trial arrays (as ``load_results`` would read them back).
+def aggregate(out, *, warn: Callable[[str], None] = warn_stderr) -> tuple[dict, dict]:
+    """Write ``results.json`` and ``results.npz`` from the run's valid trial records, and the
+    tables ``conditions.csv``, ``claims.csv`` and ``fits.csv`` (``result_tables``; also as
+    ``.parquet`` when ``pyarrow`` is importable); return the results dict and the per-trial
+    arrays (as ``load_results`` would read them back).
 
     ``complete`` is true when every trial of the run's condition set and seeds is there;
     ``diverged`` lists the trials left out of the means and claims.
     """
-    with RunLock(out):
+    with run_folder(out).lock():
         run = read_run(out)
         settings = ReproSettings.from_saved(run["settings"], where=str(out / "run.json"))
         metas, arrays, missing = load_trials(out, settings, warn=warn)
@@ -529,6 +479,8 @@ def aggregate(out, *, warn: Callable[[str], None] = _warn_stderr) -> tuple[dict,
         if ids:
             stacked |= {name: np.stack([arrays[i][name] for i in ids]) for name in ESTIMATE_FIELDS}
         save_record(out / "results.npz", settings=run["settings"], arrays=stacked)
+        for name, frame in result_tables(results).items():
+            write_table(frame, out / f"{name}.csv")
     return results, arrays
 
 
@@ -548,3 +500,101 @@ def load_results(out) -> tuple[dict, dict]:
         raise ResultsError(f"{out / 'results.npz'}: holds other trials than results.json")
     arrays = {tid: {k: rec.arrays[k][j] for k in ESTIMATE_FIELDS if k in rec.arrays} for j, tid in enumerate(ids)}
     return results, arrays
+
+
+# --- tables -------------------------------------------------------------------------------
+
+CONDITION_DTYPES = (
+    dict(label=STRING, experiment=STRING, controller=STRING)
+    | dict.fromkeys(("location", "friction", "perturbation", "n", "trials", "diverged"), INTEGER)
+    | dict(acquisition=STRING)
+)
+FIT_DTYPES = CONDITION_DTYPES | dict(matrix=STRING, element=STRING, unit=STRING)
+CLAIM_DTYPES = dict(key=STRING, verdict=STRING, robust="boolean", seeds=INTEGER)
+CLAIM_DTYPES |= dict.fromkeys(("robustness", "ours", "claim", "rule", "left_out"), STRING)
+_ELEMENTS = ("11", "12", "21", "22")  # (2, 2) matrices as rows or columns, [output, input], row-major
+_FIT_UNITS = dict(M="kg", B="N s/m", K="N/m")
+
+
+def _stats(prefix: str, mean, sd, half) -> dict:
+    """``<prefix>_mean``, ``_sd``, ``_ci_lo``, ``_ci_hi`` of one number (``None``: undefined)."""
+    nan = float("nan")
+    mean, sd = (nan if v is None else v for v in (mean, sd))
+    lo, hi = (nan, nan) if half is None else (mean - half, mean + half)
+    return {f"{prefix}_mean": mean, f"{prefix}_sd": sd, f"{prefix}_ci_lo": lo, f"{prefix}_ci_hi": hi}
+
+
+def _cells(value) -> list:
+    """A (2, 2) list of a condition's means (``None`` where undefined) as four numbers."""
+    return [None] * 4 if value is None else np.asarray(value, dtype=float).reshape(-1).tolist()
+
+
+def _condition(entry: dict) -> dict:
+    c = entry["condition"]
+    return dict(label=Condition(**c).label, **c, n=entry["n"], trials=entry["trials"], diverged=entry["diverged"])
+
+
+def conditions_frame(results: dict) -> pd.DataFrame:
+    """One row per condition of ``results`` (``aggregate``'s): its fields and label, ``n``
+    (trials that did not diverge), ``trials``, ``diverged``, and for every scalar metric
+    (``phi_ij`` as ``phi_11`` .. ``phi_22``) ``<m>_mean``, ``<m>_sd`` and the 95% t-interval
+    ``<m>_ci_lo``, ``<m>_ci_hi`` over the seeds (NaN where undefined). The fitted matrices
+    are in ``fits_frame``."""
+    rows = []
+    for entry in results["conditions"]:
+        row = _condition(entry)
+        for m in (k for k in entry if k + "_sd" in entry and k + "_ci" in entry):
+            if m == "phi_ij":
+                cells = zip(_ELEMENTS, *(_cells(entry[m + s]) for s in ("", "_sd", "_ci")), strict=True)
+                for e, mean, sd, half in cells:
+                    row |= _stats(f"phi_{e}", mean, sd, half)
+            elif not isinstance(entry[m], list):
+                row |= _stats(m, entry[m], entry[m + "_sd"], entry[m + "_ci"])
+        rows.append(row)
+    return table(rows, CONDITION_DTYPES)
+
+
+def fits_frame(results: dict) -> pd.DataFrame:
+    """The fitted ``M``, ``B``, ``K`` of ``results`` (``aggregate``'s) in long form: one row
+    per condition, matrix and element (``11``: [output x, input x]), with the arm's true
+    value, the mean fit over the seeds with its standard deviation and 95% t-interval, the
+    matrix's mean relative error ``||fit - true||_F / ||true||_F`` and the fit's mean overall
+    VAF [%]. Results written before the fit existed give no rows."""
+    rows = []
+    for entry in results["conditions"]:
+        if "truth" not in entry or "fit_M" not in entry:
+            continue
+        for sym, unit in _FIT_UNITS.items():
+            key = f"fit_{sym}"
+            cells = zip(_ELEMENTS, _cells(entry["truth"][sym]), *(_cells(entry[key + s]) for s in ("", "_sd", "_ci")))
+            for e, true, mean, sd, half in cells:
+                row = _condition(entry) | dict(matrix=sym, element=e, unit=unit, true=true)
+                row |= {k.replace("fit_", "", 1): v for k, v in _stats("fit", mean, sd, half).items()}
+                row |= dict(rel_error=entry[key + "_rel_error"], vaf=entry.get("fit_vaf"))
+                rows.append(row)
+    return table(rows, FIT_DTYPES, columns=None if rows else list(FIT_DTYPES))
+
+
+def claims_frame(results: dict) -> pd.DataFrame:
+    """The claims (a)-(f) of ``results`` (``aggregate``'s), one row each: ``verdict`` (from the
+    condition means), ``robust`` (``<NA>`` under two seeds), ``seeds`` judged alone, the
+    ``robustness`` and ``ours`` texts, the paper's ``claim``, the ``rule``, and the conditions
+    ``left_out`` (every trial diverged; joined by "; "; ``<NA>``: none)."""
+    rows = [
+        {k: c[k] for k in ("key", "verdict", "robust", "seeds", "robustness", "ours", "claim", "rule")}
+        | dict(left_out="; ".join(c["left_out"]) or None)
+        for c in results["claims"]
+    ]
+    return table(rows, CLAIM_DTYPES, columns=list(CLAIM_DTYPES))
+
+
+def result_tables(results: dict) -> dict[str, pd.DataFrame]:
+    """``{"conditions": conditions_frame, "claims": claims_frame, "fits": fits_frame}`` of
+    ``results``: the reproduction's tidy tables."""
+    return dict(conditions=conditions_frame(results), claims=claims_frame(results), fits=fits_frame(results))
+
+
+def load_tables(out) -> dict[str, pd.DataFrame]:
+    """The tidy tables (``result_tables``) of the aggregated run in folder ``out``, from its
+    checked ``results.json`` and ``results.npz`` (``load_results``)."""
+    return result_tables(load_results(pathlib.Path(out))[0])

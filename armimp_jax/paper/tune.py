@@ -6,15 +6,15 @@ friction levels, perturbation level 1, training and held-out seeds that never ov
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._batch import Welch, assess_batch, simulate_batch
-from .._model.perturbation import perturbation
 from .._simulate import stack_trials
 from .._solver.numerics import Numerics
-from ..presets._paper import perturbation_peak, trial
+from .._solver.rk4 import RK4
+from ..presets import perturbation_peak, trial
+from ..study.seeds import seed_perturbation
 from ..study.tune import TuneConfig, config_settings
 
 TRAIN_SEED_OFFSET = 100  # training and held-out perturbation seeds never overlap
@@ -22,18 +22,16 @@ HELDOUT_SEED_OFFSET = 1000
 
 
 def seed_perturbations(base_seed: int, seeds, n_samples: int, level: int = 1):
-    """``(len(seeds), n, 2)`` perturbations [N] from ``fold_in(PRNGKey(base_seed), seed)``."""
-    key = jax.random.PRNGKey(base_seed)
-    return np.stack(
-        [np.asarray(perturbation(jax.random.fold_in(key, s), n_samples, perturbation_peak(level))) for s in seeds]
-    )
+    """``(len(seeds), n, 2)`` perturbations [N] from ``fold_in(PRNGKey(base_seed), seed)``
+    (``study.seeds``; the seeds given here carry the training or held-out offset)."""
+    return np.stack([seed_perturbation(base_seed, s, n_samples, perturbation_peak(level)) for s in seeds])
 
 
 def training_numerics(substeps: int, *, kernel: str = "grad", checkpoint: str = "substep") -> Numerics:
     """The tuner's numerics: the RK4 kernel arranged for reverse mode, and every substep's
     carry on the tape (96 bytes per trial-substep: 31 MB for a 16 s trial at 20 substeps;
     use ``checkpoint="period"`` for batches that would not fit)."""
-    return Numerics(substeps=substeps, kernel=kernel, checkpoint=checkpoint)
+    return Numerics(solver=RK4(kernel=kernel), substeps=substeps, checkpoint=checkpoint)
 
 
 def training_batch(frictions, locations, seeds, *, seconds: float, base_seed: int = 0):

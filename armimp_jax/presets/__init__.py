@@ -9,3 +9,4 @@ from ._paper import friction as friction
 from ._paper import location_endpoint as location_endpoint
 from ._paper import perturbation_peak as perturbation_peak
 from ._paper import trial as trial
+from ._tables import LUGRE_DEFAULTS as LUGRE_DEFAULTS

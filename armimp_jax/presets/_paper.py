@@ -19,7 +19,7 @@ PERTURBATION_LEVELS = tuple(PERTURBATION_PEAKS)
 
 
 def location_endpoint(location: int) -> np.ndarray:
-    """World-frame endpoint [m] of arm location 1-4 (Table 2 angles, spec section 2), ``(2,)``."""
+    """World-frame endpoint [m] of arm location 1-4 (Table 2 angles, docs/model.md section 3), ``(2,)``."""
     check_choice("arm location", location, LOCATIONS)
     loc = ARM_LOCATIONS[location]
     return arm_endpoint(math.radians(loc.shoulder_deg), math.radians(loc.elbow_deg))

@@ -1,15 +1,19 @@
 """The paper's tables as data, with units: friction levels, arm locations, perturbation peaks.
 
 Plain NumPy float64 (host constants); ``presets`` builds the general simulator's values
-from them. Sources: spec ``MODEL.md`` sections 4, 8 and 10 (paper Tables 1-3).
+from them. Sources: docs/model.md sections 4, 10 and 3 (paper Tables 1-3); the
+bristle and viscous parameters are ``LuGre``'s defaults, read from the class.
 """
 
 from __future__ import annotations
 
-import math
+import dataclasses
+import types
 from typing import NamedTuple
 
 import numpy as np
+
+from .._model.friction import LuGre
 
 
 class FrictionLevel(NamedTuple):
@@ -23,12 +27,17 @@ class FrictionLevel(NamedTuple):
     v_s: float  # Stribeck velocity [rad / s]
 
 
-# Level 0 is no friction at all (``NO_FRICTION``); levels 1 and 2 use Canudas de Wit's
-# bristle parameters (sigma1 = sqrt(1e5), spec section 13).
+# The bristle, viscous and Stribeck parameters the paper adopts from Canudas de Wit et al.
+# (docs/model.md section 15.1) are the defaults of ``LuGre``: stated there once, read here.
+LUGRE_DEFAULTS = types.MappingProxyType(
+    {f.name: f.default for f in dataclasses.fields(LuGre) if f.name in ("sigma0", "sigma1", "sigma2", "v_s")}
+)
+
+# Level 0 is no friction at all (``NO_FRICTION``); levels 1 and 2 use the defaults above.
 FRICTION_LEVELS: dict[int, FrictionLevel] = {
     0: FrictionLevel(0.0, 0.0, 0.0, 0.0, 0.0, 1.0),
-    1: FrictionLevel(1.0, 1.5, 1e5, math.sqrt(1e5), 0.5, 1e-3),
-    2: FrictionLevel(4.0, 6.0, 1e5, math.sqrt(1e5), 0.5, 1e-3),
+    1: FrictionLevel(1.0, 1.5, **LUGRE_DEFAULTS),
+    2: FrictionLevel(4.0, 6.0, **LUGRE_DEFAULTS),
 }
 
 

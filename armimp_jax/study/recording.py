@@ -1,20 +1,21 @@
-"""Measured recordings: read and check a lab's CSV or NPZ, estimate and fit, write the results.
+"""Measured recordings: read and check a lab's CSV, NPZ or MAT-file, estimate and fit, write the results.
 
 A recording holds six channels sampled at one rate ``fs`` [Hz], all in one Cartesian frame:
 
 - ``f_delta_x``, ``f_delta_y``: the perturbation force [N] (the estimator's inputs);
 - ``x``, ``y``: the hand (= handle) position [m];
-- ``fh_x``, ``fh_y``: the force [N] applied TO the hand by the handle (spec section 2:
+- ``fh_x``, ``fh_y``: the force [N] applied TO the hand by the handle (docs/model.md section 3:
   ``F_h = M_h xdd + B_h xd + K_h (x - x0)``); a transducer that reads the force the hand
   exerts on the handle gives ``-F_h``.
 
 CSV: a header row naming the columns (leading ``#`` comment lines are skipped; the
 delimiter is ``,``, ``;`` or a tab, read from the header), one sample per row; other
-columns are ignored. NPZ: the six names as 1-D arrays, or ``f_delta``, ``x``, ``fh`` as
+columns are ignored. NPZ and MAT (MATLAB up to v7, ``scipy.io.loadmat``; v7.3 is HDF5 and
+refused with how to re-save it): the six names as vectors, or ``f_delta``, ``x``, ``fh`` as
 ``(N, 2)`` arrays. ``columns`` maps the standard names to the file's own. Every problem is
 a ``RecordingError`` with a one-line message, raised before any computation.
 
-Outputs are written atomically (a temporary file in the same folder, then ``os.replace``);
+Outputs are written atomically (``study.results.atomic_write_*``, ``study.figures.save_figure``);
 JSON is strict (non-finite numbers become ``null``).
 """
 
@@ -23,14 +24,14 @@ from __future__ import annotations
 import csv
 import difflib
 import io
-import json
-import math
-import os
 import pathlib
-import tempfile
 import zipfile
 
 import numpy as np
+
+from .._estimation.diagnose import input_coherence_chance
+from .figures import save_figure
+from .results import atomic_write_bytes, atomic_write_json
 
 COLUMNS = ("f_delta_x", "f_delta_y", "x", "y", "fh_x", "fh_y")
 GROUPS = {"f_delta": ("f_delta_x", "f_delta_y"), "x": ("x", "y"), "fh": ("fh_x", "fh_y")}
@@ -158,6 +159,40 @@ def _read_npz(path: pathlib.Path, columns: dict[str, str]) -> dict[str, np.ndarr
                 arrays = {k: npz[k] for k in npz.files}
     except (ValueError, OSError, zipfile.BadZipFile, EOFError) as err:
         raise RecordingError(f"cannot read {path} as NPZ: {err}") from None
+    return _from_arrays(path, arrays, columns)
+
+
+V73 = "re-save it in MATLAB with save(file, ..., '-v7') (v7.3 MAT-files are HDF5, which scipy.io cannot read)"
+
+
+def _read_mat(path: pathlib.Path, columns: dict[str, str]) -> dict[str, np.ndarray]:
+    import scipy.io
+
+    with open(path, "rb") as fh:
+        head = fh.read(520)
+    if head[:10] == b"MATLAB 7.3" or head[512:520] == b"\x89HDF\r\n\x1a\n":
+        raise RecordingError(f"{path} is a MATLAB v7.3 MAT-file: {V73}")
+    try:
+        raw = scipy.io.loadmat(path)
+    except NotImplementedError:  # scipy's answer to HDF5-based files
+        raise RecordingError(f"{path} is a MATLAB v7.3 MAT-file: {V73}") from None
+    except Exception as err:  # scipy.io raises ValueError, TypeError, EOFError, ... on a bad file
+        raise RecordingError(
+            f"cannot read {path} as a MAT-file: {str(err).splitlines()[0] if str(err) else err!r}"
+        ) from None
+    arrays = {}
+    for name, a in raw.items():
+        if name.startswith("__"):
+            continue  # loadmat's header, version and globals
+        a = np.asarray(a)
+        if a.ndim == 2 and 1 in a.shape:
+            a = a.reshape(-1)  # a MATLAB vector is a 1 x N or N x 1 matrix
+        arrays[name] = a
+    return _from_arrays(path, arrays, columns)
+
+
+def _from_arrays(path: pathlib.Path, arrays: dict[str, np.ndarray], columns: dict[str, str]) -> dict[str, np.ndarray]:
+    """The six channels from an NPZ's or MAT-file's named arrays, checked."""
     names = {std: columns.get(std, std) for std in COLUMNS}
     by_column = [n for n in names.values() if n in arrays and np.ndim(arrays[n]) == 1]
     grouped = all(g in arrays for g in GROUPS) and not by_column
@@ -196,7 +231,7 @@ def _read_npz(path: pathlib.Path, columns: dict[str, str]) -> dict[str, np.ndarr
 
 
 def load_recording(path, *, columns=None) -> dict[str, np.ndarray]:
-    """Read and check a recording (CSV or NPZ, chosen by the ``.npz`` suffix).
+    """Read and check a recording: NPZ (suffix ``.npz``), MAT-file (``.mat``) or else CSV.
 
     Args:
         path: the file.
@@ -207,8 +242,9 @@ def load_recording(path, *, columns=None) -> dict[str, np.ndarray]:
     (``[:, 0]`` the x axis, ``[:, 1]`` the y axis), ready for ``estimate``.
 
     Raises ``RecordingError`` (a ``ValueError``) with one line naming the file and, where
-    it applies, the column and row: unreadable file, missing or misnamed columns,
-    non-numeric or empty cells, NaN or inf, unequal lengths, no data.
+    it applies, the column and row: unreadable file (a v7.3 MAT-file: how to re-save it),
+    missing or misnamed columns, non-numeric or empty cells, NaN or inf, unequal lengths,
+    no data.
     """
     path = pathlib.Path(path)
     columns = _check_mapping(columns)
@@ -216,7 +252,8 @@ def load_recording(path, *, columns=None) -> dict[str, np.ndarray]:
         why = "is a folder" if path.is_dir() else "does not exist"
         raise RecordingError(f"cannot read {path}: it {why}")
     try:
-        chans = _read_npz(path, columns) if path.suffix.lower() == ".npz" else _read_csv(path, columns)
+        read = {".npz": _read_npz, ".mat": _read_mat}.get(path.suffix.lower(), _read_csv)
+        chans = read(path, columns)
     except OSError as err:
         raise RecordingError(f"cannot read {path}: {err.strerror or err}") from None
     n = len(chans[COLUMNS[0]])
@@ -225,59 +262,18 @@ def load_recording(path, *, columns=None) -> dict[str, np.ndarray]:
     return {group: np.stack([chans[a], chans[b]], axis=1) for group, (a, b) in GROUPS.items()}
 
 
-def _jsonable(obj):
-    """NumPy/JAX values to plain Python; non-finite floats to ``None`` (strict JSON)."""
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, (str, bool)) or obj is None:
-        return obj
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if hasattr(obj, "shape") and np.ndim(obj) > 0:
-        return _jsonable(np.asarray(obj).tolist())
-    value = float(np.asarray(obj))
-    return value if math.isfinite(value) else None
-
-
-def write_atomic(path, write) -> pathlib.Path:
-    """Write ``path`` by calling ``write(binary_file)`` on a temporary file in the same folder,
-    then ``os.replace``: readers never see a half-written file."""
-    path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
-    return path
-
-
-def write_json(path, obj) -> pathlib.Path:
-    """Strict JSON (``null`` for NaN and inf), written atomically."""
-    text = json.dumps(_jsonable(obj), indent=2, allow_nan=False) + "\n"
-    return write_atomic(path, lambda fh: fh.write(text.encode()))
-
-
 def write_npz(path, **arrays) -> pathlib.Path:
     """``np.savez`` of NumPy copies of ``arrays``, written atomically."""
-    host = {k: np.asarray(v) for k, v in arrays.items()}
-    return write_atomic(path, lambda fh: np.savez(fh, **host))
-
-
-def _save_figure(fig, path) -> pathlib.Path:
     buf = io.BytesIO()
-    fig.savefig(buf, format=pathlib.Path(path).suffix[1:], dpi=110)
-    return write_atomic(path, lambda fh: fh.write(buf.getvalue()))
+    np.savez(buf, **{k: np.asarray(v) for k, v in arrays.items()})
+    atomic_write_bytes(path, buf.getvalue())
+    return pathlib.Path(path)
 
 
 def bode_figure(f, z, z_fit):
     """Magnitude [N/m] and continuous phase [deg] of the four elements of ``z`` ``(F, 2, 2)``
-    (estimate) and ``z_fit`` (fitted model) against ``f`` [Hz]: a matplotlib ``Figure``."""
+    (estimate) and ``z_fit`` (the fitted model of the record, its acquisition included)
+    against ``f`` [Hz]: a matplotlib ``Figure``."""
     from matplotlib.figure import Figure  # no pyplot: no global figure state
 
     f, z, z_fit = (np.asarray(a) for a in (f, z, z_fit))
@@ -285,7 +281,7 @@ def bode_figure(f, z, z_fit):
     axes = fig.subplots(2, 4, sharex=True)
     for col, (i, j) in enumerate(ELEMENTS):
         name = f"$Z_{{{AXES[i]}{AXES[j]}}}$ ($F_{{h,{AXES[i]}}}$ per ${AXES[j]}$)"
-        for data, style, label in ((z, "-", "estimate $\\hat Z$"), (z_fit, "k--", "fitted $M s^2 + B s + K$")):
+        for data, style, label in ((z, "-", "estimate $\\hat Z$"), (z_fit, "k--", "fitted model")):
             axes[0, col].loglog(f, np.abs(data[:, i, j]), style, label=label)
             axes[1, col].semilogx(f, np.degrees(np.unwrap(np.angle(data[:, i, j]))), style)
         axes[0, col].set_title(name)
@@ -338,7 +334,8 @@ def _summary(f, c) -> dict:
 
 def coherence_summary(est) -> dict:
     """Min (and where), mean, median and fraction above 0.9 of each output's multiple
-    coherence over the band, and the largest ordinary coherence of the two inputs."""
+    coherence over the band, and the largest ordinary coherence of the two inputs with the
+    probability that independent inputs reach it by chance (``input_coherence_chance``)."""
     out = {}
     for field, names in OUTPUTS.items():
         mult = np.asarray(getattr(est, f"coh_multiple_{field}"))
@@ -346,57 +343,157 @@ def coherence_summary(est) -> dict:
     ci = np.asarray(est.coh_inputs)
     out["inputs_max"] = np.max(ci)
     out["inputs_f_at_max_hz"] = np.asarray(est.f)[int(np.argmax(ci))]
+    out["inputs_chance_p"] = input_coherence_chance(est)[1]
     return out
 
 
-def analyse(rec: dict, *, fs: float, nperseg: int, noverlap: int, nfft: int | None, window, fmax: float, weights: str):
-    """Estimate ``Z`` (``estimate``) and fit ``M, B, K`` (``fit_impedance``) for a loaded
-    recording; returns ``(Estimate, ImpedanceFit)``. Needs float64 switched on; the
-    settings must be valid (``check_welch``) and ``window`` a name or tuple."""
+def check_settings(n_samples: int, *, fs: float, nperseg: int, noverlap: int, nfft, window, fmax: float) -> int:
+    """Validate the Welch settings for a record of ``n_samples``; return the number of segments
+    (``ValueError`` with one line otherwise, before any computation)."""
+    from .._estimation.welch import check_welch
+
+    return check_welch(n_samples, fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax, nfft=nfft, window=window)
+
+
+def analyse(
+    rec: dict,
+    *,
+    fs: float,
+    nperseg: int,
+    noverlap: int,
+    nfft: int | None,
+    window,
+    fmax: float,
+    weights: str,
+    acquisition: str = "plain",
+    period: float | None = None,
+    se: str = "residual",
+):
+    """Estimate ``Z`` (``estimate``, with its error model) and fit ``M, B, K`` (``fit_impedance``
+    with ``weights``, ``acquisition``, ``period`` [s] (default ``1 / fs``) and ``se``) for a
+    loaded recording; returns ``(Estimate, ImpedanceFit)``. Needs float64 switched on; the
+    settings must be valid (``check_settings``) and ``window`` a name or tuple."""
     import jax
 
     from .._estimation.fit import fit_impedance
     from .._estimation.welch import estimate
 
+    period = 1.0 / fs if period is None else period
+
     def run(f_delta, x, fh):
-        est = estimate(f_delta, x, fh, fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax, window=window, nfft=nfft)
-        return est, fit_impedance(est, weights=weights)
+        est = estimate(
+            f_delta, x, fh, fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax, window=window, nfft=nfft, errors=True
+        )
+        return est, fit_impedance(est, weights=weights, acquisition=acquisition, period=period, se=se)
 
     # One compiled program: op by op, the first call would compile every small op (~10x slower).
     return jax.jit(run)(rec["f_delta"], rec["x"], rec["fh"])
 
 
-def write_results(out_dir, est, fit, *, settings: dict, record: dict) -> list[pathlib.Path]:
+PARAMETERS = (("mass", "kg"), ("damping", "N s/m"), ("stiffness", "N/m"))
+
+
+def intervals(fit, level: float = 0.95) -> dict:
+    """``{name: {"low", "high"}}`` two-sided ``level`` intervals of ``mass``, ``damping``,
+    ``stiffness`` (``(2, 2)`` each) and ``delay`` (``ImpedanceFit.interval``)."""
+    out = {}
+    for name in (*(n for n, _ in PARAMETERS), "delay"):
+        low, high = fit.interval(name, level)
+        out[name] = {"low": low, "high": high}
+    return out
+
+
+def report_lines(est, fit, *, acquisition: str, warnings: list[str]) -> list[str]:
+    """What the script prints: the fit's 95% intervals per element, the fitted delay, the
+    lack-of-fit test, the coherence summary and the warnings, one item a line."""
+    ci = intervals(fit)
+    lines = [
+        f"fit: acquisition {acquisition!r}; VAF {float(fit.vaf_overall):.2f} % (variance of Z the model accounts for)"
+    ]
+    lines.append(
+        "95% intervals [low, high] (t quantile of each element's dof), indexed [force axis, displacement axis]:"
+    )
+    for name, unit in PARAMETERS:
+        value = np.asarray(getattr(fit, name))
+        lo, hi = ci[name]["low"], ci[name]["high"]
+        for i, j in ELEMENTS:
+            lines.append(
+                f"  {name} {AXES[i]}{AXES[j]} [{unit}]: {value[i, j]:10.4g}   95% [{lo[i, j]:.4g}, {hi[i, j]:.4g}]"
+            )
+    if acquisition == "delay":
+        d, lo, hi = (1e3 * float(np.asarray(v)) for v in (fit.delay, ci["delay"]["low"], ci["delay"]["high"]))
+        lines.append(f"  force-channel delay [ms]: {d:.4g}   95% [{lo:.4g}, {hi:.4g}]")
+    lof, p = float(np.asarray(fit.lack_of_fit_overall)), float(np.asarray(fit.lack_of_fit_p_overall))
+    lines.append(f"lack of fit: residuals / predicted variance {lof:.3g} (about 1 when the model fits), p = {p:.3g}")
+    summary = coherence_summary(est)
+    for field, names in OUTPUTS.items():
+        for name in names:
+            c = summary[f"multiple_{field}"][name]
+            lines.append(
+                f"coherence {name}: min {c['min']:.3f} at {c['f_at_min_hz']:.3g} Hz, median {c['median']:.3f}, "
+                f"{100 * c['fraction_above_0_9']:.0f}% of bins above 0.9"
+            )
+    lines.append(
+        f"input coherence: max {summary['inputs_max']:.3f} at {summary['inputs_f_at_max_hz']:.3g} Hz (paper's guide "
+        f"0.4; independent inputs reach it by chance with p = {summary['inputs_chance_p']:.2g})"
+    )
+    lines += [f"WARNING: {w}" for w in warnings] or ["no warnings"]
+    return lines
+
+
+def write_results(out_dir, est, fit, *, settings: dict, record: dict, warnings: list[str]) -> list[pathlib.Path]:
     """Write ``estimate.json``, ``estimate.npz``, ``bode.png`` and ``coherence.png`` under
     ``out_dir`` (each atomically); returns their paths."""
-    import scipy.stats
-
     out_dir = pathlib.Path(out_dir)
-    dof = np.asarray(fit.dof)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    acq = dict(acquisition=settings.get("acquisition", "plain"), period=settings.get("period_s", 1e-3))
+    z_fit = fit.impedance(est.f, **acq)
     result = {
         "settings": settings,
         "record": record,
-        "units": {"f": "Hz", "mass": "kg", "damping": "N s/m", "stiffness": "N/m", "Z": "N/m", "vaf": "%"},
+        "units": {
+            "f": "Hz",
+            "mass": "kg",
+            "damping": "N s/m",
+            "stiffness": "N/m",
+            "delay": "s",
+            "Z": "N/m",
+            "vaf": "%",
+        },
         "convention": (
             "Z = T R^-1 [N/m], force applied to the hand per hand displacement, indexed [output, input] "
             "(row: force axis, column: displacement axis), axes of the recording's frame; "
-            "fitted Z(f) = K - w^2 M + j w B, w = 2 pi f; a 95% interval is value +- t95 * se"
+            "Z(f) = K - w^2 M + j w B, w = 2 pi f, in the acquisition's model of the record "
+            "(docs/estimation.md); a 95% interval is value +- t95 * se, t95 = t_0.975(dof), given as interval_95"
         ),
-        "mass": fit.mass,
-        "mass_se": fit.mass_se,
-        "damping": fit.damping,
-        "damping_se": fit.damping_se,
-        "stiffness": fit.stiffness,
-        "stiffness_se": fit.stiffness_se,
-        "dof": dof,
-        "t95": scipy.stats.t.ppf(0.975, dof),
-        "vaf": {"overall": fit.vaf_overall, "per_element": fit.vaf},
+        **{k: np.asarray(getattr(fit, k)) for k in ("mass", "mass_se", "damping", "damping_se")},
+        **{k: np.asarray(getattr(fit, k)) for k in ("stiffness", "stiffness_se", "dof")},
+        "t95": _t95(np.asarray(fit.dof)),
+        "interval_95": intervals(fit),
+        "delay": {"value": np.asarray(fit.delay), "se": np.asarray(fit.delay_se), "dof": np.asarray(fit.delay_dof)},
+        "lack_of_fit": {
+            "ratio": np.asarray(fit.lack_of_fit_overall),
+            "p": np.asarray(fit.lack_of_fit_p_overall),
+            "per_element_ratio": np.asarray(fit.lack_of_fit),
+            "per_element_p": np.asarray(fit.lack_of_fit_p),
+        },
+        "vaf": {"overall": np.asarray(fit.vaf_overall), "per_element": np.asarray(fit.vaf)},
         "coherence": coherence_summary(est),
+        "warnings": list(warnings),
     }
-    paths = [
-        write_json(out_dir / "estimate.json", result),
-        write_npz(out_dir / "estimate.npz", **est._asdict(), Z_fit=fit.impedance(est.f)),
-        _save_figure(bode_figure(est.f, est.Z, fit.impedance(est.f)), out_dir / "bode.png"),
-        _save_figure(coherence_figure(est), out_dir / "coherence.png"),
+    est_arrays = {k: v for k, v in est._asdict().items() if k != "error"}
+    errors = {f"error_{k}": v for k, v in est.error._asdict().items()} if est.error is not None else {}
+    json_path = out_dir / "estimate.json"
+    atomic_write_json(json_path, result)
+    return [
+        json_path,
+        write_npz(out_dir / "estimate.npz", **est_arrays, **errors, Z_fit=z_fit),
+        save_figure(bode_figure(est.f, est.Z, z_fit), out_dir / "bode.png"),
+        save_figure(coherence_figure(est), out_dir / "coherence.png"),
     ]
-    return paths
+
+
+def _t95(dof):
+    import scipy.stats
+
+    return scipy.stats.t.ppf(0.975, np.where(np.isfinite(dof), dof, np.inf))

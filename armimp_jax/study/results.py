@@ -29,6 +29,7 @@ import contextlib
 import dataclasses
 import datetime
 import hashlib
+import importlib.metadata
 import io
 import json
 import math
@@ -110,9 +111,8 @@ def canonical_json(obj: Any) -> str:
 
 
 def package_version() -> str:
-    from .. import __version__
-
-    return __version__
+    """The installed armimp_jax's version (``pyproject.toml``'s, from the package metadata)."""
+    return importlib.metadata.version("armimp_jax")
 
 
 def stamped(settings: Mapping) -> dict:
@@ -208,9 +208,10 @@ def atomic_write_text(path: pathlib.Path | str, text: str) -> None:
     atomic_write_bytes(path, text.encode())
 
 
-def atomic_write_json(path: pathlib.Path | str, obj: Any) -> None:
-    """``atomic_write_text`` of ``strict_json_dumps(obj)`` (one-space indent, trailing newline)."""
-    atomic_write_text(path, strict_json_dumps(obj) + "\n")
+def atomic_write_json(path: pathlib.Path | str, obj: Any, *, indent: int | None = 1) -> None:
+    """``atomic_write_text`` of ``strict_json_dumps(obj, indent=indent)`` (a trailing newline):
+    the one writer of every JSON file the study layer saves."""
+    atomic_write_text(path, strict_json_dumps(obj, indent=indent) + "\n")
 
 
 def read_json(path: pathlib.Path | str) -> Any:

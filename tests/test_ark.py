@@ -1,5 +1,6 @@
-"""The stiff-friction integrator (``Numerics(method="ark3")``): stable and continuous for every
-Coulomb torque, convergent, equal to RK4 where RK4 works, differentiable near zero friction."""
+"""The stiff-friction solvers (``ARK3``, ``ARK4``; ``armimp_jax._solver.ark``): stable and
+continuous for every Coulomb torque, convergent, equal to RK4 where RK4 works,
+differentiable near zero friction, their kernels equal to round-off."""
 
 import jax
 import jax.numpy as jnp
@@ -9,7 +10,7 @@ import pytest
 import armimp_jax as aj
 from armimp_jax import paper
 from armimp_jax._model.plant import PlantState, plant_model
-from armimp_jax._solver.ark import ARK3, ARK4, from_momentum, to_momentum
+from armimp_jax._solver.ark import from_momentum, to_momentum
 
 TAUS = (0.0, 1e-4, 1e-3, 1e-2, 0.05, 0.2, 1.0, 4.0)  # Coulomb torques [N m], stiction 1.5x
 
@@ -35,10 +36,11 @@ def _phis(trials, numerics):
     return np.asarray(phi), np.asarray(diverged)
 
 
-@pytest.mark.parametrize("tableau, order", [(ARK3, 3), (ARK4, 4)])
-def test_tableaus_meet_their_order_conditions(tableau, order):
+@pytest.mark.parametrize("solver, order", [(aj.ARK3, 3), (aj.ARK4, 4)])
+def test_tableaus_meet_their_order_conditions(solver, order):
     """Both halves of each pair satisfy the Runge-Kutta order conditions (to ``order``), so
     a typo in a coefficient cannot pass."""
+    tableau = solver.tableau
     s = len(tableau.c)
     b, c = np.array(tableau.b), np.array(tableau.c)
     for rows, diag in ((tableau.explicit, 0.0), (tableau.implicit, tableau.gamma)):
@@ -60,9 +62,7 @@ def test_momentum_form_round_trips_and_keeps_bristle_free_joints_at_zero():
     back = from_momentum(to_momentum(s, model), model)
     np.testing.assert_allclose(np.array(back), np.array(s), rtol=1e-14, atol=1e-20)
     fu = jnp.array([3.0, -2.0])
-    from armimp_jax._solver.ark import integrate_period_imex
-
-    out = integrate_period_imex(s, fu, model, period=1e-3, substeps=4)
+    out = aj.ARK3().integrate_period(s, fu, model, period=1e-3, substeps=4)
     assert float(out.z2) == 0.0 and float(out.z1) != 2e-6  # joint 2 has no bristles (g = 0)
 
 
@@ -70,8 +70,8 @@ def test_momentum_form_round_trips_and_keeps_bristle_free_joints_at_zero():
 def test_every_coulomb_torque_is_stable_and_continuous_at_zero(controller):
     """From 0 to 4 N m at 10 substeps: nothing diverges (classical RK4 diverges at
     1e-4 and 1e-3 N m even at 100 substeps), and phi_T at 1e-4 N m is within 1% of no
-    Coulomb friction (spec section 4: the model's limit is continuous)."""
-    phi, diverged = _phis(_batch(controller, TAUS), aj.Numerics(substeps=10, method="ark3"))
+    Coulomb friction (docs/model.md section 4: the model's limit is continuous)."""
+    phi, diverged = _phis(_batch(controller, TAUS), aj.Numerics(solver=aj.ARK3(), substeps=10))
     assert not diverged.any() and np.all(np.isfinite(phi)), phi
     assert abs(phi[1] - phi[0]) < 0.01 * phi[0], phi
 
@@ -81,15 +81,15 @@ def test_refinement_converges_at_small_and_paper_friction():
     stick-slip kinks: about 2), for stiff (1e-4, 1e-2 N m) and paper-level (1 N m) friction."""
     taus = (1e-4, 1e-2, 1.0)
     trials = _batch("pd", taus)
-    phi = {k: _phis(trials, aj.Numerics(substeps=k, method="ark3"))[0] for k in (5, 20, 80)}
+    phi = {k: _phis(trials, aj.Numerics(solver=aj.ARK3(), substeps=k))[0] for k in (5, 20, 80)}
     e5, e20 = (np.max(np.abs(phi[k] - phi[80]) / phi[80]) for k in (5, 20))
     assert e20 < e5 / 4 and e5 < 1e-3, (e5, e20)
 
 
 def test_agrees_with_rk4_at_the_paper_friction_levels():
-    """Where classical RK4 is stable (levels 1 and 2, spec section 4): phi_T within 1e-6."""
+    """Where classical RK4 is stable (levels 1 and 2, docs/model.md section 4): phi_T within 1e-6."""
     trials = aj.stack_trials([paper.trial("imbic", level, 1) for level in (1, 2)])
-    ark, _ = _phis(trials, aj.Numerics(substeps=40, method="ark3"))
+    ark, _ = _phis(trials, aj.Numerics(solver=aj.ARK3(), substeps=40))
     rk4, _ = _phis(trials, aj.Numerics(substeps=100))
     np.testing.assert_allclose(ark, rk4, rtol=1e-6)
 
@@ -100,7 +100,7 @@ def test_gradients_near_zero_friction_are_finite_and_match_central_differences()
     (difference quotients do not settle), and the gradient is that of the bristle-free branch."""
     fd = _fd()
     ctrl = paper.trial("pd", 0, 1).controller
-    numerics = aj.Numerics(substeps=10, method="ark3")
+    numerics = aj.Numerics(solver=aj.ARK3(), substeps=10)
 
     def phi(tc):
         return _phi(aj.make_trial(ctrl, arm=paper.arm(1), friction=aj.LuGre(tc, 1.5 * tc)), fd, numerics)[0]
@@ -112,13 +112,32 @@ def test_gradients_near_zero_friction_are_finite_and_match_central_differences()
     np.testing.assert_allclose(float(g(tc)), central, rtol=1e-3)
 
 
-def test_bad_numerics_get_a_clear_error():
-    with pytest.raises(ValueError, match="method.*'rk4', 'ark3', 'ark4'"):
-        aj.Numerics(method="euler")
-    with pytest.raises(ValueError, match="kernel='grad' is a kernel of method='rk4'"):
-        aj.Numerics(method="ark3", kernel="grad")
+@pytest.mark.parametrize("solver", [aj.ARK3, aj.ARK4])
+def test_fast_and_reference_kernels_agree_to_round_off(solver):
+    """Rotated and evaluated ``cos/sin`` differ by round-off only, over 1.5 s at the paper's
+    friction levels (bound as RK4's, ``test_rk4.py``)."""
+    fd = _fd()
+    trials = aj.stack_trials([paper.trial("imbic", level, 1 + level) for level in (0, 1, 2)])
+    runs = {
+        kernel: jax.jit(
+            jax.vmap(lambda t, n=aj.Numerics(solver=solver(kernel=kernel), substeps=5): aj.simulate(t, fd, numerics=n))
+        )(trials)
+        for kernel in solver.KERNELS
+    }
+    for name in ("x", "fh", "q"):
+        a, b = np.asarray(getattr(runs["fast"], name)), np.asarray(getattr(runs["reference"], name))
+        a, b = a - a[:, :1], b - b[:, :1]
+        scale = np.abs(b).max(axis=(1, 2), keepdims=True)
+        assert np.all(np.abs(a - b) <= 1e-9 * scale), (name, (np.abs(a - b) / scale).max())
+
+
+def test_bad_options_are_refused_with_the_allowed_choices():
+    with pytest.raises(ValueError, match="ARK3: unknown kernel 'grad'; allowed: 'fast', 'reference'"):
+        aj.ARK3(kernel="grad")
+    with pytest.raises(ValueError, match="ARK4: unknown kernel 'gpu'; allowed: 'fast', 'reference'"):
+        aj.ARK4(kernel="gpu")
     with pytest.raises(ValueError, match="substeps"):
-        aj.Numerics(substeps=0, method="ark3")
+        aj.Numerics(solver=aj.ARK3(), substeps=0)
 
 
 def test_check_numerics_reports_the_error_of_a_coarse_batch():

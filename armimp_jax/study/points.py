@@ -1,0 +1,370 @@
+"""The points of a sweep: every setting of one trial, its default and unit, and how grids are read.
+
+A *point* is a flat dict of JSON values that fixes one trial apart from its seed
+(``POINT_DEFAULTS`` lists every setting with its default and unit): the controller, the
+LuGre friction (a Coulomb torque ``tau_c`` with the stiction given as a ratio; the
+bristle and viscous defaults are ``LuGre``'s), the arm (paper location 1-4 or a user's
+matrices), the perturbation (level or peak, record length), the sensors, the
+acquisition, IMBIC's ``mhat`` and the Welch settings. ``normalize_point`` resolves every
+default into a number, so equal trials give equal points (and keys). ``expand`` turns a
+grid of value lists and/or a list of points into the normalized, de-duplicated points of
+a run; ``read_toml`` and ``parse_set`` read them from a TOML file and ``--set NAME=V1,V2``
+options. ``build_trial`` makes a point's ``Trial``; ``point_columns`` its table columns.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import pathlib
+import tomllib
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+
+from .._batch import Welch
+from .._model.arm import Arm
+from .._model.control import IMBIC, PD
+from .._model.friction import LuGre
+from .._model.sensors import Sensors
+from .._simulate import Trial, make_trial
+from ..presets import LOCATIONS, LUGRE_DEFAULTS, PERTURBATION_LEVELS, perturbation_peak
+from ..presets import arm as paper_arm
+from .results import settings_key
+
+# Every setting of a point, its default and its unit. ``None`` defaults are resolved by
+# ``normalize_point`` (the peak from the perturbation level, the overlap from the segment).
+POINT_DEFAULTS: dict[str, Any] = dict(
+    controller="pd",  # "pd" | "imbic"
+    tau_c=0.0,  # Coulomb torque [N m], both joints
+    stiction_ratio=1.5,  # tau_s / tau_c [-], >= 1
+    sigma0=LUGRE_DEFAULTS["sigma0"],  # bristle stiffness [N m/rad]
+    sigma1=LUGRE_DEFAULTS["sigma1"],  # bristle damping [N m s/rad]
+    sigma2=LUGRE_DEFAULTS["sigma2"],  # viscous friction [N m s/rad]
+    v_s=LUGRE_DEFAULTS["v_s"],  # Stribeck velocity [rad/s]
+    arm=1,  # paper location 1-4, or {"mass", "damping", "stiffness": 2x2, "endpoint": (2,)}
+    perturbation_level=1,  # paper level 1-3 (None when a peak is given)
+    peak=None,  # per-axis peak |F_Delta| [N], (2,); default: the level's
+    seconds=50.0,  # record length [s]
+    force_noise=0.0,  # force-sensor noise sd [N]
+    encoder_counts=None,  # encoder resolution [counts/rev]; None: exact angles
+    velocity_noise=0.0,  # joint-rate noise sd [rad/s]
+    acquisition="instant",  # "instant" | "interval_mean"
+    mhat=0.25,  # IMBIC Mhat, times the identity [kg] (None for PD)
+    nperseg=8192,  # Welch segment [samples]
+    noverlap=None,  # Welch overlap [samples]; default 3/4 of nperseg
+    fmax=15.0,  # highest frequency estimated [Hz]
+    window="hann",  # a scipy.signal.get_window name (or [name, param])
+    nfft=None,  # FFT length [samples]; None: nperseg
+)
+
+POINT_UNITS = dict(
+    tau_c="N m",
+    stiction_ratio="-",
+    sigma0="N m/rad",
+    sigma1="N m s/rad",
+    sigma2="N m s/rad",
+    v_s="rad/s",
+    peak="N",
+    seconds="s",
+    force_noise="N",
+    encoder_counts="counts/rev",
+    velocity_noise="rad/s",
+    mhat="kg",
+    nperseg="samples",
+    noverlap="samples",
+    fmax="Hz",
+    nfft="samples",
+)
+
+
+def _number(name: str, value, *, minimum: float | None = None, exclusive: bool = False, integer: bool = False):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+    if integer and int(value) != value:
+        raise ValueError(f"{name} must be an integer, got {value!r}")
+    if minimum is not None and (value <= minimum if exclusive else value < minimum):
+        raise ValueError(f"{name} must be {'>' if exclusive else '>='} {minimum:g}, got {value!r}")
+    return int(value) if integer else float(value)
+
+
+def _matrix(name: str, value, shape) -> list:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"arm {name} must be numbers of shape {shape}, got {value!r}") from None
+    if arr.shape != shape or not np.all(np.isfinite(arr)):
+        raise ValueError(f"arm {name} must be finite numbers of shape {shape}, got {value!r}")
+    return arr.tolist()
+
+
+def _arm_setting(value):
+    if isinstance(value, Mapping):
+        need = {"mass", "damping", "stiffness", "endpoint"}
+        if set(value) != need:
+            raise ValueError(f"a user arm needs exactly the keys {', '.join(sorted(need))}; got {', '.join(value)}")
+        shapes = dict(mass=(2, 2), damping=(2, 2), stiffness=(2, 2), endpoint=(2,))
+        arm = {k: _matrix(k, value[k], shapes[k]) for k in sorted(need)}
+        Arm(**arm)  # refuses a mass matrix that is not positive definite, with a one-line message
+        return arm
+    if isinstance(value, bool) or value not in LOCATIONS:
+        raise ValueError(
+            f"arm must be a paper location ({', '.join(map(str, LOCATIONS))}) or a user arm, got {value!r}"
+        )
+    return int(value)
+
+
+def normalize_point(raw: Mapping) -> dict:
+    """The canonical form of a point: every setting of ``POINT_DEFAULTS``, in that order,
+    resolved to plain JSON values (defaults filled in, numbers as floats, the peak from the
+    perturbation level, the overlap from the segment, ``mhat`` ``None`` for PD). Raises
+    ``ValueError`` (one line) for an unknown setting or a value that cannot run."""
+    unknown = [k for k in raw if k not in POINT_DEFAULTS]
+    if unknown:
+        raise ValueError(f"unknown setting(s) {', '.join(map(repr, unknown))}; known: {', '.join(POINT_DEFAULTS)}")
+    p = dict(POINT_DEFAULTS) | dict(raw)
+    out: dict[str, Any] = {}
+    if p["controller"] not in ("pd", "imbic"):
+        raise ValueError(f"controller must be 'pd' or 'imbic', got {p['controller']!r}")
+    out["controller"] = p["controller"]
+    out["tau_c"] = _number("tau_c [N m]", p["tau_c"], minimum=0.0)
+    out["stiction_ratio"] = _number("stiction_ratio (tau_s / tau_c)", p["stiction_ratio"], minimum=1.0)
+    for name in ("sigma0", "sigma1", "sigma2"):
+        out[name] = _number(f"{name} [{POINT_UNITS[name]}]", p[name], minimum=0.0)
+    out["v_s"] = _number("v_s [rad/s]", p["v_s"], minimum=0.0, exclusive=True)
+    out["arm"] = _arm_setting(p["arm"])
+    if raw.get("peak") is not None:
+        peak = p["peak"]
+        peak = [peak, peak] if isinstance(peak, (int, float)) and not isinstance(peak, bool) else peak
+        if not isinstance(peak, (list, tuple)) or len(peak) != 2:
+            raise ValueError(f"peak must be a number or two numbers [N], got {p['peak']!r}")
+        out["peak"] = [_number("peak [N]", v, minimum=0.0, exclusive=True) for v in peak]
+        level = raw.get("perturbation_level")
+        # a normalized point names both (level and its peak): accept that, refuse a mismatch
+        if level is not None and (level not in PERTURBATION_LEVELS or perturbation_peak(level).tolist() != out["peak"]):
+            raise ValueError(f"give perturbation_level or peak, not both (got level {level!r} and peak {peak!r})")
+        out["perturbation_level"] = level
+        out["peak"] = out.pop("peak")
+    else:
+        level = p["perturbation_level"]
+        if isinstance(level, bool) or level not in PERTURBATION_LEVELS:
+            raise ValueError(
+                f"perturbation_level must be one of {', '.join(map(str, PERTURBATION_LEVELS))}, got {level!r}"
+            )
+        out["perturbation_level"] = int(level)
+        out["peak"] = perturbation_peak(int(level)).tolist()
+    out["seconds"] = _number("seconds", p["seconds"], minimum=0.0, exclusive=True)
+    out["force_noise"] = _number("force_noise [N]", p["force_noise"], minimum=0.0)
+    out["encoder_counts"] = (
+        None if p["encoder_counts"] is None else _number("encoder_counts", p["encoder_counts"], minimum=1.0)
+    )
+    out["velocity_noise"] = _number("velocity_noise [rad/s]", p["velocity_noise"], minimum=0.0)
+    if p["acquisition"] not in ("instant", "interval_mean"):
+        raise ValueError(f"acquisition must be 'instant' or 'interval_mean', got {p['acquisition']!r}")
+    out["acquisition"] = p["acquisition"]
+    out["mhat"] = None if out["controller"] == "pd" else _number("mhat [kg]", p["mhat"], minimum=0.0, exclusive=True)
+    out["nperseg"] = _number("nperseg", p["nperseg"], minimum=2, integer=True)
+    noverlap = 3 * out["nperseg"] // 4 if p["noverlap"] is None else p["noverlap"]
+    out["noverlap"] = _number("noverlap", noverlap, minimum=0, integer=True)
+    out["fmax"] = _number("fmax [Hz]", p["fmax"], minimum=0.0, exclusive=True)
+    window = p["window"]
+    if not (isinstance(window, str) or (isinstance(window, (list, tuple)) and window and isinstance(window[0], str))):
+        raise ValueError(f"window must be a name or [name, parameter, ...], got {window!r}")
+    out["window"] = window if isinstance(window, str) else list(window)
+    out["nfft"] = None if p["nfft"] is None else _number("nfft", p["nfft"], minimum=2, integer=True)
+    try:
+        point_welch(out).check(n_samples(out))
+    except ValueError as err:
+        raise ValueError(f"seconds={out['seconds']:g}, nperseg={out['nperseg']}: {err}") from None
+    return out
+
+
+def n_samples(point: Mapping) -> int:
+    """Record length of a point [samples at 1 kHz]."""
+    return int(round(point["seconds"] * 1000))
+
+
+def point_welch(point: Mapping) -> Welch:
+    """The ``Welch`` settings of a normalized point (hashable: a window list becomes a tuple)."""
+    window = point["window"] if isinstance(point["window"], str) else tuple(point["window"])
+    return Welch(point["nperseg"], point["noverlap"], point["fmax"], window=window, nfft=point["nfft"])
+
+
+def point_arm(point: Mapping) -> Arm:
+    """The ``Arm`` of a normalized point: a paper location's, or the user's."""
+    return paper_arm(point["arm"]) if isinstance(point["arm"], int) else Arm(**point["arm"])
+
+
+def build_trial(point: Mapping) -> Trial:
+    """The ``Trial`` of a normalized point (``make_trial`` on MIT-MANUS)."""
+    ctrl = PD() if point["controller"] == "pd" else IMBIC(point["mhat"] * np.eye(2))
+    arm = point_arm(point)
+    friction = LuGre(
+        point["tau_c"],
+        point["tau_c"] * point["stiction_ratio"],
+        sigma0=point["sigma0"],
+        sigma1=point["sigma1"],
+        sigma2=point["sigma2"],
+        v_s=point["v_s"],
+    )
+    sensors = Sensors(point["force_noise"], point["encoder_counts"], point["velocity_noise"])
+    return make_trial(ctrl, arm=arm, friction=friction, sensors=sensors, acquisition=point["acquisition"])
+
+
+def static_group(point: Mapping) -> tuple:
+    """What must agree within one compiled batch: controller type, acquisition, encoder
+    on/off, record length and Welch settings."""
+    return (
+        point["controller"],
+        point["acquisition"],
+        point["encoder_counts"] is not None,
+        n_samples(point),
+        point_welch(point),
+    )
+
+
+def expand(grid: Mapping[str, Iterable] | None = None, points: Iterable[Mapping] | None = None) -> list[dict]:
+    """The normalized points of a run: every entry of ``points`` (default one empty point)
+    combined with the cartesian product of ``grid`` (setting -> list of values), de-duplicated
+    in order (e.g. PD points that differ only in ``mhat``). A setting named both in a point
+    and in the grid is refused."""
+    grid = {k: list(v) if isinstance(v, (list, tuple)) else [v] for k, v in (grid or {}).items()}
+    for name, values in grid.items():
+        if not values:
+            raise ValueError(f"grid setting {name!r} has no values")
+    bases = [dict(p) for p in points] if points is not None else [{}]
+    if not bases:
+        raise ValueError("the list of points is empty")
+    out, seen = [], set()
+    for base in bases:
+        both = sorted(set(base) & set(grid))
+        if both:
+            raise ValueError(f"setting(s) {', '.join(both)} given both in a point and in the grid")
+        for combo in itertools.product(*grid.values()):
+            point = normalize_point(base | dict(zip(grid, combo, strict=True)))
+            key = json.dumps(point, sort_keys=True)
+            if key not in seen:
+                seen.add(key)
+                out.append(point)
+    return out
+
+
+def _split_top(text: str) -> list[str]:
+    parts, depth, start, quote = [], 0, 0, None
+    for i, ch in enumerate(text):
+        if quote:
+            quote = None if ch == quote else quote
+        elif ch in "\"'":
+            quote = ch
+        elif ch in "[{(":
+            depth += 1
+        elif ch in "]})":
+            depth -= 1
+        elif ch == "," and depth == 0:
+            parts.append(text[start:i])
+            start = i + 1
+    parts.append(text[start:])
+    return [p.strip() for p in parts]
+
+
+def _value(text: str):
+    if text in ("none", "None", "null"):
+        return None
+    try:
+        return json.loads(text)
+    except ValueError:
+        return text  # a bare word: "pd", "hann", "interval_mean"
+
+
+def parse_set(options: Iterable[str]) -> dict[str, list]:
+    """Grid from ``--set`` options ``NAME=V1,V2,...``: values split at top-level commas, each
+    read as JSON (``[3,3]``, ``{"mass": ...}``, ``null``/``none``) or else as a bare word.
+    ``NAME=geom:A:B:N`` (N log-spaced values from A to B) and ``NAME=lin:A:B:N`` are ranges."""
+    grid: dict[str, list] = {}
+    for opt in options:
+        name, sep, text = opt.partition("=")
+        name = name.strip()
+        if not sep or not name or not text.strip():
+            raise ValueError(f"--set needs NAME=V1,V2,..., got {opt!r}")
+        if name in grid:
+            raise ValueError(f"--set {name} given twice")
+        if text.startswith(("geom:", "lin:")):
+            kind, *args = text.split(":")
+            try:
+                a, b, n = float(args[0]), float(args[1]), int(args[2])
+            except (ValueError, IndexError):
+                raise ValueError(f"--set {name}={text}: a range is {kind}:START:STOP:COUNT") from None
+            if n < 1 or (kind == "geom" and not (a > 0 and b > 0)):
+                raise ValueError(f"--set {name}={text}: need COUNT >= 1 (and START, STOP > 0 for geom)")
+            grid[name] = (np.geomspace(a, b, n) if kind == "geom" else np.linspace(a, b, n)).tolist()
+        else:
+            grid[name] = [_value(v) for v in _split_top(text)]
+    return grid
+
+
+def read_toml(path) -> tuple[dict, list | None, dict]:
+    """``(grid, points, options)`` from a TOML file: a ``[grid]`` table of settings (a list is
+    swept, a single value fixed), an optional ``[[points]]`` array of tables, and an optional
+    ``[run]`` table (``seeds``, ``base_seed``, ``method``, ``substeps``). One-line errors."""
+    path = pathlib.Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
+        raise ValueError(f"{path}: not valid TOML ({' '.join(str(err).split())})") from None
+    extra = sorted(set(data) - {"grid", "points", "run"})
+    if extra:
+        raise ValueError(f"{path}: unknown table(s) {', '.join(extra)}; allowed: grid, points, run")
+    grid, points, run = data.get("grid", {}), data.get("points"), data.get("run", {})
+    if not isinstance(grid, dict) or not isinstance(run, dict):
+        raise ValueError(f"{path}: [grid] and [run] must be tables")
+    if points is not None and not (isinstance(points, list) and all(isinstance(p, dict) for p in points)):
+        raise ValueError(f"{path}: points must be an array of tables ([[points]])")
+    bad = sorted(set(run) - {"seeds", "base_seed", "method", "substeps"})
+    if bad:
+        raise ValueError(
+            f"{path}: unknown [run] option(s) {', '.join(bad)}; allowed: seeds, base_seed, method, substeps"
+        )
+    return grid, points, run
+
+
+def point_columns(point: Mapping) -> dict:
+    """The settings of a point as flat table columns (``arm`` a location or ``user-<hash>``;
+    ``peak`` as ``peak_x``, ``peak_y`` [N]; ``tau_s`` [N m] derived from the ratio)."""
+    arm = point["arm"] if isinstance(point["arm"], int) else f"user-{settings_key(dict(arm=point['arm']))[:8]}"
+    cols = {}
+    for k, v in point.items():
+        if k == "arm":
+            cols["arm"] = arm
+        elif k == "peak":
+            cols["peak_x"], cols["peak_y"] = v
+        elif k == "window":
+            cols["window"] = v if isinstance(v, str) else ":".join(map(str, v))
+        else:
+            cols[k] = v
+        if k == "stiction_ratio":
+            cols["tau_s"] = point["tau_c"] * point["stiction_ratio"]
+    return cols
+
+
+def swept_settings(points: list[Mapping]) -> list[str]:
+    """The settings that take more than one value across ``points`` (``None``, a setting that
+    does not apply, such as PD's ``mhat``, is not a value)."""
+    return [k for k in POINT_DEFAULTS if len({json.dumps(p[k]) for p in points if p[k] is not None}) > 1]
+
+
+def is_numeric(points: list[Mapping], name: str) -> bool:
+    """Whether setting ``name`` is a number wherever it applies (an axis to plot against)."""
+    values = [p[name] for p in points if p[name] is not None]
+    return (
+        bool(values) and name != "arm" and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+    )
+
+
+def default_x(points: list[Mapping]) -> str | None:
+    """The first swept numeric setting of ``points`` (a summary figure's x axis), or ``None``."""
+    numeric = [k for k in swept_settings(points) if is_numeric(points, k)]
+    return numeric[0] if numeric else None
