@@ -99,7 +99,12 @@ def test_csv_round_trip_gives_the_library_numbers(trial, reference, tmp_path, ca
     np.testing.assert_allclose(result["interval_95"]["damping"]["low"], low, rtol=1e-9)
     np.testing.assert_allclose(result["delay"]["value"], fit.delay, rtol=1e-9)
     np.testing.assert_allclose(result["lack_of_fit"]["p"], fit.lack_of_fit_p_overall, rtol=1e-9)
-    assert result["warnings"] == aj.fit_warnings(fit, est)
+    # the script does not know the robot's friction: the instant-sampling warning is among them
+    assert result["warnings"] == aj.fit_warnings(fit, est, acquisition="delay", friction=None)
+    assert any(w.startswith("instant force samples through a robot with joint friction") for w in result["warnings"])
+    for acquisition, friction in (("delay", 0.0), ("interval_mean", None), ("interval_mean", 1.0)):
+        said = aj.fit_warnings(fit, est, acquisition=acquisition, friction=friction)
+        assert not [w for w in said if w.startswith("instant force samples")], (acquisition, friction)
     assert result["settings"]["acquisition"] == "delay" and result["settings"]["se"] == "spectral"
     np.testing.assert_allclose(result["vaf"]["per_element"], fit.vaf, rtol=1e-9)
     np.testing.assert_allclose(result["vaf"]["overall"], fit.vaf_overall, rtol=1e-9)
@@ -108,7 +113,8 @@ def test_csv_round_trip_gives_the_library_numbers(trial, reference, tmp_path, ca
     cx = np.asarray(est.coh_multiple_x)
     np.testing.assert_allclose(result["coherence"]["multiple_x"]["y"]["min"], cx[:, 1].min(), rtol=1e-9)
     np.testing.assert_allclose(result["coherence"]["inputs_max"], np.max(est.coh_inputs), rtol=1e-9)
-    saved = np.load(out / "estimate.npz")
+    with np.load(out / "estimate.npz") as npz:
+        saved = dict(npz)
     for name, value in est._asdict().items():
         if name == "error":
             continue
