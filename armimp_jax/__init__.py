@@ -59,6 +59,11 @@ _EXPORTS = {
     "Robot": "._model.robot",
     "Sensors": "._model.sensors",
     "VoluntaryForce": "._model.voluntary",
+    "Identification": "._identification.identify",
+    "identify": "._identification.identify",
+    "IDENTIFY_NUMERICS": "._identification.model_fit",
+    "PredictedSE": "._identification.predict",
+    "predict_se": "._identification.predict",
     "SimResult": "._simulate",
     "Trial": "._simulate",
     "make_trial": "._simulate",
@@ -69,6 +74,7 @@ _EXPORTS = {
     "ARK3": "._solver.ark",
     "ARK4": "._solver.ark",
     "GradedARK4": "._solver.graded",
+    "PAPER_NUMERICS": "._solver.numerics",
     "SWEEP_NUMERICS": "._solver.numerics",
     "Numerics": "._solver.numerics",
     "RK4": "._solver.rk4",
@@ -112,6 +118,11 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._estimation.welch import cross_spectral_matrix as cross_spectral_matrix
     from ._estimation.welch import estimate as estimate
     from ._estimation.welch import input_coherence as input_coherence
+    from ._identification.identify import Identification as Identification
+    from ._identification.identify import identify as identify
+    from ._identification.model_fit import IDENTIFY_NUMERICS as IDENTIFY_NUMERICS
+    from ._identification.predict import PredictedSE as PredictedSE
+    from ._identification.predict import predict_se as predict_se
     from ._model.arm import Arm as Arm
     from ._model.control import IMBIC as IMBIC
     from ._model.control import PD as PD
@@ -134,6 +145,7 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._solver.ark import ARK3 as ARK3
     from ._solver.ark import ARK4 as ARK4
     from ._solver.graded import GradedARK4 as GradedARK4
+    from ._solver.numerics import PAPER_NUMERICS as PAPER_NUMERICS
     from ._solver.numerics import SWEEP_NUMERICS as SWEEP_NUMERICS
     from ._solver.numerics import Numerics as Numerics
     from ._solver.rk4 import RK4 as RK4

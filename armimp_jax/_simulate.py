@@ -379,7 +379,8 @@ def simulate(trial: Trial, f_delta, *, key=None, numerics: Numerics | None = Non
         f_delta: the perturbation ``(N, 2)`` [N], one sample per control period.
         key: a ``jax.random`` key for sensor noise (required when ``trial.sensors`` draws
             noise; ignored otherwise). Sample ``k`` uses ``fold_in(key, k)``.
-        numerics: ``Numerics(...)``; default 100 RK4 substeps, ``"fast"`` kernel.
+        numerics: ``Numerics(...)``; default ``Numerics()``, GradedARK4 at 4 substeps, stable
+            at any friction (``PAPER_NUMERICS``: the paper's RK4 at 100).
 
     Pure and single-trial: ``jax.vmap(simulate)`` batches it (trials from
     ``stack_trials``, keys from ``jax.random.split``), ``jax.grad`` flows through every

@@ -1,6 +1,7 @@
 """Estimate a human arm's impedance, and fit its M, B, K with 95% intervals, from a lab's own recording.
 
     python sweeps/estimate_recording.py RECORDING --fs HZ --out DIR [Welch and fit options]
+    python sweeps/estimate_recording.py RECORDING --fs 1000 --model CONFIG.toml --out DIR
 
 RECORDING is a CSV file (a header row, one sample per row; delimiter ',' ';' or tab;
 leading '#' lines skipped; extra columns ignored), an NPZ file or a MATLAB MAT-file (v7 or
@@ -36,6 +37,17 @@ dof, 95% intervals, delay, lack of fit, %VAF, coherence summaries, warnings),
 DIR/estimate.npz (f [Hz], R [m/N], T [N/N], Z [N/m], Z_fit, coherences, the error model)
 and DIR/bode.png, DIR/coherence.png. Every bad input gets one line on stderr and exit
 status 2, before any computation. See docs/estimation.md.
+
+The model route (--model CONFIG.toml) fits the arm's M, B, K (and the robot's friction)
+through the friction-aware closed-loop simulation instead (armimp_jax.identify), with the
+robot, controller, acquisition, noise model, starting values and free parameters of the
+TOML file (keys, units and defaults: docs/identify_recording.md). The recording must then
+be sampled at the simulator's control rate (1000 Hz), f_delta must be the force [N] added
+to the robot's command in the frame of x and fh, and x must be in the model's world frame
+(origin at the shoulder, as the config's arm endpoint). The Welch and fit options above do
+not apply. Prints convergence, each parameter as value +- SE and where the fit cannot be
+trusted; writes DIR/identification.json, DIR/identification.csv, DIR/position.png,
+DIR/residual_spectrum.png, DIR/frf.png and DIR/stiffness_ellipse.png.
 """
 
 from __future__ import annotations
@@ -46,7 +58,23 @@ import pathlib
 import sys
 import time
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from _cli import Parser  # noqa: E402
+
 PROG = "estimate_recording"
+# the Welch route's options and their defaults (None: derived; the model route takes none of them)
+WELCH_DEFAULTS = dict(
+    nperseg=8192,
+    noverlap=None,
+    nfft=None,
+    window="hann",
+    fmax=15.0,
+    weights="uniform",
+    acquisition="delay",
+    period=None,
+    se="spectral",
+    friction=None,
+)
 
 
 def _window(text: str):
@@ -59,28 +87,31 @@ def _window(text: str):
 
 
 def parse(argv):
-    ap = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = Parser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("recording", type=pathlib.Path, help="CSV, NPZ or MAT recording (see above)")
     ap.add_argument("--fs", type=float, required=True, metavar="HZ", help="sample rate [Hz] of the recording")
     ap.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR", help="output folder (created)")
     ap.add_argument("--columns", default="", metavar="STD=NAME,...", help="map standard column names to the file's")
-    ap.add_argument("--nperseg", type=int, default=8192, help="Welch segment length [samples] (default 8192)")
+    ap.add_argument(
+        "--model",
+        type=pathlib.Path,
+        metavar="CONFIG.toml",
+        help="the model route: identify through the closed-loop simulation with this config "
+        "(docs/identify_recording.md); the Welch and fit options below do not apply",
+    )
+    ap.add_argument("--nperseg", type=int, help="Welch segment length [samples] (default 8192)")
     ap.add_argument("--noverlap", type=int, help="Welch overlap [samples] (default 3/4 of nperseg)")
     ap.add_argument("--nfft", type=int, help="FFT length >= nperseg, zero padded (default nperseg)")
-    ap.add_argument(
-        "--window", type=_window, default="hann", help="scipy window name, parameters after commas (default hann)"
-    )
-    ap.add_argument("--fmax", type=float, default=15.0, metavar="HZ", help="highest frequency fitted [Hz] (default 15)")
+    ap.add_argument("--window", type=_window, help="scipy window name, parameters after commas (default hann)")
+    ap.add_argument("--fmax", type=float, metavar="HZ", help="highest frequency fitted [Hz] (default 15)")
     ap.add_argument(
         "--weights",
         choices=("uniform", "coherence"),
-        default="uniform",
         help="least-squares weights per bin (default uniform; coherence: docs/estimation.md)",
     )
     ap.add_argument(
         "--acquisition",
         choices=("delay", "instant", "interval_mean", "plain"),
-        default="delay",
         help="how the record was sampled: the model fitted to Z (default delay: timing unknown, see above)",
     )
     ap.add_argument(
@@ -92,7 +123,6 @@ def parse(argv):
     ap.add_argument(
         "--se",
         choices=("spectral", "residual"),
-        default="spectral",
         help="standard errors from the estimate's error model (default) or the fit's residuals",
     )
     ap.add_argument(
@@ -103,6 +133,14 @@ def parse(argv):
         "timing a robot with friction biases M and B in ways the record cannot show, and a warning says so",
     )
     args = ap.parse_args(argv)
+    given = [f"--{k}" for k in WELCH_DEFAULTS if getattr(args, k) is not None]
+    if args.model is not None:
+        if given:
+            ap.error(f"--model takes its settings from the config; not with the Welch route's {', '.join(given)}")
+        return args
+    for k, default in WELCH_DEFAULTS.items():
+        if getattr(args, k) is None:
+            setattr(args, k, default)
     if args.friction is not None and not args.friction >= 0:
         ap.error(f"--friction must be >= 0 N m, got {args.friction}")
     if args.noverlap is None:
@@ -119,6 +157,8 @@ def main(argv=None) -> int:
     args = parse(argv)
     if not (math.isfinite(args.fs) and args.fs > 0):
         return fail(f"--fs must be a finite sample rate > 0 Hz, got {args.fs:g}")
+    if args.model is not None:
+        return model_route(args)
     period = 1.0 / args.fs if args.period is None else args.period
     if not (math.isfinite(period) and period > 0):
         return fail(f"--period must be a finite hold period > 0 s, got {period:g}")
@@ -174,6 +214,43 @@ def main(argv=None) -> int:
     print(f"{n} samples, {n_seg} segments, {f.shape[0]} bins in (0, {args.fmax:g}] Hz")
     print("\n".join(recording.report_lines(est, fit, acquisition=args.acquisition, warnings=warnings)))
     print(f"wrote {', '.join(str(p) for p in paths)} in {time.perf_counter() - start:.1f} s")
+    return 0
+
+
+def model_route(args) -> int:
+    """Identify through the closed-loop model (armimp_jax.study.identify_recording)."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from armimp_jax.study import identify_recording as idr
+    from armimp_jax.study import recording
+
+    try:  # every check before the fit: the config, the rate, the recording
+        config = idr.read_identify_config(args.model)
+        model, options = idr.build_model(config, where=str(args.model))
+        idr.check_rate(args.fs, model)
+        columns = recording.parse_columns(args.columns)
+        rec = recording.load_recording(args.recording, columns=columns)
+    except ValueError as err:  # IdentifyConfigError and RecordingError included
+        return fail(str(err))
+    n = rec["x"].shape[0]
+    print(f"{n} samples ({n / args.fs:g} s); identifying {', '.join(options['free'])} ...", flush=True)
+    try:
+        res = idr.run(rec, model, options)
+    except ValueError as err:  # identify's own refusals (e.g. a start at which the model diverges)
+        return fail(str(err))
+    warnings = idr.trust_warnings(res, rec)
+    settings = dict(
+        recording=str(args.recording), columns=columns, fs_hz=args.fs, config_path=str(args.model), config=config
+    )
+    try:
+        paths = idr.write_results(
+            args.out, res, rec, model=model, settings=settings, numerics=options["numerics"], warnings=warnings
+        )
+    except OSError as err:
+        return fail(f"cannot write to {args.out}: {err.strerror or err}")
+    print("\n".join(idr.report_lines(res, warnings)))
+    print(f"wrote {', '.join(str(p) for p in paths)}")
     return 0
 
 

@@ -76,6 +76,7 @@ def test_every_coulomb_torque_is_stable_and_continuous_at_zero(controller):
     assert abs(phi[1] - phi[0]) < 0.01 * phi[0], phi
 
 
+@pytest.mark.slow  # measured in full by sweeps/bench_convergence.py; fast: stability and agreement with RK4 here
 def test_refinement_converges_at_small_and_paper_friction():
     """Errors against 80 substeps shrink as the step does (order reduced from 3 by the
     stick-slip kinks: about 2), for stiff (1e-4, 1e-2 N m) and paper-level (1 N m) friction."""
@@ -90,7 +91,7 @@ def test_agrees_with_rk4_at_the_paper_friction_levels():
     """Where classical RK4 is stable (levels 1 and 2, docs/model.md section 4): phi_T within 1e-6."""
     trials = aj.stack_trials([paper.trial("imbic", level, 1) for level in (1, 2)])
     ark, _ = _phis(trials, aj.Numerics(solver=aj.ARK3(), substeps=40))
-    rk4, _ = _phis(trials, aj.Numerics(substeps=100))
+    rk4, _ = _phis(trials, aj.PAPER_NUMERICS)
     np.testing.assert_allclose(ark, rk4, rtol=1e-6)
 
 
@@ -112,7 +113,9 @@ def test_gradients_near_zero_friction_are_finite_and_match_central_differences()
     np.testing.assert_allclose(float(g(tc)), central, rtol=1e-3)
 
 
-@pytest.mark.parametrize("solver", [aj.ARK3, aj.ARK4])
+# ARK4 runs the same kernels (ark.py's trig and frame, another tableau, whose order
+# conditions are checked above); its fast kernel is also the reference of test_graded.py
+@pytest.mark.parametrize("solver", [aj.ARK3, pytest.param(aj.ARK4, marks=pytest.mark.slow)])
 def test_fast_and_reference_kernels_agree_to_round_off(solver):
     """Rotated and evaluated ``cos/sin`` differ by round-off only, over 1.5 s at the paper's
     friction levels (bound as RK4's, ``test_rk4.py``)."""
@@ -145,10 +148,10 @@ def test_check_numerics_reports_the_error_of_a_coarse_batch():
     trials = aj.stack_trials([paper.trial("pd", 1, loc) for loc in (1, 2, 3, 4)])
     fd = np.stack([np.asarray(_fd())] * 4)
     welch = aj.Welch(512, 384)
-    coarse = aj.Numerics(substeps=2)
+    coarse = aj.Numerics(solver=aj.RK4(), substeps=2)
     check = aj.check_numerics(trials, fd, numerics=coarse, sample=2, welch=welch)
     np.testing.assert_array_equal(check.indices, [0, 3])
-    assert check.refined == aj.Numerics(substeps=8) and check.diverged == 0
+    assert check.refined == aj.Numerics(solver=aj.RK4(), substeps=8) and check.diverged == 0
     fine = aj.assess_batch(trials, fd, aj.simulate_batch(trials, fd, numerics=check.refined), welch)
     np.testing.assert_allclose(check.phi_T_refined, fine.phi_T[[0, 3]], rtol=1e-12)
     expected = np.abs(check.phi_T - check.phi_T_refined) / check.phi_T_refined

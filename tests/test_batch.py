@@ -29,7 +29,7 @@ from armimp_jax import _batch as sweep, paper
 params = aj.stack_trials([paper.trial(c, f, 1 + f) for c in ["imbic"] for f in (0, 1, 2)])
 fd = np.stack([np.asarray(aj.perturbation(jax.random.PRNGKey(i), 600, 2.25)) for i in range(3)])
 mesh = sweep.make_mesh(jax.devices()[:int(sys.argv[1])])
-r = sweep.simulate_batch(params, fd, numerics=aj.Numerics(substeps=5), mesh=mesh, chunk_samples=250)
+r = sweep.simulate_batch(params, fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=5), mesh=mesh, chunk_samples=250)
 compiles = sweep._chunk._cache_size()  # three chunks, one compiled loop
 out = dict(devices=mesh.size, seen=n, compiles=compiles, x=r.x.tolist(), fh=r.fh.tolist(), fu=r.fu.tolist())
 print(json.dumps(out))
@@ -70,7 +70,9 @@ def _library_batch():
     armimp_jax sets up: the entry points' options without 512-bit vectors; unpadded)."""
     params = aj.stack_trials([paper.trial("imbic", f, 1 + f) for f in (0, 1, 2)])
     fd = jnp.stack([aj.perturbation(jax.random.PRNGKey(i), 600, 2.25) for i in range(3)])
-    return jax.jit(jax.vmap(lambda t, f: aj.simulate(t, f, numerics=aj.Numerics(substeps=5))))(params, fd)
+    return jax.jit(jax.vmap(lambda t, f: aj.simulate(t, f, numerics=aj.Numerics(solver=aj.RK4(), substeps=5))))(
+        params, fd
+    )
 
 
 @pytest.mark.parametrize("codegen", [pytest.param("plain", marks=pytest.mark.slow), "entry_point"])
@@ -135,7 +137,7 @@ def test_per_device_batch_is_padded_to_whole_vectors():
 
 @jax.jit
 def _vmapped(trials, fds):
-    return jax.vmap(lambda t, f: aj.simulate(t, f, numerics=aj.Numerics(substeps=4)))(trials, fds)
+    return jax.vmap(lambda t, f: aj.simulate(t, f, numerics=aj.Numerics(solver=aj.RK4(), substeps=4)))(trials, fds)
 
 
 def test_batch_groups_are_equal_and_bounded():
@@ -157,7 +159,7 @@ def test_grouped_chunked_batches_give_the_numbers_of_one_vmapped_batch():
     grouped = _batch.simulate_batch(
         params,
         fd,
-        numerics=aj.Numerics(substeps=4),
+        numerics=aj.Numerics(solver=aj.RK4(), substeps=4),
         chunk_samples=120,
         max_per_device=2,
         progress=lambda done, total, _: seen.append((done, total)),

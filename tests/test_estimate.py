@@ -130,7 +130,7 @@ def test_true_impedance_matches_table_and_vmaps_over_arms():
 def _short_trial(friction_level, n=12_288, substeps=20):
     fd = aj.perturbation(jax.random.PRNGKey(5), n, paper.perturbation_peak(1))
     run = jax.jit(aj.simulate, static_argnames="numerics")
-    r = run(paper.trial("pd", friction_level, 1), fd, numerics=aj.Numerics(substeps=substeps))
+    r = run(paper.trial("pd", friction_level, 1), fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=substeps))
     return fd, r
 
 

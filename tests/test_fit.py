@@ -251,7 +251,7 @@ def noise_free_records():
     out = {}
     for acquisition in ("instant", "interval_mean"):
         trial = aj.make_trial(aj.PD(), arm=ARM, friction=aj.NO_FRICTION, acquisition=acquisition)
-        sim = run(trial, fd, numerics=aj.Numerics(substeps=4))
+        sim = run(trial, fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=4))
         out[acquisition] = aj.estimate(fd, sim.x, sim.fh, errors=True)
     return out
 
@@ -337,6 +337,7 @@ def test_lack_of_fit_is_quiet_when_the_model_holds_and_warns_when_it_does_not():
     assert [w for w in fit_bad.warnings(bad) if w.startswith("lack of fit")]
 
 
+@pytest.mark.slow  # vmap and grad of the fit are checked fast above (residual SEs), the delay fit with spectral SEs too
 def test_spectral_fit_vmaps_and_differentiates():
     ests = jax.jit(jax.vmap(_mc_record))(jax.random.split(jax.random.PRNGKey(3), 3))
     fit = jax.jit(lambda e: aj.fit_impedance(e, acquisition="delay", se="spectral"))

@@ -45,7 +45,7 @@ def test_converges_to_the_stiff_reference_at_every_coulomb_torque():
     fd = aj.perturbation(jax.random.PRNGKey(7), 600, 2.25)
     sim = _run(trials, fd, numerics=_graded())
     ref = _run(trials, fd, numerics=aj.Numerics(solver=aj.ARK4(), substeps=40))
-    rk4 = _run(trials, fd, numerics=aj.Numerics())
+    rk4 = _run(trials, fd, numerics=aj.PAPER_NUMERICS)
     assert not np.any(sim.diverged) and bool(rk4.diverged[1])  # RK4 diverges at tau_c = 1e-4
     assert np.all(_rel(sim.x, ref.x) < 2e-5) and np.all(_rel(sim.fh, ref.fh) < 1e-3)
     assert _rel(sim.x, rk4.x)[0] < 1e-7 and _rel(sim.fh, rk4.fh)[0] < 1e-7

@@ -3,10 +3,12 @@ settings (refusals, lock, corrupt records, strict JSON, diverged trials), and th
 rules with their seed statistics."""
 
 import dataclasses
+import fcntl
 import importlib.util
 import json
 import pathlib
 import re
+import shutil
 import subprocess
 import sys
 
@@ -74,15 +76,31 @@ def script():
 
 
 @pytest.fixture(scope="module")
-def quick_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("quick")
-    proc = run_script("--quick", "--out", str(out))
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    return out, proc
+def quick_run(tmp_path_factory, request):
+    """A ``--quick`` run, made once per test session: under pytest-xdist the first worker
+    to ask runs it into the session's shared temporary folder (the others wait on a lock),
+    and every worker gets its own copy, which its tests may change."""
+    worker = getattr(request.config, "workerinput", {}).get("workerid")
+    if worker is None:  # one process: nothing to share
+        out = tmp_path_factory.mktemp("quick")
+        proc = run_script("--quick", "--out", str(out))
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+        return out, proc.stdout
+    shared = tmp_path_factory.getbasetemp().parent / "quick-run"  # this session's, common to its workers
+    shared.mkdir(exist_ok=True)
+    with open(shared / "lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (shared / "stdout.txt").exists():
+            proc = run_script("--quick", "--out", str(shared / "out"))
+            assert proc.returncode == 0, proc.stdout + proc.stderr
+            (shared / "stdout.txt").write_text(proc.stdout)
+    out = tmp_path_factory.mktemp("quick") / "out"
+    shutil.copytree(shared / "out", out)
+    return out, (shared / "stdout.txt").read_text()
 
 
 def test_quick_run_produces_everything(quick_run):
-    out, proc = quick_run
+    out, stdout = quick_run
     for name in FIGURES + ["REPORT.md", "results.json", "results.npz", "run.json"]:
         assert (out / name).stat().st_size > 0, name
     results = strict_loads((out / "results.json").read_text())
@@ -98,7 +116,7 @@ def test_quick_run_produces_everything(quick_run):
     assert " ± " in report_md
     with np.load(out / "results.npz") as data:
         assert data["Z"].shape[0] == n and np.iscomplexobj(data["Z"])
-    assert "done in" in proc.stdout and "seeds" in proc.stdout
+    assert "done in" in stdout and "seeds" in stdout
 
 
 def test_report_tables_fitted_matrices_and_the_sampled_data_bias(quick_run, tmp_path):

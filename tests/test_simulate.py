@@ -20,12 +20,14 @@ CONTROLLERS = ["pd", "imbic"]
 
 @jax.jit(static_argnames="substeps")
 def _sim(trial, fd, substeps=100):
-    return aj.simulate(trial, fd, numerics=aj.Numerics(substeps=substeps))
+    return aj.simulate(trial, fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=substeps))
 
 
 @jax.jit(static_argnames="substeps")
 def _batch_sim(trials, fds, substeps=100):
-    return jax.vmap(lambda t, f: aj.simulate(t, f, numerics=aj.Numerics(substeps=substeps)))(trials, fds)
+    return jax.vmap(lambda t, f: aj.simulate(t, f, numerics=aj.Numerics(solver=aj.RK4(), substeps=substeps)))(
+        trials, fds
+    )
 
 
 @pytest.fixture(scope="module")
@@ -63,7 +65,7 @@ def test_rk4_is_fourth_order():
     fd = 20.0 * _fd(40)
 
     def run(substeps):
-        return np.asarray(aj.simulate(base, fd, numerics=aj.Numerics(substeps=substeps)).q)
+        return np.asarray(aj.simulate(base, fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=substeps)).q)
 
     ref = run(256)
     errs = [np.abs(run(s) - ref).max() for s in (1, 2, 4, 8)]
@@ -108,7 +110,7 @@ def test_interval_mean_is_the_mean_over_the_period():
     fd = _fd(200)
     p = paper.trial("pd", 0, 2, acquisition="interval_mean")
     substeps = 40
-    r = aj.simulate(p, fd, numerics=aj.Numerics(substeps=substeps))
+    r = aj.simulate(p, fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=substeps))
     model = plant_model(p.q0, p.x0, p.arm, p.friction, p.robot)
     h = p.period / substeps
 
@@ -129,7 +131,9 @@ def test_interval_mean_is_the_mean_over_the_period():
     np.testing.assert_array_equal(r.x[0], p.x0)
     np.testing.assert_array_equal(r.fh[0], 0.0)
     # ...and it differs from the instant samples by far more than that tolerance
-    inst = aj.simulate(dataclasses.replace(p, acquisition="instant"), fd, numerics=aj.Numerics(substeps=substeps))
+    inst = aj.simulate(
+        dataclasses.replace(p, acquisition="instant"), fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=substeps)
+    )
     assert np.abs(np.asarray(inst.fh) - np.asarray(r.fh)).max() > 1e-3 * np.abs(r.fh).max()
 
 
@@ -180,7 +184,7 @@ def test_gradient_wrt_mhat_is_finite(friction_level):
 
     def loss(m):
         p = paper.trial("imbic", friction_level, 1, mhat=m)
-        return jnp.sum(aj.simulate(p, fd, numerics=aj.Numerics(substeps=4)).x ** 2)
+        return jnp.sum(aj.simulate(p, fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=4)).x ** 2)
 
     g = jax.grad(loss)(0.25 * jnp.eye(2))
     assert np.all(np.isfinite(g)) and np.any(g != 0)
@@ -191,7 +195,9 @@ def test_vmap_over_mhat_inside_trial_params(batch_sim):
     fd = _fd(100)
 
     def final_x(m):
-        return aj.simulate(paper.trial("imbic", 1, 1, mhat=m), fd, numerics=aj.Numerics(substeps=4)).x[-1]
+        return aj.simulate(paper.trial("imbic", 1, 1, mhat=m), fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=4)).x[
+            -1
+        ]
 
     ms = jnp.stack([0.25 * jnp.eye(2), 0.5 * jnp.eye(2)])
     out = jax.jit(jax.vmap(final_x))(ms)

@@ -53,16 +53,40 @@ def test_solvers_are_static_hashable_values(solver):
     assert (num.method, num.kernel) == (solver.method, solver.kernel)
 
 
-def test_defaults_and_the_sweep_setting():
-    assert aj.Numerics() == aj.Numerics(solver=aj.RK4(kernel="fast"), substeps=100, checkpoint="period")
+def test_defaults_the_paper_and_the_sweep_setting():
+    """``Numerics()`` is the converged stiff step; each solver has its own default substeps,
+    resolved at construction (an int: equal settings hash equal however they were spelled)."""
+    default = aj.Numerics()
+    assert default == aj.Numerics(solver=aj.GradedARK4(kernel="fast"), substeps=4, checkpoint="period")
+    assert hash(default) == hash(aj.Numerics(solver=aj.GradedARK4(), substeps=4)) and type(default.substeps) is int
+    expected = {aj.RK4(): 100, aj.RK4(kernel="grad"): 100, aj.ARK3(): 20, aj.ARK4(): 10, aj.GradedARK4(): 4}
+    assert {solver: aj.Numerics(solver=solver).substeps for solver in expected} == expected
+    assert aj.PAPER_NUMERICS == aj.Numerics(solver=aj.RK4(kernel="fast"), substeps=100, checkpoint="period")
     assert aj.SWEEP_NUMERICS == aj.Numerics(solver=aj.ARK3(kernel="fast"), substeps=20)
     assert dataclasses.replace(aj.SWEEP_NUMERICS, substeps=80).solver == aj.ARK3()
+    assert dataclasses.replace(default, substeps=16) == aj.Numerics(solver=aj.GradedARK4(), substeps=16)
+
+
+@pytest.mark.parametrize("controller", ["pd", "imbic"])
+def test_the_default_is_stable_where_the_papers_rk4_diverges(controller):
+    """Coulomb torques of 1e-4 and 1e-3 N m (stiction 1.5x), 0.3 s: the paper's RK4 at 100
+    substeps diverges, ``Numerics()`` does not (its convergence: docs/performance.md)."""
+    base = paper.trial(controller, 0, 1)
+    trials = aj.stack_trials(
+        [aj.make_trial(base.controller, arm=base.arm, friction=aj.LuGre(tau, 1.5 * tau)) for tau in (1e-4, 1e-3)]
+    )
+    fd = aj.perturbation(jax.random.PRNGKey(7), 300, paper.perturbation_peak(1))
+    run = jax.jit(jax.vmap(aj.simulate, in_axes=(0, None)), static_argnames="numerics")
+    assert np.all(run(trials, fd, numerics=aj.PAPER_NUMERICS).diverged)
+    sim = run(trials, fd, numerics=aj.Numerics())
+    assert not np.any(sim.diverged) and np.all(np.isfinite(sim.fh)) and np.all(np.ptp(sim.x, axis=1) > 1e-6)
 
 
 @pytest.mark.parametrize(
     "old, new",
     [
-        (dict(method="ark3", kernel="fast"), dict(solver=aj.ARK3(kernel="fast"))),
+        # the old spelling keeps its old default substeps (100) for every method
+        (dict(method="ark3", kernel="fast"), dict(solver=aj.ARK3(kernel="fast"), substeps=100)),
         (dict(method="ark4", kernel="reference", substeps=7), dict(solver=aj.ARK4(kernel="reference"), substeps=7)),
         (dict(kernel="grad", checkpoint="substep"), dict(solver=aj.RK4(kernel="grad"), checkpoint="substep")),
         (dict(method="rk4", substeps=20), dict(solver=aj.RK4(), substeps=20)),

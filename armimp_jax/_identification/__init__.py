@@ -1,3 +1,4 @@
 """Fitting model parameters through the simulator: the map from unconstrained numbers to
-positive definite matrices, gradient tuning of controller gains, and (next) model-based
-identification and experiment design. Pure JAX on values and arrays: no files."""
+positive definite matrices, gradient tuning of controller gains, model-based identification
+of the arm and the friction (``identify``) and the standard errors a planned experiment will
+give (``predict_se``). Pure JAX on values and arrays: no files."""

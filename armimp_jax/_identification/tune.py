@@ -12,8 +12,8 @@ Two gradient modes: ``"forward"`` (``jax.jacfwd``: one tangent per parameter, me
 a few primal runs) and ``"reverse"`` (``jax.grad`` through the scan with ``jax.checkpoint``;
 ``Numerics.checkpoint`` says whether the tape holds one carry per control period
 or per RK4 substep). Both are exact; ``bench_gradient.py`` measures them. Training
-batches are best run with ``Numerics(solver=RK4(kernel="grad"), checkpoint="substep")`` (the RK4 kernel
-arranged for reverse mode, a carry per substep on the tape: ``sweeps/bench_gradient.py``)
+batches are best run with ``Numerics(solver=RK4(kernel="grad"), substeps=..., checkpoint="substep")`` (the
+RK4 kernel arranged for reverse mode, a carry per substep on the tape: ``sweeps/bench_gradient.py``)
 and are sharded over the devices (``place_batch``: one per core after ``runtime.configure``).
 
 ``tune`` runs optax with a divergence guard: a step that lands on an ``Mhat`` whose
@@ -143,7 +143,8 @@ def value_and_grad_fn(
 class TuneConfig:
     """Options of ``tune``: the ``Mhat`` parameterisation, Adam's learning rate (in units of
     ``theta``), the iteration budget, the gradient mode, the ``phi_ij`` weight of the loss,
-    the step scale below which the descent stops, and the training numerics."""
+    the step scale below which the descent stops, and the training numerics (default: the
+    paper's RK4, 100 substeps, with the ``grad`` kernel and a carry per substep on the tape)."""
 
     parameterisation: str = "diagonal"
     learning_rate: float = 0.1
@@ -151,7 +152,8 @@ class TuneConfig:
     mode: str = "reverse"
     phi_ij_weight: float = 0.0
     min_step_scale: float = 1e-3
-    numerics: Numerics = Numerics(solver=RK4(kernel="grad"), checkpoint="substep")
+    # the paper's RK4 at its 100 substeps, whatever Numerics() is (saved tuning states record it)
+    numerics: Numerics = Numerics(solver=RK4(kernel="grad"), substeps=100, checkpoint="substep")
 
 
 def config_settings(config: TuneConfig) -> dict:

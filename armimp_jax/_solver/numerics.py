@@ -16,14 +16,17 @@ from .common import CHECKPOINTS, check_checkpoint
 from .graded import GradedARK4
 from .rk4 import RK4
 
-DEFAULT_SUBSTEPS = 100  # RK4 steps per 1 ms control period (h = 0.01 ms), docs/model.md section 6
+# Steps per 1 ms control period of ``Numerics(substeps=None)``, per solver (why: Numerics'
+# docstring; the measurements: docs/performance.md)
+DEFAULT_SUBSTEPS = {"rk4": 100, "ark3": 20, "ark4": 10, "gark4": 4}
+PAPER_SUBSTEPS = DEFAULT_SUBSTEPS["rk4"]  # the paper's 0.01 ms at a 1 ms period, docs/model.md section 6
 
 SOLVERS = {"rk4": RK4, "ark3": ARK3, "ark4": ARK4, "gark4": GradedARK4}
 METHODS = tuple(SOLVERS)  # the solvers' names, as saved run settings spell them
 
 
 def named_solver(method: str, *, kernel: str = "fast"):
-    """The solver a saved ``method`` name (``"rk4"``, ``"ark3"``, ``"ark4"``) and ``kernel`` denote."""
+    """The solver a saved ``method`` name (``"rk4"``, ``"ark3"``, ``"ark4"``, ``"gark4"``) and ``kernel`` denote."""
     check_choice("method", method, METHODS)
     return SOLVERS[method](kernel=kernel)
 
@@ -32,28 +35,43 @@ def named_solver(method: str, *, kernel: str = "fast"):
 class Numerics:
     """Integration settings of a simulation (all static; keyword arguments).
 
+    ``Numerics()`` is ``GradedARK4()`` at 4 substeps: stable and converged at every Coulomb
+    torque from 0 to 4 N m, and the cheapest such setting measured. The paper's method,
+    RK4 at 100 substeps, is ``PAPER_NUMERICS``; it diverges at small Coulomb torques.
+
     Args:
-        solver: how one control period is integrated: ``RK4(kernel=...)`` (default
-            ``RK4()``: classical Runge-Kutta, the paper's method), ``ARK3(...)`` or
-            ``ARK4(...)`` (additive Runge-Kutta with the LuGre bristles implicit,
-            ``armimp_jax/_solver/ark.py``): stable for every ``tau_c >= 0``, where RK4
-            diverges once the bristle relaxation rate ``sigma0 |v| / g`` times the step
-            passes 2.8 (small Coulomb torques). ``SWEEP_NUMERICS`` is the setting that
-            ``sweeps/bench_convergence.py`` found converged across friction.
-            ``GradedARK4()`` (``armimp_jax/_solver/graded.py``) is ``ARK4`` made cheaper:
-            a frame frozen per step and short steps before each sample (``substeps + 2``
-            steps per period).
-        substeps: fixed integration steps per control period (integer >= 1; default 100, the
-            paper's 0.01 ms at a 1 ms period).
+        solver: how one control period is integrated. ``GradedARK4()`` (default;
+            ``armimp_jax/_solver/graded.py``) is ``ARK4`` made cheaper: a frame frozen per
+            step and short steps before each sample (``substeps + 2`` steps per period).
+            ``ARK3(...)`` or ``ARK4(...)`` (additive Runge-Kutta with the LuGre bristles
+            implicit, ``armimp_jax/_solver/ark.py``) are, like it, stable for every
+            ``tau_c >= 0``. ``RK4(kernel=...)`` is classical Runge-Kutta, the paper's method:
+            it diverges once the bristle relaxation rate ``sigma0 |v| / g`` times the step
+            passes 2.8 (small Coulomb torques).
+        substeps: fixed integration steps per control period (integer >= 1). ``None``
+            (default): the solver's own (``DEFAULT_SUBSTEPS``), each the cheapest setting
+            ``sweeps/bench_convergence.py`` found converged for it, except RK4's, the paper's:
+
+            - ``RK4``: 100, the paper's 0.01 ms at a 1 ms period (converged at the paper's
+              friction; no step it can afford is stable at small Coulomb torques);
+            - ``ARK3``: 20 (``SWEEP_NUMERICS``), converged at every Coulomb torque (10 is not);
+            - ``ARK4``: 10, converged at every Coulomb torque (5 is not, at small ones);
+            - ``GradedARK4``: 4 (6 steps per period), converged at every Coulomb torque
+              (3 is not), and the cheapest converged setting of all.
+
+            The deprecated ``method``/``kernel`` spelling keeps its former default, 100.
         checkpoint: what reverse mode keeps for the backward pass (forward runs are
             unaffected, gradients agree to round-off): ``"period"`` (default) one carry per
             control period, the substeps recomputed; ``"substep"`` one carry per
             substep (96 bytes each for RK4: memory grows with the record and the batch).
         method, kernel: deprecated spelling of ``solver`` (``method="ark3", kernel="fast"``
-            is ``solver=ARK3(kernel="fast")``); a ``DeprecationWarning`` says so.
+            is ``solver=ARK3(kernel="fast")``; no ``method`` is RK4); a
+            ``DeprecationWarning`` says so.
 
-    ``method`` and ``kernel`` remain readable (the solver's), and ``settings()`` gives the
-    dictionary that saved run settings record.
+    The substeps are resolved when the value is built, so ``substeps`` is always an int and
+    equal settings compare and hash equal however they were spelled. ``method`` and
+    ``kernel`` remain readable (the solver's), and ``settings()`` gives the dictionary that
+    saved run settings record.
     """
 
     solver: RK4 | ARK3 | ARK4 | GradedARK4
@@ -66,7 +84,7 @@ class Numerics:
         self,
         *,
         solver=None,
-        substeps: int = DEFAULT_SUBSTEPS,
+        substeps: int | None = None,
         checkpoint: str = "period",
         method: str | None = None,
         kernel: str | None = None,
@@ -80,11 +98,13 @@ class Numerics:
                 DeprecationWarning,
                 stacklevel=2,
             )
-        solver = RK4() if solver is None else solver
+            substeps = PAPER_SUBSTEPS if substeps is None else substeps  # that spelling's former default
+        solver = GradedARK4() if solver is None else solver
         if not isinstance(solver, tuple(SOLVERS.values())):
             raise ValueError(
                 f"Numerics: solver must be RK4(...), ARK3(...), ARK4(...) or GradedARK4(...), got {solver!r}"
             )
+        substeps = DEFAULT_SUBSTEPS[solver.method] if substeps is None else substeps
         check_checkpoint(checkpoint)
         object.__setattr__(self, "solver", solver)
         object.__setattr__(self, "substeps", check_int("substeps (steps per control period)", substeps, minimum=1))
@@ -92,7 +112,7 @@ class Numerics:
 
     @property
     def method(self) -> str:
-        """The solver's name: ``"rk4"``, ``"ark3"`` or ``"ark4"``."""
+        """The solver's name: ``"rk4"``, ``"ark3"``, ``"ark4"`` or ``"gark4"``."""
         return self.solver.method
 
     @property
@@ -115,8 +135,17 @@ class Numerics:
         return (self.solver, self.substeps, self.checkpoint)
 
 
-# The setting for sweeps and tuning over arbitrary friction: stable for every tau_c >= 0
-# and the cheapest measured within 1e-4 of an 8x-refined phi_T from 0 to 4 N m, PD and
-# IMBIC, the four paper arms (sweeps/bench_convergence.py; table in docs/performance.md).
-# Not within 1e-6 at the paper's levels: the reproduction keeps Numerics() (RK4, 100).
+# The paper's method: classical RK4 at 0.01 ms, which the paper reproduction and its Mhat
+# tuning keep so that their numbers stay the paper's. At small Coulomb torques (0.01 N m and
+# below, docs/performance.md) it diverges or is far off; use Numerics() there.
+PAPER_NUMERICS = Numerics(solver=RK4(), substeps=PAPER_SUBSTEPS)
+
+# The setting of sweeps over arbitrary friction (sweep.py, friction_threshold.py), of
+# explain_claims.py and of identify / predict_se: stable for every tau_c >= 0 and within
+# 1e-4 of a refined phi_T from 0 to 4 N m, PD and IMBIC, the four paper arms
+# (sweeps/bench_convergence.py; docs/performance.md). It stays ARK3 at 20 substeps although
+# Numerics() is as converged and about 4x cheaper: the published sweep, claims and coverage
+# results were computed with it and a new default would move them (within 1e-4), and a sweep
+# run with the default options would no longer match its own earlier folders (saved
+# settings name the method and substeps, so those still resume with --resume).
 SWEEP_NUMERICS = Numerics(solver=ARK3(), substeps=20)

@@ -50,7 +50,7 @@ import pandas as pd
 from .._batch import Welch, assess_batch, make_mesh, simulate_batch
 from .._estimation.welch import input_coherence
 from .._simulate import stack_trials
-from .._solver.numerics import Numerics
+from .._solver.numerics import PAPER_NUMERICS, Numerics
 from ..presets import perturbation_peak, trial
 from ..study import distributed
 from ..study.results import (
@@ -134,7 +134,7 @@ class ReproSettings:
 
     @property
     def numerics(self) -> Numerics:
-        return Numerics(substeps=self.substeps)
+        return dataclasses.replace(PAPER_NUMERICS, substeps=self.substeps)  # the paper's RK4, whatever Numerics() is
 
     @property
     def conditions(self) -> list[Condition]:

@@ -82,7 +82,8 @@ def heldout_phi(
     base_seed: int = 0,
     batch_size: int = 24,
 ) -> dict:
-    """``phi_T`` of each candidate ``Mhat`` on held-out seeds at the given settings.
+    """``phi_T`` of each candidate ``Mhat`` on held-out seeds at the given settings (the
+    paper's RK4 at ``substeps``, whatever ``Numerics()`` is).
 
     Returns ``{name: array (len(frictions), len(locations), len(seeds))}`` plus
     ``"_diverged"``: names whose runs diverged in any trial.
@@ -92,6 +93,7 @@ def heldout_phi(
     signals = seed_perturbations(base_seed, [HELDOUT_SEED_OFFSET + s for s in seeds], n)
     cells = [(fr, loc, i) for fr in frictions for loc in locations for i in range(len(seeds))]
     out, diverged = {}, []
+    paper_rk4 = Numerics(solver=RK4(), substeps=substeps)
     for name, mhat in mhats.items():
         phis = np.empty(len(cells))
         bad = False
@@ -99,7 +101,7 @@ def heldout_phi(
             chunk = cells[start : start + batch_size]
             params = stack_trials([trial("imbic", fr, loc, mhat=np.asarray(mhat)) for fr, loc, _ in chunk])
             f_delta = np.stack([signals[i] for _, _, i in chunk])
-            sim = simulate_batch(params, f_delta, numerics=Numerics(substeps=substeps), chunk_samples=min(n, 10_000))
+            sim = simulate_batch(params, f_delta, numerics=paper_rk4, chunk_samples=min(n, 10_000))
             res = assess_batch(params, f_delta, sim, welch)
             phis[start : start + len(chunk)] = res.phi_T
             bad |= bool(np.any(res.diverged))

@@ -7,7 +7,8 @@ The modules, one job each: ``points`` (a sweep's settings, grids, TOML and ``--s
 ``results`` (keys, checked records, atomic strict-JSON writes), ``stats`` (``mean_ci`` and
 bootstrap thresholds), ``seeds`` (common random numbers), ``tables`` (pandas tables, CSV
 and Parquet), ``figures`` (``save_figure``), ``sweep`` (batches, metrics, ``run_sweep``),
-``distributed`` (many processes), ``recording`` (measured data) and ``tune``.
+``distributed`` (many processes), ``recording`` (measured data), ``identify_recording`` (the
+model route for measured data: a TOML config, ``identify``, its results on disk) and ``tune``.
 
 The names below are imported on first use (so ``armimp_jax.study.distributed``'s option
 helpers stay importable without JAX).
@@ -38,6 +39,8 @@ _EXPORTS = {
     "read_table": "tables",
     "write_table": "tables",
     "save_figure": "figures",
+    "IdentifyConfigError": "identify_recording",
+    "read_identify_config": "identify_recording",
     "POINT_DEFAULTS": "points",
     "expand": "points",
     "parse_set": "points",
@@ -65,6 +68,8 @@ def __dir__() -> list[str]:
 
 if TYPE_CHECKING:
     from .figures import save_figure as save_figure
+    from .identify_recording import IdentifyConfigError as IdentifyConfigError
+    from .identify_recording import read_identify_config as read_identify_config
     from .points import POINT_DEFAULTS as POINT_DEFAULTS
     from .points import expand as expand
     from .points import parse_set as parse_set

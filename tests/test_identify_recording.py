@@ -1,0 +1,314 @@
+"""The model route of sweeps/estimate_recording.py (armimp_jax.study.identify_recording): a
+simulated PD recording with friction, sensor noise and a voluntary force, written to CSV and
+identified from a start 15-20% off the truth; every bad config gets one line before any work."""
+
+import contextlib
+import importlib.util
+import io
+import json
+import math
+import pathlib
+import re
+import types
+
+import jax
+import numpy as np
+import pandas as pd
+import pytest
+
+import armimp_jax as aj
+from armimp_jax import presets
+from armimp_jax.study import identify_recording as idr
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "sweeps" / "estimate_recording.py"
+EXAMPLE = ROOT / "sweeps" / "configs" / "identify_example.toml"
+_spec = importlib.util.spec_from_file_location("estimate_recording_model", SCRIPT)
+script = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(script)
+
+ARM = presets.arm(2)
+TRUE_K = np.asarray(ARM.stiffness)
+START = {"mass": 1.15, "damping": 0.85, "stiffness": 1.2}  # the start: the truth times these
+N_SAMPLES = 2000  # 2 s at 1 kHz
+SUBSTEPS = 5  # steps per period of identify's default integrator, for the recording and the fit alike
+FIGURES = ("position.png", "residual_spectrum.png", "frf.png", "stiffness_ellipse.png")
+
+
+def _config() -> dict:
+    """The good config, as sections of plain values (the start 15-20% off the truth)."""
+    return {
+        "controller": {"type": "pd", "kp": [[250.0, 0.0], [0.0, 250.0]]},
+        "acquisition": {"mode": "instant"},
+        "sensors": {"force_noise": 0.05, "encoder_counts": 2**18},
+        "voluntary": {"std": 0.1, "cutoff": 2.0},
+        "arm": {
+            **{k: (f * np.asarray(getattr(ARM, k))).tolist() for k, f in START.items()},
+            "endpoint": np.asarray(ARM.endpoint).tolist(),
+        },
+        "friction": {"tau_c": 0.25, "tau_s": 0.45},
+        "identify": {
+            "free": ["arm.mass", "arm.damping", "arm.stiffness", "friction.tau_c"],
+            "bootstrap": 10,
+            "max_steps": 40,
+            "substeps": SUBSTEPS,
+        },
+    }
+
+
+def write_config(path, config: dict) -> pathlib.Path:
+    """TOML of ``config`` (JSON numbers, strings and arrays are TOML values too)."""
+    lines = []
+    for section, table in config.items():
+        lines.append(f"[{section}]")
+        lines += [f"{key} = {json.dumps(value)}" for key, value in table.items()]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def recording_csv(tmp_path_factory):
+    """A 2 s PD recording at location 2 (LuGre 0.3 / 0.45 N m, force noise 0.05 N, 2^18-count
+    encoders, voluntary force 0.1 N RMS below 2 Hz, perturbation peak 10 N), as the six columns."""
+    truth = aj.make_trial(
+        aj.PD(),
+        arm=ARM,
+        friction=aj.LuGre(0.3, 0.45),
+        sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18),
+        voluntary=aj.VoluntaryForce(0.1, 2.0),
+    )
+    f = aj.perturbation(jax.random.key(0), N_SAMPLES, 10.0)
+    sim = jax.jit(aj.simulate, static_argnames="numerics")(
+        truth, f, key=jax.random.key(1), numerics=aj.Numerics(solver=aj.GradedARK4(), substeps=SUBSTEPS)
+    )
+    assert not bool(sim.diverged)
+    path = tmp_path_factory.mktemp("recording") / "rec.csv"
+    data = np.column_stack([f, sim.x, sim.fh])
+    np.savetxt(path, data, delimiter=",", fmt="%.17g", header="f_delta_x,f_delta_y,x,y,fh_x,fh_y", comments="")
+    return path
+
+
+@pytest.fixture(scope="module")
+def identified(recording_csv, tmp_path_factory):
+    """One run of the script's model route: ``(exit code, stdout, output folder)``."""
+    folder = tmp_path_factory.mktemp("identified")
+    config = write_config(folder / "config.toml", _config())
+    out = folder / "out"
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        code = script.main([str(recording_csv), "--fs", "1000", "--model", str(config), "--out", str(out)])
+    return code, stdout.getvalue(), out
+
+
+def _strict(path):
+    return json.loads(path.read_text(), parse_constant=lambda c: pytest.fail(f"not strict JSON: {c}"))
+
+
+def _finite(value) -> bool:
+    return bool(np.all(np.isfinite(np.asarray(value, dtype=float))))
+
+
+def test_model_route_recovers_the_stiffness_and_writes_finite_results(identified, recording_csv):
+    code, printed, out = identified
+    assert code == 0, printed
+    result = _strict(out / "identification.json")
+    for key in ("settings", "record", "converged", "message", "cost", "iterations", "parameters", "labels"):
+        assert key in result, key
+    for key in ("covariance", "vaf", "whiteness_p", "classical", "start_model", "fitted_model", "warnings"):
+        assert key in result, key
+    settings = result["settings"]
+    assert settings["recording"] == str(recording_csv) and settings["fs_hz"] == 1000.0
+    assert settings["armimp_jax"] == aj.__version__
+    assert settings["config"]["identify"]["free"] == _config()["identify"]["free"]
+    assert settings["config"]["friction"]["sigma0"] is None  # the library's default, recorded as such
+    assert result["record"] == {"n_samples": N_SAMPLES, "duration_s": N_SAMPLES / 1000.0}
+    labels = result["labels"]
+    assert len(labels) == 14 and labels[0] == "arm.mass[0,0]" and labels[-1] == "friction.tau_c[1]"
+    cov = np.asarray(result["covariance"])
+    assert cov.shape == (14, 14) and _finite(cov)
+    np.testing.assert_allclose(cov, cov.T, rtol=1e-12, atol=1e-12 * np.abs(cov).max())
+    assert np.all(np.diag(cov) > 0)
+    for name, entry in result["parameters"].items():
+        for field in ("value", "se", "se_textbook", "bias"):
+            assert _finite(entry[field]), (name, field)
+        for index, e in entry["entries"].items():
+            assert e["low95"] < e["value"] < e["high95"], (name, index)
+            assert math.isclose(e["high95"] - e["value"], 1.959963984540054 * e["se"], rel_tol=1e-9)
+    assert set(result["parameters"]) == set(_config()["identify"]["free"])
+    for field in ("cost", "iterations"):
+        assert _finite(result[field])
+    assert _finite(result["vaf"]["position"]) and _finite(result["vaf"]["force"])
+    assert set(result["whiteness_p"]) == {"x", "y", "fh_x", "fh_y"} and _finite(list(result["whiteness_p"].values()))
+    assert _finite(result["classical"]["stiffness"])
+    assert result["fitted_model"]["controller_type"] == "PD"
+    # the estimate of K: near the truth, and much nearer than the start (2 s, friction, noise)
+    k = np.asarray(result["parameters"]["arm.stiffness"]["value"])
+    assert np.abs(k - TRUE_K).max() <= 0.1 * np.abs(TRUE_K).max(), k
+    assert np.linalg.norm(k - TRUE_K) < 0.5 * np.linalg.norm((START["stiffness"] - 1) * TRUE_K), k
+    np.testing.assert_allclose(result["parameters"]["friction.tau_c"]["value"], 0.3, rtol=0.25)
+    np.testing.assert_allclose(result["fitted_model"]["arm"]["stiffness"], k, rtol=1e-12)
+
+
+def test_model_route_prints_a_summary_and_writes_the_table_and_figures(identified):
+    code, printed, out = identified
+    assert code == 0, printed
+    result = _strict(out / "identification.json")
+    lines = printed.splitlines()
+    assert ("converged" in lines) == result["converged"]
+    assert any(line.startswith("NOT CONVERGED: ") for line in lines) == (not result["converged"])
+    k = result["parameters"]["arm.stiffness"]["entries"]["1,1"]
+    assert f"  arm.stiffness[1,1] [N/m]: {k['value']:10.4g} +- {k['se']:.3g}" in printed
+    assert "friction.tau_c[0] [N m]:" in printed and "VAF [%]: x " in printed and "Ljung-Box p" in printed
+    warned = [line.removeprefix("WARNING: ") for line in lines if line.startswith("WARNING: ")]
+    assert warned == result["warnings"]
+    assert warned or "no warnings: the fit looks sound" in lines
+    table = pd.read_csv(out / "identification.csv", dtype={"index": str})
+    assert list(table.columns[:8]) == ["parameter", "index", "label", "unit", "value", "se", "low95", "high95"]
+    assert len(table) == 14 and list(table["label"]) == result["labels"]
+    row = table[table["label"] == "arm.stiffness[0,1]"].iloc[0]
+    assert row["unit"] == "N/m" and row["index"] == "0,1"
+    entry = result["parameters"]["arm.stiffness"]["entries"]["0,1"]
+    for column in ("value", "se", "low95", "high95", "classical"):
+        assert row[column] == pytest.approx(entry[column], rel=1e-12), column
+    assert table[table["parameter"] == "friction.tau_c"]["classical"].isna().all()
+    for name in FIGURES:
+        assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".")]  # no temporary files left
+
+
+def _run_bad(args, tmp_path, capsys) -> str:
+    out = tmp_path / "out"
+    code = script.main([*map(str, args), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert not out.exists()  # refused before any work
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("estimate_recording: error: "), err
+    return lines[0]
+
+
+def _edit(**changes):
+    """The good config with ``section=value`` changes (``None`` drops the section; a dict
+    updates its keys, a key set to ``None`` is dropped)."""
+    config = _config()
+    for section, change in changes.items():
+        if change is None:
+            config.pop(section)
+            continue
+        table = {**config.get(section, {}), **change}
+        config[section] = {k: v for k, v in table.items() if v is not None}
+    return config
+
+
+BAD_CONFIGS = {
+    "unknown parameter": (
+        _edit(identify={"free": ["arm.stiffness", "arm.inertia"]}),
+        r"\[identify\] free: unknown parameter 'arm.inertia'; allowed: arm.mass, arm.damping, arm.stiffness, "
+        r"friction.tau_c, friction.tau_s",
+    ),
+    "unknown key": (
+        _edit(sensors={"force_nosie": 0.05}),
+        r"\[sensors\] unknown key 'force_nosie'; allowed: force_noise, encoder_counts, velocity_noise",
+    ),
+    "IMBIC key under PD": (
+        _edit(controller={"mhat": [[0.3, 0.0], [0.0, 0.3]]}),
+        r"\[controller\] unknown key 'mhat' for type 'pd'; allowed: type, kp, kv",
+    ),
+    "unknown section": (dict(_config(), sensor={"force_noise": 0.05}), r"unknown section \[sensor\]; allowed: robot,"),
+    "missing section": (_edit(arm=None), r"missing section \[arm\]; required: controller, arm, friction, identify"),
+    "missing key": (
+        _edit(arm={"stiffness": None}),
+        r"\[arm\] missing key 'stiffness' \[N/m\]; required: mass, damping, stiffness, endpoint",
+    ),
+    "wrong shape": (
+        _edit(arm={"stiffness": [100.0, 200.0]}),
+        r"\[arm\] stiffness \[N/m\] must be a 2x2 array \[\[a, b\], \[c, d\]\], got \[100.0, 200.0\]",
+    ),
+    "ragged matrix": (
+        _edit(controller={"kv": [[4.0, 0.0], [0.0]]}),
+        r"\[controller\] kv \[N s/m\] must be a 2x2 array",
+    ),
+    "text for a number": (_edit(friction={"tau_c": "0.3"}), r"\[friction\] tau_c \[N m\] must be a number or a list"),
+    "unknown controller": (_edit(controller={"type": "pid"}), r"\[controller\] type must be one of 'pd', 'imbic'"),
+    "unknown acquisition": (
+        _edit(acquisition={"mode": "delay"}),
+        r"\[acquisition\] mode must be one of 'instant', 'interval_mean', got 'delay'",
+    ),
+    "bootstrap too small": (_edit(identify={"bootstrap": 5}), r"\[identify\] bootstrap must be an integer >= 10"),
+    "symmetric not free": (
+        _edit(identify={"symmetric": ["arm.mass"], "free": ["arm.stiffness"]}),
+        r"\[identify\] symmetric names 'arm.mass', which is not a free arm matrix; allowed: arm.stiffness",
+    ),
+    "stiction below Coulomb": (_edit(friction={"tau_s": 0.1}), r"\[friction\] LuGre: tau_s must be >= tau_c"),
+    "mass not definite": (
+        _edit(arm={"mass": [[1.0, 0.0], [0.0, -1.0]]}),
+        r"\[arm\] Arm: mass .*positive definite",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", BAD_CONFIGS)
+def test_bad_configs_get_one_line_naming_the_key(case, recording_csv, tmp_path, capsys):
+    config, message = BAD_CONFIGS[case]
+    path = write_config(tmp_path / "config.toml", config)
+    line = _run_bad([recording_csv, "--fs", "1000", "--model", path], tmp_path, capsys)
+    assert re.search(message, line), line
+    with pytest.raises(idr.IdentifyConfigError, match=message):
+        idr.build_model(idr.read_identify_config(path), where=str(path))
+
+
+def test_bad_files_and_rates_get_one_line(recording_csv, tmp_path, capsys):
+    good = write_config(tmp_path / "good.toml", _config())
+    line = _run_bad([recording_csv, "--fs", "500", "--model", good], tmp_path, capsys)
+    assert re.search(r"sample rate 500 Hz is not the simulator's control rate 1000 Hz", line), line
+    line = _run_bad([recording_csv, "--fs", "1000", "--model", tmp_path / "nope.toml"], tmp_path, capsys)
+    assert re.search(r"nope.toml: no such file", line), line
+    (tmp_path / "broken.toml").write_text("[arm\nmass = 1\n")
+    line = _run_bad([recording_csv, "--fs", "1000", "--model", tmp_path / "broken.toml"], tmp_path, capsys)
+    assert re.search(r"broken.toml: not valid TOML", line), line
+    line = _run_bad([tmp_path / "missing.csv", "--fs", "1000", "--model", good], tmp_path, capsys)
+    assert re.search(r"cannot read .*missing.csv: it does not exist", line), line
+
+
+def test_welch_options_are_refused_with_the_model_route(recording_csv, tmp_path, capsys):
+    good = write_config(tmp_path / "good.toml", _config())
+    with pytest.raises(SystemExit) as exc:
+        script.main([str(recording_csv), "--fs", "1000", "--model", str(good), "--out", "x", "--nperseg", "512"])
+    assert exc.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines == [
+        "estimate_recording: error: --model takes its settings from the config; not with the Welch route's --nperseg"
+    ]
+
+
+def test_example_config_builds_the_documented_model():
+    config = idr.read_identify_config(EXAMPLE)
+    model, options = idr.build_model(config, where=str(EXAMPLE))
+    assert type(model.controller).__name__ == "PD" and model.acquisition == "instant"
+    assert model.voluntary is not None and model.sensors.force_on and model.sensors.encoder_on
+    np.testing.assert_allclose(model.x0, np.asarray(config["arm"]["endpoint"]), atol=1e-9)
+    assert options["free"] == ("arm.mass", "arm.damping", "arm.stiffness", "friction.tau_c")
+    numerics = options["numerics"]
+    assert (numerics.method, numerics.substeps) == ("gark4", 4) and options["bootstrap"] == 100
+    assert "sweeps/configs/identify_example.toml" in (ROOT / "docs" / "identify_recording.md").read_text()
+
+
+def test_stiffness_ellipse_radius_and_draws_from_the_covariance():
+    phi = np.array([0.0, np.pi / 2, np.pi / 4])
+    np.testing.assert_allclose(idr.ellipse_radius(np.diag([100.0, 400.0]), phi)[:2], [100.0, 400.0])
+    # the ellipse's extremes are the eigenvalues of the symmetric part, whatever the rotation
+    k = np.array([[200.0, -80.0], [-20.0, 300.0]])
+    grid = np.linspace(0.0, np.pi, 20001)
+    r = idr.ellipse_radius(k, grid)
+    np.testing.assert_allclose([r.min(), r.max()], np.linalg.eigvalsh(0.5 * (k + k.T)), rtol=1e-6)
+    assert idr.ellipse_radius(np.stack([k, 2 * k]), phi).shape == (2, 3)
+    # draws of K from the covariance of its entries (others in the covariance ignored)
+    labels = ["arm.mass[0,0]"] + [f"arm.stiffness[{i},{j}]" for i in range(2) for j in range(2)]
+    cov = np.diag([1.0, 4.0, 1.0, 1.0, 9.0])
+    cov[1, 4] = cov[4, 1] = 3.0
+    res = types.SimpleNamespace(labels=labels, covariance=cov, values={"arm.stiffness": k})
+    draws = idr.stiffness_draws(res, n=20000)
+    assert draws.shape == (20000, 2, 2)
+    np.testing.assert_allclose(draws.mean(axis=0), k, atol=0.1)
+    np.testing.assert_allclose(np.cov(draws.reshape(-1, 4).T), cov[1:, 1:], atol=0.25)
+    assert idr.stiffness_draws(types.SimpleNamespace(labels=labels[:1])) is None
