@@ -3,14 +3,16 @@
 What importing ``armimp_jax`` does, and when: if no JAX backend has started yet,
 ``apply_cpu_defaults`` (1) asks JAX for one CPU device per core (``jax_num_cpu_devices``),
 because one jitted computation runs on one core of XLA:CPU and ``simulate_batch``, the
-sweeps and the tests shard their batches over the devices they find; and (2) adds two
+sweeps and the tests shard their batches over the devices they find; (2) adds two
 XLA:CPU code-generation options that XLA refuses as per-compilation options (they live in
 ``xla_backend_extra_options``, a map that ``jax.jit(compiler_options=...)`` cannot set), so
-the environment is the only place for them. Nothing else changes: single computations still
-run on the first device, and a caller's own settings win (a device count already set in
+the environment is the only place for them; and (3) lets the devices wait for each other at
+a collective for a day instead of XLA:CPU's 40 s, after which it aborts the process.
+Nothing else changes: single computations still run on the first device, and a caller's own
+settings win (a device count already set in
 ``XLA_FLAGS`` or ``jax_num_cpu_devices``, options already in ``XLA_FLAGS``). If a backend has
 already started, importing changes nothing. Opt out with ``ARMIMP_JAX_CPU_DEVICES=1`` (or
-any count) for the devices and ``ARMIMP_JAX_XLA_DEFAULTS=0`` for both. Scripts call
+any count) for the devices and ``ARMIMP_JAX_XLA_DEFAULTS=0`` for all three. Scripts call
 ``configure`` once at start (float64, devices, code generation, SIMD width).
 """
 
@@ -34,6 +36,14 @@ _NO_UNROLL_OPTION = ("xla_cpu_disable_loop_unrolling", None)
 # cores, bit for bit the same (sweeps/bench_simulate.py).
 _VECTOR_FLAG = "--xla_cpu_prefer_vector_width"
 _DEFAULT_VECTOR_WIDTH = 256  # XLA:CPU's own default for the flag above
+# A computation split over CPU devices meets at its collectives (a mean over a sharded batch
+# of noise draws, say); XLA:CPU aborts the process when one device arrives 40 s after the
+# others, which a loaded host or a long uneven share reaches. Wait instead.
+_COLLECTIVE_FLAGS = (
+    ("--xla_cpu_collective_call_terminate_timeout_seconds", 86400),
+    ("--xla_cpu_collective_timeout_seconds", 86400),
+    ("--xla_cpu_collective_call_warn_stuck_timeout_seconds", 600),
+)
 
 
 def apply_cpu_defaults() -> bool:
@@ -48,8 +58,14 @@ def apply_cpu_defaults() -> bool:
     if not xla_bridge.backends_are_initialized():
         _add_extra_option(*_LOOP_OPTION)
         _add_extra_option(*_NO_UNROLL_OPTION)
+        _add_collective_timeouts()
         _default_cpu_devices()
     return cpu_defaults_active()
+
+
+def _add_collective_timeouts() -> None:
+    for flag, seconds in _COLLECTIVE_FLAGS:
+        _add_flag(f"{flag}={seconds}", flag)
 
 
 def default_cpu_devices() -> int:
@@ -156,6 +172,7 @@ def configure(
         _add_extra_option(*_LOOP_OPTION)
     if not unroll_loops:
         _add_extra_option(*_NO_UNROLL_OPTION)
+    _add_collective_timeouts()
     if host_devices is not None:
         from jax._src import xla_bridge
 

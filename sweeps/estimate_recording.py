@@ -59,7 +59,7 @@ import sys
 import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _cli import Parser  # noqa: E402
+from _cli import Parser, error_line  # noqa: E402
 
 PROG = "estimate_recording"
 # the Welch route's options and their defaults (None: derived; the model route takes none of them)
@@ -149,8 +149,7 @@ def parse(argv):
 
 
 def fail(message: str) -> int:
-    print(f"{PROG}: error: {message}", file=sys.stderr)
-    return 2
+    return error_line(message, PROG)
 
 
 def main(argv=None) -> int:

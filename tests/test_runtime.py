@@ -6,16 +6,23 @@ import os
 def test_configure_merges_xla_extra_options(monkeypatch):
     from armimp_jax import runtime
 
+    waits = (
+        " --xla_cpu_collective_call_terminate_timeout_seconds=86400 --xla_cpu_collective_timeout_seconds=86400"
+        " --xla_cpu_collective_call_warn_stuck_timeout_seconds=600"
+    )
     monkeypatch.setenv("XLA_FLAGS", "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=5")
     runtime.configure(host_devices=None, vector_width=None)
     # one flag holds all extra options; a value the caller set wins
     assert os.environ["XLA_FLAGS"] == (
-        "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=5,xla_cpu_disable_loop_unrolling"
+        "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=5,xla_cpu_disable_loop_unrolling" + waits
     )
-    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_prefer_vector_width=256")
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_prefer_vector_width=256 --xla_cpu_collective_timeout_seconds=5")
     runtime.configure(host_devices=None, vector_width=512, unroll_loops=True)
     assert os.environ["XLA_FLAGS"] == (
-        "--xla_cpu_prefer_vector_width=256 --xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000"
+        "--xla_cpu_prefer_vector_width=256 --xla_cpu_collective_timeout_seconds=5 "
+        "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000"
+        " --xla_cpu_collective_call_terminate_timeout_seconds=86400"
+        " --xla_cpu_collective_call_warn_stuck_timeout_seconds=600"
     )
 
 

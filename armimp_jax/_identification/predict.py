@@ -1,39 +1,39 @@
 """The standard errors an experiment will give, before it is run: ``predict_se``.
 
-The same method as ``identify``'s covariance, in expectation: at the trial's own parameter
-values, recordings simulated with the trial's noise model (sensor noise, voluntary force)
-are pushed through one Gauss-Newton step of the fit (residuals scaled and, with
-``noise_order > 0``, whitened as ``identify`` does); the spread of those steps is the
-predicted covariance. Pure JAX from the perturbation on: differentiable in ``f`` (common
-random numbers: the draws are fixed by ``key``), so experiment design can optimise it by
-gradient.
+``identify``'s covariance, at the planned experiment's own parameter values: the statistics
+of recordings simulated with the trial's noise (``Omega``, their covariance over the draws)
+and the binding's Jacobian ``A`` give ``indirect.covariance`` (``(1 + 1/R) A^-1 Omega
+A^-T`` when there are as many statistics as parameters). Pure
+JAX from the perturbation on, with the draws fixed by ``key`` (common random numbers), so
+experiment design can optimise it by gradient (through ``Omega`` and ``A`` both).
 """
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
-from .._checks import as_float64, check_int, require_x64
+from .._checks import as_float64, check_int, is_concrete, require_x64
 from .._estimation.welch import check_finite
 from .._simulate import Trial
 from .._solver.numerics import Numerics
+from . import indirect
 from . import layout as lay
-from . import model_fit as mf
-from .model_fit import IDENTIFY_NUMERICS
+from .indirect import IDENTIFY_NUMERICS
 
 
 class PredictedSE(NamedTuple):
     """``predict_se``'s answer (a pytree of arrays): ``se`` ``{name: array}`` in each parameter's
-    units and shape; ``covariance`` ``(n, n)`` of every entry (order of ``labels``);
-    ``bias`` ``{name: array}``, the first-order bias the noise gives the estimate; ``labels``."""
+    units and shape; ``covariance`` ``(n, n)`` of every entry (order of ``labels``); ``labels``;
+    ``diverged``: whether a simulated draw diverged (the prediction is then unsound)."""
 
     se: dict
     covariance: jnp.ndarray
-    bias: dict
     labels: tuple
+    diverged: jnp.ndarray
 
 
 def _unflatten(layout, flat):
@@ -56,11 +56,10 @@ def predict_se(
     symmetric=(),
     numerics: Numerics | None = None,
     key=None,
-    bootstrap: int = 100,
-    noise_order: int = 0,
-    band=None,
+    draws: int = 64,
+    jacobian_draws: int = 8,
 ) -> PredictedSE:
-    """Predicted standard errors of ``identify(trial-like model, f, ...)`` for a planned experiment.
+    """Predicted standard errors of ``identify`` for a planned experiment.
 
     Args:
         trial: the experiment as planned: the true (or assumed) parameter values, and the
@@ -69,10 +68,9 @@ def predict_se(
         free, symmetric: as ``identify``.
         numerics: as ``identify`` (default ``IDENTIFY_NUMERICS``).
         key: ``jax.random`` key of the noise draws (default ``key(0)``).
-        bootstrap: noise draws (>= 10); the SEs carry a Monte Carlo error of about
-            ``1 / sqrt(2 bootstrap)``.
-        noise_order: as ``identify`` (0: output error).
-        band: as ``identify`` (``(low, high)`` [Hz] or ``None``).
+        draws: as ``identify`` (its ``1 / R`` is in the prediction); also the draws behind
+            ``Omega`` here, whose SEs then carry a Monte Carlo error of about ``1 / sqrt(2 R)``.
+        jacobian_draws: as ``identify``.
 
     Returns a ``PredictedSE``.
     """
@@ -86,29 +84,31 @@ def predict_se(
     if f.ndim != 2 or f.shape[1] != 2:
         raise ValueError(f"predict_se: f must have shape (N, 2), got {f.shape}")
     check_finite("f", f, where="predict_se")
-    bootstrap = check_int("bootstrap", bootstrap, minimum=10)
-    noise_order = check_int("noise_order", noise_order, minimum=0)
-    weights = mf.check_band(band, f.shape[0], "predict_se")
-    if weights is not None and noise_order:
-        raise ValueError(f"predict_se: pass band or noise_order, not both (got noise_order={noise_order})")
+    draws = check_int("draws", draws, minimum=8)
+    jacobian_draws = check_int("jacobian_draws", jacobian_draws, minimum=1)
     numerics = IDENTIFY_NUMERICS if numerics is None else numerics
     key = jax.random.key(0) if key is None else key
+    n_draws, n_jac = indirect.draw_counts(trial, draws, jacobian_draws)
+    keys = jax.random.split(key, n_draws)
     p = lay.pack(layout, trial)
-    return _predict_se(layout, trial, p, f, jax.random.split(key, bootstrap), numerics, noise_order, weights)
-
-
-def _predict_se(layout, trial, p, f, keys, numerics, noise_order, band):
-    y0 = mf.predict(layout, trial, p, f, numerics)[0]
-    ys, _ = mf.noisy_outputs(layout, trial, p, f, keys, numerics)
-    scale = jnp.mean(jnp.std(ys, axis=1), axis=0)  # what identify divides a recording by
-    noise = mf.fit_noise_model((y0[None] - ys) / scale[None, None, :], noise_order) if noise_order else band
-    _, jac = mf.residual_jacobian(layout, trial, p, f, y0, scale, noise, numerics)
-    steps = mf.bootstrap_steps(ys, y0, scale, noise, mf.gauss_newton_map(jac))
-    g = lay.natural_jacobian(layout, p, trial)
-    cov = g @ jnp.cov(steps.T, ddof=1).reshape(p.shape[0], p.shape[0]) @ g.T
+    cov, diverged = _prediction(layout, trial, p, f, keys, keys[:n_jac], numerics, n_draws)
+    if is_concrete(f):
+        # one program in flight at a time: two programs that split over the CPU devices and
+        # meet at collectives, queued together, can each hold a thread the other waits for
+        cov, diverged = jax.block_until_ready((cov, diverged))
     return PredictedSE(
         se=_unflatten(layout, jnp.sqrt(jnp.diag(cov))),
         covariance=cov,
-        bias=_unflatten(layout, g @ jnp.mean(steps, axis=0)),
         labels=tuple(layout.labels()),
+        diverged=diverged,
     )
+
+
+@functools.partial(jax.jit, static_argnames=("layout", "numerics", "n_draws"))
+def _prediction(layout, trial, p, f, keys, jac_keys, numerics, n_draws):
+    """``(natural covariance, diverged)``: the draws, the binding's Jacobian and the covariance
+    in one program."""
+    stats, diverged = indirect.binding_draws(layout, trial, p, f, keys, numerics)
+    jac, jac_diverged = indirect.binding_jacobian(layout, trial, p, f, jac_keys, numerics)
+    g = lay.natural_jacobian(layout, p, trial)
+    return g @ indirect.covariance(jac, stats, n_draws) @ g.T, jnp.any(diverged) | jac_diverged

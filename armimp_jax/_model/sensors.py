@@ -95,9 +95,25 @@ def sample_noise(sensors: Sensors, key, k):
     return force, rate
 
 
+@jax.custom_jvp
+def _round_to(q, step):
+    return jnp.round(q / step) * step
+
+
+@_round_to.defjvp
+def _round_to_jvp(primals, tangents):
+    # The reading's derivative is that of its mean over a dither (the identity), not
+    # round's zero: a gradient through an encoder then follows the motion it measures.
+    q, step = primals
+    return _round_to(q, step), tangents[0]
+
+
 def quantise(q, sensors: Sensors):
-    """Encoder reading ``round(q / D) D`` [rad] of a joint angle (identity when off)."""
+    """Encoder reading ``round(q / D) D`` [rad] of a joint angle (identity when off).
+
+    Differentiated as the identity (the derivative of the reading's mean over a sub-count
+    dither): ``round``'s own derivative is zero almost everywhere, which would make every
+    gradient and Jacobian through an encoder blind to the joint's motion."""
     if not sensors.encoder_on:
         return q
-    step = 2.0 * jnp.pi / sensors.encoder_counts
-    return jnp.round(q / step) * step
+    return _round_to(q, 2.0 * jnp.pi / sensors.encoder_counts)

@@ -1,7 +1,8 @@
 """The model route for a lab's own recording: a TOML config -> the starting ``Trial`` and
 ``identify``'s options, the fit through the closed-loop model, its results on disk.
 
-- ``read_identify_config(path)``: the TOML, read and checked (plain values; no simulation).
+- ``read_identify_config(path)``: the TOML, read and checked (``config.read_config``; plain
+  values; no simulation).
   Every unknown section or key, missing section or key, wrong type or shape and unknown
   parameter name is an ``IdentifyConfigError`` (a ``ValueError``) with one line naming the
   key and what is allowed.
@@ -21,7 +22,6 @@ import dataclasses
 import functools
 import math
 import pathlib
-import tomllib
 from typing import NamedTuple
 
 import jax
@@ -32,85 +32,31 @@ from matplotlib.ticker import NullFormatter
 
 from .._estimation.welch import estimate
 from .._identification.identify import identify
+from .._identification.indirect import IDENTIFY_NUMERICS
 from .._identification.layout import ARM_PARAMETERS, PARAMETERS
-from .._identification.model_fit import IDENTIFY_NUMERICS
-from .._model.arm import Arm
-from .._model.control import IMBIC, PD
-from .._model.friction import LuGre
-from .._model.robot import MIT_MANUS
 from .._model.sensors import Sensors
-from .._model.voluntary import VoluntaryForce
-from .._simulate import make_trial, simulate
+from .._simulate import simulate
 from .._solver.numerics import METHODS, Numerics, named_solver
+from .config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
 from .figures import save_figure
 from .recording import ELEMENTS, RecordingError
 from .results import atomic_write_json, package_version, to_jsonable
 from .tables import table, write_table
 
-REQUIRED = object()  # a key without a default
-ROBOT_PRESETS = ("mit_manus",)
-# section -> key -> (kind, unit or allowed values or minimum, default). A default of None:
-# the library's own (the constructor's default); REQUIRED: the key must be given.
 SECTIONS = {
-    "robot": {
-        "preset": ("text", ROBOT_PRESETS, "mit_manus"),
-        "shoulder_link": ("scalar", "m", None),
-        "elbow_link": ("scalar", "m", None),
-        "inertia": ("triple", "kg m^2", None),
-        "base": ("vector", "m", None),
-    },
-    "controller": {
-        "type": ("text", ("pd", "imbic"), REQUIRED),
-        "kp": ("matrix", "N/m", None),
-        "kv": ("matrix", "N s/m", None),
-        "mhat": ("matrix", "kg", None),
-        "m_rd": ("matrix", "kg", None),
-        "b_rd": ("matrix", "N s/m", None),
-        "k_rd": ("matrix", "N/m", None),
-        "accel_estimate": ("text", ("velocity", "position"), None),
-    },
-    "acquisition": {"mode": ("text", ("instant", "interval_mean"), "instant")},
-    "sensors": {
-        "force_noise": ("pair", "N", 0.0),
-        "encoder_counts": ("scalar", "counts per revolution", None),
-        "velocity_noise": ("pair", "rad/s", 0.0),
-    },
-    "voluntary": {"std": ("pair", "N", REQUIRED), "cutoff": ("scalar", "Hz", REQUIRED)},
-    "arm": {
-        "mass": ("matrix", "kg", REQUIRED),
-        "damping": ("matrix", "N s/m", REQUIRED),
-        "stiffness": ("matrix", "N/m", REQUIRED),
-        "endpoint": ("vector", "m", REQUIRED),
-    },
-    "friction": {
-        "tau_c": ("pair", "N m", REQUIRED),
-        "tau_s": ("pair", "N m", REQUIRED),
-        "sigma0": ("pair", "N m/rad", None),
-        "sigma1": ("pair", "N m s/rad", None),
-        "sigma2": ("pair", "N m s/rad", None),
-        "v_s": ("pair", "rad/s", None),
-    },
+    **TRIAL_SECTIONS,
     "identify": {
         "free": ("names", tuple(PARAMETERS), REQUIRED),
         "symmetric": ("names", tuple(ARM_PARAMETERS), []),
-        "bootstrap": ("int", 10, 100),
-        "noise_order": ("int", 0, 0),
-        "max_steps": ("int", 1, 100),
+        "draws": ("int", 8, 64),
+        "jacobian_draws": ("int", 1, 8),
+        "max_steps": ("int", 1, 20),
         "seed": ("int", 0, 0),
         "method": ("text", METHODS, IDENTIFY_NUMERICS.method),  # identify's default numerics
         "substeps": ("int", 1, IDENTIFY_NUMERICS.substeps),
     },
 }
 REQUIRED_SECTIONS = ("controller", "arm", "friction", "identify")
-CONTROLLER_KEYS = {"pd": ("type", "kp", "kv"), "imbic": tuple(SECTIONS["controller"])}
-SHAPES = {"scalar": (), "pair": (2,), "vector": (2,), "triple": (3,), "matrix": (2, 2)}
-SHAPE_WORDS = {
-    "scalar": "a number",
-    "pair": "a number or a list of 2 numbers",
-    "vector": "a list of 2 numbers [x, y]",
-    "triple": "a list of 3 numbers",
-    "matrix": "a 2x2 array [[a, b], [c, d]]",
-}
 CHANNELS = ("x", "y", "fh_x", "fh_y")  # identify's whiteness_p order: x1, x2, fh1, fh2
 WHITENESS_P = 1e-3  # a Ljung-Box p-value below this: coloured residuals
 VAF_MIN = 90.0  # [%] a channel the model explains less of: a poor fit
@@ -118,91 +64,14 @@ START_OFFSET = 1e-3  # [m] the recording's first position this far from [arm] en
 ELLIPSE_DRAWS = 200
 
 
-class IdentifyConfigError(ValueError):
-    """A config of the model route that cannot be used (one line naming the key)."""
-
-
-def _numeric_leaves(v) -> bool:
-    if isinstance(v, list):
-        return all(_numeric_leaves(x) for x in v)
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
-def _value(where: str, key: str, spec, v):
-    kind, extra, _ = spec
-    if kind == "text":
-        if not isinstance(v, str) or v not in extra:
-            raise IdentifyConfigError(f"{where} {key} must be one of {', '.join(map(repr, extra))}, got {v!r}")
-        return v
-    if kind == "int":
-        if isinstance(v, bool) or not isinstance(v, int) or v < extra:
-            raise IdentifyConfigError(f"{where} {key} must be an integer >= {extra}, got {v!r}")
-        return v
-    if kind == "names":
-        v = [v] if isinstance(v, str) else v
-        if not isinstance(v, list) or not all(isinstance(n, str) for n in v):
-            raise IdentifyConfigError(f"{where} {key} must be a list of parameter names, got {v!r}")
-        bad = [n for n in v if n not in extra]
-        if bad:
-            raise IdentifyConfigError(f"{where} {key}: unknown parameter {bad[0]!r}; allowed: {', '.join(extra)}")
-        if len(set(v)) != len(v):
-            raise IdentifyConfigError(f"{where} {key} names a parameter twice: {v}")
-        return list(v)
-    try:
-        a = np.asarray(v, dtype=float) if _numeric_leaves(v) else None
-    except ValueError:  # a ragged list
-        a = None
-    shape = SHAPES[kind]
-    if a is None or not (a.shape == shape or (kind == "pair" and a.shape == ())) or not np.all(np.isfinite(a)):
-        raise IdentifyConfigError(f"{where} {key} [{extra}] must be {SHAPE_WORDS[kind]}, got {v!r}")
-    return a.tolist()
+IdentifyConfigError = ConfigError  # the name this module's callers know
 
 
 def read_identify_config(path) -> dict:
     """The config at ``path`` as plain values (lists for arrays), defaults filled in where
     they are the route's own (``None``: the library's default). Raises
     ``IdentifyConfigError`` with one line naming the file, the section and the key."""
-    path = pathlib.Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise IdentifyConfigError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
-        raise IdentifyConfigError(f"{path}: not valid TOML ({' '.join(str(err).split())})") from None
-    unknown = [s for s in data if s not in SECTIONS]
-    if unknown:
-        raise IdentifyConfigError(f"{path}: unknown section [{unknown[0]}]; allowed: {', '.join(SECTIONS)}")
-    missing = [s for s in REQUIRED_SECTIONS if s not in data]
-    if missing:
-        raise IdentifyConfigError(
-            f"{path}: missing section [{missing[0]}]; required: {', '.join(REQUIRED_SECTIONS)} "
-            f"(optional: {', '.join(s for s in SECTIONS if s not in REQUIRED_SECTIONS)})"
-        )
-    config = {}
-    for section, keys in SECTIONS.items():
-        if section not in data:
-            continue
-        table, where = data[section], f"{path}: [{section}]"
-        if not isinstance(table, dict):
-            raise IdentifyConfigError(f"{where} must be a table of keys, got {table!r}")
-        allowed = tuple(keys)
-        if section == "controller" and table.get("type") in CONTROLLER_KEYS:
-            allowed = CONTROLLER_KEYS[table["type"]]
-        bad = [k for k in table if k not in allowed]
-        if bad:
-            kind = f" for type {table['type']!r}" if section == "controller" else ""
-            raise IdentifyConfigError(f"{where} unknown key {bad[0]!r}{kind}; allowed: {', '.join(allowed)}")
-        out = {}
-        for key, spec in keys.items():
-            if key in table:
-                out[key] = _value(where, key, spec, table[key])
-            elif spec[2] is REQUIRED:
-                unit = f" [{spec[1]}]" if spec[0] in SHAPES else ""
-                required = ", ".join(k for k, s in keys.items() if s[2] is REQUIRED)
-                raise IdentifyConfigError(f"{where} missing key {key!r}{unit}; required: {required}")
-            elif key in allowed:
-                out[key] = spec[2]
-        config[section] = out
+    config = read_config(path, SECTIONS, REQUIRED_SECTIONS)
     ident = config["identify"]
     arm_free = [n for n in ident["free"] if n in ARM_PARAMETERS]
     not_free = [n for n in ident["symmetric"] if n not in arm_free]
@@ -214,43 +83,12 @@ def read_identify_config(path) -> dict:
     return config
 
 
-def _given(table: dict, keys) -> dict:
-    return {k: table[k] for k in keys if table.get(k) is not None}
-
-
 def build_model(config: dict, *, where: str = "config") -> tuple:
     """``(Trial, options)`` from a config of ``read_identify_config``: the starting trial
     (``make_trial``) and ``identify``'s keyword arguments (``free``, ``symmetric``,
-    ``numerics``, ``key``, ``bootstrap``, ``noise_order``, ``max_steps``). Needs float64."""
+    ``numerics``, ``key``, ``draws``, ``jacobian_draws``, ``max_steps``). Needs float64."""
 
-    def make(section, build):
-        try:
-            return build(config.get(section, {}))
-        except ValueError as err:
-            raise IdentifyConfigError(f"{where}: [{section}] {err}") from None
-
-    def robot(t):
-        overrides = _given(t, ("shoulder_link", "elbow_link", "inertia", "base"))
-        return dataclasses.replace(MIT_MANUS, **overrides) if overrides else MIT_MANUS
-
-    def controller(t):
-        gains = _given(t, SECTIONS["controller"])
-        return (PD if gains.pop("type") == "pd" else IMBIC)(**gains)
-
-    def sensors(t):
-        return Sensors(t["force_noise"], t["encoder_counts"], t["velocity_noise"]) if t else Sensors()
-
-    parts = dict(
-        robot=make("robot", robot),
-        controller=make("controller", controller),
-        sensors=make("sensors", sensors),
-        voluntary=make("voluntary", lambda t: VoluntaryForce(t["std"], t["cutoff"]) if t else None),
-        arm=make("arm", lambda t: Arm(t["mass"], t["damping"], t["stiffness"], t["endpoint"])),
-        friction=make("friction", lambda t: LuGre(**_given(t, SECTIONS["friction"]))),
-    )
-    acquisition = config.get("acquisition", {}).get("mode", "instant")
-    ctrl = parts.pop("controller")
-    model = make("arm", lambda _: make_trial(ctrl, acquisition=acquisition, **parts))
+    model = build_trial(config, where=where)
     ident = config["identify"]
     numerics = Numerics(solver=named_solver(ident["method"]), substeps=ident["substeps"])
     options = dict(
@@ -258,8 +96,8 @@ def build_model(config: dict, *, where: str = "config") -> tuple:
         symmetric=tuple(ident["symmetric"]),
         numerics=numerics,
         key=jax.random.key(ident["seed"]),
-        bootstrap=ident["bootstrap"],
-        noise_order=ident["noise_order"],
+        draws=ident["draws"],
+        jacobian_draws=ident["jacobian_draws"],
         max_steps=ident["max_steps"],
     )
     return model, options
@@ -291,7 +129,7 @@ def trust_warnings(res, rec: dict) -> list[str]:
     out = []
     if not res.converged:
         out.append(f"the fit did not converge ({res.message}): its values and SEs cannot be trusted")
-    out += list(res.warnings)  # identify's own (the linearity check)
+    out += list(res.warnings)  # identify's own (identifiability, a model without noise)
     p = np.asarray(res.whiteness_p)
     low = [f"{c} (p = {v:.2g})" for c, v in zip(CHANNELS, p, strict=True) if not v >= WHITENESS_P]
     if low:
@@ -307,16 +145,6 @@ def trust_warnings(res, rec: dict) -> list[str]:
             f"the model accounts for little of {', '.join(poor)} (VAF below {VAF_MIN:g} %): a poor fit; "
             "check the config (robot, controller gains, acquisition) and the recording's frame and signs"
         )
-    biased = [
-        lab
-        for lab, b, s in zip(res.labels, _flat(res.bias), _flat(res.se), strict=True)
-        if np.isfinite(b) and abs(b) > s
-    ]
-    if biased:
-        out.append(
-            f"the estimator's first-order bias exceeds one SE for {', '.join(biased)}: the 95% intervals "
-            "are too narrow there (docs/identification.md)"
-        )
     offset = float(np.linalg.norm(np.asarray(rec["x"])[0] - np.asarray(res.trial.x0)))
     if offset > START_OFFSET:
         out.append(
@@ -324,10 +152,6 @@ def trust_warnings(res, rec: dict) -> list[str]:
             "the recording's positions must be in the model's world frame (origin at the shoulder)"
         )
     return out
-
-
-def _flat(values: dict) -> np.ndarray:
-    return np.concatenate([np.asarray(v, dtype=float).ravel() for v in values.values()])
 
 
 class Entry(NamedTuple):
@@ -523,22 +347,25 @@ def result_dict(res, *, model, settings: dict, n_samples: int, warnings: list[st
         entry = parameters.setdefault(e.parameter, dict(unit=e.unit, entries={}))
         entry["entries"][e.index] = {k: getattr(e, k) for k in Entry._fields[4:]}
     for name, entry in parameters.items():
-        entry.update(value=res.values[name], se=res.se[name], se_textbook=res.se_textbook[name], bias=res.bias[name])
+        entry.update(value=res.values[name], se=res.se[name])
     return {
         "settings": {**settings, "armimp_jax": package_version()},
         "record": {"n_samples": n_samples, "duration_s": n_samples / float(settings["fs_hz"])},
         "convention": (
             "arm matrices indexed [output, input] (row: force axis, column: displacement axis) in the "
-            "recording's frame; friction per joint; a 95% interval is value +- 1.96 se (normal); se, "
-            "covariance, se_textbook (Gauss-Newton s^2 (J^T J)^-1) and bias (first-order, reported, not "
-            "subtracted) as identify reports them (docs/identification.md)"
+            "recording's frame; friction per joint; a 95% interval is value +- 1.96 se (normal); se and "
+            "covariance by indirect inference over the model's noise draws; statistics: the recording's own "
+            "statistics that identify matched, by label (the classical fit for the arm, the friction "
+            "regression's coefficients and log RMS speed per joint) (docs/identification.md)"
         ),
+        "statistics": res.statistics,
         "converged": res.converged,
         "message": res.message,
         "intervals_reliable": res.intervals_reliable,
-        "linearity_se": res.linearity,
         "cost": res.cost,
         "iterations": res.iterations,
+        "history": res.history,
+        "draws": res.draws,
         "time_s": res.time_s,
         "parameters": parameters,
         "labels": list(res.labels),

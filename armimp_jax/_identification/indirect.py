@@ -1,0 +1,137 @@
+"""Indirect inference through the closed loop: the binding function, its Jacobian, and the
+covariance they give.
+
+A recording's statistics ``b = s(y)`` (``auxiliary.py``, ``m`` of them) are matched by the
+model's: the **binding** ``beta(p) = mean_r s(y_r(p))`` over ``R`` recordings simulated at
+the internal parameters ``p`` (``layout.py``, ``n <= m`` of them) with the trial's own noise
+(sensor noise, encoder steps, the person's force), each from a fixed key (common random
+numbers: ``beta`` is a smooth, deterministic function of ``p``). The estimate minimises
+``(b - beta(p))^T W (b - beta(p))`` with ``W = diag(1 / var s)`` (each statistic in units of
+its own spread over the draws; with ``m = n`` it solves ``beta(p) = b``). Near the solution
+``b - beta(p) ~ A (p_true - p) + noise`` with ``A = d beta / dp``, so
+
+    cov(p_hat) = (1 + 1/R) H^-1 A^T W Omega W A H^-1,   H = A^T W A,
+
+``Omega`` the statistics' covariance over the draws at ``p_hat`` and the ``1/R`` the
+binding's own Monte Carlo error (Gourieroux, Monfort and Renault 1993; with ``m = n``,
+``A^-1 Omega A^-T``). Everything the noise does in the loop (coloured, fed back, modulated
+by the friction) is in ``Omega``, and the statistics' bias (Welch, sampling, friction) is
+in ``beta``: the intervals need only that ``beta`` be near linear over a few standard
+errors, which statistics close to the parameters make it (docs/identification.md). A
+diagonal ``W`` rather than ``Omega^-1``: the inverse of a covariance estimated from ``R``
+draws is biased by ``R / (R - m - 2)`` and would make the intervals too narrow.
+
+Draws are spread over the local devices (``shard_map`` over ``_batch.make_mesh()``):
+``R`` must be a multiple of their number.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+from jax.sharding import PartitionSpec as P
+
+from .._batch import make_mesh
+from .._model.sensors import IDEAL
+from .._pytree import replace_unchecked
+from .._simulate import Trial, simulate
+from .._solver.graded import GradedARK4
+from .._solver.numerics import Numerics
+from .auxiliary import statistics
+from .layout import Layout, with_values
+
+# The converged step at every friction in [0, 4] N m and the cheapest measured (docs/performance.md).
+IDENTIFY_NUMERICS = Numerics(solver=GradedARK4(), substeps=4)
+
+
+def predict(layout: Layout, model: Trial, p, f, numerics):
+    """``(y (N, 4), diverged)``: the model at ``p`` without noise (ideal sensors, no voluntary
+    force), its recorded ``x`` [m] then ``F_h`` [N]."""
+    quiet = replace_unchecked(with_values(layout, model, p), sensors=IDEAL, voluntary=None)
+    sim = simulate(quiet, f, numerics=numerics)
+    return jnp.concatenate([sim.x, sim.fh], axis=1), sim.diverged
+
+
+def draw_counts(model: Trial, draws: int, jacobian_draws: int) -> tuple[int, int]:
+    """The draws actually used: rounded up to a multiple of the local devices (they are split
+    over them); one of each for a model without noise (every draw would be the same)."""
+    if model.sensors.ideal and model.voluntary is None:
+        draws, jacobian_draws = 1, 1
+    n_dev = jax.local_device_count()
+    return tuple(int(math.ceil(d / n_dev) * n_dev) for d in (draws, jacobian_draws))
+
+
+def draw_outputs(layout: Layout, model: Trial, p, f, key, numerics):
+    """One noisy recording of the model at ``p``: ``(x, fh, diverged)``."""
+    trial = with_values(layout, model, p)
+    sim = simulate(trial, f, key=key, numerics=numerics)
+    return sim.x, sim.fh, sim.diverged
+
+
+def draw_statistics(layout: Layout, model: Trial, p, f, key, numerics):
+    """The statistics of one noisy recording at ``p`` and whether it diverged."""
+    x, fh, diverged = draw_outputs(layout, model, p, f, key, numerics)
+    return statistics(layout, with_values(layout, model, p), f, x, fh), diverged
+
+
+def _sharded(fn, n_out: int):
+    """``fn(keys)`` run with ``keys`` split over the local devices; outputs concatenated."""
+    mesh = make_mesh()
+    return jax.shard_map(fn, mesh=mesh, in_specs=P("batch"), out_specs=(P("batch"),) * n_out, check_vma=False)
+
+
+@functools.partial(jax.jit, static_argnames=("layout", "numerics"))
+def binding_draws(layout: Layout, model: Trial, p, f, keys, numerics):
+    """``(stats (R, n), diverged (R,))``: the statistics of ``R`` noisy recordings at ``p``
+    (one per key), vmapped on each device."""
+
+    def per_device(k):
+        return jax.vmap(lambda kk: draw_statistics(layout, model, p, f, kk, numerics))(k)
+
+    return _sharded(per_device, 2)(keys)
+
+
+@functools.partial(jax.jit, static_argnames=("layout", "numerics"))
+def binding_jacobian(layout: Layout, model: Trial, p, f, keys, numerics):
+    """``A = d beta / d p`` ``(n, n)`` averaged over the draws of ``keys`` (forward mode: one
+    pass per draw carries every parameter's tangent), and whether a draw diverged."""
+
+    def one(k):
+        jac = jax.jacfwd(lambda q: draw_statistics(layout, model, q, f, k, numerics)[0])(p)
+        return jac, draw_outputs(layout, model, p, f, k, numerics)[2]
+
+    def per_device(k):
+        # one draw at a time: a vmap over draws of the tangents' batch ran several times slower
+        return jax.lax.map(one, k)
+
+    jacs, diverged = _sharded(per_device, 2)(keys)
+    return jnp.mean(jacs, axis=0), jnp.any(diverged)
+
+
+def weights(stats, jac=None):
+    """``W`` ``(m,)``: the inverse variance of each statistic over the draws ``(R, m)``; without
+    noise (every draw the same), the inverse squared norm of its row of ``A`` ``(m, n)``: each
+    statistic then counts by how much it moves with the parameters, whatever its units."""
+    var = jnp.var(stats, axis=0, ddof=1)
+    if jac is not None and not bool(jnp.any(var > 0)):
+        var = jnp.sum(jac * jac, axis=1)
+    return jnp.where(var > 0, 1.0 / jnp.where(var > 0, var, 1.0), 1.0)
+
+
+def gauss_newton_step(jac, w, d):
+    """``H^-1 A^T W d``: the step that best removes the mismatch ``d = b - beta(p)``."""
+    aw = jac.T * w[None, :]
+    return jnp.linalg.solve(aw @ jac, aw @ d)
+
+
+def covariance(jac, stats, n_draws: int, w=None):
+    """``(1 + 1/R) H^-1 A^T W Omega W A H^-1`` from ``A`` ``(m, n)`` and the draws' statistics
+    ``(R, m)`` (``W`` from them unless given). NumPy or JAX arrays; differentiable."""
+    w = weights(stats) if w is None else w
+    omega = jnp.atleast_2d(jnp.cov(stats.T, ddof=1))
+    aw = jac.T * w[None, :]
+    sens = jnp.linalg.solve(aw @ jac, aw)  # H^-1 A^T W, (n, m)
+    return (1.0 + 1.0 / n_draws) * sens @ omega @ sens.T

@@ -1,0 +1,224 @@
+"""TOML configs of the scripts that build a trial (the model route of a recording, experiment
+design): sections of typed keys, read and checked into plain values, then the ``Trial``.
+
+- ``read_config(path, sections, required)``: the TOML, read and checked (no simulation).
+  Every unknown section or key, missing section or key, wrong type or shape and unknown
+  name is a ``ConfigError`` (a ``ValueError``) with one line naming the file, the section,
+  the key and what is allowed.
+- ``build_trial(config, where=...)``: the ``Trial`` of the sections in ``TRIAL_SECTIONS``
+  (the constructors' own range checks come back as ``ConfigError`` naming the section).
+
+A section's spec maps each key to ``(kind, unit or allowed values or minimum, default)``;
+a default of ``None`` is the library's own (the constructor's default), ``REQUIRED`` means
+the key must be given.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+import tomllib
+
+import numpy as np
+
+from .._model.arm import Arm
+from .._model.control import IMBIC, PD
+from .._model.friction import LuGre
+from .._model.robot import MIT_MANUS
+from .._model.sensors import Sensors
+from .._model.voluntary import VoluntaryForce
+from .._simulate import make_trial
+
+REQUIRED = object()  # a key without a default
+ROBOT_PRESETS = ("mit_manus",)
+TRIAL_SECTIONS = {
+    "robot": {
+        "preset": ("text", ROBOT_PRESETS, "mit_manus"),
+        "shoulder_link": ("scalar", "m", None),
+        "elbow_link": ("scalar", "m", None),
+        "inertia": ("triple", "kg m^2", None),
+        "base": ("vector", "m", None),
+    },
+    "controller": {
+        "type": ("text", ("pd", "imbic"), REQUIRED),
+        "kp": ("matrix", "N/m", None),
+        "kv": ("matrix", "N s/m", None),
+        "mhat": ("matrix", "kg", None),
+        "m_rd": ("matrix", "kg", None),
+        "b_rd": ("matrix", "N s/m", None),
+        "k_rd": ("matrix", "N/m", None),
+        "accel_estimate": ("text", ("velocity", "position"), None),
+    },
+    "acquisition": {"mode": ("text", ("instant", "interval_mean"), "instant")},
+    "sensors": {
+        "force_noise": ("pair", "N", 0.0),
+        "encoder_counts": ("scalar", "counts per revolution", None),
+        "velocity_noise": ("pair", "rad/s", 0.0),
+    },
+    "voluntary": {"std": ("pair", "N", REQUIRED), "cutoff": ("scalar", "Hz", REQUIRED)},
+    "arm": {
+        "mass": ("matrix", "kg", REQUIRED),
+        "damping": ("matrix", "N s/m", REQUIRED),
+        "stiffness": ("matrix", "N/m", REQUIRED),
+        "endpoint": ("vector", "m", REQUIRED),
+    },
+    "friction": {
+        "tau_c": ("pair", "N m", REQUIRED),
+        "tau_s": ("pair", "N m", REQUIRED),
+        "sigma0": ("pair", "N m/rad", None),
+        "sigma1": ("pair", "N m s/rad", None),
+        "sigma2": ("pair", "N m s/rad", None),
+        "v_s": ("pair", "rad/s", None),
+    },
+}
+CONTROLLER_KEYS = {"pd": ("type", "kp", "kv"), "imbic": tuple(TRIAL_SECTIONS["controller"])}
+SHAPES = {"scalar": (), "pair": (2,), "vector": (2,), "triple": (3,), "matrix": (2, 2)}
+SHAPE_WORDS = {
+    "scalar": "a number",
+    "pair": "a number or a list of 2 numbers",
+    "vector": "a list of 2 numbers [x, y]",
+    "triple": "a list of 3 numbers",
+    "matrix": "a 2x2 array [[a, b], [c, d]]",
+}
+
+
+class ConfigError(ValueError):
+    """A config that cannot be used (one line naming the key)."""
+
+
+def _numeric_leaves(v) -> bool:
+    if isinstance(v, list):
+        return all(_numeric_leaves(x) for x in v)
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _value(where: str, key: str, spec, v):
+    kind, extra, _ = spec
+    if kind == "text":
+        if not isinstance(v, str) or v not in extra:
+            raise ConfigError(f"{where} {key} must be one of {', '.join(map(repr, extra))}, got {v!r}")
+        return v
+    if kind == "int":
+        if isinstance(v, bool) or not isinstance(v, int) or v < extra:
+            raise ConfigError(f"{where} {key} must be an integer >= {extra}, got {v!r}")
+        return v
+    if kind == "texts":
+        v = [v] if isinstance(v, str) else v
+        if not isinstance(v, list) or not all(isinstance(n, str) for n in v):
+            raise ConfigError(f"{where} {key} must be a list of strings, got {v!r}")
+        return list(v)
+    if kind == "choices":  # a list of integers from ``extra``
+        v = [v] if isinstance(v, int) and not isinstance(v, bool) else v
+        if not isinstance(v, list) or not all(isinstance(n, int) and not isinstance(n, bool) for n in v):
+            raise ConfigError(f"{where} {key} must be a list of integers, got {v!r}")
+        bad = [n for n in v if n not in extra]
+        if bad:
+            raise ConfigError(f"{where} {key}: {bad[0]!r} is not one of {', '.join(map(str, extra))}")
+        return list(v)
+    if kind == "names":
+        v = [v] if isinstance(v, str) else v
+        if not isinstance(v, list) or not all(isinstance(n, str) for n in v):
+            raise ConfigError(f"{where} {key} must be a list of parameter names, got {v!r}")
+        bad = [n for n in v if n not in extra]
+        if bad:
+            raise ConfigError(f"{where} {key}: unknown parameter {bad[0]!r}; allowed: {', '.join(extra)}")
+        if len(set(v)) != len(v):
+            raise ConfigError(f"{where} {key} names a parameter twice: {v}")
+        return list(v)
+    try:
+        a = np.asarray(v, dtype=float) if _numeric_leaves(v) else None
+    except ValueError:  # a ragged list
+        a = None
+    shape = SHAPES[kind]
+    if a is None or not (a.shape == shape or (kind == "pair" and a.shape == ())) or not np.all(np.isfinite(a)):
+        raise ConfigError(f"{where} {key} [{extra}] must be {SHAPE_WORDS[kind]}, got {v!r}")
+    return a.tolist()
+
+
+def read_config(path, sections: dict, required: tuple) -> dict:
+    """The config at ``path`` as plain values (lists for arrays), with the defaults of
+    ``sections`` filled in (``None``: the library's default). Raises ``ConfigError`` with one
+    line naming the file, the section and the key."""
+    path = pathlib.Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
+        raise ConfigError(f"{path}: not valid TOML ({' '.join(str(err).split())})") from None
+    unknown = [s for s in data if s not in sections]
+    if unknown:
+        raise ConfigError(f"{path}: unknown section [{unknown[0]}]; allowed: {', '.join(sections)}")
+    missing = [s for s in required if s not in data]
+    if missing:
+        raise ConfigError(
+            f"{path}: missing section [{missing[0]}]; required: {', '.join(required)} "
+            f"(optional: {', '.join(s for s in sections if s not in required)})"
+        )
+    config = {}
+    for section, keys in sections.items():
+        if section not in data:
+            continue
+        table, where = data[section], f"{path}: [{section}]"
+        if not isinstance(table, dict):
+            raise ConfigError(f"{where} must be a table of keys, got {table!r}")
+        allowed = tuple(keys)
+        if section == "controller" and table.get("type") in CONTROLLER_KEYS:
+            allowed = CONTROLLER_KEYS[table["type"]]
+        bad = [k for k in table if k not in allowed]
+        if bad:
+            kind = f" for type {table['type']!r}" if section == "controller" else ""
+            raise ConfigError(f"{where} unknown key {bad[0]!r}{kind}; allowed: {', '.join(allowed)}")
+        out = {}
+        for key, spec in keys.items():
+            if key in table:
+                out[key] = _value(where, key, spec, table[key])
+            elif spec[2] is REQUIRED:
+                unit = f" [{spec[1]}]" if spec[0] in SHAPES else ""
+                required = ", ".join(k for k, s in keys.items() if s[2] is REQUIRED)
+                raise ConfigError(f"{where} missing key {key!r}{unit}; required: {required}")
+            elif key in allowed:
+                out[key] = spec[2]
+        config[section] = out
+    return config
+
+
+def _given(table: dict, keys) -> dict:
+    return {k: table[k] for k in keys if table.get(k) is not None}
+
+
+def build_trial(config: dict, *, where: str = "config", arm=None):
+    """The ``Trial`` of ``config``'s trial sections (``make_trial``); ``arm`` (an ``Arm``) in
+    place of the ``[arm]`` section when given. Needs float64."""
+
+    def make(section, build):
+        try:
+            return build(config.get(section, {}))
+        except ValueError as err:
+            raise ConfigError(f"{where}: [{section}] {err}") from None
+
+    def robot(t):
+        overrides = _given(t, ("shoulder_link", "elbow_link", "inertia", "base"))
+        return dataclasses.replace(MIT_MANUS, **overrides) if overrides else MIT_MANUS
+
+    def controller(t):
+        gains = _given(t, TRIAL_SECTIONS["controller"])
+        return (PD if gains.pop("type") == "pd" else IMBIC)(**gains)
+
+    def sensors(t):
+        return Sensors(t["force_noise"], t["encoder_counts"], t["velocity_noise"]) if t else Sensors()
+
+    parts = dict(
+        robot=make("robot", robot),
+        controller=make("controller", controller),
+        sensors=make("sensors", sensors),
+        voluntary=make("voluntary", lambda t: VoluntaryForce(t["std"], t["cutoff"]) if t else None),
+        arm=arm
+        if arm is not None
+        else make("arm", lambda t: Arm(t["mass"], t["damping"], t["stiffness"], t["endpoint"])),
+        friction=make("friction", lambda t: LuGre(**_given(t, TRIAL_SECTIONS["friction"]))),
+    )
+    acquisition = config.get("acquisition", {}).get("mode", "instant")
+    ctrl = parts.pop("controller")
+    model = make("arm", lambda _: make_trial(ctrl, acquisition=acquisition, **parts))
+    return model
