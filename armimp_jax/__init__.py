@@ -54,6 +54,11 @@ _EXPORTS = {
     "LuGre": "._model.friction",
     "lugre": "._model.friction",
     "perturbation": "._model.perturbation",
+    "PaperNoise": "._model.families",
+    "ShapedNoise": "._model.families",
+    "Multisine": "._model.families",
+    "multisine": "._model.families",
+    "crest_factor": "._model.families",
     "PlantState": "._model.plant",
     "MIT_MANUS": "._model.robot",
     "Robot": "._model.robot",
@@ -61,9 +66,13 @@ _EXPORTS = {
     "VoluntaryForce": "._model.voluntary",
     "Identification": "._identification.identify",
     "identify": "._identification.identify",
-    "IDENTIFY_NUMERICS": "._identification.model_fit",
+    "IDENTIFY_NUMERICS": "._identification.indirect",
     "PredictedSE": "._identification.predict",
     "predict_se": "._identification.predict",
+    "Limits": "._identification.design",
+    "Design": "._identification.design",
+    "design": "._identification.design",
+    "record_for": "._identification.design",
     "SimResult": "._simulate",
     "Trial": "._simulate",
     "make_trial": "._simulate",
@@ -118,14 +127,23 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._estimation.welch import cross_spectral_matrix as cross_spectral_matrix
     from ._estimation.welch import estimate as estimate
     from ._estimation.welch import input_coherence as input_coherence
+    from ._identification.design import Design as Design
+    from ._identification.design import Limits as Limits
+    from ._identification.design import design as design
+    from ._identification.design import record_for as record_for
     from ._identification.identify import Identification as Identification
     from ._identification.identify import identify as identify
-    from ._identification.model_fit import IDENTIFY_NUMERICS as IDENTIFY_NUMERICS
+    from ._identification.indirect import IDENTIFY_NUMERICS as IDENTIFY_NUMERICS
     from ._identification.predict import PredictedSE as PredictedSE
     from ._identification.predict import predict_se as predict_se
     from ._model.arm import Arm as Arm
     from ._model.control import IMBIC as IMBIC
     from ._model.control import PD as PD
+    from ._model.families import Multisine as Multisine
+    from ._model.families import PaperNoise as PaperNoise
+    from ._model.families import ShapedNoise as ShapedNoise
+    from ._model.families import crest_factor as crest_factor
+    from ._model.families import multisine as multisine
     from ._model.friction import NO_FRICTION as NO_FRICTION
     from ._model.friction import LuGre as LuGre
     from ._model.friction import lugre as lugre

@@ -9,10 +9,16 @@ import sys
 import time
 
 
+def error_line(message: str, prog: str) -> int:
+    """Write one line ``PROG: error: MESSAGE`` on stderr; return exit status 2 (for a ``main``
+    that returns its status)."""
+    sys.stderr.write(f"{prog}: error: {message}\n")
+    return 2
+
+
 def fail(message: str, prog: str):
     """One line ``PROG: error: MESSAGE`` on stderr and exit status 2 (no traceback)."""
-    sys.stderr.write(f"{prog}: error: {message}\n")
-    sys.exit(2)
+    sys.exit(error_line(message, prog))
 
 
 class Parser(argparse.ArgumentParser):

@@ -7,8 +7,10 @@ The modules, one job each: ``points`` (a sweep's settings, grids, TOML and ``--s
 ``results`` (keys, checked records, atomic strict-JSON writes), ``stats`` (``mean_ci`` and
 bootstrap thresholds), ``seeds`` (common random numbers), ``tables`` (pandas tables, CSV
 and Parquet), ``figures`` (``save_figure``), ``sweep`` (batches, metrics, ``run_sweep``),
-``distributed`` (many processes), ``recording`` (measured data), ``identify_recording`` (the
-model route for measured data: a TOML config, ``identify``, its results on disk) and ``tune``.
+``distributed`` (many processes), ``recording`` (measured data), ``config`` (TOML configs
+that build a trial), ``identify_recording`` (the model route for measured data: its config,
+``identify``, its results on disk), ``design_experiment`` (experiment design's config, its
+Monte Carlo check and its files) and ``tune``.
 
 The names below are imported on first use (so ``armimp_jax.study.distributed``'s option
 helpers stay importable without JAX).
@@ -32,6 +34,8 @@ _EXPORTS = {
     "ResultsError": "results",
     "RunLock": "results",
     "atomic_write_json": "results",
+    "read_json": "results",
+    "stamped": "results",
     "save_record": "results",
     "load_record": "results",
     "settings_key": "results",
@@ -78,8 +82,10 @@ if TYPE_CHECKING:
     from .results import RunLock as RunLock
     from .results import atomic_write_json as atomic_write_json
     from .results import load_record as load_record
+    from .results import read_json as read_json
     from .results import save_record as save_record
     from .results import settings_key as settings_key
+    from .results import stamped as stamped
     from .runfolder import RunFolder as RunFolder
     from .runfolder import open_run as open_run
     from .runfolder import trial_status as trial_status

@@ -1,0 +1,317 @@
+"""Experiment design from a TOML config: the trial(s), the family, the limits, ``design``, the
+designed perturbation on disk, and its check by Monte Carlo identification.
+
+- ``read_design_config(path)``: the TOML, read and checked (``config.read_config``); every
+  bad key is one ``ConfigError`` line naming it, before any simulation.
+- ``build_design(config)``: the trials (the ``[arm]`` section's, or the paper's arm locations
+  of ``[design] robust``), the starting family, the ``Limits`` and ``design``'s options.
+- ``validate(result, trials, free, seeds=...)``: simulate and identify under new noise with
+  the designed perturbation; the spread of the estimates against the predicted SEs.
+- ``write_results``: ``perturbation.csv`` (what a robot's software loads), ``perturbation.npz``,
+  ``design.json`` (strict, with the settings and the package version) and three figures.
+
+Keys, units and defaults: docs/experiment_design.md.
+"""
+
+from __future__ import annotations
+
+import pathlib
+
+import jax
+import numpy as np
+from matplotlib.figure import Figure  # no pyplot: no global figure state
+
+from .._identification.design import AGGREGATES, CRITERIA, Limits, default_targets
+from .._identification.identify import identify
+from .._identification.indirect import IDENTIFY_NUMERICS
+from .._identification.layout import PARAMETERS, make_layout
+from .._model.families import ShapedNoise, multisine
+from .._simulate import simulate
+from ..presets import arm as paper_arm
+from .config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
+from .figures import save_figure
+from .results import atomic_write_json, atomic_write_text, package_version
+
+FAMILIES = ("shaped_noise", "multisine")
+SECTIONS = {
+    **{k: v for k, v in TRIAL_SECTIONS.items()},
+    "family": {
+        "type": ("text", FAMILIES, "shaped_noise"),
+        "low": ("scalar", "Hz", 0.5),
+        "high": ("scalar", "Hz", 15.0),
+        "lines": ("int", 2, 8),
+    },
+    "limits": {
+        "rms_force": ("pair", "N", REQUIRED),
+        "peak_force": ("pair", "N", REQUIRED),
+        "record": ("scalar", "s", REQUIRED),
+        "peak_displacement": ("scalar", "m", None),
+    },
+    "design": {
+        "free": ("names", tuple(PARAMETERS), REQUIRED),
+        "targets": ("texts", "", []),
+        "criterion": ("text", CRITERIA, "max_relative_se"),
+        "aggregate": ("text", AGGREGATES, "worst"),
+        "robust": ("choices", (1, 2, 3, 4), []),
+        "steps": ("int", 1, 40),
+        "learning_rate": ("scalar", "", 0.15),
+        "draws": ("int", 8, 16),
+        "predict_draws": ("int", 8, 64),
+        "seed": ("int", 0, 0),
+    },
+    "validate": {"seeds": ("int", 0, 0), "draws": ("int", 8, 32)},
+}
+REQUIRED_SECTIONS = ("controller", "friction", "limits", "design")
+
+
+def read_design_config(path) -> dict:
+    """The config at ``path`` as plain values, checked; ``ConfigError`` (one line) otherwise."""
+    config = read_config(path, SECTIONS, REQUIRED_SECTIONS)
+    if "arm" not in config and not config["design"]["robust"]:
+        raise ConfigError(f"{path}: give the arm to design for: an [arm] section or [design] robust = [1, 2, 3, 4]")
+    fam = config.get("family", {k: v[2] for k, v in SECTIONS["family"].items()})
+    config["family"] = fam
+    if not 0 < fam["low"] < fam["high"] < 500.0:
+        raise ConfigError(
+            f"{path}: [family] needs 0 < low < high < 500 Hz (the control rate's Nyquist frequency), "
+            f"got low {fam['low']} and high {fam['high']}"
+        )
+    lim = config["limits"]
+    try:
+        Limits(lim["rms_force"], lim["peak_force"], lim["record"], lim["peak_displacement"])
+    except ValueError as err:
+        raise ConfigError(f"{path}: [limits] {err}") from None
+    try:
+        labels = make_layout(config["design"]["free"]).labels()
+    except ValueError as err:
+        raise ConfigError(f"{path}: [design] {err}") from None
+    bad = [t for t in config["design"]["targets"] if t not in labels]
+    if bad:
+        raise ConfigError(
+            f"{path}: [design] unknown target {bad[0]!r}; the free parameters' entries are {', '.join(labels)}"
+        )
+    if not 0 < config["design"]["learning_rate"] < 10:
+        raise ConfigError(
+            f"{path}: [design] learning_rate must lie in (0, 10), got {config['design']['learning_rate']}"
+        )
+    return config
+
+
+def build_design(config: dict, *, where: str = "config") -> tuple:
+    """``(trials, family, limits, options)`` of a config of ``read_design_config``; ``options``
+    are ``design``'s keyword arguments (``robust_over`` included). Needs float64."""
+    robust = config["design"]["robust"]
+    if robust:
+        trials = [build_trial(config, where=where, arm=paper_arm(loc)) for loc in robust]
+    else:
+        trials = [build_trial(config, where=where)]
+    fam = config["family"]
+    lim = config["limits"]
+    limits = Limits(lim["rms_force"], lim["peak_force"], lim["record"], lim["peak_displacement"])
+    if fam["type"] == "multisine":
+        family = multisine(np.linspace(fam["low"], fam["high"], fam["lines"]), 1.0, offset=0.5)
+    else:
+        # knots spaced evenly in log frequency: the low band, where K is seen, gets as many as the high
+        knots = np.geomspace(fam["low"], fam["high"], fam["lines"])
+        family = ShapedNoise(knots, np.ones((2, fam["lines"])), 1.0)
+    d = config["design"]
+    options = dict(
+        free=tuple(d["free"]),
+        targets=d["targets"] or None,
+        criterion=d["criterion"],
+        aggregate=d["aggregate"],
+        robust_over=trials,
+        steps=d["steps"],
+        learning_rate=float(d["learning_rate"]),
+        draws=d["draws"],
+        predict_draws=d["predict_draws"],
+        key=jax.random.key(d["seed"]),
+    )
+    return trials, family, limits, options
+
+
+def _truth(trial, names) -> np.ndarray:
+    return np.concatenate([np.ravel(getattr(getattr(trial, n.split(".")[0]), n.split(".")[1])) for n in names])
+
+
+def validate(signal, trials, free, *, seeds: int, draws: int = 32, progress=None) -> list[dict]:
+    """Per trial: ``seeds`` recordings under new noise with ``signal``, each identified from the
+    truth; returns per trial the spread ``(n,)`` (natural entries) of the estimates of the
+    fits that converged, and how many recordings diverged and how many fits converged (the
+    rest are counted, never scored). ``progress()`` is called after each recording."""
+    sim = jax.jit(simulate, static_argnames="numerics")
+    out = []
+    for i, trial in enumerate(trials):
+        estimates, converged, diverged = [], 0, 0
+        for seed in range(seeds):
+            rec = sim(trial, signal, key=jax.random.key(50_000 + 1000 * i + seed), numerics=IDENTIFY_NUMERICS)
+            if bool(rec.diverged):
+                diverged += 1
+                continue
+            res = identify(trial, signal, rec.x, rec.fh, free=free, draws=draws, key=jax.random.key(seed))
+            if res.converged:
+                converged += 1
+                estimates.append(np.concatenate([np.ravel(res.values[n]) for n in free]))
+            if progress is not None:
+                progress()
+        if len(estimates) < 2:
+            raise RuntimeError(
+                f"validate: only {len(estimates)} of {seeds} fits converged for trial {i}; no spread to report"
+            )
+        e = np.stack(estimates)
+        out.append(
+            dict(
+                recordings=seeds,
+                diverged=diverged,
+                converged=converged,
+                spread=e.std(axis=0, ddof=1),
+                mean_error=e.mean(axis=0) - _truth(trial, free),
+            )
+        )
+    return out
+
+
+def _relative(pred, trial, labels, targets) -> dict:
+    values = _truth(trial, [n for n in dict.fromkeys(lab.split("[")[0] for lab in labels)])
+    se = np.sqrt(np.diag(np.asarray(pred.covariance)))
+    return {t: float(se[labels.index(t)] / abs(values[labels.index(t)])) for t in targets}
+
+
+def result_dict(result, trials, *, settings: dict, free, targets, validation=None, paper=None) -> dict:
+    """What ``design.json`` holds (before strict JSON conversion)."""
+    labels = list(result.before[0].labels)
+    targets = list(targets or [labels[i] for i in default_targets(make_layout(free))])
+    per_trial = []
+    for k, trial in enumerate(trials):
+        row = dict(
+            arm=dict(
+                mass=np.asarray(trial.arm.mass),
+                damping=np.asarray(trial.arm.damping),
+                stiffness=np.asarray(trial.arm.stiffness),
+                endpoint=np.asarray(trial.arm.endpoint),
+            ),
+            relative_se_before=_relative(result.before[k], trial, labels, targets),
+            relative_se_after=_relative(result.after[k], trial, labels, targets),
+            se_before=np.sqrt(np.diag(np.asarray(result.before[k].covariance))),
+            se_after=np.sqrt(np.diag(np.asarray(result.after[k].covariance))),
+        )
+        if paper is not None:
+            row["relative_se_paper"] = _relative(paper[k], trial, labels, targets)
+        if validation is not None:
+            v = validation[k]
+            row["validation"] = dict(
+                recordings=v["recordings"],
+                diverged=v["diverged"],
+                converged=v["converged"],
+                spread=v["spread"],
+                spread_over_predicted=v["spread"] / row["se_after"],
+                mean_error=v["mean_error"],
+            )
+        per_trial.append(row)
+    return {
+        "settings": {**settings, "armimp_jax": package_version()},
+        "labels": labels,
+        "targets": targets,
+        "criterion_before": result.criterion_before,
+        "criterion_after": result.criterion_after,
+        "achieved": result.achieved,
+        "trace": result.trace,
+        "improved": result.improved,
+        "skipped_steps": result.skipped,
+        "family": dict(type=type(result.family).__name__, **_family_arrays(result.family)),
+        "trials": per_trial,
+        "time_s": result.time_s,
+    }
+
+
+def _family_arrays(family) -> dict:
+    return {k: np.asarray(v) for k, v in vars(family).items()}
+
+
+def spectrum_figure(fs, start, designed, limits_band=None):
+    """Amplitude spectra [N] of the start and the designed signal, per axis."""
+    fig = Figure(figsize=(12, 4.5), layout="constrained")
+    axes = fig.subplots(1, 2, sharey=True)
+    freq = np.fft.rfftfreq(start.shape[0], 1.0 / fs)
+    band = freq <= (40.0 if limits_band is None else limits_band)
+    for k, ax in enumerate(axes):
+        for sig, label, style in ((start, "start", ":"), (designed, "designed", "-")):
+            amp = 2.0 * np.abs(np.fft.rfft(sig[:, k])) / sig.shape[0]
+            ax.semilogy(freq[band][1:], amp[band][1:], style, lw=0.8, label=label)
+        ax.set_title(f"axis {'xy'[k]}: amplitude spectrum of F_Delta", fontsize=10)
+        ax.set_xlabel("frequency [Hz]")
+    axes[0].set_ylabel("amplitude [N]")
+    axes[0].legend(fontsize=8)
+    return fig
+
+
+def se_figure(doc: dict):
+    """Predicted relative SE of each target, start against design (and the paper's perturbation),
+    per trial: bars from zero."""
+    targets = doc["targets"]
+    trials = doc["trials"]
+    fig = Figure(figsize=(max(7.0, 1.2 * len(targets) + 3), 3.2 * len(trials)), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(len(trials), 1, sharex=True))
+    x = np.arange(len(targets))
+    kinds = [("relative_se_before", "start"), ("relative_se_after", "designed")]
+    if "relative_se_paper" in trials[0]:
+        kinds.insert(0, ("relative_se_paper", "paper's perturbation"))
+    width = 0.8 / len(kinds)
+    for ax, row, k in zip(axes, trials, range(len(trials))):
+        for j, (key, label) in enumerate(kinds):
+            ax.bar(x + (j - (len(kinds) - 1) / 2) * width, [row[key][t] for t in targets], width, label=label)
+        ax.set_ylabel("predicted SE / |value|")
+        ax.set_title(f"trial {k + 1}", fontsize=10)
+        ax.set_ylim(bottom=0.0)
+    axes[0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    axes[-1].set_xticks(x, targets, rotation=30, ha="right", fontsize=8)
+    return fig
+
+
+def trace_figure(fs, signal, limits: Limits, trace):
+    """The designed F_Delta per axis against time with the peak and RMS limits drawn, and the
+    criterion over the optimisation steps."""
+    fig = Figure(figsize=(12, 7), layout="constrained")
+    axes = fig.subplots(3, 1)
+    t = np.arange(signal.shape[0]) / fs
+    peak = np.broadcast_to(np.asarray(limits.peak_force, dtype=float), (2,))
+    rms = np.broadcast_to(np.asarray(limits.rms_force, dtype=float), (2,))
+    for k in range(2):
+        ax = axes[k]
+        ax.plot(t, signal[:, k], lw=0.5, label="designed F_Delta")
+        ax.axhline(peak[k], color="r", lw=1, label="peak limit")
+        ax.axhline(-peak[k], color="r", lw=1)
+        ax.axhline(rms[k], color="k", ls="--", lw=0.8, label="RMS limit")
+        ax.axhline(-rms[k], color="k", ls="--", lw=0.8)
+        ax.set_ylabel(f"F_Delta {'xy'[k]} [N]")
+    axes[0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    axes[1].set_xlabel("time [s]")
+    axes[2].plot(np.arange(1, len(trace) + 1), trace, "o-", ms=3)
+    axes[2].set_xlabel("optimisation step")
+    axes[2].set_ylabel("criterion (that step's draws)")
+    axes[2].set_ylim(bottom=0.0)
+    return fig
+
+
+def write_results(out_dir, result, trials, limits: Limits, *, doc: dict) -> list[pathlib.Path]:
+    """``perturbation.csv`` (header ``f_delta_x,f_delta_y``, one row per 1 ms sample [N]),
+    ``perturbation.npz``, ``design.json`` (``doc``, strict JSON) and ``spectrum.png``,
+    ``se.png``, ``trace.png`` under ``out_dir``, each atomically; returns their paths."""
+    out_dir = pathlib.Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fs = 1.0 / trials[0].period
+    csv = out_dir / "perturbation.csv"
+    rows = "\n".join(f"{a:.17g},{b:.17g}" for a, b in result.signal)
+    atomic_write_text(csv, "f_delta_x,f_delta_y\n" + rows + "\n")
+    npz = out_dir / "perturbation.npz"
+    tmp = out_dir / ".perturbation.npz.tmp.npz"
+    np.savez(tmp, f_delta=result.signal, fs_hz=fs, **_family_arrays(result.family))
+    tmp.replace(npz)
+    json_path = out_dir / "design.json"
+    atomic_write_json(json_path, doc)
+    figures = {
+        "spectrum.png": spectrum_figure(fs, result.start_signal, result.signal),
+        "se.png": se_figure(doc),
+        "trace.png": trace_figure(fs, result.signal, limits, result.trace),
+    }
+    return [csv, npz, json_path] + [save_figure(fig, out_dir / name) for name, fig in figures.items()]

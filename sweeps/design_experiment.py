@@ -1,0 +1,131 @@
+"""Design the perturbation of an impedance experiment within a patient's limits, and check it.
+
+    python sweeps/design_experiment.py CONFIG.toml --out DIR [--validate SEEDS]
+
+CONFIG.toml names the robot, controller, sensors, the person's own force and the friction
+(as the model route of estimate_recording.py), the arm to design for ([arm], or the
+paper's arm locations in [design] robust), the perturbation family ([family]: shaped
+noise or a multisine over a band), the limits ([limits]: RMS and peak force per axis [N],
+peak hand displacement [m], record length [s]) and what to minimise ([design]: the free
+parameters, the target entries, the criterion). Keys, units and defaults:
+docs/experiment_design.md; an example: sweeps/configs/design_example.toml.
+
+Writes DIR/perturbation.csv (f_delta_x, f_delta_y [N], one row per 1 ms: what the robot's
+software loads), DIR/perturbation.npz, DIR/design.json (settings, limits met, predicted SEs
+before and after, the optimisation trace, the check) and DIR/spectrum.png, DIR/se.png,
+DIR/trace.png. With --validate SEEDS (or [validate] seeds) it simulates and identifies
+SEEDS recordings per arm under new noise with the designed perturbation and reports the
+spread of the estimates against the predicted SEs. Every bad config gets one line on
+stderr and exit status 2, before any computation.
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+import time
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from _cli import Parser, error_line  # noqa: E402
+
+PROG = "design_experiment"
+
+
+def parse(argv):
+    ap = Parser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("config", type=pathlib.Path, help="TOML config (see above)")
+    ap.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR", help="output folder (created)")
+    ap.add_argument("--validate", type=int, metavar="SEEDS", help="Monte Carlo check: recordings per arm")
+    args = ap.parse_args(argv)
+    if args.validate is not None and args.validate < 0:
+        ap.error(f"--validate must be >= 0 recordings, got {args.validate}")
+    return args
+
+
+def fail(message: str) -> int:
+    return error_line(message, PROG)
+
+
+def main(argv=None) -> int:
+    args = parse(argv)
+    import jax  # after the arguments: --help stays fast
+
+    jax.config.update("jax_enable_x64", True)
+    import numpy as np
+    from tqdm import tqdm
+
+    import armimp_jax as aj
+    from armimp_jax.study import design_experiment as dx
+
+    try:
+        config = dx.read_design_config(args.config)
+        trials, family, limits, options = dx.build_design(config, where=str(args.config))
+    except ValueError as err:  # ConfigError included
+        return fail(str(err))
+    seeds = config["validate"]["seeds"] if args.validate is None else args.validate
+    start = time.perf_counter()
+    print(
+        f"designing {type(family).__name__} for {len(trials)} arm(s), {limits.record:g} s records, "
+        f"{options['steps']} steps of {options['draws']} noise draws per arm",
+        flush=True,
+    )
+    bar = tqdm(total=options["steps"], unit="step")
+
+    def progress(step, steps, value):
+        bar.n = step
+        bar.set_postfix_str(f"criterion {value:.3g}", refresh=False)
+        bar.refresh()
+
+    try:
+        result = aj.design(trials[0], family, limits=limits, progress=progress, **options)
+    except ValueError as err:
+        bar.close()
+        return fail(str(err))
+    bar.close()
+    free, targets = options["free"], options["targets"]
+    paper = [
+        aj.predict_se(
+            t,
+            aj.PaperNoise(limits.peak_force).signal(jax.random.key(2024), result.signal.shape[0]),
+            free=free,
+            draws=options["predict_draws"],
+        )
+        for t in trials
+    ]
+    validation = None
+    if seeds:
+        vbar = tqdm(total=seeds * len(trials), unit="fit", desc="validating")
+        validation = dx.validate(
+            result.signal, trials, free, seeds=seeds, draws=config["validate"]["draws"], progress=lambda: vbar.update()
+        )
+        vbar.close()
+    settings = dict(config_path=str(args.config), config=config, validate_seeds=seeds)
+    doc = dx.result_dict(
+        result, trials, settings=settings, free=free, targets=targets, validation=validation, paper=paper
+    )
+    paths = dx.write_results(args.out, result, trials, limits, doc=doc)
+    print(
+        f"criterion (largest relative SE over targets and arms): start {result.criterion_before:.4g}, "
+        f"designed {result.criterion_after:.4g}"
+    )
+    worst_paper = max(max(row["relative_se_paper"].values()) for row in doc["trials"])
+    print(f"the paper's perturbation at the same peak: {worst_paper:.4g}")
+    print(
+        f"limits met: RMS {np.round(result.achieved['rms_force'], 4).tolist()} N, peak "
+        f"{np.round(result.achieved['peak_force'], 4).tolist()} N, displacement "
+        f"{1e3 * result.achieved['peak_displacement']:.3f} mm"
+    )
+    if validation is not None:
+        for k, row in enumerate(doc["trials"]):
+            ratio = np.asarray(row["validation"]["spread_over_predicted"])
+            print(
+                f"arm {k + 1}: spread / predicted SE {np.round(ratio, 2).tolist()} "
+                f"({row['validation']['converged']} of {row['validation']['recordings']} recordings converged)"
+            )
+    print(f"{time.perf_counter() - start:.0f} s; wrote " + ", ".join(p.name for p in paths))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
