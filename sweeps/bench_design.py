@@ -52,17 +52,9 @@ def parse(argv):
     return a
 
 
-def criterion(np, preds, trials, labels):
+def criterion(dx, preds, trials):
     """The largest relative SE over the targets and the trials, and per trial per target."""
-    per = []
-    for pred, t in zip(preds, trials):
-        se = np.sqrt(np.diag(np.asarray(pred.covariance)))
-        row = {}
-        for lab in TARGETS:
-            name, idx = lab.split("[")
-            i = int(idx[0])
-            row[lab] = float(se[labels.index(lab)] / abs(np.asarray(getattr(t.arm, name.split(".")[1]))[i, i]))
-        per.append(row)
+    per = [dx.relative_se(pred, t, free=FREE, targets=TARGETS) for pred, t in zip(preds, trials)]
     return max(max(r.values()) for r in per), per
 
 
@@ -106,9 +98,9 @@ def run_case(aj, np, jax, controller, tau_c, a):
     )
     labels = list(result.before[0].labels)
     paper_preds = [aj.predict_se(t, paper_signal, free=FREE, draws=64) for t in trials]
-    crit_paper, per_paper = criterion(np, paper_preds, trials, labels)
-    crit_before, per_before = criterion(np, result.before, trials, labels)
-    crit_after, per_after = criterion(np, result.after, trials, labels)
+    crit_paper, per_paper = criterion(dx, paper_preds, trials)
+    crit_before, per_before = criterion(dx, result.before, trials)
+    crit_after, per_after = criterion(dx, result.after, trials)
     out = dict(
         controller=controller,
         tau_c=tau_c,
@@ -136,14 +128,11 @@ def run_case(aj, np, jax, controller, tau_c, a):
         spread_rel = []
         ratios = []
         for k, (t, v) in enumerate(zip(trials, check)):
+            truth = dx.truth(t, FREE)
             row = {}
             for lab in TARGETS:
-                name, idx = lab.split("[")
-                i = int(idx[0])
-                value = abs(np.asarray(getattr(t.arm, name.split(".")[1]))[i, i])
-                spread = float(v["spread"][labels.index(lab)])
-                row[lab] = spread / value
-                ratios.append(spread / value / per_after[k][lab])
+                row[lab] = float(v["spread"][labels.index(lab)] / abs(truth[labels.index(lab)]))
+                ratios.append(row[lab] / per_after[k][lab])
             spread_rel.append(row)
         achieved_crit = max(max(r.values()) for r in spread_rel)
         out["validation"] = dict(

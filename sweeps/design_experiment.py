@@ -84,15 +84,8 @@ def main(argv=None) -> int:
         return fail(str(err))
     bar.close()
     free, targets = options["free"], options["targets"]
-    paper = [
-        aj.predict_se(
-            t,
-            aj.PaperNoise(limits.peak_force).signal(jax.random.key(2024), result.signal.shape[0]),
-            free=free,
-            draws=options["predict_draws"],
-        )
-        for t in trials
-    ]
+    paper_signal = aj.PaperNoise(limits.peak_force).signal(jax.random.key(2024), result.signal.shape[0])
+    paper = [aj.predict_se(t, paper_signal, free=free, draws=options["predict_draws"]) for t in trials]
     validation = None
     if seeds:
         vbar = tqdm(total=seeds * len(trials), unit="fit", desc="validating")

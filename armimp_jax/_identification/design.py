@@ -167,6 +167,16 @@ def default_targets(layout) -> list[int]:
     return [i for i, lab in enumerate(layout.labels()) if not lab.endswith(("[0,1]", "[1,0]"))]
 
 
+def relative_se(pred, trial: Trial, *, free, targets) -> dict:
+    """``{label: SE / |value|}`` of the ``targets`` entries from ``pred`` (a ``PredictedSE`` of
+    ``trial`` for the parameters ``free``), the values being ``trial``'s own."""
+    layout = lay.make_layout(free)
+    labels = layout.labels()
+    values = np.asarray(lay.natural(layout, lay.pack(layout, trial), trial))
+    se = np.sqrt(np.diag(np.asarray(pred.covariance)))
+    return {t: float(se[labels.index(t)] / abs(values[labels.index(t)])) for t in targets}
+
+
 def _targets(layout, targets):
     """Indices into the natural vector of the ``targets`` labels (default: ``default_targets``)."""
     labels = layout.labels()
@@ -375,12 +385,12 @@ def design(
     if not improved:  # same draws for both: the start is the better design
         designed, signal, after = family, start_signal, before
     displacement = max(float(_peak_displacement(t, jnp.asarray(signal))[0]) for t in trials)
+    final_rms = np.sqrt(np.mean(signal**2, axis=0))
     achieved = dict(
-        rms_force=np.sqrt(np.mean(signal**2, axis=0)).tolist(),
+        rms_force=final_rms.tolist(),
         peak_force=np.max(np.abs(signal), axis=0).tolist(),
         peak_displacement=displacement,
     )
-    final_rms = np.sqrt(np.mean(signal**2, axis=0))
     return Design(
         family=replace_unchecked(designed, rms=final_rms),
         signal=signal,
@@ -428,11 +438,9 @@ def record_for(
         raise ValueError(f"record_for: target relative SEs must lie in (0, 1), got {target}")
     f = np.asarray(f, dtype=float)
     period = trial.period
-    values = np.asarray(lay.natural(layout, lay.pack(layout, trial), trial))
 
     def relative(pred):
-        se = np.asarray(pred.covariance).diagonal() ** 0.5
-        return {t: float(se[labels.index(t)] / abs(values[labels.index(t)])) for t in target}
+        return relative_se(pred, trial, free=free, targets=target)
 
     now = relative(predict_se(trial, f, free=free, draws=draws, key=key))
     seconds = f.shape[0] * period

@@ -64,17 +64,11 @@ def draw_counts(model: Trial, draws: int, jacobian_draws: int) -> tuple[int, int
     return tuple(int(math.ceil(d / n_dev) * n_dev) for d in (draws, jacobian_draws))
 
 
-def draw_outputs(layout: Layout, model: Trial, p, f, key, numerics):
-    """One noisy recording of the model at ``p``: ``(x, fh, diverged)``."""
-    trial = with_values(layout, model, p)
-    sim = simulate(trial, f, key=key, numerics=numerics)
-    return sim.x, sim.fh, sim.diverged
-
-
 def draw_statistics(layout: Layout, model: Trial, p, f, key, numerics):
     """The statistics of one noisy recording at ``p`` and whether it diverged."""
-    x, fh, diverged = draw_outputs(layout, model, p, f, key, numerics)
-    return statistics(layout, with_values(layout, model, p), f, x, fh), diverged
+    trial = with_values(layout, model, p)
+    sim = simulate(trial, f, key=key, numerics=numerics)
+    return statistics(layout, trial, f, sim.x, sim.fh), sim.diverged
 
 
 def _sharded(fn, n_out: int):
@@ -96,12 +90,11 @@ def binding_draws(layout: Layout, model: Trial, p, f, keys, numerics):
 
 @functools.partial(jax.jit, static_argnames=("layout", "numerics"))
 def binding_jacobian(layout: Layout, model: Trial, p, f, keys, numerics):
-    """``A = d beta / d p`` ``(n, n)`` averaged over the draws of ``keys`` (forward mode: one
+    """``A = d beta / d p`` ``(m, n)`` averaged over the draws of ``keys`` (forward mode: one
     pass per draw carries every parameter's tangent), and whether a draw diverged."""
 
     def one(k):
-        jac = jax.jacfwd(lambda q: draw_statistics(layout, model, q, f, k, numerics)[0])(p)
-        return jac, draw_outputs(layout, model, p, f, k, numerics)[2]
+        return jax.jacfwd(lambda q: draw_statistics(layout, model, q, f, k, numerics), has_aux=True)(p)
 
     def per_device(k):
         # one draw at a time: a vmap over draws of the tangents' batch ran several times slower

@@ -177,11 +177,12 @@ def with_values(layout: Layout, trial: Trial, p) -> Trial:
 
 
 def unflatten(layout: Layout, flat) -> dict:
-    """A natural vector (NumPy) -> ``{name: array in the parameter's shape}``."""
+    """A natural vector -> ``{name: array in the parameter's shape}``, of the vector's own
+    array type (NumPy, or JAX and traceable)."""
     out, i = {}, 0
     for name in layout.names:
         shape = layout.shape(name)
         n = int(np.prod(shape))
-        out[name] = np.asarray(flat[i : i + n]).reshape(shape)
+        out[name] = flat[i : i + n].reshape(shape)
         i += n
     return out

@@ -36,18 +36,6 @@ class PredictedSE(NamedTuple):
     diverged: jnp.ndarray
 
 
-def _unflatten(layout, flat):
-    out, i = {}, 0
-    for name in layout.names:
-        shape = layout.shape(name)
-        n = 1
-        for d in shape:
-            n *= d
-        out[name] = flat[i : i + n].reshape(shape)
-        i += n
-    return out
-
-
 def predict_se(
     trial: Trial,
     f,
@@ -97,7 +85,7 @@ def predict_se(
         # meet at collectives, queued together, can each hold a thread the other waits for
         cov, diverged = jax.block_until_ready((cov, diverged))
     return PredictedSE(
-        se=_unflatten(layout, jnp.sqrt(jnp.diag(cov))),
+        se=lay.unflatten(layout, jnp.sqrt(jnp.diag(cov))),
         covariance=cov,
         labels=tuple(layout.labels()),
         diverged=diverged,

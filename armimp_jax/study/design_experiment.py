@@ -21,10 +21,10 @@ import jax
 import numpy as np
 from matplotlib.figure import Figure  # no pyplot: no global figure state
 
-from .._identification.design import AGGREGATES, CRITERIA, Limits, default_targets
+from .._identification.design import AGGREGATES, CRITERIA, Limits, default_targets, relative_se
 from .._identification.identify import identify
 from .._identification.indirect import IDENTIFY_NUMERICS
-from .._identification.layout import PARAMETERS, make_layout
+from .._identification.layout import PARAMETERS, make_layout, natural, pack
 from .._model.families import ShapedNoise, multisine
 from .._simulate import simulate
 from ..presets import arm as paper_arm
@@ -130,8 +130,10 @@ def build_design(config: dict, *, where: str = "config") -> tuple:
     return trials, family, limits, options
 
 
-def _truth(trial, names) -> np.ndarray:
-    return np.concatenate([np.ravel(getattr(getattr(trial, n.split(".")[0]), n.split(".")[1])) for n in names])
+def truth(trial, free) -> np.ndarray:
+    """The true values of ``free``'s entries in ``trial`` (the natural vector, in label order)."""
+    layout = make_layout(free)
+    return np.asarray(natural(layout, pack(layout, trial), trial))
 
 
 def validate(signal, trials, free, *, seeds: int, draws: int = 32, progress=None) -> list[dict]:
@@ -147,11 +149,11 @@ def validate(signal, trials, free, *, seeds: int, draws: int = 32, progress=None
             rec = sim(trial, signal, key=jax.random.key(50_000 + 1000 * i + seed), numerics=IDENTIFY_NUMERICS)
             if bool(rec.diverged):
                 diverged += 1
-                continue
-            res = identify(trial, signal, rec.x, rec.fh, free=free, draws=draws, key=jax.random.key(seed))
-            if res.converged:
-                converged += 1
-                estimates.append(np.concatenate([np.ravel(res.values[n]) for n in free]))
+            else:
+                res = identify(trial, signal, rec.x, rec.fh, free=free, draws=draws, key=jax.random.key(seed))
+                if res.converged:
+                    converged += 1
+                    estimates.append(np.concatenate([np.ravel(res.values[n]) for n in free]))
             if progress is not None:
                 progress()
         if len(estimates) < 2:
@@ -165,16 +167,10 @@ def validate(signal, trials, free, *, seeds: int, draws: int = 32, progress=None
                 diverged=diverged,
                 converged=converged,
                 spread=e.std(axis=0, ddof=1),
-                mean_error=e.mean(axis=0) - _truth(trial, free),
+                mean_error=e.mean(axis=0) - truth(trial, free),
             )
         )
     return out
-
-
-def _relative(pred, trial, labels, targets) -> dict:
-    values = _truth(trial, [n for n in dict.fromkeys(lab.split("[")[0] for lab in labels)])
-    se = np.sqrt(np.diag(np.asarray(pred.covariance)))
-    return {t: float(se[labels.index(t)] / abs(values[labels.index(t)])) for t in targets}
 
 
 def result_dict(result, trials, *, settings: dict, free, targets, validation=None, paper=None) -> dict:
@@ -190,13 +186,13 @@ def result_dict(result, trials, *, settings: dict, free, targets, validation=Non
                 stiffness=np.asarray(trial.arm.stiffness),
                 endpoint=np.asarray(trial.arm.endpoint),
             ),
-            relative_se_before=_relative(result.before[k], trial, labels, targets),
-            relative_se_after=_relative(result.after[k], trial, labels, targets),
+            relative_se_before=relative_se(result.before[k], trial, free=free, targets=targets),
+            relative_se_after=relative_se(result.after[k], trial, free=free, targets=targets),
             se_before=np.sqrt(np.diag(np.asarray(result.before[k].covariance))),
             se_after=np.sqrt(np.diag(np.asarray(result.after[k].covariance))),
         )
         if paper is not None:
-            row["relative_se_paper"] = _relative(paper[k], trial, labels, targets)
+            row["relative_se_paper"] = relative_se(paper[k], trial, free=free, targets=targets)
         if validation is not None:
             v = validation[k]
             row["validation"] = dict(
