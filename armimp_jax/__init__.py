@@ -73,6 +73,7 @@ _EXPORTS = {
     "Design": "._identification.design",
     "design": "._identification.design",
     "record_for": "._identification.design",
+    "limited_signal": "._identification.design",
     "SimResult": "._simulate",
     "Trial": "._simulate",
     "make_trial": "._simulate",
@@ -130,6 +131,7 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._identification.design import Design as Design
     from ._identification.design import Limits as Limits
     from ._identification.design import design as design
+    from ._identification.design import limited_signal as limited_signal
     from ._identification.design import record_for as record_for
     from ._identification.identify import Identification as Identification
     from ._identification.identify import identify as identify

@@ -4,9 +4,10 @@ For each case (PD or IMBIC, Coulomb torque tau_c with tau_s = 1.5 tau_c; force n
 2^18-count encoders, voluntary force 0.3 N RMS below 2 Hz), robust over the paper's four
 arm locations: the limits are the RMS of the paper's level-1 perturbation (its 2.25 N peak,
 key 2024, per axis) and that same peak, ``--record`` seconds, a hand displacement limit;
-``aj.design`` shapes a ShapedNoise (log-spaced knots from ``--low`` to 15 Hz, flat start) to minimise the
-largest relative SE among the diagonals of M, B and K over the four arms. Reported: that
-criterion for the paper's perturbation, the flat start and the design (``predict_se``),
+``aj.design`` shapes a ShapedNoise (log-spaced knots from ``--low`` to 15 Hz, flat start, in
+bursts of each ``--duty``: the design starts from the best) to minimise the largest relative
+SE among the diagonals of M, B and K over the four arms. Reported: that criterion for the
+paper's perturbation, the flat continuous noise, each start and the design (``predict_se``, the same draws),
 the limits the design meets, its time, and a Monte Carlo check: ``--seeds`` recordings per
 arm with the designed perturbation, each identified from the truth; the estimates' spread
 over the predicted SE per target, and the largest relative spread against the predicted
@@ -35,6 +36,8 @@ def parse(argv):
     p.add_argument("--displacement", type=float, default=0.01, help="peak hand displacement limit [m] (default 0.01)")
     p.add_argument("--low", type=float, default=0.5, help="lowest knot of the ShapedNoise [Hz] (default 0.5)")
     p.add_argument("--knots", type=int, default=8, help="knots from --low to 15 Hz, log-spaced (default 8)")
+    p.add_argument("--duty", default="1,0.25,0.125", help="burst duty cycles of the candidate starts (default 1,0.25,0.125)")
+    p.add_argument("--burst", type=float, default=2.0, help="burst period [s] (default 2)")
     p.add_argument("--learning-rate", type=float, default=0.15, help="Adam's learning rate (default 0.15)")
     p.add_argument("--seeds", type=int, default=40, help="Monte Carlo recordings per arm (default 40; 0: none)")
     p.add_argument("--out", default="bench_design.json", help="JSON file of the results")
@@ -47,6 +50,12 @@ def parse(argv):
         fail(f"--cases: controller pd or imbic and tau_c >= 0; got {a.cases}", p.prog)
     if a.record < 2 or a.steps < 1 or a.draws < 8 or a.seeds < 0 or a.displacement <= 0:
         fail("need --record >= 2, --steps >= 1, --draws >= 8, --seeds >= 0 and --displacement > 0", p.prog)
+    try:
+        a.duty = [float(d) for d in a.duty.split(",")]
+    except ValueError:
+        fail(f"--duty must be a comma-separated list of numbers in (0, 1]; got {a.duty!r}", p.prog)
+    if not all(0 < d <= 1 for d in a.duty) or a.burst <= 0:
+        fail(f"--duty values must lie in (0, 1] and --burst > 0 s; got {a.duty}, {a.burst}", p.prog)
     if not (0 < a.low < 15 and a.knots >= 2 and a.learning_rate > 0):
         fail("need 0 < --low < 15 Hz, --knots >= 2 and --learning-rate > 0", p.prog)
     return a
@@ -59,6 +68,8 @@ def criterion(dx, preds, trials):
 
 
 def run_case(aj, np, jax, controller, tau_c, a):
+    import jax.numpy as jnp
+
     from armimp_jax import paper
     from armimp_jax.study import design_experiment as dx
 
@@ -76,7 +87,8 @@ def run_case(aj, np, jax, controller, tau_c, a):
     paper_signal = np.asarray(aj.PaperNoise(paper.perturbation_peak(1)).signal(jax.random.key(2024), n))
     rms = np.sqrt(np.mean(paper_signal**2, axis=0))
     limits = aj.Limits(rms_force=tuple(rms), peak_force=2.25, record=a.record, peak_displacement=a.displacement)
-    family = aj.ShapedNoise(np.geomspace(a.low, 15.0, a.knots), np.ones((2, a.knots)), 1.0)
+    knots = np.geomspace(a.low, 15.0, a.knots)
+    starts = [aj.ShapedNoise(knots, np.ones((2, a.knots)), 1.0, duty=d, burst=a.burst) for d in a.duty]
     t0 = time.perf_counter()
 
     def progress(step, steps, value):
@@ -86,7 +98,7 @@ def run_case(aj, np, jax, controller, tau_c, a):
 
     result = aj.design(
         trials[0],
-        family,
+        starts,
         free=FREE,
         limits=limits,
         targets=TARGETS,
@@ -97,17 +109,26 @@ def run_case(aj, np, jax, controller, tau_c, a):
         progress=progress,
     )
     labels = list(result.before[0].labels)
-    paper_preds = [aj.predict_se(t, paper_signal, free=FREE, draws=64) for t in trials]
-    crit_paper, per_paper = criterion(dx, paper_preds, trials)
-    crit_before, per_before = criterion(dx, result.before, trials)
-    crit_after, per_after = criterion(dx, result.after, trials)
+    # every signal on the same draws (key 0), the paper's and the flat continuous noise's too
+    flat = aj.ShapedNoise(knots, np.ones((2, a.knots)), 1.0)
+    flat_signal = aj.limited_signal(flat, limits, key=jax.random.split(jax.random.key(0))[0], trials=trials)
+
+    def predicted(signal):
+        return criterion(dx, [aj.predict_se(t, jnp.asarray(signal), free=FREE, draws=64) for t in trials], trials)
+
+    crit_paper, per_paper = predicted(paper_signal)
+    crit_flat, per_flat = predicted(flat_signal)
+    crit_before, per_before = predicted(result.start_signal)
+    crit_after, per_after = predicted(result.signal)
     out = dict(
         controller=controller,
         tau_c=tau_c,
         paper_rms_force=rms.tolist(),
-        criterion=dict(paper=crit_paper, start=crit_before, designed=crit_after),
+        criterion=dict(paper=crit_paper, flat=crit_flat, start=crit_before, designed=crit_after),
+        start_duty=result.start_family.duty,
+        start_criteria=dict(zip([str(d) for d in a.duty], result.start_criteria)),
         paper_over_designed=crit_paper / crit_after,
-        relative_se=dict(paper=per_paper, start=per_before, designed=per_after),
+        relative_se=dict(paper=per_paper, flat=per_flat, start=per_before, designed=per_after),
         achieved=result.achieved,
         design_time_s=result.time_s,
         improved=result.improved,
@@ -117,7 +138,8 @@ def run_case(aj, np, jax, controller, tau_c, a):
         knots=np.asarray(result.family.knots).tolist(),
     )
     print(
-        f"{controller} {tau_c:g} N m: largest relative SE, paper {crit_paper:.4g}, flat start {crit_before:.4g}, "
+        f"{controller} {tau_c:g} N m: largest relative SE, paper {crit_paper:.4g}, flat continuous {crit_flat:.4g}, "
+        f"start (duty {result.start_family.duty:g}; candidates {result.start_criteria}) {crit_before:.4g}, "
         f"designed {crit_after:.4g} ({crit_paper / crit_after:.2f}x; improved on the start: {result.improved}); "
         f"design {result.time_s:.0f} s; "
         f"achieved {result.achieved}",

@@ -97,7 +97,7 @@ def test_bad_families_and_limits_are_one_line_errors():
 
 
 def test_limits_hold_exactly_on_the_limited_signal():
-    """RMS at its limit unless the peak binds, then the peak at its limit; the displacement
+    """RMS at its limit; where the peak binds, peaks clipped to it with the RMS kept; the displacement
     limit scales the whole signal until every trial's hand stays within it."""
     fam = aj.ShapedNoise(knots=[0.5, 15.0], shape=np.ones((2, 2)), rms=1.0)
     key = jax.random.key(1)
@@ -106,8 +106,9 @@ def test_limits_hold_exactly_on_the_limited_signal():
     np.testing.assert_allclose(np.sqrt(np.mean(s**2, axis=0)), 0.5, rtol=1e-12)
     tight = aj.Limits(rms_force=0.5, peak_force=1.0, record=3.0)
     s = np.asarray(des._limited_signal(fam, key, 3000, tight, 1e-3))
-    np.testing.assert_allclose(np.abs(s).max(axis=0), 1.0, rtol=1e-12)
-    assert np.all(np.sqrt(np.mean(s**2, axis=0)) < 0.5)
+    np.testing.assert_allclose(np.abs(s).max(axis=0), 1.0, rtol=1e-12)  # clipped to the peak ...
+    np.testing.assert_allclose(np.sqrt(np.mean(s**2, axis=0)), 0.5, rtol=1e-6)  # ... the RMS kept at its limit
+    np.testing.assert_array_equal(s, aj.limited_signal(fam, tight, key=key, period=1e-3))
     trials = [_trial(1), _trial(3)]
     limit = 2e-6  # 2 um: below the 3 um 0.5 N RMS gives (the joints stay in pre-sliding at 0.3 N m)
     small = aj.Limits(rms_force=0.5, peak_force=2.0, record=3.0, peak_displacement=limit)
@@ -118,14 +119,52 @@ def test_limits_hold_exactly_on_the_limited_signal():
     assert max(peaks) <= limit and max(peaks) > 0.9 * limit
 
 
+def test_bursts_gate_both_axes_together_at_the_rms_and_move_joints_that_friction_holds():
+    """A burst gate keeps the RMS, switches both axes off together for 1 - duty of each period,
+    and at equal RMS moves the hand much further against 0.3 N m of friction than continuous
+    noise does (a burst's force, 1 / sqrt(duty) larger, passes the breakaway torque)."""
+    knots, shape = np.geomspace(0.5, 15.0, 4), np.ones((2, 4))
+    burst = aj.ShapedNoise(knots, shape, 0.5, duty=0.25, burst=1.0)
+    s = np.asarray(burst.signal(jax.random.key(3), 8000))
+    np.testing.assert_allclose(np.sqrt(np.mean(s**2, axis=0)), 0.5, rtol=1e-12)
+    gate = np.asarray(burst.gate(jax.random.fold_in(jax.random.key(3), 1), 8000))
+    assert set(np.flatnonzero(np.all(s == 0, axis=1))) == set(np.flatnonzero(gate == 0))
+    np.testing.assert_allclose(np.mean(gate), 0.25, atol=1e-3)  # the linear edges are symmetric about duty
+    on = gate == 1
+    assert np.all(np.sqrt(np.mean(s[on] ** 2, axis=0)) > 0.9)  # ~0.5 / sqrt(0.25)
+    for bad, match in (
+        (dict(duty=0.0), r"duty must lie in \(0, 1\]"),
+        (dict(duty=1.5), r"duty must lie in \(0, 1\]"),
+        (dict(burst=-1.0), r"burst must lie in"),
+        (dict(duty=0.01, burst=1.0), "no longer than its two"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            aj.ShapedNoise(knots, shape, 0.5, **bad)
+    trial = aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.LuGre(0.3, 0.45))
+    limits = aj.Limits(rms_force=0.6, peak_force=2.25, record=4.0)
+    travel = {}
+    for duty in (1.0, 0.125):
+        fam = aj.ShapedNoise(knots, shape, 1.0, duty=duty, burst=1.0)
+        f = aj.limited_signal(fam, limits, key=jax.random.key(5))
+        x = np.asarray(aj.simulate(trial, jnp.asarray(f)).x)
+        travel[duty] = np.sqrt(np.mean(np.sum((x - x.mean(axis=0)) ** 2, axis=1)))  # RMS excursion [m]
+    assert travel[0.125] > 2.0 * travel[1.0], travel  # 5.5x measured (4 s, arm 2, key 5)
+
+
 @pytest.mark.slow  # ~2 min: a few design steps over two arms and four predictions
 def test_a_short_design_lowers_the_criterion_within_the_limits():
     trials = [_trial(1), _trial(2)]
     limits = aj.Limits(rms_force=0.6, peak_force=2.25, record=4.0, peak_displacement=5e-3)
     fam = aj.ShapedNoise(knots=np.linspace(0.5, 15.0, 6), shape=np.ones((2, 6)), rms=1.0)
     targets = [f"arm.{n}[{i},{i}]" for n in ("mass", "damping", "stiffness") for i in (0, 1)]
-    d = aj.design(trials[0], fam, free=ARM, limits=limits, targets=targets, robust_over=trials, steps=6, draws=8)
+    bursts = aj.ShapedNoise(knots=np.linspace(0.5, 15.0, 6), shape=np.ones((2, 6)), rms=1.0, duty=0.25, burst=1.0)
+    d = aj.design(
+        trials[0], [fam, bursts], free=ARM, limits=limits, targets=targets, robust_over=trials, steps=6, draws=8
+    )
     assert len(d.trace) == 6 and len(d.before) == len(d.after) == 2
+    # the start is the candidate the prediction rates best, its prediction the one design reports
+    assert len(d.start_criteria) == 2 and d.criterion_before == min(d.start_criteria)
+    assert d.start_family.duty == (1.0, 0.25)[int(np.argmin(d.start_criteria))]
     assert np.all(np.asarray(d.achieved["rms_force"]) <= 0.6 + 1e-12)
     assert np.all(np.asarray(d.achieved["peak_force"]) <= 2.25 + 1e-12)
     assert d.achieved["peak_displacement"] <= 5e-3
@@ -154,6 +193,11 @@ BAD_DESIGN_CONFIGS = {
         r"\[design\] free: unknown parameter 'arm.inertia'; allowed: arm.mass",
     ),
     "unknown key": (("lines = 8", "line = 8"), r"\[family\] unknown key 'line'; allowed: type, low, high, lines"),
+    "duty out of range": (("# duty = [1.0, 0.25, 0.125]", "duty = [1.0, 0.0]"), r"\[family\] duty values must lie in"),
+    "burst shorter than its edges": (
+        ("# duty = [1.0, 0.25, 0.125]", "duty = 0.01\nburst = 1.0"),
+        r"\[family\] ShapedNoise: a burst of duty \* burst = 0.01 s is no longer than its two",
+    ),
     "no arm": (("robust = [1, 2, 3, 4]", "robust = []"), "give the arm to design for"),
     "unknown location": (("robust = [1, 2, 3, 4]", "robust = [5]"), r"\[design\] robust: 5 is not one of 1, 2, 3, 4"),
     "unknown target": (
@@ -185,6 +229,9 @@ def test_example_design_config_builds_four_arms_and_the_documented_limits():
     np.testing.assert_allclose(np.asarray(trials[2].arm.stiffness), np.asarray(paper.arm(3).stiffness))
     assert (limits.peak_force, limits.record, limits.peak_displacement) == (2.25, 20.0, 0.005)
     assert options["free"] == ARM and len(options["targets"]) == 6
+    config["family"]["duty"] = [1.0, 0.25]  # several duties: candidate starts, one family each
+    family = dx.build_design(config, where=str(EXAMPLE))[1]
+    assert [f.duty for f in family] == [1.0, 0.25] and all(f.burst == 2.0 for f in family)
 
 
 @pytest.mark.slow  # ~1 min: two predictions

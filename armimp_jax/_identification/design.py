@@ -14,9 +14,10 @@ loop), for one trial or over a set of trials (the patient's arm is what is unkno
   units (the volume of the confidence region).
 
 **Limits are honoured by construction, not penalised**: the family's RMS is set to
-``rms_force``, then the whole signal is scaled down until its peak is at most
-``peak_force`` and the hand's peak displacement in the noise-free simulation of every
-trial at most ``peak_displacement``. So every signal the optimiser sees, and the one it
+``rms_force``, samples beyond ``peak_force`` are clipped and the rest re-scaled until both
+hold (so a design uses the whole RMS it is allowed), then the whole signal is scaled down
+until the hand's peak displacement in the noise-free simulation of every trial is at most
+``peak_displacement``. So every signal the optimiser sees, and the one it
 returns, meets them (the displacement's gain is re-found every ``REGAIN_EVERY`` steps and
 for the returned design). Each step draws new noise (a stochastic gradient, optax's Adam):
 a design that fitted one fixed set of draws would promise more than the experiment gives.
@@ -55,6 +56,7 @@ CRITERIA = ("max_relative_se", "d_optimal")
 AGGREGATES = ("worst", "mean")
 SOFTMAX_TEMPERATURE = 0.05  # in log relative SE: the smooth maximum is within ~0.05 * log(n) of the true one
 DISPLACEMENT_TOLERANCE = 1e-3  # of the gain, in the displacement limit's bisection
+CLIP_ITERATIONS = 40  # clip-and-rescale passes of the peak limit: a few for Gaussian noise, ~30 for short bursts
 REGAIN_EVERY = 10  # steps between re-finding the displacement gain (each is a bisection of forward runs)
 
 
@@ -99,7 +101,8 @@ class Design(NamedTuple):
     (on that step's draws; NaN for a skipped step); ``achieved``: RMS and peak force per
     axis [N] and the largest peak hand displacement over the trials [m] of the designed
     signal; ``improved``: whether the design beat the start (if not, ``family`` and
-    ``signal`` are the start's); ``skipped``: steps skipped for diverged draws; ``time_s``."""
+    ``signal`` are the start's); ``skipped``: steps skipped for diverged draws; ``time_s``;
+    ``start_criteria``: the criterion of each candidate start (the family argument's order)."""
 
     family: object
     signal: np.ndarray
@@ -114,6 +117,7 @@ class Design(NamedTuple):
     improved: bool
     skipped: int
     time_s: float
+    start_criteria: list
 
 
 def _quiet(trial: Trial) -> Trial:
@@ -127,12 +131,34 @@ def _peak_displacement(trial, f):
 
 
 def _limited_signal(family, key, n, limits: Limits, period: float, gain=1.0):
-    """The family's signal at ``rms_force``, scaled down to ``peak_force`` and by ``gain``."""
+    """The family's signal at ``rms_force`` with its peaks clipped to ``peak_force`` (the rest
+    re-scaled so that the RMS stays at its limit), times ``gain``."""
     rms = jnp.broadcast_to(jnp.asarray(limits.rms_force, dtype=jnp.float64), (2,))
     peak = jnp.broadcast_to(jnp.asarray(limits.peak_force, dtype=jnp.float64), (2,))
     s = replace_unchecked(family, rms=rms).signal(key, n, period)
-    scale = jnp.minimum(1.0, peak / jnp.max(jnp.abs(s), axis=0))
-    return s * (gain * scale)[None, :]
+    peak = peak[None, :]
+
+    def clip_and_rescale(_, s):
+        c = jnp.clip(s, -peak, peak)
+        return c * (rms / jnp.sqrt(jnp.mean(c * c, axis=0)))[None, :]
+
+    # the fixed point has the RMS at its limit and the peak within it; a last clip makes the
+    # peak exact whatever is left of the iteration (then the RMS is a hair below its limit)
+    s = jnp.clip(jax.lax.fori_loop(0, CLIP_ITERATIONS, clip_and_rescale, s), -peak, peak)
+    return s * gain
+
+
+def limited_signal(family, limits: Limits, *, key, period: float = 1e-3, trials=None) -> np.ndarray:
+    """The ``(N, 2)`` force [N] a family gives within ``limits``, as ``design`` makes it: at
+    ``rms_force``, peaks clipped to ``peak_force`` (the rest re-scaled to keep the RMS), and,
+    with ``trials`` and a ``peak_displacement``, scaled down until the hand's peak
+    displacement in every trial's noise-free simulation is within it. ``N`` from
+    ``limits.record`` and ``period`` [s]; ``key`` draws the family's noise (``design``'s
+    start uses ``jax.random.split(key)[0]`` of its own key)."""
+    require_x64("limited_signal")
+    n = limits.n_samples(period)
+    gain = 1.0 if trials is None else _displacement_gain(family, key, n, limits, list(trials), period)
+    return np.asarray(_limited_signal(family, key, n, limits, period, gain))
 
 
 def _displacement_gain(family, key, n, limits, trials, period):
@@ -248,7 +274,10 @@ def design(
         trial: the planned experiment (robot, controller, friction, sensors' and voluntary
             force's noise, and an arm: the truth assumed).
         family: the starting perturbation (``ShapedNoise`` or ``Multisine``); its ``shape``
-            is designed, its level set by ``limits``.
+            is designed, its level set by ``limits``. Or a list of candidate starts (e.g.
+            ``ShapedNoise``s of several burst ``duty``s, which no gradient moves): each is
+            predicted on the same draws and the design starts from the best
+            (``Design.start_criteria``).
         free: the parameters ``identify`` will estimate (names as ``identify``).
         limits: ``Limits`` (RMS and peak force, peak displacement, record length).
         targets: labels of the entries the criterion weighs (e.g. ``"arm.stiffness[0,0]"``);
@@ -271,7 +300,11 @@ def design(
     t_start = time.perf_counter()
     if not isinstance(trial, Trial):
         raise ValueError(f"design: trial must be a Trial (from make_trial), got {type(trial).__name__}")
-    _designable(family)
+    candidates = list(family) if isinstance(family, (list, tuple)) else [family]
+    if not candidates:
+        raise ValueError("design: family must be a family or a non-empty list of candidate families")
+    for c in candidates:
+        _designable(c)
     if criterion not in CRITERIA:
         raise ValueError(f"design: unknown criterion {criterion!r}; allowed: {', '.join(CRITERIA)}")
     if aggregate not in AGGREGATES:
@@ -310,18 +343,39 @@ def design(
     n = limits.n_samples(period)
     n_draws, n_jac = indirect.draw_counts(trial, draws, 2)
 
-    # the binding's Jacobian of each trial, held during the optimisation (near the identity)
-    gain = _displacement_gain(family, family_key, n, limits, trials, period)
-    f0 = _limited_signal(family, family_key, n, limits, period, gain)
-    jac_keys = jax.random.split(jax.random.fold_in(draw_key, 10**6), n_jac)
     points = [lay.pack(layout, t) for t in trials]
+    values = [lay.natural(layout, p, t) for t, p in zip(trials, points)]
+    predict_key = jax.random.fold_in(draw_key, 2 * 10**6)
+
+    def predictions(f):
+        preds = [predict_se(t, f, free=free, key=predict_key, draws=predict_draws, jacobian_draws=8) for t in trials]
+        bad = [i for i, pr in enumerate(preds) if bool(pr.diverged)]
+        if bad:
+            raise RuntimeError(f"design: the prediction's simulations diverged for trial {bad[0]} of robust_over")
+        return preds
+
+    def plain(preds):
+        per_trial = [_criterion_value(pr.covariance, v, idx, criterion) for pr, v in zip(preds, values)]
+        return float(_aggregate(per_trial, criterion, aggregate, smooth=False))
+
+    # the start: the candidate the prediction rates best (on the same draws)
+    starts = []
+    for c in candidates:
+        g = _displacement_gain(c, family_key, n, limits, trials, period)
+        f = _limited_signal(c, family_key, n, limits, period, g)
+        preds = predictions(f) if len(candidates) > 1 else None
+        starts.append((c, g, f, preds, plain(preds) if preds is not None else None))
+    family, gain, f0, before, _ = min(starts, key=lambda st: st[4] if st[4] is not None else 0.0)
+    start_criteria = [st[4] for st in starts]
+
+    # the binding's Jacobian of each trial, held during the optimisation (near the identity)
+    jac_keys = jax.random.split(jax.random.fold_in(draw_key, 10**6), n_jac)
     # one at a time (block): programs split over the CPU devices must not queue up together
     jacs = [
         jax.block_until_ready(indirect.binding_jacobian(layout, t, p, f0, jac_keys, IDENTIFY_NUMERICS)[0])
         for t, p in zip(trials, points)
     ]
     naturals = [lay.natural_jacobian(layout, p, t) for t, p in zip(trials, points)]
-    values = [lay.natural(layout, p, t) for t, p in zip(trials, points)]
 
     def objective(log_shape, keys, gain, smooth=True):
         fam = replace_unchecked(family, shape=jnp.exp(log_shape))
@@ -367,20 +421,10 @@ def design(
     gain_after = _displacement_gain(designed, family_key, n, limits, trials, period)
     signal = np.asarray(_limited_signal(designed, family_key, n, limits, period, gain_after))
     start_signal = np.asarray(f0)
-    predict_key = jax.random.fold_in(draw_key, 2 * 10**6)
-
-    def predictions(f):
-        preds = [predict_se(t, f, free=free, key=predict_key, draws=predict_draws, jacobian_draws=8) for t in trials]
-        bad = [i for i, pr in enumerate(preds) if bool(pr.diverged)]
-        if bad:
-            raise RuntimeError(f"design: the prediction's simulations diverged for trial {bad[0]} of robust_over")
-        return preds
-
-    def plain(preds):
-        per_trial = [_criterion_value(pr.covariance, v, idx, criterion) for pr, v in zip(preds, values)]
-        return float(_aggregate(per_trial, criterion, aggregate, smooth=False))
-
-    before, after = predictions(jnp.asarray(start_signal)), predictions(jnp.asarray(signal))
+    before = predictions(jnp.asarray(start_signal)) if before is None else before
+    after = predictions(jnp.asarray(signal))
+    if start_criteria[0] is None:
+        start_criteria = [plain(before)]
     improved = plain(after) < plain(before)
     if not improved:  # same draws for both: the start is the better design
         designed, signal, after = family, start_signal, before
@@ -404,6 +448,7 @@ def design(
         achieved=achieved,
         improved=improved,
         skipped=skipped,
+        start_criteria=start_criteria,
         time_s=time.perf_counter() - t_start,
     )
 

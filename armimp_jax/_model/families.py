@@ -10,7 +10,10 @@ weights, one row per axis) is what experiment design moves (``_identification/de
 - ``ShapedNoise``: Gaussian noise whose amplitude spectrum is a piecewise-linear function
   of frequency through ``knots`` [Hz] with values ``shape``, periodic over the record
   (shaped by FFT), independent per axis (so the two inputs stay incoherent, as the MIMO
-  Welch estimator needs), scaled to ``rms``.
+  Welch estimator needs), scaled to ``rms``; optionally gated into bursts (``duty`` of
+  every ``burst`` seconds, both axes together): at the same RMS a burst's force is
+  ``1 / sqrt(duty)`` larger, which moves joints that friction holds still under
+  continuous noise (docs/experiment_design.md).
 - ``Multisine``: a sum of cosines per axis at ``freqs`` [Hz] with amplitudes in proportion to
   ``shape`` and ``phases`` (Schroeder's by default: a low crest factor), scaled to ``rms``.
   The two axes take interleaved frequencies (``multisine``), because one frequency
@@ -21,6 +24,8 @@ Single-record functions; ``jax.grad`` flows through ``shape`` and ``rms``.
 """
 
 from __future__ import annotations
+
+import math
 
 import jax
 import jax.numpy as jnp
@@ -88,23 +93,44 @@ class PaperNoise:
         return perturbation(key, n_samples, self.peak, cutoff=self.cutoff)
 
 
-@params
+GATE_RAMP = 0.02  # [s] rise and fall of a burst's gate: a smooth gate adds little leakage
+
+
+@params(static=("duty", "burst"))
 class ShapedNoise:
-    """Gaussian noise with a designed amplitude spectrum, per axis.
+    """Gaussian noise with a designed amplitude spectrum, per axis, optionally in bursts.
 
     Args:
         knots: ``(K,)`` [Hz], increasing, below the Nyquist frequency of the control rate.
         shape: ``(2, K)`` relative amplitude spectrum at the knots (>= 0), linear between them
             and zero outside ``[knots[0], knots[-1]]``.
-        rms: ``(2,)`` [N] RMS per axis of the signal.
+        rms: ``(2,)`` [N] RMS per axis of the signal (over the record, gate included).
+        duty: fraction of time the noise is on, in ``(0, 1]`` (default 1: continuous). Static.
+        burst: the gate's period [s] (default 2), ``> 0``: on for ``duty * burst`` seconds of
+            each, with ``GATE_RAMP`` edges, both axes together, at a phase drawn from the
+            key. Static.
     """
 
     knots: jnp.ndarray
     shape: jnp.ndarray
     rms: jnp.ndarray
+    duty: float = 1.0
+    burst: float = 2.0
 
     def __post_init__(self):
         w = "ShapedNoise"
+        for name, v, ok, allowed in (
+            ("duty", self.duty, lambda v: 0 < v <= 1, "(0, 1]"),
+            ("burst", self.burst, lambda v: 0 < v < math.inf, "(0, inf) s"),
+        ):
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not ok(v):
+                raise ValueError(f"{w}: {name} must lie in {allowed}, got {v!r}")
+            object.__setattr__(self, name, float(v))
+        if self.duty < 1 and self.duty * self.burst <= 2 * GATE_RAMP:
+            raise ValueError(
+                f"{w}: a burst of duty * burst = {self.duty * self.burst:g} s is no longer than its two "
+                f"{GATE_RAMP:g} s edges; raise duty or burst"
+            )
         knots = _sized("knots [Hz]", self.knots, (None,), w)
         if is_concrete(knots):
             k = _check_band(knots, w, "knots")
@@ -133,7 +159,20 @@ class ShapedNoise:
         white = jax.random.normal(key, (n_samples, 2), dtype=jnp.float64)
         freq = jnp.fft.rfftfreq(n_samples, period)
         shaped = jnp.fft.irfft(jnp.fft.rfft(white, axis=0) * self.amplitude(freq), n=n_samples, axis=0)
+        if self.duty < 1:
+            shaped = shaped * self.gate(jax.random.fold_in(key, 1), n_samples, period)[:, None]
         return _scale_to_rms(shaped, self.rms)
+
+    def gate(self, key, n_samples: int, period: float = 1.0 / SAMPLE_RATE):
+        """The burst gate ``(N,)`` in ``[0, 1]``: 1 for ``duty`` of each ``burst`` period, with
+        linear edges of ``GATE_RAMP`` seconds, starting at a phase drawn from ``key``."""
+        t = jnp.arange(n_samples, dtype=jnp.float64) * period
+        u = jnp.mod(t / self.burst + jax.random.uniform(key, dtype=jnp.float64), 1.0)  # phase in the period
+        # signed distance [s] to the nearest edge of the on-interval [0, duty): > 0 inside
+        inside = jnp.minimum(u, self.duty - u)
+        outside = jnp.maximum(self.duty - u, u - 1.0)
+        d = jnp.where(u < self.duty, inside, outside) * self.burst
+        return jnp.clip(d / GATE_RAMP + 0.5, 0.0, 1.0)
 
 
 @params

@@ -125,6 +125,13 @@ def _value(where: str, key: str, spec, v):
         if len(set(v)) != len(v):
             raise ConfigError(f"{where} {key} names a parameter twice: {v}")
         return list(v)
+    if kind == "numbers":  # a non-empty list of numbers (or one number)
+        v = [v] if _numeric_leaves(v) and not isinstance(v, list) else v
+        if not isinstance(v, list) or not v or not _numeric_leaves(v) or any(isinstance(n, list) for n in v):
+            raise ConfigError(f"{where} {key} [{extra}] must be a number or a list of numbers, got {v!r}")
+        if not all(np.isfinite(n) for n in v):
+            raise ConfigError(f"{where} {key} [{extra}] must be finite, got {v!r}")
+        return [float(n) for n in v]
     try:
         a = np.asarray(v, dtype=float) if _numeric_leaves(v) else None
     except ValueError:  # a ragged list

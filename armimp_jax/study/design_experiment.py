@@ -40,6 +40,8 @@ SECTIONS = {
         "low": ("scalar", "Hz", 0.5),
         "high": ("scalar", "Hz", 15.0),
         "lines": ("int", 2, 8),
+        "duty": ("numbers", "", [1.0]),
+        "burst": ("scalar", "s", 2.0),
     },
     "limits": {
         "rms_force": ("pair", "N", REQUIRED),
@@ -76,6 +78,18 @@ def read_design_config(path) -> dict:
             f"{path}: [family] needs 0 < low < high < 500 Hz (the control rate's Nyquist frequency), "
             f"got low {fam['low']} and high {fam['high']}"
         )
+    if not (all(0 < d <= 1 for d in fam["duty"]) and fam["burst"] > 0):
+        raise ConfigError(
+            f"{path}: [family] duty values must lie in (0, 1] and burst > 0 s, got duty {fam['duty']} and "
+            f"burst {fam['burst']}"
+        )
+    if fam["type"] == "multisine" and fam["duty"] != [1.0]:
+        raise ConfigError(f"{path}: [family] duty (bursts) applies to type 'shaped_noise' only, got {fam['duty']}")
+    try:
+        for d in fam["duty"]:
+            ShapedNoise([fam["low"], fam["high"]], np.ones((2, 2)), 1.0, duty=d, burst=fam["burst"])
+    except ValueError as err:
+        raise ConfigError(f"{path}: [family] {err}") from None
     lim = config["limits"]
     try:
         Limits(lim["rms_force"], lim["peak_force"], lim["record"], lim["peak_displacement"])
@@ -113,7 +127,8 @@ def build_design(config: dict, *, where: str = "config") -> tuple:
     else:
         # knots spaced evenly in log frequency: the low band, where K is seen, gets as many as the high
         knots = np.geomspace(fam["low"], fam["high"], fam["lines"])
-        family = ShapedNoise(knots, np.ones((2, fam["lines"])), 1.0)
+        starts = [ShapedNoise(knots, np.ones((2, fam["lines"])), 1.0, duty=d, burst=fam["burst"]) for d in fam["duty"]]
+        family = starts[0] if len(starts) == 1 else starts  # several duties: design starts from the best
     d = config["design"]
     options = dict(
         free=tuple(d["free"]),
@@ -214,6 +229,7 @@ def result_dict(result, trials, *, settings: dict, free, targets, validation=Non
         "trace": result.trace,
         "improved": result.improved,
         "skipped_steps": result.skipped,
+        "start_criteria": result.start_criteria,
         "family": dict(type=type(result.family).__name__, **_family_arrays(result.family)),
         "trials": per_trial,
         "time_s": result.time_s,
