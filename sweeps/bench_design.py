@@ -36,7 +36,7 @@ def parse(argv):
     p.add_argument("--displacement", type=float, default=0.01, help="peak hand displacement limit [m] (default 0.01)")
     p.add_argument("--low", type=float, default=0.5, help="lowest knot of the ShapedNoise [Hz] (default 0.5)")
     p.add_argument("--knots", type=int, default=8, help="knots from --low to 15 Hz, log-spaced (default 8)")
-    p.add_argument("--duty", default="1,0.25,0.125", help="burst duty cycles of the candidate starts (default 1,0.25,0.125)")
+    p.add_argument("--duty", default="1,0.25,0.125", help="burst duties of the candidate starts (default 1,0.25,0.125)")
     p.add_argument("--burst", type=float, default=2.0, help="burst period [s] (default 2)")
     p.add_argument("--learning-rate", type=float, default=0.15, help="Adam's learning rate (default 0.15)")
     p.add_argument("--seeds", type=int, default=40, help="Monte Carlo recordings per arm (default 40; 0: none)")
