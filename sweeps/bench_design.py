@@ -68,8 +68,6 @@ def criterion(dx, preds, trials):
 
 
 def run_case(aj, np, jax, controller, tau_c, a):
-    import jax.numpy as jnp
-
     from armimp_jax import paper
     from armimp_jax.study import design_experiment as dx
 
@@ -114,7 +112,7 @@ def run_case(aj, np, jax, controller, tau_c, a):
     flat_signal = aj.limited_signal(flat, limits, key=jax.random.split(jax.random.key(0))[0], trials=trials)
 
     def predicted(signal):
-        return criterion(dx, [aj.predict_se(t, jnp.asarray(signal), free=FREE, draws=64) for t in trials], trials)
+        return criterion(dx, [aj.predict_se(t, signal, free=FREE, draws=64) for t in trials], trials)
 
     crit_paper, per_paper = predicted(paper_signal)
     crit_flat, per_flat = predicted(flat_signal)

@@ -65,8 +65,10 @@ def main(argv=None) -> int:
         return fail(str(err))
     seeds = config["validate"]["seeds"] if args.validate is None else args.validate
     start = time.perf_counter()
+    candidates = family if isinstance(family, list) else [family]
+    what = type(candidates[0]).__name__ + (f" ({len(candidates)} candidate starts)" if len(candidates) > 1 else "")
     print(
-        f"designing {type(family).__name__} for {len(trials)} arm(s), {limits.record:g} s records, "
+        f"designing {what} for {len(trials)} arm(s), {limits.record:g} s records, "
         f"{options['steps']} steps of {options['draws']} noise draws per arm",
         flush=True,
     )
@@ -86,18 +88,29 @@ def main(argv=None) -> int:
     free, targets = options["free"], options["targets"]
     paper_signal = aj.PaperNoise(limits.peak_force).signal(jax.random.key(2024), result.signal.shape[0])
     paper = [aj.predict_se(t, paper_signal, free=free, draws=options["predict_draws"]) for t in trials]
+    settings = dict(config_path=str(args.config), config=config, validate_seeds=seeds)
+
+    def write(validation):
+        doc = dx.result_dict(
+            result, trials, settings=settings, free=free, targets=targets, validation=validation, paper=paper
+        )
+        return doc, dx.write_results(args.out, result, trials, limits, doc=doc)
+
+    # the design is written before the (long) validation, which then rewrites it: a failed or
+    # interrupted check loses no design
+    doc, paths = write(None)
     validation = None
     if seeds:
         vbar = tqdm(total=seeds * len(trials), unit="fit", desc="validating")
-        validation = dx.validate(
-            result.signal, trials, free, seeds=seeds, draws=config["validate"]["draws"], progress=lambda: vbar.update()
-        )
+        try:
+            validation = dx.validate(
+                result.signal, trials, free, seeds=seeds, draws=config["validate"]["draws"], progress=vbar.update
+            )
+        except RuntimeError as err:
+            vbar.close()
+            return fail(f"{err} (the design, unvalidated, is in {args.out})")
         vbar.close()
-    settings = dict(config_path=str(args.config), config=config, validate_seeds=seeds)
-    doc = dx.result_dict(
-        result, trials, settings=settings, free=free, targets=targets, validation=validation, paper=paper
-    )
-    paths = dx.write_results(args.out, result, trials, limits, doc=doc)
+        doc, paths = write(validation)
     print(
         f"criterion (largest relative SE over targets and arms): start {result.criterion_before:.4g}, "
         f"designed {result.criterion_after:.4g}"
