@@ -64,6 +64,11 @@ _EXPORTS = {
     "Robot": "._model.robot",
     "Sensors": "._model.sensors",
     "VoluntaryForce": "._model.voluntary",
+    "Bound": "._identification.bound",
+    "crlb": "._identification.bound",
+    "fisher_information": "._identification.bound",
+    "LinearLoop": "._identification.linear",
+    "linearise": "._identification.linear",
     "Identification": "._identification.identify",
     "identify": "._identification.identify",
     "IDENTIFY_NUMERICS": "._identification.indirect",
@@ -128,6 +133,9 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._estimation.welch import cross_spectral_matrix as cross_spectral_matrix
     from ._estimation.welch import estimate as estimate
     from ._estimation.welch import input_coherence as input_coherence
+    from ._identification.bound import Bound as Bound
+    from ._identification.bound import crlb as crlb
+    from ._identification.bound import fisher_information as fisher_information
     from ._identification.design import Design as Design
     from ._identification.design import Limits as Limits
     from ._identification.design import design as design
@@ -136,6 +144,8 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._identification.identify import Identification as Identification
     from ._identification.identify import identify as identify
     from ._identification.indirect import IDENTIFY_NUMERICS as IDENTIFY_NUMERICS
+    from ._identification.linear import LinearLoop as LinearLoop
+    from ._identification.linear import linearise as linearise
     from ._identification.predict import PredictedSE as PredictedSE
     from ._identification.predict import predict_se as predict_se
     from ._model.arm import Arm as Arm

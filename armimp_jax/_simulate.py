@@ -28,7 +28,7 @@ from ._model.friction import LuGre
 from ._model.plant import PlantState, Trig, displacement, measure, plant_model, rest_state, trig_of
 from ._model.robot import MIT_MANUS, Robot, fk, ik, jacobian_from_trig
 from ._model.sensors import IDEAL, Sensors, quantise, sample_noise
-from ._model.voluntary import VoluntaryForce, voluntary_init, voluntary_key, voluntary_step
+from ._model.voluntary import VoluntaryForce, voluntary_init, voluntary_key, voluntary_normals, voluntary_update
 from ._pytree import params
 from ._solver.numerics import Numerics
 
@@ -257,16 +257,40 @@ def simulate_init(trial: Trial) -> SimCarry:
     )
 
 
-def _sense(trial: Trial, model, state: PlantState, x, xd, fh, noise):
+class PeriodInputs(NamedTuple):
+    """The random inputs of one control period, ``None`` where the trial draws none:
+    ``force`` (2,) [N] and ``rate`` (2,) [rad/s], the force-sensor and joint-rate noise;
+    ``voluntary`` (3, 2), the standard normals of the person's force (``voluntary_normals``);
+    ``encoder`` (2,) [rad], an error added to the angle readings after quantisation (the
+    simulation draws none: its encoders quantise; a linearisation puts the quantisation
+    error here)."""
+
+    force: Any = None
+    rate: Any = None
+    voluntary: Any = None
+    encoder: Any = None
+
+
+def period_inputs(trial: Trial, key, stream, k) -> PeriodInputs:
+    """The draws of sample ``k``: sensor noise from ``fold_in(key, k)``, the person's force from
+    ``stream = voluntary_key(key)``."""
+    force, rate = sample_noise(trial.sensors, key, k)
+    vol = None if trial.voluntary is None else voluntary_normals(stream, k)
+    return PeriodInputs(force, rate, vol)
+
+
+def _sense(trial: Trial, model, state: PlantState, x, xd, fh, inputs: PeriodInputs):
     """What the sensors report, from the true ``x``, ``xd``, ``F_h`` (unchanged when ideal)."""
     s = trial.sensors
-    force_noise, rate_noise = noise
-    if s.encoder_on or s.velocity_on:
+    reads_angles = s.encoder_on or inputs.encoder is not None
+    if reads_angles or s.velocity_on:
         qd = jnp.stack([state.qd1, state.qd2])
         if s.velocity_on:
-            qd = qd + rate_noise
-        if s.encoder_on:
+            qd = qd + inputs.rate
+        if reads_angles:
             q = quantise(jnp.stack([state.q1, state.q2]), s)
+            if inputs.encoder is not None:
+                q = q + inputs.encoder
             t = Trig(jnp.cos(q[0]), jnp.sin(q[0]), jnp.cos(q[1]), jnp.sin(q[1]))
             x = trial.x0 + jnp.stack(displacement(t, model))
         else:
@@ -274,8 +298,75 @@ def _sense(trial: Trial, model, state: PlantState, x, xd, fh, noise):
         j11, j12, j21, j22 = jacobian_from_trig(trial.robot, *t)
         xd = jnp.stack([j11 * qd[0] + j12 * qd[1], j21 * qd[0] + j22 * qd[1]])
     if s.force_on:
-        fh = fh + force_noise
+        fh = fh + inputs.force
     return x, xd, fh
+
+
+def _record(trial: Trial, state: PlantState, x, xd, fh, carry: SimCarry):
+    """What the acquisition records at ``t_k`` from the true samples (before sensor noise)."""
+    if trial.acquisition == "instant":
+        return x, fh
+    arm, x0, period = trial.arm, trial.x0, trial.period
+    xbar = x0 + jnp.stack([state.xi1, state.xi2]) / period
+    fbar = (
+        matvec(arm.mass, (xd - carry.xd_prev) / period)
+        + matvec(arm.damping, (x - carry.x_prev) / period)
+        + matvec(arm.stiffness, xbar - x0)
+    )
+    if carry.voluntary is not None:  # F_v is held over the period: its mean is F_v,k-1
+        fbar = fbar - carry.voluntary.force
+    return xbar, fbar
+
+
+def period_step(trial: Trial, model, numerics: Numerics, carry: SimCarry, fd, inputs: PeriodInputs):
+    """One control period from ``carry`` under the perturbation sample ``fd`` (2,) [N] and the
+    period's random ``inputs``: measure, control, integrate. Returns the new carry and the
+    recorded row ``(x, xd, fh, fu, q, z)`` (as ``SimResult``'s fields). Pure; ``model`` is
+    ``plant_model`` of the trial (hoisted out of the loop)."""
+    state, k, period = carry.plant, carry.k, trial.period
+    # The barriers make each sample one materialised value: otherwise XLA may recompute
+    # it in several fusions whose FMA contraction differs (batched vs unbatched programs
+    # then disagree in the last bit of the outputs).
+    if carry.voluntary is None:
+        applied = carry.fu_prev
+    else:  # the person's F_v,k-1 pushes the robot like a command and the transducer reads -F_v
+        applied = carry.fu_prev + carry.voluntary.force
+    x, xd, fh = jax.lax.optimization_barrier(measure(*jax.lax.optimization_barrier((state, applied)), model))
+    if carry.voluntary is not None:
+        fh = fh - carry.voluntary.force
+    x_rec, fh_rec = _record(trial, state, x, xd, fh, carry)
+    if not trial.sensors.ideal or inputs.encoder is not None:
+        x_m, xd_m, fh_m = _sense(trial, model, state, x, xd, fh, inputs)
+        if trial.acquisition == "instant":
+            x_rec, fh_rec = x_m, fh_m
+        elif trial.sensors.force_on:
+            fh_rec = fh_rec + inputs.force
+    else:
+        x_m, xd_m, fh_m = x, xd, fh
+    fu, memory = trial.controller.step(carry.memory, x_m, xd_m, fh_m, fd, trial.x0, period)
+    fu, memory, x, xd = jax.lax.optimization_barrier((fu, memory, x, xd))
+    zero = jnp.zeros_like(state.xi1)
+    start = state._replace(xi1=zero, xi2=zero)
+    if carry.voluntary is None:
+        voluntary, push = None, fu
+    else:
+        voluntary, fv = voluntary_update(trial.voluntary, carry.voluntary, inputs.voluntary, k, period)
+        push = fu + fv
+    new_state = numerics.solver.integrate_period(
+        start, push, model, period=period, substeps=numerics.substeps, checkpoint=numerics.checkpoint
+    )
+
+    finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(leaf)) for leaf in jax.tree.leaves((new_state, fu))]))
+    in_range = (jnp.abs(new_state.q1 - trial.q0[0]) < DIVERGENCE_ANGLE) & (
+        jnp.abs(new_state.q2 - trial.q0[1]) < DIVERGENCE_ANGLE
+    )
+    diverged_at = jnp.where((carry.diverged_at < 0) & ~(finite & in_range), k + 1, carry.diverged_at)
+    frozen = diverged_at >= 0
+    new = (new_state, fu, x, xd, memory, voluntary)
+    old = (state, carry.fu_prev, carry.x_prev, carry.xd_prev, carry.memory, carry.voluntary)
+    keep = jax.tree.map(lambda n, o: jnp.where(frozen, o, n), new, old)
+    out = (x_rec, xd_m, fh_rec, fu, jnp.stack([state.q1, state.q2]), jnp.stack([state.z1, state.z2]))
+    return SimCarry(*keep[:5], diverged_at, k + 1, keep[5]), out
 
 
 def simulate_chunk(
@@ -295,70 +386,11 @@ def simulate_chunk(
         raise ValueError("simulate: the trial's voluntary force is random; pass key=jax.random.key(seed)")
     if (trial.voluntary is None) != (carry.voluntary is None):
         raise ValueError("simulate_chunk: the carry does not match the trial's voluntary force (use simulate_init)")
-    period, substeps = trial.period, numerics.substeps
     model = plant_model(trial.q0, trial.x0, trial.arm, trial.friction, trial.robot)
-    x0, arm, controller = trial.x0, trial.arm, trial.controller
     stream = None if trial.voluntary is None else voluntary_key(key)
 
-    def record(state: PlantState, x, xd, fh, carry: SimCarry):
-        if trial.acquisition == "instant":
-            return x, fh
-        xbar = x0 + jnp.stack([state.xi1, state.xi2]) / period
-        fbar = (
-            matvec(arm.mass, (xd - carry.xd_prev) / period)
-            + matvec(arm.damping, (x - carry.x_prev) / period)
-            + matvec(arm.stiffness, xbar - x0)
-        )
-        if carry.voluntary is not None:  # F_v is held over the period: its mean is F_v,k-1
-            fbar = fbar - carry.voluntary.force
-        return xbar, fbar
-
     def control_period(carry: SimCarry, fd):
-        state, k = carry.plant, carry.k
-        # The barriers make each sample one materialised value: otherwise XLA may recompute
-        # it in several fusions whose FMA contraction differs (batched vs unbatched programs
-        # then disagree in the last bit of the outputs).
-        if carry.voluntary is None:
-            applied = carry.fu_prev
-        else:  # the person's F_v,k-1 pushes the robot like a command and the transducer reads -F_v
-            applied = carry.fu_prev + carry.voluntary.force
-        x, xd, fh = jax.lax.optimization_barrier(measure(*jax.lax.optimization_barrier((state, applied)), model))
-        if carry.voluntary is not None:
-            fh = fh - carry.voluntary.force
-        noise = sample_noise(trial.sensors, key, k)
-        x_rec, fh_rec = record(state, x, xd, fh, carry)
-        if not trial.sensors.ideal:
-            x_m, xd_m, fh_m = _sense(trial, model, state, x, xd, fh, noise)
-            if trial.acquisition == "instant":
-                x_rec, fh_rec = x_m, fh_m
-            elif trial.sensors.force_on:
-                fh_rec = fh_rec + noise[0]
-        else:
-            x_m, xd_m, fh_m = x, xd, fh
-        fu, memory = controller.step(carry.memory, x_m, xd_m, fh_m, fd, x0, period)
-        fu, memory, x, xd = jax.lax.optimization_barrier((fu, memory, x, xd))
-        zero = jnp.zeros_like(state.xi1)
-        start = state._replace(xi1=zero, xi2=zero)
-        if carry.voluntary is None:
-            voluntary, push = None, fu
-        else:
-            voluntary, fv = voluntary_step(trial.voluntary, carry.voluntary, stream, k, period)
-            push = fu + fv
-        new_state = numerics.solver.integrate_period(
-            start, push, model, period=period, substeps=substeps, checkpoint=numerics.checkpoint
-        )
-
-        finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(leaf)) for leaf in jax.tree.leaves((new_state, fu))]))
-        in_range = (jnp.abs(new_state.q1 - trial.q0[0]) < DIVERGENCE_ANGLE) & (
-            jnp.abs(new_state.q2 - trial.q0[1]) < DIVERGENCE_ANGLE
-        )
-        diverged_at = jnp.where((carry.diverged_at < 0) & ~(finite & in_range), k + 1, carry.diverged_at)
-        frozen = diverged_at >= 0
-        new = (new_state, fu, x, xd, memory, voluntary)
-        old = (state, carry.fu_prev, carry.x_prev, carry.xd_prev, carry.memory, carry.voluntary)
-        keep = jax.tree.map(lambda n, o: jnp.where(frozen, o, n), new, old)
-        out = (x_rec, xd_m, fh_rec, fu, jnp.stack([state.q1, state.q2]), jnp.stack([state.z1, state.z2]))
-        return SimCarry(*keep[:5], diverged_at, k + 1, keep[5]), out
+        return period_step(trial, model, numerics, carry, fd, period_inputs(trial, key, stream, carry.k))
 
     # What reverse mode keeps (inert when nothing is differentiated): with "period" the
     # tape holds one carry per period and the backward pass recomputes its substeps; with

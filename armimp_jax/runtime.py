@@ -13,7 +13,9 @@ settings win (a device count already set in
 ``XLA_FLAGS`` or ``jax_num_cpu_devices``, options already in ``XLA_FLAGS``). If a backend has
 already started, importing changes nothing. Opt out with ``ARMIMP_JAX_CPU_DEVICES=1`` (or
 any count) for the devices and ``ARMIMP_JAX_XLA_DEFAULTS=0`` for all three. Scripts call
-``configure`` once at start (float64, devices, code generation, SIMD width).
+``configure`` once at start (float64, devices, code generation, SIMD width, and JAX's
+persistent compilation cache in ``compilation_cache_dir()``, so a second run of a script
+loads its compiled programs instead of compiling them again).
 """
 
 from __future__ import annotations
@@ -44,6 +46,34 @@ _COLLECTIVE_FLAGS = (
     ("--xla_cpu_collective_timeout_seconds", 86400),
     ("--xla_cpu_collective_call_warn_stuck_timeout_seconds", 600),
 )
+
+
+CACHE_ENV = "ARMIMP_JAX_CACHE_DIR"
+# Programs that compile faster than this are not worth a file (JAX's own default is 1 s).
+_CACHE_MIN_COMPILE_S = 0.5
+
+
+def compilation_cache_dir() -> str | None:
+    """Where ``configure`` keeps compiled programs: ``$ARMIMP_JAX_CACHE_DIR`` if set (``off`` or
+    empty: no cache), else ``$XDG_CACHE_HOME/armimp_jax/jax`` (``~/.cache/armimp_jax/jax``).
+    JAX keys each file by the program, the JAX version, the device and the XLA options, so a
+    stale one is never loaded; delete the folder to reclaim its space."""
+    text = os.environ.get(CACHE_ENV)
+    if text is not None:
+        return None if text.strip().lower() in ("", "off", "0", "none") else os.path.expanduser(text)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "armimp_jax", "jax")
+
+
+def use_compilation_cache(path: str | None) -> str | None:
+    """Keep JAX's compiled programs in ``path`` (``None``: leave JAX's setting alone). Returns the
+    folder in use."""
+    import jax
+
+    if path is not None:
+        jax.config.update("jax_compilation_cache_dir", path)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", _CACHE_MIN_COMPILE_S)
+    return jax.config.jax_compilation_cache_dir
 
 
 def apply_cpu_defaults() -> bool:
@@ -135,6 +165,7 @@ def configure(
     hoist_small_loops: bool = True,
     unroll_loops: bool = False,
     vector_width: int | str | None = "auto",
+    compilation_cache: bool = True,
 ) -> int:
     """Switch float64 on, set XLA:CPU code generation, and optionally split the CPU into devices.
 
@@ -148,6 +179,7 @@ def configure(
     results may move in their last bits (bounded in ``tests/test_plant.py``).
     ``vector_width`` (bits) is XLA:CPU's preferred SIMD width: ``"auto"`` asks for 512 on
     AVX-512 hosts and leaves the default elsewhere, ``None`` leaves it alone.
+    ``compilation_cache``: keep compiled programs in ``compilation_cache_dir()`` across runs.
     Flags already in ``XLA_FLAGS`` win. Must run before the first JAX computation; on
     GPU/TPU hosts the CPU options are harmless and unused. Returns the number of devices
     JAX then sees.
@@ -155,6 +187,8 @@ def configure(
     import jax
 
     jax.config.update("jax_enable_x64", True)
+    if compilation_cache:
+        use_compilation_cache(compilation_cache_dir())
     present = os.environ.get("XLA_FLAGS", "")
     if (not hoist_small_loops and _LOOP_OPTION[0] in present) or (unroll_loops and _NO_UNROLL_OPTION[0] in present):
         warnings.warn(

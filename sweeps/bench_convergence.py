@@ -190,7 +190,7 @@ def main(argv=None):
     os.environ["ARMIMP_JAX_XLA_DEFAULTS"] = "0"  # configure() below sets code generation
     from armimp_jax import runtime
 
-    n_devices = runtime.configure()
+    n_devices = runtime.configure(compilation_cache=False)  # compile times are measured
     import jax
     import numpy as np
 

@@ -62,7 +62,7 @@ def _check_checkpoints():
 def child(mode, kernel, checkpoint, seconds, substeps, repeats, codegen):
     from armimp_jax.runtime import configure
 
-    configure(host_devices=1, **codegen)
+    configure(host_devices=1, compilation_cache=False, **codegen)
     _check_checkpoints()
     import jax
     import numpy as np
@@ -129,7 +129,7 @@ def child_jacobian(setting, seconds, repeats, codegen):
     run and 16 separate ones, one solver setting ``METHOD:KERNEL:SUBSTEPS``."""
     from armimp_jax.runtime import configure
 
-    configure(host_devices=1, **codegen)
+    configure(host_devices=1, compilation_cache=False, **codegen)
     import dataclasses
 
     import jax
@@ -196,7 +196,7 @@ def child_training(repeats, codegen):
     """The tuner's default training batch: one gradient per (checkpoint, placement)."""
     from armimp_jax.runtime import configure
 
-    configure(**codegen)
+    configure(compilation_cache=False, **codegen)
     _check_checkpoints()
     import jax
     import numpy as np

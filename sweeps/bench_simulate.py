@@ -102,11 +102,12 @@ if SETUP in ("library", "plain"):
     jax.config.update("jax_enable_x64", True)  # all a library user does
     N_DEVICES = jax.device_count()
 elif SETUP == "configured":
-    N_DEVICES = runtime.configure(host_devices=1)
+    N_DEVICES = runtime.configure(host_devices=1, compilation_cache=False)
 else:
     N_DEVICES = runtime.configure(
         vector_width=None if ARGS is not None and ARGS.no_wide_vectors else "auto",
         unroll_loops=ARGS is not None and ARGS.unroll_loops,
+        compilation_cache=False,  # compile times are measured
     )
 
 import jax  # noqa: E402

@@ -52,6 +52,9 @@ def main(argv=None) -> int:
     import jax  # after the arguments: --help stays fast
 
     jax.config.update("jax_enable_x64", True)
+    from armimp_jax import runtime
+
+    runtime.use_compilation_cache(runtime.compilation_cache_dir())  # a second run loads, not compiles
     import numpy as np
     from tqdm import tqdm
 

@@ -164,6 +164,9 @@ def main(argv=None) -> int:
     import jax  # after the arguments: --help stays fast
 
     jax.config.update("jax_enable_x64", True)
+    from armimp_jax import runtime
+
+    runtime.use_compilation_cache(runtime.compilation_cache_dir())  # a second run loads, not compiles
     import armimp_jax as aj
     from armimp_jax.study import recording
 
@@ -221,6 +224,9 @@ def model_route(args) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
+    from armimp_jax import runtime
+
+    runtime.use_compilation_cache(runtime.compilation_cache_dir())  # a second run loads, not compiles
     from armimp_jax.study import identify_recording as idr
     from armimp_jax.study import recording
 

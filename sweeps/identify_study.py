@@ -164,6 +164,9 @@ def main(argv=None):
     import jax
 
     jax.config.update("jax_enable_x64", True)
+    from armimp_jax import runtime
+
+    runtime.use_compilation_cache(runtime.compilation_cache_dir())  # a second run loads, not compiles
     import numpy as np
 
     import armimp_jax as aj

@@ -222,7 +222,7 @@ def main(args):
     """Time the numba loop on a small batch and compare it with the JAX simulator."""
     from armimp_jax import runtime
 
-    runtime.configure()
+    runtime.configure(compilation_cache=False)  # compile times are measured
     import jax
     import numba
 

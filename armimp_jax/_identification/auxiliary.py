@@ -38,6 +38,7 @@ import jax.numpy as jnp
 from .._estimation.fit import fit_impedance
 from .._estimation.welch import estimate
 from .._model.robot import ik, jacobian
+from . import efficient
 from .layout import ARM_PARAMETERS, Layout
 
 WELCH_NPERSEG = 1024  # ~1 Hz bins at 1 kHz: more averages, so a smaller spread than long segments
@@ -65,7 +66,7 @@ def arm_statistics(trial, f, x, fh):
     return fit.mass, fit.damping, fit.stiffness
 
 
-def _lowpass(a, period: float, cutoff: float = LOWPASS_HZ):
+def lowpass(a, period: float, cutoff: float = LOWPASS_HZ):
     """Zero-phase smoothing of ``a`` ``(N, ...)`` along time: gain ``1 / (1 + (f / cutoff)^8)``."""
     freq = jnp.fft.rfftfreq(a.shape[0], period)
     gain = 1.0 / (1.0 + (freq / cutoff) ** 8)
@@ -97,11 +98,11 @@ def _least_squares(a, b):
 def friction_statistics(trial, f, x, fh):
     """``(2, 4)``: per joint, the statistics listed in ``FRICTION_STATISTICS``."""
     period = trial.period
-    q = jax.vmap(lambda v: ik(v, trial.robot))(_lowpass(x, period))
+    q = jax.vmap(lambda v: ik(v, trial.robot))(lowpass(x, period))
     qd = jnp.gradient(q, period, axis=0)
     qdd = jnp.gradient(qd, period, axis=0)
     fu = replay_command(trial, f, x, fh)
-    tau = jax.vmap(lambda qq, force: jacobian(qq, trial.robot).T @ force)(q, _lowpass(fu - fh, period))
+    tau = jax.vmap(lambda qq, force: jacobian(qq, trial.robot).T @ force)(q, lowpass(fu - fh, period))
     inner = slice(EDGE, q.shape[0] - EDGE)
     rows = []
     for j in range(2):
@@ -128,13 +129,17 @@ def friction_statistics(trial, f, x, fh):
     return jnp.stack(rows)
 
 
-def statistics(layout: Layout, trial, f, x, fh):
+def statistics(layout: Layout, trial, f, x, fh, arm_stat=None):
     """The statistics matched to ``layout``'s free parameters ``(m,)``, ``m >= layout.size``:
-    for each free arm matrix its four classical entries (three for a symmetric one: the mean
-    of the off-diagonal pair), in the order of ``p``; then, when any friction parameter is
-    free, every friction statistic of both joints (``(2, 4)`` flattened)."""
+    the arm's, in the order of ``p``: ``arm_stat`` applied to the recording (``efficient.py``:
+    one entry per internal parameter) or, when it is ``None``, for each free arm matrix its
+    four classical entries (three for a symmetric one: the mean of the off-diagonal pair);
+    then, when any friction parameter is free, every friction statistic of both joints
+    (``(2, 4)`` flattened)."""
     parts = []
-    if any(n in ARM_PARAMETERS for n in layout.names):
+    if arm_stat is not None:
+        parts.append(efficient.apply(arm_stat, trial, x, fh))
+    elif any(n in ARM_PARAMETERS for n in layout.names):
         arm = dict(zip(ARM_PARAMETERS, arm_statistics(trial, f, x, fh), strict=True))
         for name, sym in zip(layout.names, layout.symmetric, strict=True):
             if name in ARM_PARAMETERS:

@@ -348,7 +348,10 @@ def design(
     predict_key = jax.random.fold_in(draw_key, 2 * 10**6)
 
     def predictions(f):
-        preds = [predict_se(t, f, free=free, key=predict_key, draws=predict_draws, jacobian_draws=8) for t in trials]
+        preds = [
+            predict_se(t, f, free=free, statistic="welch", key=predict_key, draws=predict_draws, jacobian_draws=8)
+            for t in trials
+        ]
         bad = [i for i, pr in enumerate(preds) if bool(pr.diverged)]
         if bad:
             raise RuntimeError(f"design: the prediction's simulations diverged for trial {bad[0]} of robust_over")
@@ -487,11 +490,11 @@ def record_for(
     def relative(pred):
         return relative_se(pred, trial, free=free, targets=target)
 
-    now = relative(predict_se(trial, f, free=free, draws=draws, key=key))
+    now = relative(predict_se(trial, f, free=free, statistic="welch", draws=draws, key=key))
     seconds = f.shape[0] * period
     need = {t: seconds * (now[t] / float(target[t])) ** 2 for t in target}
     record_s = max(need.values())
     n = max(int(math.ceil(record_s / period)), 1000)
     longer = np.resize(f, (n, 2))  # repeats the perturbation (or cuts it)
-    check = relative(predict_se(trial, longer, free=free, draws=draws, key=key))
+    check = relative(predict_se(trial, longer, free=free, statistic="welch", draws=draws, key=key))
     return {**need, "record_s": n * period, "check": check}

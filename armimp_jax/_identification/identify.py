@@ -3,28 +3,30 @@
 Given the commanded ``F_Delta`` and the recorded hand position and force, estimate named
 parameters of a trial by **indirect inference** (``indirect.py``): find the parameters at
 which recordings simulated through the friction-aware closed loop, with the trial's own
-noise, give on average the same statistics as the lab's recording (``auxiliary.py``: the
-classical impedance fit for the arm, a regression of the joint torques for the friction).
+noise, give on average the same statistics as the lab's recording.
 
-Why this and not a fit of the simulated signals to the recorded ones: with the person's
-own force and the sensors' noise fed back through a loop with friction, the noise-free
-simulation is not the mean of the noisy loop, and an output-error fit was biased and
-nonlinear in the noise: its 95% intervals covered the truth 42-74% of the time
-(docs/identification.md, section 2). Statistics matched in expectation carry all of that
-into the simulation: the estimate is consistent, and its covariance comes from the spread
-of the statistics over noise draws, the loop's feedback and coloured noise included.
+The statistics (``auxiliary.py``): for the arm, by default the **efficient statistic**
+(``efficient.py``), one generalised least-squares step of the frictionless loop linearised
+about rest, with the loop's coloured noise whitened by its Kalman filter, centred where the
+recording itself puts the arm (``efficient.fit_linear``). Near a linear loop its variance is
+the Cramér-Rao bound (``bound.py``), and the simulation corrects what the linear model leaves
+out (friction, sampling, the robot's kinematics). ``statistic="welch"`` is the classical
+Welch fit instead (1 Hz bins: blind at the low frequencies where stiffness shows). For the
+friction, a regression of the joint torques.
 
-Steps: (1) the statistics of the recording; (2) Gauss-Newton steps on the weighted mismatch
-``b - beta(p)`` from the model's starting values, the binding's Jacobian ``A`` reused
-between them (a chord) and recomputed after a step of more than ``JACOBIAN_REUSE_SE``
-standard errors or one that fails; a step is halved while a draw diverges or the mismatch
-grows; stop when a step moves every parameter by less than ``CONVERGED_FRACTION`` of its
-SE; (3) the covariance (``indirect.covariance``) at the estimate; (4) fit quality (VAF,
-residual whiteness of the noise-free fitted model) and the classical answer alongside.
-Why not optimistix's least-squares solvers: the cost is in Monte Carlo draws and the
-Jacobian is the expensive part, so it is reused across steps (they would recompute it or
-run a line search through it), and the stopping rule is in standard errors that the draws
-at each step give.
+Why match statistics and not fit the signals: with the person's own force and the sensors'
+noise fed back through a loop with friction, the noise-free simulation is not the mean of
+the noisy loop, and an output-error fit's 95% intervals covered the truth 42-74% of the time
+(docs/identification.md). Statistics matched in expectation carry all of that into the
+simulation: the estimate is consistent, and its covariance comes from the spread of the
+statistics over noise draws, the loop's feedback and coloured noise included.
+
+The search (``search.py``): Gauss-Newton on the mismatch of statistics, the binding's
+Jacobian reused between steps, friction parameters held by a wide prior about their start
+(nuisances for the arm: one the recording cannot tell, such as the Coulomb torque under
+IMBIC, which cancels it, is flagged in ``not_told`` and its uncertainty carried into the
+arm's intervals). Then the result's assembly: the covariance at the estimate, warnings in a
+lab's terms (``diagnosis.py``: joints that stood still), fit quality and the classical answer.
 """
 
 from __future__ import annotations
@@ -39,19 +41,19 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.stats
 
-from .._checks import as_float64, check_int, require_x64
+from .._checks import as_float64, check_choice, check_int, require_x64
 from .._estimation.fit import ImpedanceFit, fit_impedance
 from .._estimation.welch import check_finite, estimate
 from .._simulate import Trial
 from .._solver.numerics import Numerics
-from . import indirect
+from . import efficient, indirect, search
 from . import layout as lay
 from .auxiliary import statistic_labels, statistics
+from .bound import has_friction, is_near_linear
+from .diagnosis import motion_diagnosis
 from .indirect import IDENTIFY_NUMERICS, predict
+from .predict import STATISTICS
 
-CONVERGED_FRACTION = 0.15  # a step below this many SEs: converged (the binding's own MC error is 1/sqrt(R) SE)
-JACOBIAN_REUSE_SE = 3.0  # A computed within this many SEs of the estimate serves its covariance
-HALVINGS = 6  # a step is halved at most this many times while a draw diverges or the mismatch grows
 # An entry whose SE exceeds this multiple of its parameter's scale is reported as barely identifiable.
 WEAK_RELATIVE_SE = 1.0
 WHITENESS_LAGS = 20  # Ljung-Box lags of the residual
@@ -69,26 +71,28 @@ class Identification:
         se: ``{name: array}`` their standard errors, same units and shapes.
         covariance: ``(n, n)`` covariance of every entry, in the order of ``labels``.
         labels: names of the entries, e.g. ``"arm.mass[0,1]"``.
-        converged: whether the fit is sound (see the module docstring); ``message`` says why not.
-        intervals_reliable: converged and every parameter identifiable (``warnings`` empty).
+        converged: whether the search settled (``message`` says why not).
+        intervals_reliable: converged and nothing in ``warnings`` but the ``not_told`` note
+            (whose intervals are the ranges those entries were allowed).
         warnings: plain sentences on what not to trust.
+        not_told: ``{label: (low, high)}``, entries of friction parameters the recording barely
+            tells, with the range they were allowed (the nuisance prior's 95% range, within the
+            parameter's physical range); ``interval`` gives that range for them.
+        statistic: the arm's statistic, ``"efficient"`` or ``"welch"``.
         cost: ``(b - beta(p))^T W (b - beta(p)) / 2`` at the estimate (``W``: each statistic in
-            units of its spread over the draws; 0 at an exact root, as with one statistic per
-            parameter).
+            units of its spread over the draws).
         iterations: Gauss-Newton steps taken.
         history: per step, ``cost`` (as ``cost``) before it and ``step_se``, its largest move
             in standard errors (``refused``: no fraction of it lowered the mismatch, so the slope
             was recomputed instead).
         draws: noise draws ``R`` behind the binding and the covariance.
-        statistics: ``{label: value}`` the recording's statistics, by ``statistic_labels``
-            (the classical ``M, B, K`` entries, e.g. ``"arm.mass[0,1]"``; with friction free,
-            per joint the friction regression's coefficients and the log RMS speed, e.g.
-            ``"friction coulomb[1]"``).
+        statistics: ``{label: value}`` the recording's statistics, by ``statistic_labels``.
         vaf_position, vaf_force: ``(2,)`` variance of the recorded ``x`` and ``F_h`` accounted
             for by the fitted model's noise-free simulation [%], per axis.
         whiteness_p: ``(4,)`` Ljung-Box p-values of that simulation's residual (x1, x2, fh1,
-            fh2; ``WHITENESS_LAGS`` lags): small when the noise (the person's force, sensors)
-            is coloured, as it is in a loop; a fit-quality figure, not a test of the intervals.
+            fh2; ``WHITENESS_LAGS`` lags): small when the noise is coloured, as it is in a
+            loop; a fit-quality figure, not a test of the intervals.
+        stuck_fraction: ``(2,)`` share of the record each joint stood still (``diagnosis.py``).
         classical: the Welch FRF + ``fit_impedance`` answer from the same recording
             (``None`` when the record is too short for two Welch segments).
         trial: the model with the estimates in place.
@@ -104,6 +108,8 @@ class Identification:
     message: str
     intervals_reliable: bool
     warnings: list
+    not_told: dict
+    statistic: str
     cost: float
     iterations: int
     history: list
@@ -112,15 +118,22 @@ class Identification:
     vaf_position: np.ndarray
     vaf_force: np.ndarray
     whiteness_p: np.ndarray
+    stuck_fraction: np.ndarray
     classical: ImpedanceFit | None
     trial: Trial
     time_s: float
     forward_s: float
 
     def interval(self, name: str, level: float = 0.95):
-        """Two-sided normal ``level`` interval ``(low, high)`` of parameter ``name``."""
+        """Two-sided normal ``level`` interval ``(low, high)`` of parameter ``name`` (for an entry
+        in ``not_told``, the range it was allowed)."""
         z = scipy.stats.norm.ppf(0.5 + level / 2)
-        return self.values[name] - z * self.se[name], self.values[name] + z * self.se[name]
+        low, high = self.values[name] - z * self.se[name], self.values[name] + z * self.se[name]
+        for label, (lo, hi) in self.not_told.items():
+            if label.startswith(name + "["):
+                index = tuple(int(i) for i in label[len(name) + 1 : -1].split(","))
+                low[index], high[index] = lo, hi
+        return low, high
 
     def summary(self) -> str:
         """A few lines: convergence, warnings, then each parameter as value +- SE."""
@@ -151,8 +164,8 @@ def check_recording(f, x, fh, where: str):
 
 
 @functools.partial(jax.jit, static_argnames="layout")
-def _statistics(layout, model, f, x, fh):
-    return statistics(layout, model, f, x, fh)
+def _statistics(layout, model, f, x, fh, arm_stat):
+    return statistics(layout, model, f, x, fh, arm_stat)
 
 
 @functools.partial(jax.jit, static_argnames=("layout", "numerics"))
@@ -181,10 +194,58 @@ def _classical(f, x, fh, acquisition, period):
     return fit_impedance(est, acquisition=acquisition, period=period, se="spectral")
 
 
-def _binding(layout, model, p, f, keys, numerics):
-    stats, diverged = indirect.binding_draws(layout, model, jnp.asarray(p), f, keys, numerics)
-    stats, diverged = np.asarray(stats), np.asarray(diverged)
-    return stats.mean(axis=0), stats, bool(diverged.any())
+def _check(model, f, x, fh, free, symmetric, statistic, numerics, draws, jacobian_draws, max_steps):
+    """Every one-line refusal before long work; the checked values."""
+    if not isinstance(model, Trial):
+        raise ValueError(f"identify: model must be a Trial (from make_trial), got {type(model).__name__}")
+    layout = lay.make_layout(free, symmetric)
+    f, x, fh = check_recording(f, x, fh, "identify")
+    check_choice("statistic", statistic, STATISTICS)
+    draws = check_int("draws", draws, minimum=8)
+    jacobian_draws = check_int("jacobian_draws", jacobian_draws, minimum=1)
+    if jacobian_draws > draws:  # the Jacobian's draws are the first of the statistics' draws
+        raise ValueError(f"identify: jacobian_draws {jacobian_draws} must be at most draws {draws}")
+    max_steps = check_int("max_steps", max_steps, minimum=1)
+    numerics = IDENTIFY_NUMERICS if numerics is None else numerics
+    if not isinstance(numerics, Numerics):
+        raise ValueError(f"identify: numerics must be a Numerics, got {type(numerics).__name__}")
+    for name, arr in (("x", x), ("fh", fh)):
+        flat = [f"{name}[:, {i}]" for i in range(2) if not float(jnp.std(arr[:, i])) > 0]
+        if flat:
+            raise ValueError(f"identify: the recorded channel(s) {flat} are constant; nothing to fit")
+    return layout, f, x, fh, numerics, draws, jacobian_draws, max_steps
+
+
+def _arm_statistic(layout, model, p, f, x, fh, statistic, numerics, keys):
+    """The arm's statistic (``None``: Welch), the search's start and the statistic's name.
+
+    ``auto`` takes the efficient statistic unless the model's loop is far from linear
+    (``bound.is_near_linear``: stick-slip), where the Welch fit is the safer. The efficient
+    statistic is centred where the recording puts the arm through the linear loop
+    (``efficient.fit_linear``), and the search starts there, unless the model diverges there:
+    then at the model's start. Under friction the innovations are weighed by their spread in
+    recordings simulated at the model's start (``efficient.excess_weight``)."""
+    arm = indirect.arm_layout(layout)
+    if arm is None or statistic == "welch" or (statistic == "auto" and not is_near_linear(model, f, numerics)):
+        return None, p, "welch"
+    idx = indirect.arm_index(layout)
+    weight = None
+    if has_friction(model) and not (model.sensors.ideal and model.voluntary is None):
+        # friction's effect is no part of the linear loop: weigh the innovations by their spread
+        # in recordings simulated with it, at the model's start, before the fit uses them
+        weight_keys = keys[: indirect.weight_draws(keys.shape[0])]
+        weight = indirect.statistic_weight(layout, model, jnp.asarray(p), f, weight_keys, numerics)
+        # one program in flight at a time: two that split over the CPU devices and meet at
+        # collectives, queued together, can each hold a thread the other waits for
+        weight = jax.block_until_ready(weight)
+        if not np.all(np.isfinite(np.asarray(weight))):
+            raise ValueError("identify: noisy simulations of the model diverge at the start; choose another start")
+    ref, _ = efficient.fit_linear(arm, model, p[idx], f, efficient.recorded(model, x, fh), weight)
+    centred = p.copy()
+    centred[idx] = ref
+    start = centred if not bool(_predict(layout, model, jnp.asarray(centred), f, numerics)[1]) else p
+    stat = indirect.arm_statistic(layout, model, jnp.asarray(centred), f, weight)
+    return jax.block_until_ready(stat), start, "efficient"
 
 
 def identify(
@@ -195,6 +256,7 @@ def identify(
     *,
     free,
     symmetric=(),
+    statistic: str = "auto",
     numerics: Numerics | None = None,
     key=None,
     draws: int = 64,
@@ -213,6 +275,8 @@ def identify(
             ``"arm.stiffness"`` (full 2x2), ``"friction.tau_c"``, ``"friction.tau_s"``,
             ``"friction.sigma0"``, ``"friction.sigma1"``, ``"friction.sigma2"`` (per joint).
         symmetric: free arm matrices to constrain symmetric (3 numbers instead of 4).
+        statistic: the arm's statistic: ``"efficient"`` (module docstring), ``"welch"``, or
+            ``"auto"`` (default: efficient unless the model's loop is far from linear).
         numerics: integration settings (default ``IDENTIFY_NUMERICS``, ``GradedARK4`` at 4
             substeps: converged at every friction in [0, 4] N m).
         key: ``jax.random`` key of the simulated noise draws (default ``key(0)``: the result
@@ -230,24 +294,10 @@ def identify(
     """
     require_x64("identify")
     t_start = time.perf_counter()
-    if not isinstance(model, Trial):
-        raise ValueError(f"identify: model must be a Trial (from make_trial), got {type(model).__name__}")
-    layout = lay.make_layout(free, symmetric)
-    f, x, fh = check_recording(f, x, fh, "identify")
-    draws = check_int("draws", draws, minimum=8)
-    jacobian_draws = check_int("jacobian_draws", jacobian_draws, minimum=1)
-    if jacobian_draws > draws:  # the Jacobian's draws are the first of the statistics' draws
-        raise ValueError(f"identify: jacobian_draws {jacobian_draws} must be at most draws {draws}")
-    max_steps = check_int("max_steps", max_steps, minimum=1)
-    numerics = IDENTIFY_NUMERICS if numerics is None else numerics
-    if not isinstance(numerics, Numerics):
-        raise ValueError(f"identify: numerics must be a Numerics, got {type(numerics).__name__}")
+    checked = _check(model, f, x, fh, free, symmetric, statistic, numerics, draws, jacobian_draws, max_steps)
+    layout, f, x, fh, numerics, draws, jacobian_draws, max_steps = checked
     key = jax.random.key(0) if key is None else key
     p = np.asarray(lay.pack(layout, model))
-    for name, arr in (("x", x), ("fh", fh)):
-        flat = [f"{name}[:, {i}]" for i in range(2) if not float(jnp.std(arr[:, i])) > 0]
-        if flat:
-            raise ValueError(f"identify: the recorded channel(s) {flat} are constant; nothing to fit")
     _, diverged = _predict(layout, model, jnp.asarray(p), f, numerics)
     if bool(diverged):
         start = {n: np.asarray(v).tolist() for n, v in lay.split(layout, jnp.asarray(p), model).items()}
@@ -256,157 +306,146 @@ def identify(
     jax.block_until_ready(_predict(layout, model, jnp.asarray(p), f, numerics))
     forward_s = time.perf_counter() - t0
 
-    noisy = not (model.sensors.ideal and model.voluntary is None)
     n_draws, n_jac = indirect.draw_counts(model, draws, jacobian_draws)
     keys = jax.random.split(key, n_draws)
-    b = np.asarray(_statistics(layout, model, f, x, fh))
+    arm_stat, p, statistic = _arm_statistic(layout, model, p, f, x, fh, statistic, numerics, keys)
+    b = np.asarray(_statistics(layout, model, f, x, fh, arm_stat))
     if not np.all(np.isfinite(b)):
         bad = [lab for lab, v in zip(statistic_labels(layout), b, strict=True) if not np.isfinite(v)]
         raise ValueError(
             f"identify: the recording's statistics {', '.join(bad)} are not finite (a joint that never moves "
             "leaves its friction unmeasured); free fewer friction parameters or record with more motion"
         )
-    mean, stats, diverged = _binding(layout, model, p, f, keys, numerics)
-    if diverged:
-        raise ValueError("identify: noisy simulations of the model diverge at the start; choose another start")
+    noisy = not (model.sensors.ideal and model.voluntary is None)
+    # the nuisance prior: friction parameters of a noisy model (without noise there is no spread to weigh it by)
+    prior_index = np.setdiff1d(np.arange(p.size), indirect.arm_index(layout)) if noisy else np.zeros(0, dtype=int)
+    prior_mean = np.asarray(lay.pack(layout, model))[prior_index]
+    slack = b.size / n_draws if noisy else 1e-24 * (1.0 + float(b @ b))  # the binding's own MC jitter of the cost
+    problem = search.Problem(
+        layout,
+        model,
+        f,
+        numerics,
+        keys,
+        n_jac,
+        noisy,
+        np.concatenate([b, prior_mean]),
+        arm_stat,
+        prior_index,
+        prior_mean,
+        slack,
+    )
+    state = search.init(problem, p)
+    while not state.done:
+        state = search.step(problem, state, max_steps)
+    return _assemble(problem, state, f, x, fh, statistic, t_start, forward_s)
 
-    def jacobian(q):
-        jac, div = indirect.binding_jacobian(layout, model, jnp.asarray(q), f, keys[:n_jac], numerics)
-        jac = np.asarray(jac)
-        if bool(div) or not np.all(np.isfinite(jac)):
-            return None
-        return jac
 
-    jac, jac_at = jacobian(p), p
-    w = np.asarray(indirect.weights(stats, jac))  # held while the slope is: costs compare under one W
-
-    def cost_of(m):
-        d = b - m
-        return 0.5 * float(d @ (w * d))
-
-    problems, history = [], []
-    iterations, se_p = 0, None
-    if jac is None:
-        problems.append("the binding's Jacobian is not finite at the start")
-    cost = cost_of(mean)
-    # the binding's own Monte Carlo jitter of the cost: a step within it is no worse
-    slack = b.size / n_draws if noisy else 1e-24 * (1.0 + float(b @ b))
-    while jac is not None:
-        step = np.asarray(indirect.gauss_newton_step(jac, w, b - mean))
-        if not np.all(np.isfinite(step)):
-            problems.append("the binding's Jacobian is singular: some parameter does not move the statistics")
-            break
-        se_p = np.sqrt(np.diag(np.asarray(indirect.covariance(jac, stats, n_draws, w))))
-        history.append(dict(cost=cost, step_se=float(np.max(np.abs(step) / se_p)) if noisy else math.nan))
-        if noisy and np.all(np.abs(step) <= CONVERGED_FRACTION * se_p):
-            break
-        if not noisy and np.all(np.abs(step) <= 1e-10 * (1.0 + np.abs(p))):
-            break  # noise-free: converged to round-off
-        if iterations == max_steps:
-            problems.append(f"the iteration did not settle in {max_steps} steps")
-            break
-        # a step is kept when its simulations are sound and it does not raise the mismatch; a
-        # slope that fails twice is refreshed here first, a fresh one is halved further
-        stale = not np.array_equal(jac_at, p)
-        scale, kept = 1.0, False
-        for _ in range(2 if stale else HALVINGS + 1):
-            trial_p = p + scale * step
-            t_mean, t_stats, t_div = _binding(layout, model, trial_p, f, keys, numerics)
-            t_cost = cost_of(t_mean) if np.all(np.isfinite(t_mean)) else math.inf
-            if not t_div and t_cost < cost + slack:
-                kept = True
-                break
-            scale *= 0.5
-        if kept:
-            p, mean, stats, cost = trial_p, t_mean, t_stats, t_cost
-            iterations += 1
-        else:
-            history[-1]["refused"] = True
-        if not kept or not np.all(np.abs(scale * step) <= JACOBIAN_REUSE_SE * se_p):  # a new slope
-            new = jacobian(p) if (stale or kept) else None
-            if new is None:
-                if not kept:
-                    problems.append(
-                        f"no step from iteration {iterations} kept the simulations sound and lowered the mismatch"
-                    )
-                    break
-                continue
-            jac, jac_at, w = new, p, np.asarray(indirect.weights(stats, new))
-            cost = cost_of(mean)
-    # the covariance wants A at the estimate; one computed within a few SEs of it is as good
-    if jac is not None and se_p is not None and not np.all(np.abs(p - jac_at) <= JACOBIAN_REUSE_SE * se_p):
-        jac = jacobian(p)
-        if jac is None:
-            problems.append("the binding's Jacobian is not finite at the estimate")
-    if jac is not None:
-        cov_p = np.asarray(indirect.covariance(jac, stats, n_draws)) if noisy else np.zeros((p.size, p.size))
-    else:
-        cov_p = np.full((p.size, p.size), np.nan)
-    y_fit, diverged_fit = _predict(layout, model, jnp.asarray(p), f, numerics)
-    if bool(diverged_fit):
-        problems.append("the fitted model diverges")
-    g = np.asarray(lay.natural_jacobian(layout, jnp.asarray(p), model))
-    cov = g @ cov_p @ g.T
-    se_nat = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    values_nat = np.asarray(lay.natural(layout, jnp.asarray(p), model))
-    nat_labels = layout.labels()
-    if noisy:
-        # an SE of zero or none at all: a parameter pinned at the edge of its range (tau_c run to
-        # tau_s or to zero, where the map from p stops moving it) or a singular fit
-        lost = [lab for lab, se in zip(nat_labels, se_nat, strict=True) if not se > 0]
-        if lost:
-            problems.append(
-                f"no standard error for {', '.join(lost)}: the fit ran to the edge of the parameter's range or "
-                "lost it; it is not identifiable from this recording: hold it fixed"
-            )
-
-    warnings = []
-    if not noisy:
+def _warnings(problem: search.Problem, p, labels, values, se, cov_p) -> tuple[list, dict]:
+    """Plain warnings, and the friction entries the recording does not tell."""
+    layout, warnings = problem.layout, []
+    if not problem.noisy:
         warnings.append(
             "the model has no noise (ideal sensors, no voluntary force): the standard errors are zero; give the "
             "model the recording's noise (Sensors, VoluntaryForce) for intervals"
         )
-    # an entry is weak when its SE exceeds its parameter's own scale: the largest entry of an
-    # arm matrix (an off-diagonal entry near zero is not weak for being small), a friction value
-    scale = np.concatenate(
-        [
-            np.full(np.prod(layout.shape(n)), np.abs(v).max() if n in lay.ARM_PARAMETERS else np.nan)
-            for n, v in lay.unflatten(layout, values_nat).items()
+        return warnings, {}
+    not_told = {}
+    se_internal = np.sqrt(np.maximum(np.diag(cov_p), 0.0))
+    nat_index = _natural_of_internal(layout)
+    for k, mean in zip(problem.prior_index, problem.prior_mean, strict=True):
+        if se_internal[k] > 0.5 * search.PRIOR_SD:
+            ends = []
+            for end in (-1.96, 1.96):  # the prior's 95% range, through the parameter's own map
+                q = np.array(p, dtype=float)
+                q[k] = mean + end * search.PRIOR_SD
+                ends.append(np.asarray(lay.natural(layout, jnp.asarray(q), problem.model)))
+            for j in nat_index[k]:
+                low, high = sorted((float(ends[0][j]), float(ends[1][j])))
+                not_told[labels[j]] = (low, high)
+    if not_told:
+        told = ", ".join(f"{lab} (allowed {lo:.3g} to {hi:.3g})" for lab, (lo, hi) in not_told.items())
+        warnings.append(
+            f"the recording barely tells {told}: their intervals are the ranges they were allowed about the "
+            "start, and the arm's intervals carry that uncertainty"
+        )
+    # an arm entry is weak when its SE exceeds its matrix's largest entry (an off-diagonal entry
+    # near zero is not weak for being small)
+    weak = []
+    for name, v in lay.unflatten(layout, values).items():
+        if name not in lay.ARM_PARAMETERS:
+            continue
+        scale = np.abs(v).max()
+        s = lay.unflatten(layout, se)[name]
+        weak += [
+            f"{name}[{i},{j}] (SE {s[i, j]:.3g} against {v[i, j]:.3g})"
+            for i, j in np.ndindex(2, 2)
+            if s[i, j] > WEAK_RELATIVE_SE * scale
         ]
-    )
-    scale = np.where(np.isnan(scale), np.abs(values_nat), scale)
-    weak = [
-        f"{lab} (SE {s:.3g} against {v:.3g})"
-        for lab, v, s, c in zip(nat_labels, values_nat, se_nat, scale, strict=True)
-        if s > WEAK_RELATIVE_SE * c
-    ]
     if weak:
         warnings.append(
             f"barely identifiable from this recording: {', '.join(weak)}; hold it fixed at a value known from "
             "elsewhere, or record with a perturbation that excites it"
         )
+    return warnings, not_told
+
+
+def _natural_of_internal(layout: lay.Layout) -> list[list[int]]:
+    """For each internal parameter, the natural entries it sets."""
+    out, nat = [], 0
+    for k, name in enumerate(layout.names):
+        if layout.symmetric[k]:
+            out += [[nat], [nat + 1, nat + 2], [nat + 3]]
+        else:
+            out += [[nat + i] for i in range(layout.n_internal(k))]
+        nat += int(np.prod(layout.shape(name)))
+    return out
+
+
+def _assemble(problem: search.Problem, state: search.Search, f, x, fh, statistic, t_start, forward_s) -> Identification:
+    layout, model, p = problem.layout, problem.model, state.p
+    cov_p, problems = search.final_covariance(problem, state)
+    y_fit, diverged_fit = _predict(layout, model, jnp.asarray(p), f, problem.numerics)
+    if bool(diverged_fit):
+        problems = problems + ("the fitted model diverges",)
+    g = np.asarray(lay.natural_jacobian(layout, jnp.asarray(p), model))
+    cov = g @ cov_p @ g.T
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    values = np.asarray(lay.natural(layout, jnp.asarray(p), model))
+    labels = layout.labels()
+    warnings, not_told = _warnings(problem, p, labels, values, se, cov_p)
+    stuck = motion_diagnosis(model, x)
+    if problems or any("barely identifiable" in w for w in warnings):
+        warnings = warnings + stuck.advice
     y = np.concatenate([x, fh], axis=1)
-    y_fit = np.asarray(y_fit)
-    resid = y - y_fit
-    centred = y - y.mean(axis=0)
-    vaf = 100.0 * (1.0 - np.sum(resid**2, axis=0) / np.sum(centred**2, axis=0))
+    resid = y - np.asarray(y_fit)
+    vaf = 100.0 * (1.0 - np.sum(resid**2, axis=0) / np.sum((y - y.mean(axis=0)) ** 2, axis=0))
     return Identification(
-        values=lay.unflatten(layout, values_nat),
-        se=lay.unflatten(layout, se_nat),
+        values=lay.unflatten(layout, values),
+        se=lay.unflatten(layout, se),
         covariance=cov,
-        labels=nat_labels,
+        labels=labels,
         converged=not problems,
         message="; ".join(problems),
-        intervals_reliable=not problems and not warnings,
+        intervals_reliable=not problems and len(warnings) == bool(not_told),
         warnings=warnings,
-        cost=cost,
-        iterations=iterations,
-        history=history,
-        draws=n_draws,
-        statistics=dict(zip(statistic_labels(layout), (float(v) for v in b), strict=True)),
+        not_told=not_told,
+        statistic=statistic,
+        cost=state.cost,
+        iterations=state.iterations,
+        history=list(state.history),
+        draws=problem.keys.shape[0],
+        statistics=dict(
+            zip(
+                statistic_labels(layout),
+                (float(v) for v in problem.b[: problem.b.size - problem.prior_index.size]),
+                strict=True,
+            )
+        ),
         vaf_position=vaf[:2],
         vaf_force=vaf[2:],
         whiteness_p=_ljung_box_p(resid, WHITENESS_LAGS),
+        stuck_fraction=stuck.fraction,
         classical=_classical(f, x, fh, model.acquisition, model.period),
         trial=lay.with_values(layout, model, jnp.asarray(p)),
         time_s=time.perf_counter() - t_start,

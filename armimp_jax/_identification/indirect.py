@@ -32,6 +32,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.sharding import PartitionSpec as P
 
 from .._batch import make_mesh
@@ -40,11 +41,56 @@ from .._pytree import replace_unchecked
 from .._simulate import Trial, simulate
 from .._solver.graded import GradedARK4
 from .._solver.numerics import Numerics
+from . import efficient
 from .auxiliary import statistics
-from .layout import Layout, with_values
+from .layout import ARM_PARAMETERS, Layout, with_values
 
 # The converged step at every friction in [0, 4] N m and the cheapest measured (docs/performance.md).
 IDENTIFY_NUMERICS = Numerics(solver=GradedARK4(), substeps=4)
+# Draws behind the efficient statistic's weight under friction (efficient.excess_weight): each Welch
+# bin then averages some 600 segments, a few percent of scatter in the weight.
+WEIGHT_DRAWS = 16
+
+
+def arm_layout(layout: Layout) -> Layout | None:
+    """The layout of ``layout``'s arm matrices alone (``None`` when none is free)."""
+    kept = [(n, s) for n, s in zip(layout.names, layout.symmetric, strict=True) if n in ARM_PARAMETERS]
+    return Layout(tuple(n for n, _ in kept), tuple(s for _, s in kept)) if kept else None
+
+
+def arm_index(layout: Layout) -> np.ndarray:
+    """Positions of the arm's internal parameters in ``p``."""
+    out, i = [], 0
+    for k, name in enumerate(layout.names):
+        n = layout.n_internal(k)
+        if name in ARM_PARAMETERS:
+            out += list(range(i, i + n))
+        i += n
+    return np.asarray(out, dtype=int)
+
+
+def weight_draws(n_draws: int) -> int:
+    """Draws behind the efficient statistic's weight: ``WEIGHT_DRAWS``, a multiple of the local
+    devices, at most ``n_draws``."""
+    n_dev = jax.local_device_count()
+    return int(min(n_draws, math.ceil(WEIGHT_DRAWS / n_dev) * n_dev))
+
+
+@functools.partial(jax.jit, static_argnames=("layout", "numerics"))
+def statistic_weight(layout: Layout, model: Trial, p, f, keys, numerics):
+    """The efficient statistic's weight under friction (``efficient.excess_weight``) from
+    recordings simulated at ``p`` with ``keys``. Its own program, run to the end before the
+    binding's: inside one program with the sharded draws it hung (XLA:CPU collectives)."""
+    arm, idx = arm_layout(layout), arm_index(layout)
+    ys, _ = draw_recordings(layout, model, p, f, keys, numerics)
+    return efficient.excess_weight(efficient.filter_at(arm, model, p[idx]), ys)
+
+
+def arm_statistic(layout: Layout, model: Trial, p, f, weight=None):
+    """The efficient statistic (``efficient.py``) about the arm's entries of ``p`` (``weight``:
+    ``statistic_weight``'s, under friction)."""
+    arm, idx = arm_layout(layout), arm_index(layout)
+    return efficient.efficient_statistic(arm, model, p[idx], f, weight)
 
 
 def predict(layout: Layout, model: Trial, p, f, numerics):
@@ -64,11 +110,25 @@ def draw_counts(model: Trial, draws: int, jacobian_draws: int) -> tuple[int, int
     return tuple(int(math.ceil(d / n_dev) * n_dev) for d in (draws, jacobian_draws))
 
 
-def draw_statistics(layout: Layout, model: Trial, p, f, key, numerics):
-    """The statistics of one noisy recording at ``p`` and whether it diverged."""
+def draw_statistics(layout: Layout, model: Trial, p, f, key, numerics, arm_stat=None):
+    """The statistics of one noisy recording at ``p`` and whether it diverged (``arm_stat``: the
+    arm's statistic, ``auxiliary.statistics``)."""
     trial = with_values(layout, model, p)
     sim = simulate(trial, f, key=key, numerics=numerics)
-    return statistics(layout, trial, f, sim.x, sim.fh), sim.diverged
+    return statistics(layout, trial, f, sim.x, sim.fh, arm_stat), sim.diverged
+
+
+def draw_recordings(layout: Layout, model: Trial, p, f, keys, numerics):
+    """``(y (R, N, 4), diverged (R,))``: noisy recordings at ``p`` (``x - x0`` [m], ``F_h`` [N]),
+    vmapped on one device: they feed a reduction over the draws, and a program that split them
+    over the CPU devices and then reduced across them hung at that collective (XLA:CPU)."""
+
+    def one(k):
+        trial = with_values(layout, model, p)
+        sim = simulate(trial, f, key=k, numerics=numerics)
+        return jnp.concatenate([sim.x - trial.x0[None, :], sim.fh], axis=1), sim.diverged
+
+    return jax.vmap(one)(keys)
 
 
 def _sharded(fn, n_out: int):
@@ -78,23 +138,23 @@ def _sharded(fn, n_out: int):
 
 
 @functools.partial(jax.jit, static_argnames=("layout", "numerics"))
-def binding_draws(layout: Layout, model: Trial, p, f, keys, numerics):
+def binding_draws(layout: Layout, model: Trial, p, f, keys, numerics, arm_stat=None):
     """``(stats (R, n), diverged (R,))``: the statistics of ``R`` noisy recordings at ``p``
     (one per key), vmapped on each device."""
 
     def per_device(k):
-        return jax.vmap(lambda kk: draw_statistics(layout, model, p, f, kk, numerics))(k)
+        return jax.vmap(lambda kk: draw_statistics(layout, model, p, f, kk, numerics, arm_stat))(k)
 
     return _sharded(per_device, 2)(keys)
 
 
 @functools.partial(jax.jit, static_argnames=("layout", "numerics"))
-def binding_jacobian(layout: Layout, model: Trial, p, f, keys, numerics):
+def binding_jacobian(layout: Layout, model: Trial, p, f, keys, numerics, arm_stat=None):
     """``A = d beta / d p`` ``(m, n)`` averaged over the draws of ``keys`` (forward mode: one
     pass per draw carries every parameter's tangent), and whether a draw diverged."""
 
     def one(k):
-        return jax.jacfwd(lambda q: draw_statistics(layout, model, q, f, k, numerics), has_aux=True)(p)
+        return jax.jacfwd(lambda q: draw_statistics(layout, model, q, f, k, numerics, arm_stat), has_aux=True)(p)
 
     def per_device(k):
         # one draw at a time: a vmap over draws of the tangents' batch ran several times slower

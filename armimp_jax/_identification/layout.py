@@ -127,6 +127,18 @@ def pack(layout: Layout, trial: Trial):
     return jnp.asarray(np.concatenate(parts))
 
 
+def pack_arm(layout: Layout, trial: Trial):
+    """``p`` of a layout of arm matrices only, traceable (no checks: a symmetric matrix is read
+    from its upper triangle)."""
+    parts = []
+    for name, sym in zip(layout.names, layout.symmetric, strict=True):
+        if name not in ARM_PARAMETERS:
+            raise ValueError(f"pack_arm: {name} is not an arm matrix")
+        v = jnp.asarray(_get(trial, name))
+        parts.append(jnp.stack([v[0, 0], v[0, 1], v[1, 1]]) if sym else v.reshape(-1))
+    return jnp.concatenate(parts)
+
+
 def split(layout: Layout, p, trial: Trial) -> dict:
     """``p`` -> ``{name: value}`` in the parameters' units and shapes (traceable); ``trial``
     supplies the fixed friction torque that a free one is tied to."""

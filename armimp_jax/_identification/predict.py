@@ -16,13 +16,16 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .._checks import as_float64, check_int, is_concrete, require_x64
+from .._checks import as_float64, check_choice, check_int, is_concrete, require_x64
 from .._estimation.welch import check_finite
 from .._simulate import Trial
 from .._solver.numerics import Numerics
 from . import indirect
 from . import layout as lay
+from .bound import has_friction, is_near_linear
 from .indirect import IDENTIFY_NUMERICS
+
+STATISTICS = ("auto", "efficient", "welch")
 
 
 class PredictedSE(NamedTuple):
@@ -42,6 +45,7 @@ def predict_se(
     *,
     free,
     symmetric=(),
+    statistic: str = "auto",
     numerics: Numerics | None = None,
     key=None,
     draws: int = 64,
@@ -53,7 +57,9 @@ def predict_se(
         trial: the experiment as planned: the true (or assumed) parameter values, and the
             noise it will meet (``Sensors``, ``VoluntaryForce``); its noise must be on.
         f: the perturbation ``F_Delta`` ``(N, 2)`` [N] (may be traced: ``jax.grad`` flows).
-        free, symmetric: as ``identify``.
+        free, symmetric, statistic: as ``identify`` (the efficient statistic is centred at the
+            trial's own values). ``"auto"`` runs one noise-free simulation to choose, so it needs
+            a concrete ``f``: under ``jax.grad`` or ``jit``, name the statistic.
         numerics: as ``identify`` (default ``IDENTIFY_NUMERICS``).
         key: ``jax.random`` key of the noise draws (default ``key(0)``).
         draws: as ``identify`` (its ``1 / R`` is in the prediction); also the draws behind
@@ -75,11 +81,29 @@ def predict_se(
     draws = check_int("draws", draws, minimum=8)
     jacobian_draws = check_int("jacobian_draws", jacobian_draws, minimum=1)
     numerics = IDENTIFY_NUMERICS if numerics is None else numerics
+    check_choice("statistic", statistic, STATISTICS)
+    if statistic == "auto":
+        if not is_concrete(f):
+            raise ValueError(
+                'predict_se: statistic="auto" simulates to choose; under tracing name "efficient" or "welch"'
+            )
+        statistic = "efficient" if is_near_linear(trial, f, numerics) else "welch"
+    efficient = statistic == "efficient" and indirect.arm_layout(layout) is not None
     key = jax.random.key(0) if key is None else key
     n_draws, n_jac = indirect.draw_counts(trial, draws, jacobian_draws)
     keys = jax.random.split(key, n_draws)
     p = lay.pack(layout, trial)
-    cov, diverged = _prediction(layout, trial, p, f, keys, keys[:n_jac], numerics, n_draws)
+    weight = None
+    if efficient and has_friction(trial):
+        if not is_concrete(f):
+            raise ValueError(
+                "predict_se: the efficient statistic's weight under friction is simulated at a concrete f; under "
+                'tracing use statistic="welch" (or crlb, the bound of the loop without friction)'
+            )
+        weight = jax.block_until_ready(
+            indirect.statistic_weight(layout, trial, p, f, keys[: indirect.weight_draws(n_draws)], numerics)
+        )
+    cov, diverged = _prediction(layout, trial, p, f, keys, keys[:n_jac], numerics, n_draws, efficient, weight)
     if is_concrete(f):
         # one program in flight at a time: two programs that split over the CPU devices and
         # meet at collectives, queued together, can each hold a thread the other waits for
@@ -92,11 +116,12 @@ def predict_se(
     )
 
 
-@functools.partial(jax.jit, static_argnames=("layout", "numerics", "n_draws"))
-def _prediction(layout, trial, p, f, keys, jac_keys, numerics, n_draws):
-    """``(natural covariance, diverged)``: the draws, the binding's Jacobian and the covariance
-    in one program."""
-    stats, diverged = indirect.binding_draws(layout, trial, p, f, keys, numerics)
-    jac, jac_diverged = indirect.binding_jacobian(layout, trial, p, f, jac_keys, numerics)
+@functools.partial(jax.jit, static_argnames=("layout", "numerics", "n_draws", "efficient"))
+def _prediction(layout, trial, p, f, keys, jac_keys, numerics, n_draws, efficient, weight):
+    """``(natural covariance, diverged)``: the arm's statistic (``efficient``, with ``weight``;
+    else Welch), the draws, the binding's Jacobian and the covariance in one program."""
+    arm_stat = indirect.arm_statistic(layout, trial, p, f, weight) if efficient else None
+    stats, diverged = indirect.binding_draws(layout, trial, p, f, keys, numerics, arm_stat)
+    jac, jac_diverged = indirect.binding_jacobian(layout, trial, p, f, jac_keys, numerics, arm_stat)
     g = lay.natural_jacobian(layout, p, trial)
     return g @ indirect.covariance(jac, stats, n_draws) @ g.T, jnp.any(diverged) | jac_diverged

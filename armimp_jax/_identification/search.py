@@ -1,0 +1,213 @@
+"""The search of ``identify``: Gauss-Newton on the mismatch of statistics, as a small state
+(``Search``) and pure steps (``init``, ``step``) over a fixed ``Problem``.
+
+Steps on the weighted mismatch ``b - beta(p)`` (``indirect.py``): the binding's Jacobian ``A``
+is reused between them (a chord) and recomputed after a step of more than
+``JACOBIAN_REUSE_SE`` standard errors or one that fails; a step is halved while a draw
+diverges or the mismatch grows (a stale slope gets two tries before it is refreshed); the
+search stops when a step moves every parameter by less than ``CONVERGED_FRACTION`` of its
+SE. Friction parameters are nuisances for the arm: each carries a prior about its start
+(``PRIOR_SD`` on its internal log or logit scale), one more moment of the match with its own
+variance in ``Omega``, so one the recording cannot tell stays within its range, with an
+interval as wide as the prior, and the arm's covariance carries its uncertainty. Why not
+optimistix's least-squares solvers: the cost is in Monte Carlo draws and the Jacobian is the
+expensive part, so it is reused across steps, and the stopping rule is in standard errors
+that the draws at each step give.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._simulate import Trial
+from .._solver.numerics import Numerics
+from . import efficient, indirect
+from . import layout as lay
+
+CONVERGED_FRACTION = 0.15  # a step below this many SEs: converged (the binding's own MC error is 1/sqrt(R) SE)
+JACOBIAN_REUSE_SE = 3.0  # A computed within this many SEs of the estimate serves its covariance
+HALVINGS = 6  # a step is halved at most this many times while a draw diverges or the mismatch grows
+# The nuisance prior of each free friction parameter: this SD on its internal (log or logit) scale
+# about its start, a factor of e^2 ~ 7 either way.
+PRIOR_SD = 2.0
+
+
+class Problem(NamedTuple):
+    """What the search holds fixed: the layout, model, recording, draws, the recording's
+    statistics ``b``, the arm's statistic, the nuisance prior (``prior_index`` into ``p``,
+    ``prior_mean``) and the mismatch's Monte Carlo slack."""
+
+    layout: lay.Layout
+    model: Trial
+    f: jnp.ndarray
+    numerics: Numerics
+    keys: jnp.ndarray
+    n_jac: int
+    noisy: bool
+    b: np.ndarray
+    arm_stat: efficient.Efficient | None
+    prior_index: np.ndarray
+    prior_mean: np.ndarray
+    slack: float
+
+
+class Search(NamedTuple):
+    """The search's state: the parameters ``p``, the binding there (``mean``, ``stats``), the
+    mismatch ``cost``, the slope ``jac`` (computed at ``jac_at``) and its weights ``w``, the
+    SEs of the last step, the steps taken, ``history``, ``problems`` and whether it is done."""
+
+    p: np.ndarray
+    mean: np.ndarray
+    stats: np.ndarray
+    cost: float
+    jac: np.ndarray | None
+    jac_at: np.ndarray
+    w: np.ndarray
+    se_p: np.ndarray | None
+    iterations: int
+    history: tuple
+    problems: tuple
+    done: bool
+
+
+def _with_prior(problem: Problem, p, mean, stats, jac=None):
+    """The binding's mean, draws and slope with the nuisance prior's moments appended (each
+    prior moment is its parameter, with no spread over the draws)."""
+    k = problem.prior_index
+    mean = np.concatenate([mean, p[k]])
+    stats = np.concatenate([stats, np.broadcast_to(p[k], (stats.shape[0], k.size))], axis=1)
+    if jac is not None:
+        jac = np.concatenate([jac, np.eye(p.size)[k]])
+    return mean, stats, jac
+
+
+def _weights(problem: Problem, stats, jac):
+    m = stats.shape[1] - problem.prior_index.size
+    w = np.asarray(indirect.weights(stats[:, :m], None if jac is None else jac[:m]))
+    return np.concatenate([w, np.full(problem.prior_index.size, PRIOR_SD**-2)])
+
+
+def _covariance(problem: Problem, jac, stats, n_draws, w):
+    """The sandwich covariance with the prior's own variance in ``Omega`` (block-diagonal)."""
+    m = stats.shape[1] - problem.prior_index.size
+    omega = np.zeros((stats.shape[1],) * 2)
+    if stats.shape[0] > 1:
+        omega[:m, :m] = (1.0 + 1.0 / n_draws) * np.atleast_2d(np.cov(stats[:, :m].T, ddof=1))
+    omega[m:, m:] = PRIOR_SD**2 * np.eye(problem.prior_index.size)
+    aw = jac.T * w[None, :]
+    sens = np.linalg.solve(aw @ jac, aw)
+    return sens @ omega @ sens.T
+
+
+def _binding(problem: Problem, p):
+    stats, diverged = indirect.binding_draws(
+        problem.layout, problem.model, jnp.asarray(p), problem.f, problem.keys, problem.numerics, problem.arm_stat
+    )
+    stats, diverged = np.asarray(stats), np.asarray(diverged)
+    mean, stats, _ = _with_prior(problem, p, stats.mean(axis=0), stats)
+    return mean, stats, bool(diverged.any())
+
+
+def _jacobian(problem: Problem, p):
+    jac, div = indirect.binding_jacobian(
+        problem.layout,
+        problem.model,
+        jnp.asarray(p),
+        problem.f,
+        problem.keys[: problem.n_jac],
+        problem.numerics,
+        problem.arm_stat,
+    )
+    jac = np.asarray(jac)
+    if bool(div) or not np.all(np.isfinite(jac)):
+        return None
+    return _with_prior(problem, p, np.zeros(0), np.zeros((1, 0)), jac)[2]
+
+
+def _cost(problem: Problem, mean, w):
+    d = problem.b - mean
+    return 0.5 * float(d @ (w * d))
+
+
+def init(problem: Problem, p0) -> Search:
+    mean, stats, diverged = _binding(problem, p0)
+    if diverged:
+        raise ValueError("identify: noisy simulations of the model diverge at the start; choose another start")
+    jac = _jacobian(problem, p0)
+    w = _weights(problem, stats, jac)
+    problems = () if jac is not None else ("the binding's Jacobian is not finite at the start",)
+    return Search(p0, mean, stats, _cost(problem, mean, w), jac, p0, w, None, 0, (), problems, jac is None)
+
+
+def _propose(problem: Problem, state: Search, step):
+    """The largest of ``step``, ``step / 2``, ... whose simulations are sound and whose
+    mismatch is no worse (a stale slope gets two tries before it is refreshed):
+    ``(kept, p, mean, stats, cost, scale)``."""
+    stale = not np.array_equal(state.jac_at, state.p)
+    scale = 1.0
+    for _ in range(2 if stale else HALVINGS + 1):
+        trial_p = state.p + scale * step
+        mean, stats, diverged = _binding(problem, trial_p)
+        cost = _cost(problem, mean, state.w) if np.all(np.isfinite(mean)) else math.inf
+        if not diverged and cost < state.cost + problem.slack:
+            return True, trial_p, mean, stats, cost, scale
+        scale *= 0.5
+    return False, state.p, state.mean, state.stats, state.cost, scale
+
+
+def step(problem: Problem, state: Search, max_steps: int) -> Search:
+    """One Gauss-Newton step of the search (see the module docstring)."""
+    jac, w = state.jac, state.w
+    step = np.asarray(indirect.gauss_newton_step(jac, w, problem.b - state.mean))
+    if not np.all(np.isfinite(step)):
+        why = "the binding's Jacobian is singular: some parameter does not move the statistics"
+        return state._replace(problems=state.problems + (why,), done=True)
+    n_draws = problem.keys.shape[0]
+    se_p = np.sqrt(np.diag(_covariance(problem, jac, state.stats, n_draws, w)))
+    step_se = float(np.max(np.abs(step) / se_p)) if problem.noisy else math.nan
+    history = state.history + (dict(cost=state.cost, step_se=step_se),)
+    state = state._replace(se_p=se_p, history=history)
+    if problem.noisy and np.all(np.abs(step) <= CONVERGED_FRACTION * se_p):
+        return state._replace(done=True)
+    if not problem.noisy and np.all(np.abs(step) <= 1e-10 * (1.0 + np.abs(state.p))):
+        return state._replace(done=True)  # noise-free: converged to round-off
+    if state.iterations == max_steps:
+        return state._replace(
+            problems=state.problems + (f"the iteration did not settle in {max_steps} steps",), done=True
+        )
+    stale = not np.array_equal(state.jac_at, state.p)
+    kept, p, mean, stats, cost, scale = _propose(problem, state, step)
+    if kept:
+        state = state._replace(p=p, mean=mean, stats=stats, cost=cost, iterations=state.iterations + 1)
+    else:
+        state = state._replace(history=history[:-1] + (dict(history[-1], refused=True),))
+    if kept and np.all(np.abs(scale * step) <= JACOBIAN_REUSE_SE * se_p):
+        return state
+    new = _jacobian(problem, state.p) if (stale or kept) else None
+    if new is None:
+        if kept:
+            return state
+        why = f"no step from iteration {state.iterations} kept the simulations sound and lowered the mismatch"
+        return state._replace(problems=state.problems + (why,), done=True)
+    w = _weights(problem, state.stats, new)
+    return state._replace(jac=new, jac_at=state.p, w=w, cost=_cost(problem, state.mean, w))
+
+
+def final_covariance(problem: Problem, state: Search):
+    """The covariance of ``p`` at the estimate (the slope refreshed if it is far from there)."""
+    jac, problems = state.jac, state.problems
+    n_draws = problem.keys.shape[0]
+    if jac is not None and state.se_p is not None:
+        if not np.all(np.abs(state.p - state.jac_at) <= JACOBIAN_REUSE_SE * state.se_p):
+            jac = _jacobian(problem, state.p)
+            if jac is None:
+                problems = problems + ("the binding's Jacobian is not finite at the estimate",)
+    if jac is None:
+        return np.full((state.p.size,) * 2, np.nan), problems
+    if not problem.noisy:
+        return np.zeros((state.p.size,) * 2), problems
+    return _covariance(problem, jac, state.stats, n_draws, _weights(problem, state.stats, jac)), problems

@@ -1,0 +1,215 @@
+"""identify's efficiency against the Cramér-Rao bound, and its coverage, over repeated recordings
+(docs/identification.md, the efficiency table).
+
+Per case (controller, paper arm location, IMBIC's desired stiffness, Coulomb torque with
+stiction 1.5 times it, perturbation): force noise 0.05 N, 2^18-count encoders, the person's
+force 0.3 N RMS below 2 Hz, one perturbation (key 2024), then per seed a recording under new
+noise and ``aj.identify`` of the arm's 12 entries from the truth (the intervals and the
+spread are what is measured). Per case and entry: the bound (``aj.crlb``; of the loop
+without friction, which is what IMBIC promises to leave; none through stick-slip),
+``aj.predict_se``, the estimates' spread, spread / bound, and the share of 95% intervals
+that hold the truth. Results are saved after every recording (``--out``, strict JSON with
+the settings and the package version); a rerun with the same settings resumes.
+
+    python sweeps/bench_identify_efficiency.py --seeds 50 --out efficiency.json
+    python sweeps/bench_identify_efficiency.py --statistic welch --out efficiency_welch.json
+"""
+
+from __future__ import annotations
+
+import functools
+import pathlib
+import sys
+import time
+
+from _cli import Parser, fail
+
+ARM = ("arm.mass", "arm.damping", "arm.stiffness")
+Z95 = 1.959963984540054
+# name: (controller, arm location, IMBIC's k_rd [N/m] or None for the paper's, tau_c [N m], peak [N] or "L1",
+# free: the arm's matrices, and the Coulomb torque too with "tau_c")
+CASES = {
+    "imbic-a2": ("imbic", 2, None, 0.0, "L1", "arm"),
+    "imbic-a2-k80": ("imbic", 2, 80.0, 0.0, "L1", "arm"),
+    "imbic-a4-k80-1Nm": ("imbic", 4, 80.0, 1.0, "L1", "arm"),
+    "pd-a2": ("pd", 2, None, 0.0, "L1", "arm"),
+    "pd-a2-0.3Nm": ("pd", 2, None, 0.3, 10.0, "arm"),
+    "pd-a2-1Nm": ("pd", 2, None, 1.0, 10.0, "arm"),
+    "imbic-a2-0.3Nm-tau_c-free": ("imbic", 2, None, 0.3, "L1", "tau_c"),
+}
+DEFAULT_CASES = tuple(CASES)[:6]
+DIAGONAL = ((0, 0), (1, 1))
+
+
+def parse(argv):
+    p = Parser(prog="bench_identify_efficiency", description=__doc__.split("\n\n")[0])
+    p.add_argument("--seeds", type=int, default=50, help="recordings per case (default 50)")
+    p.add_argument("--seconds", type=float, default=20.0, help="record length [s] (default 20)")
+    p.add_argument("--draws", type=int, default=64, help="identify's noise draws (default 64)")
+    p.add_argument("--statistic", default="auto", choices=("auto", "efficient", "welch"), help="identify's")
+    p.add_argument("--cases", default=",".join(DEFAULT_CASES), help=f"comma list of {', '.join(CASES)}")
+    p.add_argument("--out", default="identify_efficiency.json", help="JSON file of the results (resumed if present)")
+    a = p.parse_args(argv)
+    a.cases = a.cases.split(",")
+    unknown = [c for c in a.cases if c not in CASES]
+    if unknown:
+        fail(f"--cases: unknown {unknown}; known: {', '.join(CASES)}", p.prog)
+    if a.seeds < 3 or a.seconds < 2 or a.draws < 8:
+        fail("need --seeds >= 3, --seconds >= 2 and --draws >= 8", p.prog)
+    return a
+
+
+def make_case(aj, np, jax, name, a):
+    """``(truth, f)`` of a case."""
+    from armimp_jax import presets
+
+    controller, location, k_rd, tau_c, peak, _ = CASES[name]
+    ctrl = aj.PD() if controller == "pd" else aj.IMBIC(k_rd=None if k_rd is None else k_rd * np.eye(2))
+    truth = aj.make_trial(
+        ctrl,
+        arm=presets.arm(location),
+        friction=aj.LuGre(tau_c, 1.5 * tau_c) if tau_c > 0 else aj.NO_FRICTION,
+        sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18),
+        voluntary=aj.VoluntaryForce(0.3, 2.0),
+    )
+    peak = presets.perturbation_peak(1) if peak == "L1" else peak
+    return truth, aj.perturbation(jax.random.key(2024), int(round(a.seconds * 1000)), peak)
+
+
+@functools.cache
+def simulate(aj, jax):
+    """``aj.simulate`` compiled once (a plain call traces the loop anew every time)."""
+    return jax.jit(aj.simulate, static_argnames="numerics")
+
+
+def free_of(name):
+    return ARM + (("friction.tau_c",) if CASES[name][5] == "tau_c" else ())
+
+
+def one_seed(aj, np, jax, truth, f, seed, a, free):
+    """identify of one recording: plain lists, for JSON."""
+    rec = simulate(aj, jax)(truth, f, key=jax.random.key(10_000 + seed), numerics=aj.IDENTIFY_NUMERICS)
+    if bool(rec.diverged):
+        return dict(seed=seed, diverged=True)
+    res = aj.identify(
+        truth, f, rec.x, rec.fh, free=free, statistic=a.statistic, key=jax.random.key(seed), draws=a.draws
+    )
+    return dict(
+        seed=seed,
+        diverged=False,
+        converged=res.converged,
+        not_told=res.not_told,
+        statistic=res.statistic,
+        iterations=res.iterations,
+        time_s=res.time_s,
+        values={n: np.asarray(v).tolist() for n, v in res.values.items()},
+        se={n: np.asarray(v).tolist() for n, v in res.se.items()},
+    )
+
+
+def summarise(aj, np, truth, f, rows, a):
+    """Per entry: bound, predict_se, spread, spread/bound, coverage; pooled coverage."""
+    ok = [r for r in rows if not r["diverged"] and r["converged"]]
+    bound = aj.crlb(truth, f)
+    pred = aj.predict_se(truth, f, free=ARM, statistic=a.statistic, draws=a.draws)
+    out = dict(
+        seeds=len(rows),
+        diverged=sum(bool(r["diverged"]) for r in rows),
+        converged=len(ok),
+        statistics=sorted({r["statistic"] for r in ok}),
+        near_linear=bound.near_linear,
+        bound_message=bound.message,
+        mean_time_s=float(np.mean([r["time_s"] for r in ok])),
+        not_told=sorted({e for r in ok for e in r.get("not_told", [])}),
+        flagged_share=float(np.mean([bool(r.get("not_told")) for r in ok])),
+        parameters={},
+    )
+    hits = []
+    for n in ARM:
+        true = np.asarray(getattr(truth.arm, n.split(".")[1]))
+        e = np.array([r["values"][n] for r in ok])
+        s = np.array([r["se"][n] for r in ok])
+        spread = e.std(axis=0, ddof=1)
+        hit = np.abs(e - true) <= Z95 * s
+        hits.append(hit.reshape(len(ok), -1))
+        b = np.asarray(bound.se[n])
+        out["parameters"][n] = dict(
+            bound=b.tolist(),
+            predicted=np.asarray(pred.se[n]).tolist(),
+            spread=spread.tolist(),
+            spread_over_bound=(spread / b).tolist(),
+            mean_se_over_spread=(s.mean(axis=0) / spread).tolist(),
+            mean_error_over_spread=((e.mean(axis=0) - true) / spread).tolist(),
+            coverage=hit.mean(axis=0).tolist(),
+        )
+    out["coverage_all"] = float(np.concatenate(hits, axis=1).mean())  # the arm's 12 entries
+    return out
+
+
+def run_cases(aj, np, jax, a, settings):
+    from armimp_jax.study import atomic_write_json, read_json, stamped
+
+    path = pathlib.Path(a.out)
+    saved = read_json(path) if path.exists() else None
+    state = dict(settings=stamped(settings), cases={})
+    if saved is not None and saved.get("settings") == state["settings"]:
+        state = saved
+        print(f"resuming {path}: {sum(len(c['seeds']) for c in state['cases'].values())} recordings done")
+    elif saved is not None:
+        fail(f"{path} holds results of other settings; choose another --out", "bench_identify_efficiency")
+    for name in a.cases:
+        case = state["cases"].setdefault(name, dict(seeds=[]))
+        truth, f = make_case(aj, np, jax, name, a)
+        done = {r["seed"] for r in case["seeds"]}
+        for seed in range(a.seeds):
+            if seed in done:
+                continue
+            row = one_seed(aj, np, jax, truth, f, seed, a, free_of(name))
+            case["seeds"].append(row)
+            atomic_write_json(path, state)
+            if not row["diverged"]:
+                print(f"  {name} seed {seed}: {row['time_s']:.1f} s, {row['statistic']}", flush=True)
+        if "summary" not in case or case["summary"].get("seeds") != len(case["seeds"]):
+            case["summary"] = summarise(aj, np, truth, f, case["seeds"], a)
+            atomic_write_json(path, state)
+    return state
+
+
+def print_table(state, a):
+    print(f"\n{a.seeds} recordings per case, {a.seconds:g} s, statistic {a.statistic}")
+    print(f"{'case':<18}{'entry':<22}{'bound':>10}{'predict_se':>12}{'spread':>10}{'spread/bound':>14}{'coverage':>10}")
+    for name, case in state["cases"].items():
+        s = case["summary"]
+        for n, r in s["parameters"].items():
+            for i, j in DIAGONAL:
+                print(
+                    f"{name:<18}{f'{n}[{i},{j}]':<22}{r['bound'][i][j]:>10.4g}{r['predicted'][i][j]:>12.4g}"
+                    f"{r['spread'][i][j]:>10.4g}{r['spread_over_bound'][i][j]:>14.2f}{r['coverage'][i][j]:>10.2f}"
+                )
+        print(
+            f"{'':<18}coverage of all 12 entries {s['coverage_all']:.3f}; converged {s['converged']}/{s['seeds']}; "
+            f"{', '.join(s['statistics'])}; {s['mean_time_s']:.1f} s per identify"
+            + (f"; not told (flagged in {s['flagged_share']:.0%}): {', '.join(s['not_told'])}" if s["not_told"] else "")
+            + ("" if s["near_linear"] else "; no bound: " + s["bound_message"].split(":")[0])
+        )
+
+
+def main(argv=None):
+    argv = sys.argv[1:] if argv is None else argv
+    a = parse(argv)
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    import numpy as np
+
+    import armimp_jax as aj
+
+    t0 = time.perf_counter()
+    settings = {k: v for k, v in vars(a).items() if k != "out"}
+    state = run_cases(aj, np, jax, a, settings)
+    print_table(state, a)
+    print(f"total {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,162 @@
+"""The Cramér-Rao bound (issue 34): the linearised loop against the simulation, the Kalman
+filter against the loop's own noise, the bound against a closed form, its derivatives, its
+scaling with the record, and its refusals."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import armimp_jax as aj
+from armimp_jax import paper
+from armimp_jax._identification import kalman, linear
+from armimp_jax._identification import layout as lay
+from armimp_jax._model.robot import jacobian
+
+N = 2000
+ARM = ("arm.mass", "arm.damping", "arm.stiffness")
+NOISE = dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(0.3, 2.0))
+F = aj.perturbation(jax.random.key(7), N, paper.perturbation_peak(1))
+
+
+def _trial(controller, friction=aj.NO_FRICTION, location=2, **kw):
+    return aj.make_trial(controller, arm=paper.arm(location), friction=friction, **kw)
+
+
+def _recorded(trial, sim):
+    return np.concatenate([np.asarray(sim.x) - np.asarray(trial.x0), np.asarray(sim.fh)], axis=1)
+
+
+@pytest.mark.parametrize("acquisition", ["instant", "interval_mean"])
+@pytest.mark.parametrize("controller", [aj.PD(), aj.IMBIC()], ids=["pd", "imbic"])
+def test_the_linearised_loop_follows_the_simulation(controller, acquisition):
+    """Its response to the perturbation against the nonlinear simulation's (no noise): the
+    robot's kinematics are all that differ at the paper's level 1 (0.2% under PD)."""
+    trial = _trial(controller, acquisition=acquisition)
+    y_lin = np.asarray(jax.jit(linear.respond)(linear.linearise(trial), F))
+    y = _recorded(trial, aj.simulate(trial, F))
+    err = np.sqrt(np.sum((y - y_lin) ** 2, axis=0) / np.sum(y**2, axis=0))
+    assert np.all(err < 5e-3), err
+
+
+def test_the_kalman_filter_whitens_the_loops_own_noise():
+    """Innovations of noise-only recordings of the real loop (the person's force, force noise
+    and encoder steps fed back through IMBIC): white, with the filter's covariance."""
+    trial = _trial(aj.IMBIC(), **NOISE)
+    filt = kalman.innovations_filter(linear.linearise(trial))
+    zero = jnp.zeros((3000, 2))
+    keys = jax.random.split(jax.random.key(3), 8)
+
+    @jax.jit
+    def innovations(k):
+        sim = aj.simulate(trial, zero, key=k)
+        return kalman.whiten(filt, jnp.concatenate([sim.x - trial.x0[None, :], sim.fh], axis=1))[500:]
+
+    e = np.asarray(jax.lax.map(innovations, keys))  # (8, 2500, 4)
+    ratio = np.mean(e**2, axis=(0, 1)) / np.diag(np.asarray(filt.cov))
+    np.testing.assert_allclose(ratio, 1.0, atol=0.06)  # 20000 samples per channel: 1 SD is 1%
+    for lag in (1, 2, 5):
+        rho = np.mean(e[:, lag:] * e[:, :-lag], axis=(0, 1)) / np.mean(e**2, axis=(0, 1))
+        assert np.all(np.abs(rho) < 0.03), (lag, rho)
+
+
+def test_the_riccati_solution_is_a_fixed_point():
+    """The doubling algorithm's covariance is the steady state: one more predictor step returns it,
+    and the filter's own loop is stable."""
+    loop = linear.linearise(_trial(aj.PD(), **NOISE))
+    filt = kalman.innovations_filter(loop)
+    q = np.asarray(kalman.noise_covariances(loop)[0])
+    p, a, k, lam = (np.asarray(v) for v in (filt.state_cov, loop.a, filt.gain, filt.cov))
+    step = a @ p @ a.T + q - k @ lam @ k.T
+    assert np.max(np.abs(step - p)) < 1e-9 * np.max(np.abs(p))
+    assert np.max(np.abs(np.linalg.eigvals(a - k @ np.asarray(filt.c)))) < 1.0
+
+
+def test_the_bound_is_the_closed_form_of_white_reading_noise():
+    """With no noise inside the loop (no person's force; PD with a 1e-3 N/m stiffness does not
+    feed back the encoder steps, and never reads the force) the recording is its noise-free
+    response plus white noise of covariance blockdiag(J D^2/12 J^T, sigma_F^2 I), so
+    ``I = sum_t dy_t^T Sigma^-1 dy_t``; ``dy`` here by central differences of the nonlinear
+    simulation. Within 1% (measured 0.5%: the robot's kinematics and the residual feedback)."""
+    counts = 2**16
+    pd = aj.PD(kp=1e-3 * np.eye(2), kv=4.0 * np.eye(2))
+    trial = _trial(pd, sensors=aj.Sensors(force_noise=0.05, encoder_counts=counts))
+    bound = aj.crlb(trial, F)
+    layout = lay.make_layout(ARM)
+    p = np.asarray(lay.pack(layout, trial))
+    quiet = _trial(pd)
+    sim = jax.jit(
+        lambda q: jnp.concatenate(list(aj.simulate(lay.with_values(layout, quiet, q), F)[i] for i in (0, 2)), 1)
+    )
+    dy = []
+    for i in range(p.size):
+        h = 1e-4 * max(1.0, abs(p[i]))
+        e = np.zeros_like(p)
+        e[i] = h
+        dy.append((np.asarray(sim(jnp.asarray(p + e))) - np.asarray(sim(jnp.asarray(p - e)))) / (2 * h))
+    dy = np.stack(dy, axis=-1)
+    j = np.asarray(jacobian(trial.q0, trial.robot))
+    step = 2 * np.pi / counts
+    sigma = np.zeros((4, 4))
+    sigma[:2, :2] = j @ j.T * step * step / 12
+    sigma[2:, 2:] = 0.05**2 * np.eye(2)
+    closed = np.sqrt(np.diag(np.linalg.inv(np.einsum("tip,ij,tjq->pq", dy, np.linalg.inv(sigma), dy))))
+    got = np.concatenate([np.ravel(v) for v in bound.se.values()])
+    np.testing.assert_allclose(got, closed, rtol=0.01)
+
+
+def test_the_bound_falls_at_least_as_one_over_the_square_root_of_the_record():
+    """The same perturbation twice over: the bound falls by sqrt(2) or a little more (the loop's
+    start from rest carries less information than its steady state, and weighs less in the
+    longer record), so ``Bound.record_for``'s square-root rule errs on the long side."""
+    trial = _trial(aj.IMBIC(), **NOISE)
+    short, long = aj.crlb(trial, F, check=False), aj.crlb(trial, jnp.concatenate([F, F]), check=False)
+    for name in ARM:
+        ratio = np.diag(short.se[name]) / np.diag(long.se[name])
+        assert np.all((ratio > np.sqrt(2) * 0.99) & (ratio < 1.7)), (name, ratio)
+    rel = max(float(np.max(np.diag(v))) for v in short.relative_se.values())
+    assert short.record_for(0.1) == pytest.approx(short.seconds * (1.959963984540054 * rel / 0.1) ** 2)
+
+
+def test_the_information_differentiates_in_the_perturbation_and_the_gains():
+    """Forward mode in ``f`` and in IMBIC's desired stiffness against central differences
+    (reverse mode is the same program transposed; it compiles three times slower)."""
+
+    @jax.jit
+    def criterion(f, k):
+        trial = _trial(aj.IMBIC(k_rd=k * jnp.eye(2)), **NOISE)
+        info = aj.fisher_information(trial, f, free=("arm.stiffness",))
+        return jnp.sum(jnp.log(jnp.diag(jnp.linalg.inv(info))))
+
+    f = F[:600]
+    d = jnp.asarray(np.random.default_rng(0).standard_normal(f.shape))
+    value, slope = jax.jvp(lambda f: criterion(f, 120.0), (f,), (d,))
+    h = 1e-3
+    np.testing.assert_allclose(slope, (criterion(f + h * d, 120.0) - criterion(f - h * d, 120.0)) / (2 * h), rtol=1e-5)
+    _, g = jax.jvp(lambda k: criterion(f, k), (120.0,), (1.0,))
+    fd = (criterion(f, 120.0 + 1e-3) - criterion(f, 120.0 - 1e-3)) / 2e-3
+    np.testing.assert_allclose(g, fd, rtol=1e-5)
+    assert np.isfinite(float(value))
+
+
+def test_no_bound_through_stick_slip_and_plain_refusals():
+    stuck = aj.crlb(_trial(aj.PD(), friction=aj.LuGre(0.3, 0.45), **NOISE), F)
+    assert not stuck.near_linear and "not near-linear" in stuck.message and "stick-slip" in stuck.message
+    assert all(np.all(np.isnan(v)) for v in stuck.se.values())
+    imbic = aj.crlb(_trial(aj.IMBIC(), friction=aj.LuGre(1.0, 1.5), **NOISE), F)
+    assert imbic.near_linear and "without its Coulomb friction" in imbic.reference
+    viscous = aj.crlb(_trial(aj.IMBIC(), friction=aj.LuGre(0.0, 0.0), **NOISE), F)  # viscous friction is linear
+    np.testing.assert_allclose(
+        np.concatenate([np.ravel(v) for v in imbic.se.values()]),
+        np.concatenate([np.ravel(v) for v in viscous.se.values()]),
+        rtol=1e-10,
+    )
+    with pytest.raises(ValueError, match="not .'friction.tau_c'."):
+        aj.crlb(_trial(aj.IMBIC(), **NOISE), F, free=("arm.mass", "friction.tau_c"))
+    with pytest.raises(ValueError, match="no noise"):
+        aj.crlb(_trial(aj.IMBIC()), F)
+    with pytest.raises(ValueError, match="f must have shape"):
+        aj.crlb(_trial(aj.IMBIC(), **NOISE), F[:, :1])
+    unstable = _trial(aj.IMBIC(mhat=4.0 * np.eye(2)), **NOISE)
+    with pytest.raises(ValueError, match="unstable"):
+        aj.crlb(unstable, F, check=False)
