@@ -69,16 +69,18 @@ _EXPORTS = {
     "fisher_information": "._identification.bound",
     "LinearLoop": "._identification.linear",
     "linearise": "._identification.linear",
+    "drift": "._identification.linear",
     "Identification": "._identification.identify",
     "identify": "._identification.identify",
     "IDENTIFY_NUMERICS": "._identification.indirect",
     "PredictedSE": "._identification.predict",
     "predict_se": "._identification.predict",
-    "Limits": "._identification.design",
+    "Limits": "._identification.limits",
     "Design": "._identification.design",
     "design": "._identification.design",
     "record_for": "._identification.design",
-    "limited_signal": "._identification.design",
+    "BoundDesign": "._identification.bound_design",
+    "limited_signal": "._identification.limits",
     "SimResult": "._simulate",
     "Trial": "._simulate",
     "make_trial": "._simulate",
@@ -136,15 +138,17 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._identification.bound import Bound as Bound
     from ._identification.bound import crlb as crlb
     from ._identification.bound import fisher_information as fisher_information
+    from ._identification.bound_design import BoundDesign as BoundDesign
     from ._identification.design import Design as Design
-    from ._identification.design import Limits as Limits
     from ._identification.design import design as design
-    from ._identification.design import limited_signal as limited_signal
     from ._identification.design import record_for as record_for
     from ._identification.identify import Identification as Identification
     from ._identification.identify import identify as identify
     from ._identification.indirect import IDENTIFY_NUMERICS as IDENTIFY_NUMERICS
+    from ._identification.limits import Limits as Limits
+    from ._identification.limits import limited_signal as limited_signal
     from ._identification.linear import LinearLoop as LinearLoop
+    from ._identification.linear import drift as drift
     from ._identification.linear import linearise as linearise
     from ._identification.predict import PredictedSE as PredictedSE
     from ._identification.predict import predict_se as predict_se

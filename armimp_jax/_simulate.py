@@ -62,6 +62,11 @@ class Trial:
     period: float = CONTROL_PERIOD
     voluntary: VoluntaryForce | None = None
 
+    @property
+    def noisy(self) -> bool:
+        """Whether a simulation of the trial draws noise (its sensors' or the person's force)."""
+        return not (self.sensors.ideal and self.voluntary is None)
+
 
 def _require(name, value, cls):
     if not isinstance(value, cls):

@@ -29,6 +29,43 @@ class Parser(argparse.ArgumentParser):
         fail(message, self.prog)
 
 
+def resumable(path, settings: dict, prog: str, **empty):
+    """A benchmark's saved state: the file at ``path`` when it holds the same ``settings`` (the
+    run resumes), else a new state (``empty``'s entries and the stamped settings); one line
+    and exit status 2 when the file holds other settings (a run never mixes them)."""
+    from armimp_jax.study import read_json, stamped
+
+    state = dict(settings=stamped(settings), **empty)
+    if not path.exists():
+        return state
+    saved = read_json(path)
+    if saved.get("settings") != state["settings"]:
+        fail(f"{path} holds results of other settings; choose another --out", prog)
+    done = sum(len(case.get("seeds", ())) for group in empty for case in saved.get(group, {}).values())
+    print(f"resuming {path}: {done} recordings done", flush=True)
+    return saved
+
+
+def run_seeds(state, group: str, name: str, seeds: int, run_one, path, report=None) -> dict:
+    """Run the seeds ``0 .. seeds - 1`` of case ``name`` (in ``state[group]``) that ``state``
+    lacks, ``run_one(seed)`` each (a JSON-ready row with ``diverged``), saving ``state`` to
+    ``path`` after every one (an interrupted run loses nothing); ``report(seed, row)`` is
+    printed for each sound row. Returns the case."""
+    from armimp_jax.study import atomic_write_json
+
+    case = state[group].setdefault(name, dict(seeds=[]))
+    done = {r["seed"] for r in case["seeds"]}
+    for seed in range(seeds):
+        if seed in done:
+            continue
+        row = run_one(seed)
+        case["seeds"].append(row)
+        atomic_write_json(path, state)
+        if report is not None and not row["diverged"]:
+            print(report(seed, row), flush=True)
+    return case
+
+
 def distributed_options():
     """``armimp_jax.study.distributed``, for its option helpers (``add_arguments``,
     ``check_arguments``): they need no JAX (the module imports it only to start a job)."""

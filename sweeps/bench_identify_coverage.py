@@ -23,7 +23,7 @@ import pathlib
 import sys
 import time
 
-from _cli import Parser, fail
+from _cli import Parser, fail, resumable, run_seeds
 
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
 Z95 = 1.959963984540054
@@ -84,17 +84,22 @@ def truth_of(truth, names, np):
     return {n: np.asarray(getattr(getattr(truth, n.split(".")[0]), n.split(".")[1])) for n in names}
 
 
-def one_seed(aj, np, jax, truth, f, seed, a):
-    """identify and the classical fit of one recording: plain lists, for JSON."""
+def one_seed(aj, np, jax, truth, f, seed, a, free=None, statistic="auto"):
+    """identify (of ``free``, default ``a.free``) and the classical fit of one recording (key
+    ``10000 + seed``): plain lists, for JSON."""
     rec = simulate(aj, jax)(truth, f, key=jax.random.key(10_000 + seed), numerics=aj.IDENTIFY_NUMERICS)
     if bool(rec.diverged):
         return dict(seed=seed, diverged=True)
-    res = aj.identify(truth, f, rec.x, rec.fh, free=a.free, key=jax.random.key(seed), draws=a.draws)
+    free = a.free if free is None else free
+    key = jax.random.key(seed)
+    res = aj.identify(truth, f, rec.x, rec.fh, free=free, statistic=statistic, key=key, draws=a.draws)
     out = dict(
         seed=seed,
         diverged=False,
         converged=res.converged,
         reliable=res.intervals_reliable,
+        not_told=res.not_told,
+        statistic=res.statistic,
         iterations=res.iterations,
         time_s=res.time_s,
         values={n: np.asarray(v).tolist() for n, v in res.values.items()},
@@ -150,31 +155,24 @@ def summarise(np, rows, true, pred, names):
 
 
 def run_cases(aj, np, jax, a, settings):
-    from armimp_jax.study import atomic_write_json, read_json, stamped
+    from armimp_jax.study import atomic_write_json
 
     path = pathlib.Path(a.out)
-    saved = read_json(path) if path.exists() else None
-    state = dict(settings=stamped(settings), cases={})
-    if saved is not None and saved.get("settings") == state["settings"]:
-        state = saved
-        print(f"resuming {path}: {sum(len(c['seeds']) for c in state['cases'].values())} recordings done")
-    elif saved is not None:
-        fail(f"{path} holds results of other settings; choose another --out", "bench_identify_coverage")
+    state = resumable(path, settings, "bench_identify_coverage", cases={})
     n = int(round(a.seconds * 1000))
     f = aj.perturbation(jax.random.key(2024), n, a.peak)
     for controller, tau_c in a.cases:
         name = f"{controller}:{tau_c:g}"
-        case = state["cases"].setdefault(name, dict(seeds=[]))
         truth = make_truth(aj, controller, tau_c, a)
-        done = {r["seed"] for r in case["seeds"]}
-        for seed in range(a.seeds):
-            if seed in done:
-                continue
-            row = one_seed(aj, np, jax, truth, f, seed, a)
-            case["seeds"].append(row)
-            atomic_write_json(path, state)
-            if not row["diverged"]:
-                print(f"  {name} seed {seed}: {row['time_s']:.1f} s, {row['iterations']} steps", flush=True)
+        case = run_seeds(
+            state,
+            "cases",
+            name,
+            a.seeds,
+            lambda seed: one_seed(aj, np, jax, truth, f, seed, a),  # noqa: B023 (run at once)
+            path,
+            lambda seed, row: f"  {name} seed {seed}: {row['time_s']:.1f} s, {row['iterations']} steps",  # noqa: B023
+        )
         if "summary" not in case or case["summary"].get("seeds") != len(case["seeds"]):
             pred = aj.predict_se(truth, f, free=a.free, draws=a.draws)
             case["summary"] = summarise(np, case["seeds"], truth_of(truth, a.free, np), pred, a.free)

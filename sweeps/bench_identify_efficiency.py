@@ -17,17 +17,17 @@ the settings and the package version); a rerun with the same settings resumes.
 
 from __future__ import annotations
 
-import functools
 import pathlib
 import sys
 import time
 
-from _cli import Parser, fail
+from _cli import Parser, fail, resumable, run_seeds
+from bench_identify_coverage import one_seed
 
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
 Z95 = 1.959963984540054
 # name: (controller, arm location, IMBIC's k_rd [N/m] or None for the paper's, tau_c [N m], peak [N] or "L1",
-# free: the arm's matrices, and the Coulomb torque too with "tau_c")
+# free: the arm's matrices, and the Coulomb torque too with "tau_c"; optionally the acquisition, default instant)
 CASES = {
     "imbic-a2": ("imbic", 2, None, 0.0, "L1", "arm"),
     "imbic-a2-k80": ("imbic", 2, 80.0, 0.0, "L1", "arm"),
@@ -36,6 +36,7 @@ CASES = {
     "pd-a2-0.3Nm": ("pd", 2, None, 0.3, 10.0, "arm"),
     "pd-a2-1Nm": ("pd", 2, None, 1.0, 10.0, "arm"),
     "imbic-a2-0.3Nm-tau_c-free": ("imbic", 2, None, 0.3, "L1", "tau_c"),
+    "imbic-a4-k80-1Nm-mean": ("imbic", 4, 80.0, 1.0, "L1", "arm", "interval_mean"),
 }
 DEFAULT_CASES = tuple(CASES)[:6]
 DIAGONAL = ((0, 0), (1, 1))
@@ -49,6 +50,7 @@ def parse(argv):
     p.add_argument("--statistic", default="auto", choices=("auto", "efficient", "welch"), help="identify's")
     p.add_argument("--cases", default=",".join(DEFAULT_CASES), help=f"comma list of {', '.join(CASES)}")
     p.add_argument("--out", default="identify_efficiency.json", help="JSON file of the results (resumed if present)")
+    p.add_argument("--markdown", action="store_true", help="print the saved results as a Markdown table (no runs)")
     a = p.parse_args(argv)
     a.cases = a.cases.split(",")
     unknown = [c for c in a.cases if c not in CASES]
@@ -63,7 +65,7 @@ def make_case(aj, np, jax, name, a):
     """``(truth, f)`` of a case."""
     from armimp_jax import presets
 
-    controller, location, k_rd, tau_c, peak, _ = CASES[name]
+    controller, location, k_rd, tau_c, peak, _, *acquisition = CASES[name]
     ctrl = aj.PD() if controller == "pd" else aj.IMBIC(k_rd=None if k_rd is None else k_rd * np.eye(2))
     truth = aj.make_trial(
         ctrl,
@@ -71,40 +73,14 @@ def make_case(aj, np, jax, name, a):
         friction=aj.LuGre(tau_c, 1.5 * tau_c) if tau_c > 0 else aj.NO_FRICTION,
         sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18),
         voluntary=aj.VoluntaryForce(0.3, 2.0),
+        acquisition=acquisition[0] if acquisition else "instant",
     )
     peak = presets.perturbation_peak(1) if peak == "L1" else peak
     return truth, aj.perturbation(jax.random.key(2024), int(round(a.seconds * 1000)), peak)
 
 
-@functools.cache
-def simulate(aj, jax):
-    """``aj.simulate`` compiled once (a plain call traces the loop anew every time)."""
-    return jax.jit(aj.simulate, static_argnames="numerics")
-
-
 def free_of(name):
     return ARM + (("friction.tau_c",) if CASES[name][5] == "tau_c" else ())
-
-
-def one_seed(aj, np, jax, truth, f, seed, a, free):
-    """identify of one recording: plain lists, for JSON."""
-    rec = simulate(aj, jax)(truth, f, key=jax.random.key(10_000 + seed), numerics=aj.IDENTIFY_NUMERICS)
-    if bool(rec.diverged):
-        return dict(seed=seed, diverged=True)
-    res = aj.identify(
-        truth, f, rec.x, rec.fh, free=free, statistic=a.statistic, key=jax.random.key(seed), draws=a.draws
-    )
-    return dict(
-        seed=seed,
-        diverged=False,
-        converged=res.converged,
-        not_told=res.not_told,
-        statistic=res.statistic,
-        iterations=res.iterations,
-        time_s=res.time_s,
-        values={n: np.asarray(v).tolist() for n, v in res.values.items()},
-        se={n: np.asarray(v).tolist() for n, v in res.se.items()},
-    )
 
 
 def summarise(aj, np, truth, f, rows, a):
@@ -112,6 +88,8 @@ def summarise(aj, np, truth, f, rows, a):
     ok = [r for r in rows if not r["diverged"] and r["converged"]]
     bound = aj.crlb(truth, f)
     pred = aj.predict_se(truth, f, free=ARM, statistic=a.statistic, draws=a.draws)
+    # the classical statistic's prediction: what identify gave before the efficient one
+    welch = aj.predict_se(truth, f, free=ARM, statistic="welch", draws=a.draws)
     out = dict(
         seeds=len(rows),
         diverged=sum(bool(r["diverged"]) for r in rows),
@@ -136,6 +114,7 @@ def summarise(aj, np, truth, f, rows, a):
         out["parameters"][n] = dict(
             bound=b.tolist(),
             predicted=np.asarray(pred.se[n]).tolist(),
+            predicted_welch=np.asarray(welch.se[n]).tolist(),
             spread=spread.tolist(),
             spread_over_bound=(spread / b).tolist(),
             mean_se_over_spread=(s.mean(axis=0) / spread).tolist(),
@@ -147,28 +126,21 @@ def summarise(aj, np, truth, f, rows, a):
 
 
 def run_cases(aj, np, jax, a, settings):
-    from armimp_jax.study import atomic_write_json, read_json, stamped
+    from armimp_jax.study import atomic_write_json
 
     path = pathlib.Path(a.out)
-    saved = read_json(path) if path.exists() else None
-    state = dict(settings=stamped(settings), cases={})
-    if saved is not None and saved.get("settings") == state["settings"]:
-        state = saved
-        print(f"resuming {path}: {sum(len(c['seeds']) for c in state['cases'].values())} recordings done")
-    elif saved is not None:
-        fail(f"{path} holds results of other settings; choose another --out", "bench_identify_efficiency")
+    state = resumable(path, settings, "bench_identify_efficiency", cases={})
     for name in a.cases:
-        case = state["cases"].setdefault(name, dict(seeds=[]))
         truth, f = make_case(aj, np, jax, name, a)
-        done = {r["seed"] for r in case["seeds"]}
-        for seed in range(a.seeds):
-            if seed in done:
-                continue
-            row = one_seed(aj, np, jax, truth, f, seed, a, free_of(name))
-            case["seeds"].append(row)
-            atomic_write_json(path, state)
-            if not row["diverged"]:
-                print(f"  {name} seed {seed}: {row['time_s']:.1f} s, {row['statistic']}", flush=True)
+        case = run_seeds(
+            state,
+            "cases",
+            name,
+            a.seeds,
+            lambda seed: one_seed(aj, np, jax, truth, f, seed, a, free_of(name), a.statistic),  # noqa: B023
+            path,
+            lambda seed, row: f"  {name} seed {seed}: {row['time_s']:.1f} s, {row['statistic']}",  # noqa: B023
+        )
         if "summary" not in case or case["summary"].get("seeds") != len(case["seeds"]):
             case["summary"] = summarise(aj, np, truth, f, case["seeds"], a)
             atomic_write_json(path, state)
@@ -177,7 +149,10 @@ def run_cases(aj, np, jax, a, settings):
 
 def print_table(state, a):
     print(f"\n{a.seeds} recordings per case, {a.seconds:g} s, statistic {a.statistic}")
-    print(f"{'case':<18}{'entry':<22}{'bound':>10}{'predict_se':>12}{'spread':>10}{'spread/bound':>14}{'coverage':>10}")
+    print(
+        f"{'case':<18}{'entry':<22}{'bound':>10}{'predict_se':>12}{'spread':>10}{'spread/bound':>14}{'coverage':>10}"
+        f"{'welch/bound':>13}"
+    )
     for name, case in state["cases"].items():
         s = case["summary"]
         for n, r in s["parameters"].items():
@@ -185,6 +160,7 @@ def print_table(state, a):
                 print(
                     f"{name:<18}{f'{n}[{i},{j}]':<22}{r['bound'][i][j]:>10.4g}{r['predicted'][i][j]:>12.4g}"
                     f"{r['spread'][i][j]:>10.4g}{r['spread_over_bound'][i][j]:>14.2f}{r['coverage'][i][j]:>10.2f}"
+                    f"{r['predicted_welch'][i][j] / r['bound'][i][j]:>13.2f}"
                 )
         print(
             f"{'':<18}coverage of all 12 entries {s['coverage_all']:.3f}; converged {s['converged']}/{s['seeds']}; "
@@ -194,9 +170,39 @@ def print_table(state, a):
         )
 
 
+def print_markdown(state):
+    """The saved results as docs/identification.md's table."""
+    print("| case | entry | bound | predict_se | spread | spread / bound | coverage | classical predicted / bound |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name, case in state["cases"].items():
+        s = case["summary"]
+        for n, r in s["parameters"].items():
+            for i, j in DIAGONAL:
+                b = r["bound"][i][j]  # None (strict JSON's NaN) where no bound holds
+                cells = [
+                    "-" if b is None else f"{b:.4g}",
+                    f"{r['predicted'][i][j]:.4g}",
+                    f"{r['spread'][i][j]:.4g}",
+                    "-" if b is None else f"{r['spread_over_bound'][i][j]:.2f}",
+                    f"{r['coverage'][i][j]:.2f}",
+                    "-" if b is None else f"{r['predicted_welch'][i][j] / b:.2f}",
+                ]
+                print(f"| {name} | `{n}[{i},{j}]` | {' | '.join(cells)} |")
+        extra = f"; not told: {', '.join(s['not_told'])} in {s['flagged_share']:.0%}" if s.get("not_told") else ""
+        print(
+            f"| | **all 12 entries** | | | | | **{s['coverage_all']:.3f}** | converged {s['converged']}/{s['seeds']}, "
+            f"{', '.join(s['statistics'])}, {s['mean_time_s']:.1f} s{extra} |"
+        )
+
+
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
     a = parse(argv)
+    if a.markdown:
+        from armimp_jax.study import read_json
+
+        print_markdown(read_json(pathlib.Path(a.out)))
+        return
     import jax
 
     jax.config.update("jax_enable_x64", True)

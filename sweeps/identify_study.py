@@ -21,7 +21,7 @@ import pathlib
 import sys
 import types
 
-from _cli import Parser, fail
+from _cli import Parser, fail, resumable, run_seeds
 
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
 ACQUISITIONS = ("instant", "interval_mean")
@@ -71,29 +71,26 @@ def cell_summary(np, rows, true):
 def run(aj, np, jax, a):
     from bench_identify_coverage import make_truth, one_seed
 
-    from armimp_jax.study import atomic_write_json, read_json, stamped
+    from armimp_jax.study import atomic_write_json
 
     settings = {k: v for k, v in vars(a).items() if k not in ("out", "figure")}
     path = pathlib.Path(a.out)
-    state = dict(settings=stamped(settings), cells={})
-    if path.exists():
-        saved = read_json(path)
-        if saved.get("settings") != state["settings"]:
-            fail(f"{path} holds results of other settings; choose another --out", "identify_study")
-        state = saved
+    state = resumable(path, settings, "identify_study", cells={})
     f = aj.perturbation(jax.random.key(2024), int(round(a.seconds * 1000)), 10.0)
     for acquisition in ACQUISITIONS:
         opts = types.SimpleNamespace(acquisition=acquisition, voluntary=0.3, free=ARM, draws=a.draws)
         for controller in CONTROLLERS:
             for tau_c in a.frictions:
                 name = f"{acquisition}/{controller}/{tau_c:g}"
-                cell = state["cells"].setdefault(name, dict(seeds=[]))
                 truth = make_truth(aj, controller, tau_c, opts)
-                done = {r["seed"] for r in cell["seeds"]}
-                for seed in range(a.seeds):
-                    if seed not in done:
-                        cell["seeds"].append(one_seed(aj, np, jax, truth, f, seed, opts))
-                        atomic_write_json(path, state)
+                cell = run_seeds(
+                    state,
+                    "cells",
+                    name,
+                    a.seeds,
+                    lambda seed: one_seed(aj, np, jax, truth, f, seed, opts),
+                    path,  # noqa: B023
+                )
                 # scored: recordings whose fit converged (the rest are counted in the summary)
                 rows = [r for r in cell["seeds"] if not r["diverged"] and r["converged"] and "classical" in r]
                 true = np.concatenate([np.ravel(getattr(truth.arm, n.split(".")[1])) for n in ARM])

@@ -12,7 +12,7 @@ import pytest
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._identification import design as des
+from armimp_jax._identification import limits as des
 from armimp_jax.study import design_experiment as dx
 
 NOISE = dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(0.3, 2.0))

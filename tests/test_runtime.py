@@ -63,3 +63,16 @@ def test_loading_the_library_asks_for_one_cpu_device_per_core_unless_the_caller_
     assert _devices_after_import({"ARMIMP_JAX_CPU_DEVICES": "two"}) == (
         "ValueError: ARMIMP_JAX_CPU_DEVICES must be a whole number >= 1, got 'two'"
     )
+
+
+def test_the_compilation_cache_folder_follows_the_environment(monkeypatch, tmp_path):
+    from armimp_jax import runtime
+
+    monkeypatch.setenv("ARMIMP_JAX_CACHE_DIR", str(tmp_path / "c"))
+    assert runtime.compilation_cache_dir() == str(tmp_path / "c")
+    for off in ("off", "", "0", "None"):
+        monkeypatch.setenv("ARMIMP_JAX_CACHE_DIR", off)
+        assert runtime.compilation_cache_dir() is None
+    monkeypatch.delenv("ARMIMP_JAX_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert runtime.compilation_cache_dir() == str(tmp_path / "xdg" / "armimp_jax" / "jax")

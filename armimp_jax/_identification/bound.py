@@ -156,7 +156,7 @@ class Bound:
 def _information(layout, trial, p, f):
     y, dy = response_derivative(layout, trial, p, f)
     loop = linear.linearise(trial)
-    return kalman.information(kalman.innovations_filter(loop), dy), y, loop.a
+    return kalman.information(kalman.innovations_filter(loop), dy), y, loop
 
 
 @functools.partial(jax.jit, static_argnames="numerics")
@@ -213,11 +213,11 @@ def crlb(trial: Trial, f, *, free=ARM, symmetric=(), check: bool = True, numeric
     """
     require_x64("crlb")
     layout, f = check_bound_inputs(trial, f, free, symmetric, "crlb")
-    if (trial.sensors.ideal and trial.voluntary is None) or not np.any(np.asarray(f) != 0):
+    if not trial.noisy or not np.any(np.asarray(f) != 0):
         raise ValueError("crlb: the trial has no noise, or f is zero: the bound is 0 or undefined")
     p = lay.pack(layout, trial)
-    info, y_lin, a = _information(layout, trial, p, f)
-    radius = float(np.max(np.abs(np.linalg.eigvals(np.asarray(a)))))
+    info, y_lin, loop = _information(layout, trial, p, f)
+    radius = linear.spectral_radius(loop)
     if not radius < 1.0:
         raise ValueError(f"crlb: the loop is unstable (spectral radius {radius:.6f} per period, >= 1)")
     info = np.asarray(info)

@@ -32,7 +32,6 @@ with ``improved=False``: a design never promises less than its start.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from typing import NamedTuple
@@ -44,53 +43,21 @@ import optax
 
 from .._checks import require_x64
 from .._model.families import Multisine, PaperNoise, ShapedNoise
-from .._model.sensors import IDEAL
 from .._pytree import replace_unchecked
-from .._simulate import Trial, simulate
+from .._simulate import Trial
 from . import indirect
 from . import layout as lay
+from .bound import is_near_linear
+from .bound_design import design_on_bound
+from .criterion import _aggregate, _criterion_value, _targets, relative_se
 from .indirect import IDENTIFY_NUMERICS
+from .limits import Limits, _displacement_gain, _limited_signal, _peak_displacement
 from .predict import predict_se
 
 CRITERIA = ("max_relative_se", "d_optimal")
+METHODS = ("auto", "bound", "monte_carlo")
 AGGREGATES = ("worst", "mean")
-SOFTMAX_TEMPERATURE = 0.05  # in log relative SE: the smooth maximum is within ~0.05 * log(n) of the true one
-DISPLACEMENT_TOLERANCE = 1e-3  # of the gain, in the displacement limit's bisection
-CLIP_ITERATIONS = 40  # clip-and-rescale passes of the peak limit: a few for Gaussian noise, ~30 for short bursts
 REGAIN_EVERY = 10  # steps between re-finding the displacement gain (each is a bisection of forward runs)
-
-
-@dataclasses.dataclass(frozen=True)
-class Limits:
-    """What a clinician allows: ``rms_force`` and ``peak_force`` [N] per axis of the
-    perturbation ``F_Delta`` (scalars or ``(2,)``), ``peak_displacement`` [m] of the hand
-    from its rest position in the noise-free simulation (``None``: no limit), and the record
-    length ``record`` [s]."""
-
-    rms_force: float | tuple
-    peak_force: float | tuple
-    record: float
-    peak_displacement: float | None = None
-
-    def __post_init__(self):
-        rms = np.broadcast_to(np.asarray(self.rms_force, dtype=float), (2,))
-        peak = np.broadcast_to(np.asarray(self.peak_force, dtype=float), (2,))
-        if not np.all(rms > 0) or not np.all(np.isfinite(peak)):
-            raise ValueError(
-                f"Limits: rms_force must be > 0 N and peak_force finite, got {rms.tolist()}, {peak.tolist()}"
-            )
-        if np.any(peak < rms):
-            raise ValueError(
-                f"Limits: no signal meets peak_force {peak.tolist()} N below rms_force {rms.tolist()} N "
-                "(a peak is at least the RMS)"
-            )
-        if not (math.isfinite(self.record) and self.record >= 2.0):
-            raise ValueError(f"Limits: record must be >= 2 s, got {self.record}")
-        if self.peak_displacement is not None and not self.peak_displacement > 0:
-            raise ValueError(f"Limits: peak_displacement must be > 0 m or None, got {self.peak_displacement}")
-
-    def n_samples(self, period: float) -> int:
-        return int(round(self.record / period))
 
 
 class Design(NamedTuple):
@@ -120,130 +87,6 @@ class Design(NamedTuple):
     start_criteria: list
 
 
-def _quiet(trial: Trial) -> Trial:
-    return replace_unchecked(trial, sensors=IDEAL, voluntary=None)
-
-
-@jax.jit
-def _peak_displacement(trial, f):
-    sim = simulate(_quiet(trial), f, numerics=IDENTIFY_NUMERICS)
-    return jnp.max(jnp.linalg.norm(sim.x - trial.x0[None, :], axis=1)), sim.diverged
-
-
-def _limited_signal(family, key, n, limits: Limits, period: float, gain=1.0):
-    """The family's signal at ``rms_force`` with its peaks clipped to ``peak_force`` (the rest
-    re-scaled so that the RMS stays at its limit), times ``gain``."""
-    rms = jnp.broadcast_to(jnp.asarray(limits.rms_force, dtype=jnp.float64), (2,))
-    peak = jnp.broadcast_to(jnp.asarray(limits.peak_force, dtype=jnp.float64), (2,))
-    s = replace_unchecked(family, rms=rms).signal(key, n, period)
-    peak = peak[None, :]
-
-    def clip_and_rescale(_, s):
-        c = jnp.clip(s, -peak, peak)
-        return c * (rms / jnp.sqrt(jnp.mean(c * c, axis=0)))[None, :]
-
-    # the fixed point has the RMS at its limit and the peak within it; a last clip makes the
-    # peak exact whatever is left of the iteration (then the RMS is a hair below its limit)
-    s = jnp.clip(jax.lax.fori_loop(0, CLIP_ITERATIONS, clip_and_rescale, s), -peak, peak)
-    return s * gain
-
-
-def limited_signal(family, limits: Limits, *, key, period: float = 1e-3, trials=None) -> np.ndarray:
-    """The ``(N, 2)`` force [N] a family gives within ``limits``, as ``design`` makes it: at
-    ``rms_force``, peaks clipped to ``peak_force`` (the rest re-scaled to keep the RMS), and,
-    with ``trials`` and a ``peak_displacement``, scaled down until the hand's peak
-    displacement in every trial's noise-free simulation is within it. ``N`` from
-    ``limits.record`` and ``period`` [s]; ``key`` draws the family's noise (``design``'s
-    start uses ``jax.random.split(key)[0]`` of its own key)."""
-    require_x64("limited_signal")
-    n = limits.n_samples(period)
-    gain = 1.0 if trials is None else _displacement_gain(family, key, n, limits, list(trials), period)
-    return np.asarray(_limited_signal(family, key, n, limits, period, gain))
-
-
-def _displacement_gain(family, key, n, limits, trials, period):
-    """The largest gain <= 1 (to ``DISPLACEMENT_TOLERANCE``) at which every trial's peak hand
-    displacement is within the limit, by bisection: with friction the motion is far from
-    proportional to the force (the joints stick below their breakaway torque)."""
-    if limits.peak_displacement is None:
-        return 1.0
-
-    def within(gain):
-        f = _limited_signal(family, key, n, limits, period, gain)
-        peaks = [_peak_displacement(t, f) for t in trials]
-        return not any(bool(d) for _, d in peaks) and max(float(p) for p, _ in peaks) <= limits.peak_displacement
-
-    if within(1.0):
-        return 1.0
-    low, high = 0.0, 1.0
-    while high - low > DISPLACEMENT_TOLERANCE:
-        mid = 0.5 * (low + high)
-        low, high = (mid, high) if within(mid) else (low, mid)
-    if low == 0.0:
-        raise ValueError(
-            f"design: the hand's displacement stays above peak_displacement {limits.peak_displacement} m even at "
-            f"{DISPLACEMENT_TOLERANCE:g} of the force limits; raise it or lower the force limits"
-        )
-    return low
-
-
-def default_targets(layout) -> list[int]:
-    """Indices of the default targets: every entry but the off-diagonals of a matrix, whose
-    values may be near zero, so their relative SE is not a measure of precision."""
-    return [i for i, lab in enumerate(layout.labels()) if not lab.endswith(("[0,1]", "[1,0]"))]
-
-
-def relative_se(pred, trial: Trial, *, free, targets) -> dict:
-    """``{label: SE / |value|}`` of the ``targets`` entries from ``pred`` (a ``PredictedSE`` of
-    ``trial`` for the parameters ``free``), the values being ``trial``'s own."""
-    layout = lay.make_layout(free)
-    labels = layout.labels()
-    values = np.asarray(lay.natural(layout, lay.pack(layout, trial), trial))
-    se = np.sqrt(np.diag(np.asarray(pred.covariance)))
-    return {t: float(se[labels.index(t)] / abs(values[labels.index(t)])) for t in targets}
-
-
-def _targets(layout, targets):
-    """Indices into the natural vector of the ``targets`` labels (default: ``default_targets``)."""
-    labels = layout.labels()
-    if targets is None:
-        return default_targets(layout)
-    if isinstance(targets, str):
-        targets = [targets]
-    if not len(targets):
-        raise ValueError("design: targets must name at least one entry (or be None)")
-    bad = [t for t in targets if t not in labels]
-    if bad:
-        raise ValueError(f"design: unknown target {bad[0]!r}; the free parameters' entries are {', '.join(labels)}")
-    return [labels.index(t) for t in targets]
-
-
-def _criterion_value(cov, values, idx, criterion):
-    """The criterion of one trial from its natural covariance and values: the log relative SEs
-    ``(k,)`` (max_relative_se) or the log-determinant in relative units (d_optimal)."""
-    idx = np.asarray(idx)
-    sub = cov[idx][:, idx] / jnp.outer(jnp.abs(values[idx]), jnp.abs(values[idx]))
-    if criterion == "d_optimal":  # per entry, in log SE like max_relative_se (half the log variance)
-        return 0.5 * jnp.linalg.slogdet(sub)[1][None] / len(idx)
-    return 0.5 * jnp.log(jnp.diag(sub))
-
-
-def _aggregate(per_trial, criterion, aggregate, smooth: bool):
-    """One number from the per-trial log criteria ``(T, k)``: a (smooth) maximum over the
-    targets, then the worst or the mean over the trials; returned as a plain ratio (exp)."""
-    per_trial = jnp.stack(per_trial)
-    t = SOFTMAX_TEMPERATURE
-    if criterion == "max_relative_se":
-        inner = t * jax.nn.logsumexp(per_trial / t, axis=1) if smooth else jnp.max(per_trial, axis=1)
-    else:
-        inner = per_trial[:, 0]
-    if aggregate == "worst":
-        outer = t * jax.nn.logsumexp(inner / t) if smooth else jnp.max(inner)
-    else:
-        outer = jnp.mean(inner)
-    return jnp.exp(outer)
-
-
 def _designable(family):
     if isinstance(family, PaperNoise):
         raise ValueError("design: PaperNoise has no shape to design; start from a ShapedNoise or a Multisine")
@@ -251,53 +94,8 @@ def _designable(family):
         raise ValueError(f"design: family must be a ShapedNoise or a Multisine, got {type(family).__name__}")
 
 
-def design(
-    trial: Trial,
-    family,
-    *,
-    free,
-    limits: Limits,
-    targets=None,
-    criterion: str = "max_relative_se",
-    robust_over=None,
-    aggregate: str = "worst",
-    steps: int = 40,
-    learning_rate: float = 0.15,
-    draws: int = 16,
-    predict_draws: int = 64,
-    key=None,
-    progress=None,
-) -> Design:
-    """Design the perturbation: the ``family``'s spectrum that minimises ``criterion`` within ``limits``.
-
-    Args:
-        trial: the planned experiment (robot, controller, friction, sensors' and voluntary
-            force's noise, and an arm: the truth assumed).
-        family: the starting perturbation (``ShapedNoise`` or ``Multisine``); its ``shape``
-            is designed, its level set by ``limits``. Or a list of candidate starts (e.g.
-            ``ShapedNoise``s of several burst ``duty``s, which no gradient moves): each is
-            predicted on the same draws and the design starts from the best
-            (``Design.start_criteria``).
-        free: the parameters ``identify`` will estimate (names as ``identify``).
-        limits: ``Limits`` (RMS and peak force, peak displacement, record length).
-        targets: labels of the entries the criterion weighs (e.g. ``"arm.stiffness[0,0]"``);
-            default every free entry but the off-diagonals of the matrices.
-        criterion: ``"max_relative_se"`` or ``"d_optimal"``.
-        robust_over: trials to design for at once (e.g. one per arm the patient may have);
-            default ``[trial]``. Each must share ``trial``'s controller type and acquisition.
-        aggregate: ``"worst"`` (min-max) or ``"mean"`` over ``robust_over``.
-        steps, learning_rate: Adam steps on the log of ``shape``.
-        draws: noise draws per trial per step (new ones every step).
-        predict_draws: draws of the final ``predict_se`` before and after.
-        key: ``jax.random`` key (default ``key(0)``): the family's own noise and every draw.
-        progress: ``None`` or a callable ``progress(step, steps, value)`` called after each step.
-
-    Returns a ``Design``. One-line ``ValueError`` before any long computation for an unknown
-    parameter or target, a family with frequencies at or above the control rate's Nyquist
-    frequency (checked by the family), or limits no signal can meet.
-    """
-    require_x64("design")
-    t_start = time.perf_counter()
+def _check_design(trial, family, free, limits, targets, criterion, robust_over, aggregate, counts, learning_rate):
+    """``(candidates, layout, target indices, trials)``; one-line errors for bad inputs."""
     if not isinstance(trial, Trial):
         raise ValueError(f"design: trial must be a Trial (from make_trial), got {type(trial).__name__}")
     candidates = list(family) if isinstance(family, (list, tuple)) else [family]
@@ -317,7 +115,7 @@ def design(
     if not trials or not all(isinstance(t, Trial) for t in trials):
         raise ValueError("design: robust_over must be a non-empty list of Trials")
     for i, t in enumerate(trials):
-        if t.sensors.ideal and t.voluntary is None:
+        if not t.noisy:
             raise ValueError(
                 f"design: trial {i} has no noise (ideal sensors, no voluntary force): every design is exact"
             )
@@ -332,12 +130,159 @@ def design(
                 f"{type(t.controller).__name__}/{t.acquisition}/{t.period} s against "
                 f"{type(trial.controller).__name__}/{trial.acquisition}/{trial.period} s"
             )
-    for name, v, low in (("steps", steps, 1), ("draws", draws, 8), ("predict_draws", predict_draws, 8)):
+    for name, (v, low) in counts.items():
         if not (isinstance(v, (int, np.integer)) and v >= low):
             raise ValueError(f"design: {name} must be an integer >= {low}, got {v!r}")
     if not (isinstance(learning_rate, (int, float)) and 0 < learning_rate < 10):
         raise ValueError(f"design: learning_rate must lie in (0, 10) (a step in log amplitude), got {learning_rate!r}")
+    return candidates, layout, idx, trials
+
+
+def _choose_method(method, controller, trials, candidates, layout, criterion, limits, key):
+    """``"bound"`` or ``"monte_carlo"``: ``"auto"`` takes the bound when it covers the free
+    parameters and the criterion, and every arm's loop is near-linear under the starting signal."""
+    if method not in METHODS:
+        raise ValueError(f"design: unknown method {method!r}; allowed: {', '.join(METHODS)}")
+    covered = all(n in lay.ARM_PARAMETERS for n in layout.names) and criterion == "max_relative_se"
+    if method == "bound" and not covered:
+        raise ValueError(
+            "design: method='bound' covers the arm's matrices with criterion='max_relative_se'; got free "
+            f"{list(layout.names)}, criterion {criterion!r}"
+        )
+    if method == "auto":
+        near = False
+        if covered and len(candidates) == 1:
+            n = limits.n_samples(trials[0].period)
+            f = _limited_signal(candidates[0], jax.random.split(key)[0], n, limits, trials[0].period)
+            near = all(is_near_linear(t, f) for t in trials)
+        method = "bound" if near else "monte_carlo"
+    if controller and method != "bound":
+        raise ValueError(
+            "design: controller=True designs the gains on the Cramér-Rao bound, which needs near-linear loops "
+            "(IMBIC, or PD without friction) and one starting family; through stick-slip set the gains yourself"
+        )
+    return method
+
+
+def design(
+    trial: Trial,
+    family,
+    *,
+    free,
+    limits: Limits,
+    targets=None,
+    criterion: str = "max_relative_se",
+    robust_over=None,
+    aggregate: str = "worst",
+    method: str = "auto",
+    controller: bool = False,
+    precision: float = 0.1,
+    steps: int = 40,
+    learning_rate: float = 0.15,
+    draws: int = 16,
+    predict_draws: int = 64,
+    key=None,
+    progress=None,
+):
+    """Design the experiment: the ``family``'s spectrum (and, with ``controller=True``, the
+    controller's gains) that minimises ``criterion`` within ``limits``.
+
+    Args:
+        trial: the planned experiment (robot, controller, friction, sensors' and voluntary
+            force's noise, and an arm: the truth assumed).
+        family: the starting perturbation (``ShapedNoise`` or ``Multisine``); its ``shape``
+            is designed, its level set by ``limits``. Or a list of candidate starts (e.g.
+            ``ShapedNoise``s of several burst ``duty``s, which no gradient moves): each is
+            predicted on the same draws and the design starts from the best
+            (``Design.start_criteria``; Monte Carlo method only).
+        free: the parameters ``identify`` will estimate (names as ``identify``).
+        limits: ``Limits`` (RMS and peak force, peak displacement, record length; for the
+            controller also the drift and the least stiffness and damping).
+        targets: labels of the entries the criterion weighs (e.g. ``"arm.stiffness[0,0]"``);
+            default every free entry but the off-diagonals of the matrices.
+        criterion: ``"max_relative_se"`` or ``"d_optimal"`` (Monte Carlo method only).
+        robust_over: trials to design for at once (e.g. one per arm the patient may have);
+            default ``[trial]``. Each must share ``trial``'s controller type and acquisition.
+        aggregate: ``"worst"`` (min-max) or ``"mean"`` over ``robust_over``.
+        method: ``"bound"`` (the Cramér-Rao bound: deterministic and exact in its gradient,
+            for near-linear loops: ``bound_design.py``), ``"monte_carlo"`` (``identify``'s
+            predicted SEs over noise draws through the friction), or ``"auto"`` (default): the
+            bound where it covers the free parameters and every arm's loop is near-linear.
+        controller: also design the controller's diagonal stiffness and damping (IMBIC's
+            ``k_rd``, ``b_rd``; PD's ``kp``, ``kv``) within ``limits`` (bound method only).
+        precision: the relative half-width at 95% the minutes are reported for (bound method).
+        steps, learning_rate: Adam steps on the log of ``shape`` (and of the gains).
+        draws: noise draws per trial per step (new ones every step; Monte Carlo method).
+        predict_draws: draws of the final ``predict_se`` before and after (Monte Carlo method).
+        key: ``jax.random`` key (default ``key(0)``): the family's own noise and every draw.
+        progress: ``None`` or a callable ``progress(step, steps, value)`` called after each step.
+
+    Returns a ``Design`` (Monte Carlo) or a ``BoundDesign`` (bound). One-line ``ValueError``
+    before any long computation for an unknown parameter or target, a family with frequencies
+    at or above the control rate's Nyquist frequency (checked by the family), limits no signal
+    or controller can meet, or a starting controller whose loop is unstable.
+    """
+    require_x64("design")
+    counts = {"steps": (steps, 1), "draws": (draws, 8), "predict_draws": (predict_draws, 8)}
+    candidates, layout, idx, trials = _check_design(
+        trial, family, free, limits, targets, criterion, robust_over, aggregate, counts, learning_rate
+    )
+    if not 0 < precision < 1:
+        raise ValueError(f"design: precision must lie in (0, 1) (relative half-width at 95%), got {precision!r}")
     key = jax.random.key(0) if key is None else key
+    if _choose_method(method, controller, trials, candidates, layout, criterion, limits, key) == "bound":
+        return design_on_bound(
+            trials,
+            candidates[0],
+            free=free,
+            targets_idx=idx,
+            target_labels=[layout.labels()[i] for i in idx],
+            limits=limits,
+            aggregate=aggregate,
+            design_gains=controller,
+            precision=precision,
+            steps=steps,
+            learning_rate=learning_rate,
+            key=key,
+            progress=progress,
+        )
+    return _design_monte_carlo(
+        trials,
+        candidates,
+        layout,
+        idx,
+        free,
+        limits,
+        criterion,
+        aggregate,
+        steps,
+        learning_rate,
+        draws,
+        predict_draws,
+        key,
+        progress,
+    )
+
+
+def _design_monte_carlo(
+    trials,
+    candidates,
+    layout,
+    idx,
+    free,
+    limits,
+    criterion,
+    aggregate,
+    steps,
+    learning_rate,
+    draws,
+    predict_draws,
+    key,
+    progress,
+) -> Design:
+    """The Monte Carlo design loop (module docstring)."""
+    t_start = time.perf_counter()
+    trial = trials[0]
     family_key, draw_key = jax.random.split(key)
     period = trial.period
     n = limits.n_samples(period)

@@ -230,7 +230,7 @@ def _arm_statistic(layout, model, p, f, x, fh, statistic, numerics, keys):
         return None, p, "welch"
     idx = indirect.arm_index(layout)
     weight = None
-    if has_friction(model) and not (model.sensors.ideal and model.voluntary is None):
+    if has_friction(model) and model.noisy:
         # friction's effect is no part of the linear loop: weigh the innovations by their spread
         # in recordings simulated with it, at the model's start, before the fit uses them
         weight_keys = keys[: indirect.weight_draws(keys.shape[0])]
@@ -316,7 +316,7 @@ def identify(
             f"identify: the recording's statistics {', '.join(bad)} are not finite (a joint that never moves "
             "leaves its friction unmeasured); free fewer friction parameters or record with more motion"
         )
-    noisy = not (model.sensors.ideal and model.voluntary is None)
+    noisy = model.noisy
     # the nuisance prior: friction parameters of a noisy model (without noise there is no spread to weigh it by)
     prior_index = np.setdiff1d(np.arange(p.size), indirect.arm_index(layout)) if noisy else np.zeros(0, dtype=int)
     prior_mean = np.asarray(lay.pack(layout, model))[prior_index]
@@ -415,7 +415,10 @@ def _assemble(problem: search.Problem, state: search.Search, f, x, fh, statistic
     labels = layout.labels()
     warnings, not_told = _warnings(problem, p, labels, values, se, cov_p)
     stuck = motion_diagnosis(model, x)
-    if problems or any("barely identifiable" in w for w in warnings):
+    message = "; ".join(problems)
+    if problems and stuck.advice:  # why, in a lab's terms, before the search's own account
+        message = f"{stuck.advice[0]} (the search: {message})"
+    elif any("barely identifiable" in w for w in warnings):
         warnings = warnings + stuck.advice
     y = np.concatenate([x, fh], axis=1)
     resid = y - np.asarray(y_fit)
@@ -426,7 +429,7 @@ def _assemble(problem: search.Problem, state: search.Search, f, x, fh, statistic
         covariance=cov,
         labels=labels,
         converged=not problems,
-        message="; ".join(problems),
+        message=message,
         intervals_reliable=not problems and len(warnings) == bool(not_told),
         warnings=warnings,
         not_told=not_told,

@@ -104,7 +104,7 @@ def predict(layout: Layout, model: Trial, p, f, numerics):
 def draw_counts(model: Trial, draws: int, jacobian_draws: int) -> tuple[int, int]:
     """The draws actually used: rounded up to a multiple of the local devices (they are split
     over them); one of each for a model without noise (every draw would be the same)."""
-    if model.sensors.ideal and model.voluntary is None:
+    if not model.noisy:
         draws, jacobian_draws = 1, 1
     n_dev = jax.local_device_count()
     return tuple(int(math.ceil(d / n_dev) * n_dev) for d in (draws, jacobian_draws))

@@ -6,20 +6,24 @@ person's force filter) is one linear map per control period,
     s_k+1 = A s_k + B u_k,        y_k = C s_k + D u_k,
 
 obtained by forward-mode differentiation of the simulator's own period step
-(``_simulate.period_step``) at the rest state, so it is exactly the simulation's loop to
-first order, with its zero-order holds, its instant or interval-mean samples and its
-integrator. ``s`` is every float of the loop's carry; the inputs ``u`` are ``INPUTS``: the
-perturbation ``F_Delta`` [N], then the noise of one period: force-sensor noise [N], joint
-rate noise [rad/s], the encoders' quantisation error as an angle [rad] (white, variance
-``D^2 / 12``: the reading's error over a motion of many counts) and the white driver of the
-person's force (unitless). The outputs ``y`` are the recorded ``x - x0`` [m] and ``F_h`` [N].
+(``_simulate.period_step``) at the rest state, so it is the simulation's loop to first
+order, with its zero-order holds, its instant or interval-mean samples, its sensors and its
+controller; the plant's period is integrated exactly (``_ExactPlant``), where the simulation
+uses its integrator (they agree to the integrator's truncation). ``s`` is every float of the
+loop's carry; the inputs ``u`` are ``INPUTS``: the perturbation ``F_Delta`` [N], then the
+noise of one period: force-sensor noise [N], joint rate noise [rad/s], the encoders'
+quantisation error as an angle [rad] (white, variance ``D^2 / 12``: the reading's error over
+a motion of many counts) and the white driver of the person's force (unitless). The outputs
+``y`` are the recorded ``x - x0`` [m] and ``F_h`` [N].
 
 What it gives, all pure JAX and differentiable in every float of the trial (gains, arm,
-robot, noise levels) and in the perturbation: the deterministic response to ``F_Delta``
-from rest (``respond``), the noise's spectral matrix at the DFT bins of a record
-(``noise_spectrum``) and the loop's stability (``spectral_radius``). Joint friction is
-linearised as it stands at rest, where LuGre's bristles are a stiff spring (stuck joints):
-a friction-free reference is ``without_friction(trial)``.
+robot, noise levels) and in the perturbation: the deterministic response to ``F_Delta`` from
+rest (``respond``), the noise's stationary covariance (``stationary_cov``; the hand's drift
+under the person's force, ``drift``) and the loop's stability (``spectral_radius``); the
+noise's own Kalman filter is in ``kalman.py``. The loop is linearised without its Coulomb
+friction (``without_friction``: no bristles, the viscous part kept): at rest LuGre's
+bristles would be a stiff spring, the joints stuck, which is no linear model of a moving
+robot.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.flatten_util import ravel_pytree
 
 from .._model.plant import PlantState, plant_derivative, plant_model
@@ -40,9 +45,6 @@ INPUTS = ("f_delta", "force_noise", "rate_noise", "encoder_error", "voluntary")
 OUTPUTS = ("x1", "x2", "fh1", "fh2")
 # The linearisation routes every sensor's noise through an input; their levels live in ``noise_var``.
 _ROUTED = Sensors(force_on=True, velocity_on=True)
-# Impulse-response length behind ``noise_spectrum``, at least (samples): the loop's slowest
-# decay (the person's force filter, IMBIC's desired dynamics) is far within it.
-IMPULSE_SAMPLES = 1 << 15
 
 
 class LinearLoop(NamedTuple):
@@ -131,7 +133,7 @@ class _ExactNumerics(NamedTuple):
 
 
 def linearise(trial: Trial) -> LinearLoop:
-    """The trial's loop without joint friction, linearised about rest (see the module docstring).
+    """The trial's loop without its Coulomb friction, linearised about rest (module docstring).
 
     Single-trial and traceable: ``jax.vmap`` over stacked trials, ``jax.grad`` / ``jax.jacfwd``
     through any float of ``trial``.
@@ -173,43 +175,37 @@ def respond(loop: LinearLoop, f):
     return jax.lax.scan(step, jnp.zeros(a.shape[0], dtype=a.dtype), f)[1]
 
 
-def _impulse(loop: LinearLoop, length: int):
-    """Impulse response of the outputs to the noise inputs, ``(length, 4, 8)``."""
-    a, b, c, d = loop.a, loop.b[:, 2:], loop.c, loop.d[:, 2:]
-
-    def step(x, _):
-        return a @ x, c @ x
-
-    tail = jax.lax.scan(step, b, None, length=length - 1)[1]
-    return jnp.concatenate([d[None], tail])
+def spectral_radius(loop: LinearLoop) -> float:
+    """The largest modulus of ``A``'s eigenvalues (concrete): below 1 for a stable loop, per
+    control period."""
+    return float(np.max(np.abs(np.linalg.eigvals(np.asarray(loop.a)))))
 
 
-def noise_spectrum(loop: LinearLoop, n: int):
-    """The noise's spectral matrix ``S_k`` ``(n // 2 - 1, 4, 4)`` (complex, Hermitian) at the
-    DFT bins ``k = 1 .. n/2 - 1`` of an ``n``-sample record: ``N S_k = E[V_k V_k^H]`` for the
-    DFT ``V_k`` of the outputs' stationary noise (units: m^2, m N, N^2 per sample).
+def stationary_cov(loop: LinearLoop, inputs=None, *, doublings: int = 40):
+    """The stationary covariance ``(4, 4)`` of the outputs (``x - x0`` [m], ``F_h`` [N]) driven by
+    the loop's white noise inputs, all of them or those of the ``INPUTS`` groups named in
+    ``inputs`` (e.g. ``("voluntary",)``: the person's force alone). The discrete Lyapunov
+    equation ``S = A S A^T + B W B^T`` by doubling (``doublings`` squarings of ``A``: exact to
+    round-off once ``rho(A)^(2^doublings)`` is). Pure JAX; the loop must be stable."""
+    names = INPUTS[1:] if inputs is None else tuple(inputs)
+    unknown = [n for n in names if n not in INPUTS[1:]]
+    if unknown:
+        raise ValueError(f"stationary_cov: unknown noise inputs {unknown}; the loop's are {INPUTS[1:]}")
+    keep = jnp.asarray(np.repeat([n in names for n in INPUTS[1:]], 2), dtype=loop.a.dtype)
+    w = loop.noise_var * keep
+    bw, dw = loop.b[:, 2:] * jnp.sqrt(w)[None, :], loop.d[:, 2:] * jnp.sqrt(w)[None, :]
 
-    From the impulse response over a multiple of ``n`` samples (at least
-    ``IMPULSE_SAMPLES``), so the bins are exact once the loop's response has decayed
-    within it; a loop that has not (unstable, or barely damped) gives a meaningless
-    spectrum: check ``spectral_radius`` first."""
-    length = n * max(1, -(-IMPULSE_SAMPLES // n))
-    h = _impulse(loop, length)
-    g = jnp.fft.fft(h, axis=0)[(length // n) * jnp.arange(1, n // 2)]  # (K, 4, 8)
-    scaled = g * loop.noise_var[None, None, :]
-    return jnp.einsum("kin,kjn->kij", scaled, jnp.conj(g))
+    def doubling(_, state):
+        a, s = state
+        return a @ a, s + a @ s @ a.T
+
+    s = jax.lax.fori_loop(0, doublings, doubling, (loop.a, bw @ bw.T))[1]
+    return loop.c @ s @ loop.c.T + dw @ dw.T
 
 
-def spectral_radius(loop: LinearLoop):
-    """The largest modulus of ``A``'s eigenvalues: below 1 for a stable loop (per period)."""
-    return jnp.max(jnp.abs(jnp.linalg.eigvals(jax.lax.stop_gradient(loop.a))))
-
-
-def information_from(dy, spectrum):
-    """The Whittle information ``sum_k 2 Re[dY_k^H (N S_k)^-1 dY_k]`` ``(p, p)`` of the output
-    derivatives ``dy`` ``(N, 4, p)`` (the deterministic response's derivative in each of ``p``
-    parameters) against the noise ``spectrum`` ``(N // 2 - 1, 4, 4)`` of ``noise_spectrum``."""
-    n = dy.shape[0]
-    dY = jnp.fft.rfft(dy, axis=0)[1 : n // 2]  # (K, 4, p)
-    w_dY = jnp.linalg.solve(spectrum, dY)
-    return 2.0 * jnp.real(jnp.einsum("kip,kiq->pq", jnp.conj(dY), w_dY)) / n
+def drift(trial: Trial):
+    """The hand's RMS drift [m] under the person's own force alone: the RMS length of ``x - x0``
+    in the trial's loop without its Coulomb friction, with its ``VoluntaryForce`` and no
+    perturbation (0 without one). Pure JAX: differentiable in the controller's gains."""
+    cov = stationary_cov(linearise(trial), ("voluntary",))
+    return jnp.sqrt(cov[0, 0] + cov[1, 1])

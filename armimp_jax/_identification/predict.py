@@ -71,7 +71,7 @@ def predict_se(
     require_x64("predict_se")
     if not isinstance(trial, Trial):
         raise ValueError(f"predict_se: trial must be a Trial (from make_trial), got {type(trial).__name__}")
-    if trial.sensors.ideal and trial.voluntary is None:
+    if not trial.noisy:
         raise ValueError("predict_se: the trial has no noise (ideal sensors, no voluntary force): nothing to predict")
     layout = lay.make_layout(free, symmetric)
     f = as_float64("f", f, where="predict_se")

@@ -21,10 +21,12 @@ import jax
 import numpy as np
 from matplotlib.figure import Figure  # no pyplot: no global figure state
 
-from .._identification.design import AGGREGATES, CRITERIA, Limits, default_targets, relative_se
+from .._identification.criterion import default_targets, relative_se
+from .._identification.design import AGGREGATES, CRITERIA
 from .._identification.identify import identify
 from .._identification.indirect import IDENTIFY_NUMERICS
 from .._identification.layout import PARAMETERS, make_layout, natural, pack
+from .._identification.limits import Limits
 from .._model.families import ShapedNoise, multisine
 from .._simulate import simulate
 from ..presets import arm as paper_arm

@@ -1,0 +1,227 @@
+"""Experiment design on the Cramér-Rao bound (``design(..., method="bound")``).
+
+Where the loop is near-linear (IMBIC with or without friction, PD without), the criterion is
+the bound of ``bound.fisher_information``: deterministic, cheap, and differentiable in the
+perturbation's spectrum and in the controller's gains, so both are designed together by
+projected gradient steps (optax's Adam on the log of the spectrum and of the diagonal gains;
+after each step the gains are projected onto what the clinician allows:
+``controller_design.project``). Every other limit holds by construction:
+
+- the perturbation's RMS and peak force: ``design._limited_signal``;
+- its peak hand displacement: the signal is scaled to the limit on the linearised loop of
+  every arm (inside the criterion, so the gradient sees the trade-off), and the returned
+  design is re-scaled by bisection on the full simulation (friction and kinematics included);
+- the drift, the minimum gains and stability with margin: the projection.
+
+The answer in minutes is the bound's record length for the precision asked, worst over the
+arms (``Bound.record_for``: the bound falls as one over the square root of the record).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from .._pytree import replace_unchecked
+from . import controller_design as cd
+from . import layout as lay
+from . import linear
+from .bound import _fisher, crlb
+from .criterion import _aggregate
+from .limits import _displacement_gain, _limited_signal, _peak_displacement
+
+BACKTRACKS = 6  # halvings of a step whose gains leave the loop unstable before it is skipped
+
+
+class BoundDesign(NamedTuple):
+    """``design(..., method="bound")``'s answer (host values).
+
+    ``family`` and ``signal`` ``(N, 2)`` [N]: the designed perturbation at its limited level;
+    ``trials``: the ``robust_over`` trials with the designed controller; ``controller``: its
+    record (``controller_design.controller_record``); ``bounds``: per trial the ``Bound`` of the
+    design; ``start_bounds``: of the start; ``minutes`` / ``start_minutes``: per trial the record
+    for ``precision`` at 95% on the targets; ``criterion_before`` / ``criterion_after``: the
+    largest relative SE bound of the targets over the trials on ``limits.record``; ``trace``:
+    the smoothed criterion per step; ``achieved``: RMS and peak force per axis [N], the largest
+    peak hand displacement [m] (full simulation) and drift [m] over the trials; ``time_s``."""
+
+    family: object
+    signal: np.ndarray
+    trials: list
+    controller: dict
+    bounds: list
+    start_bounds: list
+    minutes: list
+    start_minutes: list
+    criterion_before: float
+    criterion_after: float
+    trace: list
+    achieved: dict
+    time_s: float
+
+
+def _linear_peak(trial, f):
+    y = linear.respond(linear.linearise(trial), f)
+    return jnp.sqrt(jnp.max(y[:, 0] ** 2 + y[:, 1] ** 2))  # sqrt after max: its derivative at 0 is infinite
+
+
+def _objective(z, family, trials, layout, idx, limits, aggregate, key, n, period, design_gains, smooth=True):
+    """The smoothed worst (or mean) log relative SE bound of the targets, with the signal scaled to
+    the displacement limit on every arm's linear loop; aux: that scale."""
+    fam = replace_unchecked(family, shape=jnp.exp(z["shape"]))
+    f = _limited_signal(fam, key, n, limits, period)
+    looped = [cd.with_gains(t, z["gains"]) if design_gains else t for t in trials]
+    scale = jnp.asarray(1.0)
+    if limits.peak_displacement is not None:
+        peak = jnp.max(jnp.stack([_linear_peak(t, f) for t in looped]))
+        scale = jnp.minimum(1.0, limits.peak_displacement / peak)
+    per_trial = []
+    for t in looped:
+        info = _fisher(layout, t, f * scale)
+        cov = jnp.linalg.inv(info)
+        values = lay.pack_arm(layout, t)
+        sub = jnp.diag(cov)[idx] / values[idx] ** 2
+        per_trial.append(0.5 * jnp.log(sub))
+    return jnp.log(_aggregate(per_trial, "max_relative_se", aggregate, smooth)), scale
+
+
+def _bounds(trials, f, free, precision, entries):
+    bounds = [crlb(t, f, free=free) for t in trials]
+    minutes = [b.record_for(precision, entries=entries) / 60 if b.near_linear else float("nan") for b in bounds]
+    return bounds, minutes
+
+
+def _worst(bounds, entries):
+    rel = []
+    for b in bounds:
+        flat = dict(zip(b.labels, np.concatenate([v.reshape(-1) for v in b.relative_se.values()])))
+        rel.extend(float(flat[e]) for e in entries)
+    return max(rel)
+
+
+def _step(z, state, opt, value_and_grad, trials, limits, design_gains):
+    """One projected Adam step; a step whose gains leave a loop unstable is halved until it does
+    not, or, after ``BACKTRACKS`` halvings, moves the spectrum alone. Returns ``(z, state, value)``."""
+    (value, _), grad = value_and_grad(z)
+    if not (np.isfinite(float(value)) and all(np.all(np.isfinite(np.asarray(g))) for g in grad.values())):
+        return z, state, float("nan")
+    updates, new_state = opt.update(jax.tree.map(np.asarray, grad), state)
+    new_state = jax.tree.map(np.asarray, new_state)
+    new = {k: np.asarray(z[k] + updates[k]) for k in z}
+    if not design_gains:
+        return new, new_state, float(value)
+    step = np.asarray(updates["gains"])
+    for _ in range(BACKTRACKS):
+        gains, _, stable = cd.project(trials, z["gains"] + step, limits)
+        if stable:
+            return {**new, "gains": gains}, new_state, float(value)
+        step = 0.5 * step
+    return {**new, "gains": np.asarray(z["gains"])}, new_state, float(value)
+
+
+def design_on_bound(
+    trials,
+    family,
+    *,
+    free,
+    targets_idx,
+    target_labels,
+    limits,
+    aggregate: str,
+    design_gains: bool,
+    precision: float,
+    steps: int,
+    learning_rate: float,
+    key,
+    progress,
+) -> BoundDesign:
+    """The design loop (``design`` checks the inputs first)."""
+    t_start = time.perf_counter()
+    layout = lay.make_layout(free)
+    period = trials[0].period
+    n = limits.n_samples(period)
+    family_key = jax.random.split(key)[0]
+    gains0 = cd.initial_log_gains(trials[0])
+    if design_gains:
+        gains0 = cd.check_start(trials, gains0, limits)
+    start_trials = [cd.with_gains(t, gains0) if design_gains else t for t in trials]
+    idx = np.asarray(targets_idx)
+
+    def fun(z, smooth=True):
+        return _objective(
+            z, family, trials, layout, idx, limits, aggregate, family_key, n, period, design_gains, smooth
+        )
+
+    value_and_grad = jax.jit(jax.value_and_grad(fun, has_aux=True))
+    shape0 = np.asarray(family.shape)
+    z = {"shape": np.log(np.maximum(shape0, 1e-6 * shape0.max())), "gains": np.asarray(gains0)}
+    opt = optax.adam(learning_rate)
+    state = jax.tree.map(np.asarray, opt.init(z))
+    trace = []
+    for step in range(steps):
+        z, state, value = _step(z, state, opt, value_and_grad, trials, limits, design_gains)
+        trace.append(float(np.exp(value)) if np.isfinite(value) else float("nan"))
+        if progress is not None:
+            progress(step + 1, steps, trace[-1])
+    return _assemble(
+        z,
+        family,
+        trials,
+        start_trials,
+        free,
+        limits,
+        family_key,
+        n,
+        period,
+        design_gains,
+        precision,
+        target_labels,
+        trace,
+        t_start,
+    )
+
+
+def _assemble(
+    z, family, trials, start_trials, free, limits, key, n, period, design_gains, precision, entries, trace, t_start
+):
+    """The returned design: the signal re-scaled to the displacement limit on the full simulation
+    of every arm, the bounds before and after, and what was achieved."""
+
+    def finish(fam, looped):
+        gain = _displacement_gain(fam, key, n, limits, looped, period)
+        f = np.asarray(_limited_signal(fam, key, n, limits, period, gain))
+        return f, *_bounds(looped, f, free, precision, entries)
+
+    designed = replace_unchecked(family, shape=np.exp(z["shape"]))
+    looped = [cd.with_gains(t, z["gains"]) for t in trials] if design_gains else list(trials)
+    f0, before, start_minutes = finish(family, start_trials)
+    f, after, minutes = finish(designed, looped)
+    if _worst(after, entries) > _worst(before, entries):  # a design never promises less than its start
+        designed, looped, f, after, minutes = family, start_trials, f0, before, start_minutes
+    drift = max(float(cd.drift_of(t)) for t in looped)
+    achieved = dict(
+        rms_force=np.sqrt(np.mean(f**2, axis=0)).tolist(),
+        peak_force=np.max(np.abs(f), axis=0).tolist(),
+        peak_displacement=max(float(_peak_displacement(t, jnp.asarray(f))[0]) for t in looped),
+        drift=drift,
+    )
+    return BoundDesign(
+        family=replace_unchecked(designed, rms=np.sqrt(np.mean(f**2, axis=0))),
+        signal=f,
+        trials=looped,
+        controller=cd.controller_record(looped[0]),
+        bounds=after,
+        start_bounds=before,
+        minutes=minutes,
+        start_minutes=start_minutes,
+        criterion_before=_worst(before, entries),
+        criterion_after=_worst(after, entries),
+        trace=trace,
+        achieved=achieved,
+        time_s=time.perf_counter() - t_start,
+    )

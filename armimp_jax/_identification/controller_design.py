@@ -1,0 +1,131 @@
+"""The controller as a design variable: its gains as a small vector, applied to trials, and
+projected onto what a clinician allows (minimum stiffness and damping, the hand's drift under
+the person's own force, stability with margin).
+
+A design moves the log of the diagonal gains: IMBIC's desired stiffness ``k_rd`` [N/m] and
+damping ``b_rd`` [N s/m], or PD's ``kp`` and ``kv`` (the same roles). ``mhat`` and ``m_rd``
+stay at the trial's values: the time-delay estimation's stability is set by ``mhat`` against
+the robot's inertia, which no gain here changes. The designed gains are diagonal.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._model.control import IMBIC, PD
+from .._pytree import replace_unchecked
+from .._simulate import Trial
+from . import linear
+
+STABILITY_MARGIN = 2.0  # the loop must stay stable with the designed gains times this (6 dB)
+DRIFT_TOLERANCE = 1e-3  # of the drift limit, in the stiffening's bisection
+MAX_STIFFENING = 6.0  # log of the largest factor the drift projection may raise stiffness by
+
+
+def gain_names(trial: Trial) -> tuple[str, str]:
+    """The constructor's names of the designed stiffness and damping gains."""
+    if isinstance(trial.controller, IMBIC):
+        return "k_rd", "b_rd"
+    if isinstance(trial.controller, PD):
+        return "kp", "kv"
+    raise ValueError(f"design: no gains to design for a {type(trial.controller).__name__} controller")
+
+
+def initial_log_gains(trial: Trial) -> np.ndarray:
+    """``(4,)``: log of the diagonal stiffness [N/m] and damping [N s/m] of the trial's controller."""
+    k, b = gain_names(trial)
+    stiff = np.diag(np.asarray(getattr(trial.controller, k)))
+    damp = np.diag(np.asarray(getattr(trial.controller, b)))
+    if np.any(stiff <= 0) or np.any(damp <= 0):
+        raise ValueError(f"design: the controller's diagonal {k} and {b} must be > 0, got {stiff} and {damp}")
+    return np.log(np.concatenate([stiff, damp]))
+
+
+def with_gains(trial: Trial, log_gains) -> Trial:
+    """``trial`` with its controller's stiffness and damping set to ``diag(exp(log_gains))``
+    (traceable: the design differentiates through it)."""
+    k, b = gain_names(trial)
+    g = jnp.exp(jnp.asarray(log_gains))
+    controller = replace_unchecked(trial.controller, **{k: jnp.diag(g[:2]), b: jnp.diag(g[2:])})
+    return replace_unchecked(trial, controller=controller)
+
+
+def controller_record(trial: Trial) -> dict:
+    """The controller as ``design.json`` writes it: its ``type`` and the constructor's own argument
+    names with 2x2 lists (IMBIC: ``mhat``, ``k_rd``, ``b_rd``, ``m_rd``; PD: ``kp``, ``kv``)."""
+    c = trial.controller
+    names = ("mhat", "k_rd", "b_rd", "m_rd") if isinstance(c, IMBIC) else ("kp", "kv")
+    out = {"type": "imbic" if isinstance(c, IMBIC) else "pd"}
+    out.update({n: np.asarray(getattr(c, n), dtype=float).tolist() for n in names})
+    return out
+
+
+@jax.jit
+def drift_of(trial):
+    """The hand's RMS drift [m] under the person's own force (``linear.drift``), jitted."""
+    return linear.drift(trial)
+
+
+@jax.jit
+def _drift_and_radius(trial, log_gains):
+    loops = [linear.linearise(with_gains(trial, log_gains + s)) for s in (0.0, jnp.log(STABILITY_MARGIN))]
+    radius = [jnp.max(jnp.abs(jnp.linalg.eigvals(loop.a))) for loop in loops]
+    return jnp.sqrt(jnp.trace(linear.stationary_cov(loops[0], ("voluntary",))[:2, :2])), jnp.stack(radius)
+
+
+def drift_and_stability(trials, log_gains) -> tuple[float, bool]:
+    """The largest drift [m] over ``trials`` at ``log_gains`` and whether every loop is stable
+    there and with the gains times ``STABILITY_MARGIN``."""
+    worst, stable = 0.0, True
+    for t in trials:
+        d, r = _drift_and_radius(t, jnp.asarray(log_gains))
+        r = np.asarray(r)
+        stable &= bool(np.all(r < 1.0))
+        worst = max(worst, float(d) if np.isfinite(float(d)) else np.inf)
+    return worst, stable
+
+
+def project(trials, log_gains, limits):
+    """The nearest allowed gains: each at least its minimum, then the stiffness raised (both axes
+    by one factor, bisected in log) until the drift is within its limit. Returns ``(log_gains,
+    drift, stable)``; ``stable`` False when no allowed stiffening keeps the loop stable."""
+    g = np.array(log_gains, dtype=float)
+    floor = np.log(np.maximum([limits.min_stiffness] * 2 + [limits.min_damping] * 2, 1e-300))
+    g = np.maximum(g, floor)
+    d, stable = drift_and_stability(trials, g)
+    if limits.drift is None or d <= limits.drift:
+        return g, d, stable
+    lift = np.array([1.0, 1.0, 0.0, 0.0])
+    low, high = 0.0, MAX_STIFFENING
+    d_high, stable_high = drift_and_stability(trials, g + high * lift)
+    if d_high > limits.drift:
+        return g + high * lift, d_high, False
+    while high - low > DRIFT_TOLERANCE:
+        mid = 0.5 * (low + high)
+        d_mid, _ = drift_and_stability(trials, g + mid * lift)
+        low, high = (mid, high) if d_mid > limits.drift else (low, mid)
+    d, stable = drift_and_stability(trials, g + high * lift)
+    return g + high * lift, d, stable
+
+
+def check_start(trials, log_gains, limits):
+    """One-line errors before any long computation: a starting controller that is unstable for an
+    arm, or a drift limit that no stiffening within ``MAX_STIFFENING`` meets stably."""
+    for i, t in enumerate(trials):
+        _, r = _drift_and_radius(t, jnp.asarray(log_gains))
+        if not float(np.asarray(r)[0]) < 1.0:
+            raise ValueError(
+                f"design: the starting controller's loop is unstable for robust_over[{i}] (spectral radius "
+                f"{float(np.asarray(r)[0]):.6f} per period, must be < 1): lower its gains"
+            )
+    g, d, stable = project(trials, log_gains, limits)
+    if not stable or (limits.drift is not None and d > limits.drift):
+        k = np.exp(g[:2]).round(1).tolist()
+        raise ValueError(
+            f"design: no controller within the limits: the drift limit {limits.drift} m needs stiffness "
+            f"{k} N/m or more, where the loop (with gain margin {STABILITY_MARGIN:g}) is unstable or the drift "
+            f"stays at {d:.4g} m; raise the drift limit or lower min_stiffness/min_damping"
+        )
+    return g
