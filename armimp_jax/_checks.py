@@ -45,6 +45,19 @@ def check_int(name: str, value, *, minimum: int) -> int:
     return int(value)
 
 
+def check_key(key, *, where: str) -> None:
+    """A ``jax.random`` key: a typed key (``jax.random.key(seed)``) or a legacy ``(2,)`` uint32
+    one (``jax.random.PRNGKey(seed)``); a one-line error naming what was given otherwise."""
+    dtype = getattr(key, "dtype", None)
+    if dtype is not None and jnp.issubdtype(dtype, jax.dtypes.prng_key):
+        return
+    if dtype == jnp.uint32 and getattr(key, "shape", None) == (2,):
+        return
+    raise ValueError(
+        f"{where}: key must be a jax.random key (e.g. jax.random.key(0)), got {type(key).__name__} {key!r}"
+    )
+
+
 def is_concrete(x) -> bool:
     """True when ``x`` has values we can inspect now (not a tracer under jit/grad/vmap)."""
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(x))

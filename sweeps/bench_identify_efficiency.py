@@ -154,7 +154,10 @@ def print_table(state, a):
         f"{'welch/bound':>13}"
     )
     for name, case in state["cases"].items():
-        s = case["summary"]
+        s = case.get("summary")
+        if s is None:  # interrupted before the case finished: resuming completes it
+            print(f"| {name} | (unfinished: resume the run) | | | | | | |")
+            continue
         for n, r in s["parameters"].items():
             for i, j in DIAGONAL:
                 print(
@@ -175,7 +178,10 @@ def print_markdown(state):
     print("| case | entry | bound | predict_se | spread | spread / bound | coverage | classical predicted / bound |")
     print("|---|---|---|---|---|---|---|---|")
     for name, case in state["cases"].items():
-        s = case["summary"]
+        s = case.get("summary")
+        if s is None:  # interrupted before the case finished: resuming completes it
+            print(f"| {name} | (unfinished: resume the run) | | | | | | |")
+            continue
         for n, r in s["parameters"].items():
             for i, j in DIAGONAL:
                 b = r["bound"][i][j]  # None (strict JSON's NaN) where no bound holds

@@ -70,27 +70,41 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     candidates = family if isinstance(family, list) else [family]
     what = type(candidates[0]).__name__ + (f" ({len(candidates)} candidate starts)" if len(candidates) > 1 else "")
+    how = {
+        "bound": "on the Cramér-Rao bound",
+        "monte_carlo": f"of {options['draws']} noise draws per arm",
+        "auto": f"on the bound where the loops are near-linear, else of {options['draws']} noise draws per arm",
+    }[options["method"]]
+    gains = " and the controller's gains" if options["controller"] else ""
     print(
-        f"designing {what} for {len(trials)} arm(s), {limits.record:g} s records, "
-        f"{options['steps']} steps of {options['draws']} noise draws per arm",
+        f"designing {what}{gains} for {len(trials)} arm(s), {limits.record:g} s records, "
+        f"{options['steps']} steps {how}",
         flush=True,
     )
-    bar = tqdm(total=options["steps"], unit="step")
+    bars = []  # opened at the first step: a config the design refuses stays one line
 
     def progress(step, steps, value):
-        bar.n = step
-        bar.set_postfix_str(f"criterion {value:.3g}", refresh=False)
-        bar.refresh()
+        if not bars:
+            bars.append(tqdm(total=steps, unit="step"))
+        bars[0].n = step
+        bars[0].set_postfix_str(f"criterion {value:.3g}", refresh=False)
+        bars[0].refresh()
 
     try:
         result = aj.design(trials[0], family, limits=limits, progress=progress, **options)
     except ValueError as err:
-        bar.close()
         return fail(str(err))
-    bar.close()
+    finally:
+        for bar in bars:
+            bar.close()
     free, targets = options["free"], options["targets"]
+    on_bound = isinstance(result, aj.BoundDesign)
     paper_signal = aj.PaperNoise(limits.peak_force).signal(jax.random.key(2024), result.signal.shape[0])
-    paper = [aj.predict_se(t, paper_signal, free=free, draws=options["predict_draws"]) for t in trials]
+    if on_bound:
+        paper = [aj.crlb(t, paper_signal, free=free, check=False) for t in trials]
+        trials = result.trials  # with the designed controller
+    else:
+        paper = [aj.predict_se(t, paper_signal, free=free, draws=options["predict_draws"]) for t in trials]
     settings = dict(config_path=str(args.config), config=config, validate_seeds=seeds)
 
     def write(validation):
@@ -114,10 +128,19 @@ def main(argv=None) -> int:
             return fail(f"{err} (the design, unvalidated, is in {args.out})")
         vbar.close()
         doc, paths = write(validation)
+    what = "bound on the relative SE" if on_bound else "relative SE"
     print(
-        f"criterion (largest relative SE over targets and arms): start {result.criterion_before:.4g}, "
-        f"designed {result.criterion_after:.4g}"
+        f"criterion (largest {what} over targets and arms, {limits.record:g} s): start "
+        f"{result.criterion_before:.4g}, designed {result.criterion_after:.4g}"
     )
+    if on_bound:
+        p = config["design"]["precision"]
+        print(f"controller: {result.controller}")
+        print(
+            f"minutes for +-{p:.0%} at 95% on every target, per arm: start "
+            f"{np.round(result.start_minutes, 2).tolist()}, designed {np.round(result.minutes, 2).tolist()}; "
+            f"drift {1e3 * result.achieved['drift']:.3f} mm"
+        )
     worst_paper = max(max(row["relative_se_paper"].values()) for row in doc["trials"])
     print(f"the paper's perturbation at the same peak: {worst_paper:.4g}")
     print(

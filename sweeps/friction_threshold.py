@@ -39,7 +39,7 @@ def parse(argv):
     ap.add_argument("--seconds", type=float, help="record length [s] (default 50; quick 12)")
     ap.add_argument("--nperseg", type=int, help="Welch segment [samples] (default 8192; quick 2048), overlap 3/4")
     ap.add_argument("--points", type=int, help="log-spaced tau_c points in [1e-3, 4] N m (default 13; quick 7)")
-    ap.add_argument("--method", choices=("rk4", "ark3", "ark4"), help="integrator (default ark3)")
+    ap.add_argument("--method", choices=("rk4", "ark3", "ark4", "gark4"), help="integrator (default ark3)")
     ap.add_argument("--substeps", type=int, help="integration steps per 1 ms (default 20)")
     ap.add_argument("--check", type=int, default=0, metavar="N", help="re-run N trials per controller at 4x substeps")
     ap.add_argument("--batch-size", type=int, default=64, help="trials per vmapped batch (does not change results)")

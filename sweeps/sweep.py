@@ -47,7 +47,7 @@ def parser(prog: str = PROG, description: str | None = __doc__) -> Parser:
     ap.add_argument("--mhat", type=float, help="IMBIC Mhat, times the identity [kg] (default 0.25)")
     ap.add_argument("--seeds", type=int, help="perturbation seeds per point (default 3)")
     ap.add_argument("--base-seed", type=int, help="PRNG seed the perturbations are folded from (default 0)")
-    ap.add_argument("--method", choices=("rk4", "ark3", "ark4"), help="integrator (default ark3)")
+    ap.add_argument("--method", choices=("rk4", "ark3", "ark4", "gark4"), help="integrator (default ark3)")
     ap.add_argument("--substeps", type=int, help="integration steps per 1 ms period (default 20)")
     ap.add_argument("--check", type=int, default=0, metavar="N", help="re-run N trials per group at 4x substeps")
     ap.add_argument("--batch-size", type=int, default=64, help="trials per vmapped batch (does not change results)")

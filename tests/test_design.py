@@ -2,6 +2,7 @@
 limits that hold exactly on the designed signal, one-line refusals, and a short design run."""
 
 import importlib.util
+import json
 import pathlib
 import re
 
@@ -232,6 +233,67 @@ def test_example_design_config_builds_four_arms_and_the_documented_limits():
     config["family"]["duty"] = [1.0, 0.25]  # several duties: candidate starts, one family each
     family = dx.build_design(config, where=str(EXAMPLE))[1]
     assert [f.duty for f in family] == [1.0, 0.25] and all(f.burst == 2.0 for f in family)
+
+
+IMBIC_CONFIG = ROOT / "sweeps" / "configs" / "design_imbic.toml"
+BAD_BOUND_CONFIGS = {
+    "drift no stable stiffness meets": (
+        ("drift = 0.003 ", "drift = 0.000001 "),
+        r"no controller within the limits: the drift limit 1e-06 m needs stiffness",
+    ),
+    "unstable start": (
+        ('type = "imbic"', 'type = "imbic"\nb_rd = [[5000.0, 0.0], [0.0, 5000.0]]'),
+        r"the starting controller's loop is unstable for robust_over\[0\]",
+    ),
+    "controller design without the bound": (
+        ('method = "bound"', 'method = "monte_carlo"'),
+        r"\[design\] controller = 'design' needs method 'bound' or 'auto'",
+    ),
+    "negative drift": (("drift = 0.003 ", "drift = -0.003 "), r"\[limits\] Limits: drift must be > 0 m"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_BOUND_CONFIGS)
+def test_bad_bound_design_configs_get_one_line_before_the_optimisation(case, tmp_path, capsys):
+    (old, new), message = BAD_BOUND_CONFIGS[case]
+    text = IMBIC_CONFIG.read_text()
+    assert old in text
+    config = tmp_path / "bad.toml"
+    config.write_text(text.replace(old, new).replace("robust = [1, 2, 3, 4]", "robust = [2]"))
+    code, captured = _run_script([config, "--out", tmp_path / "out"], capsys)
+    lines = captured.err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("design_experiment: error: "), captured.err
+    assert re.search(message, lines[0]), lines[0]
+
+
+def test_the_shipped_design_configs_build_the_must_shows_limits():
+    for name, kind, method, controller in (("imbic", aj.IMBIC, "bound", True), ("pd", aj.PD, "monte_carlo", False)):
+        path = ROOT / "sweeps" / "configs" / f"design_{name}.toml"
+        trials, family, limits, options = dx.build_design(dx.read_design_config(path), where=str(path))
+        assert len(trials) == 4 and all(isinstance(t.controller, kind) for t in trials)
+        assert (limits.rms_force, limits.peak_force, limits.peak_displacement) == (0.66, 2.25, 0.010)
+        assert (options["method"], options["controller"]) == (method, controller)
+    assert (limits.drift, limits.min_stiffness) == (None, 0.0)  # PD: the gains are fixed
+    imbic = dx.make_limits(dx.read_design_config(IMBIC_CONFIG)["limits"])
+    assert (imbic.drift, imbic.min_stiffness) == (0.003, 50.0)
+
+
+@pytest.mark.slow  # ~2 min: a one-step design on the bound with the controller, through the script
+def test_a_bound_design_writes_the_controller_and_the_minutes(tmp_path, capsys):
+    text = IMBIC_CONFIG.read_text().replace("robust = [1, 2, 3, 4]", "robust = [2]")
+    text = text.replace("record = 20.0 ", "record = 3.0 ").replace("steps = 40", "steps = 2")
+    config = tmp_path / "small.toml"
+    config.write_text(text)
+    out = tmp_path / "out"
+    code, captured = _run_script([config, "--out", out], capsys)
+    assert code == 0, captured.err
+    doc = json.loads((out / "design.json").read_text())
+    c = doc["controller"]
+    assert doc["method"] == "bound" and c["type"] == "imbic" and set(c) == {"type", "mhat", "k_rd", "b_rd", "m_rd"}
+    assert np.all(np.diag(c["k_rd"]) >= 50.0) and np.all(np.diag(c["b_rd"]) >= 1.0)
+    assert doc["achieved"]["drift"] <= 0.003 * (1 + 1e-9) and doc["achieved"]["peak_displacement"] <= 0.010
+    assert doc["minutes"] == max(r["minutes_after"] for r in doc["trials"]) > 0
+    assert (out / "minutes.png").stat().st_size > 0 and "minutes for +-10% at 95%" in captured.out
 
 
 @pytest.mark.slow  # ~1 min: two predictions

@@ -265,3 +265,11 @@ def test_float32_mode_is_refused():
             paper.trial("pd", 0, 1)
     finally:
         jax.config.update("jax_enable_x64", True)
+
+
+def test_a_missing_key_is_a_plain_error():
+    """``aj.perturbation(0, ...)``: a line that says a key is needed, not JAX's key-data error."""
+    with pytest.raises(ValueError, match=r"key must be a jax.random key \(e.g. jax.random.key\(0\)\), got int 0"):
+        aj.perturbation(0, 100, 1.0)
+    legacy = np.asarray(aj.perturbation(jax.random.PRNGKey(0), 50, 1.0))
+    assert legacy.shape == (50, 2) and np.all(np.isfinite(legacy))

@@ -41,7 +41,8 @@ BACKTRACKS = 6  # halvings of a step whose gains leave the loop unstable before 
 class BoundDesign(NamedTuple):
     """``design(..., method="bound")``'s answer (host values).
 
-    ``family`` and ``signal`` ``(N, 2)`` [N]: the designed perturbation at its limited level;
+    ``family`` and ``signal`` ``(N, 2)`` [N]: the designed perturbation at its limited level
+    (``start_signal``: the start's, under the start's controller);
     ``trials``: the ``robust_over`` trials with the designed controller; ``controller``: its
     record (``controller_design.controller_record``); ``bounds``: per trial the ``Bound`` of the
     design; ``start_bounds``: of the start; ``minutes`` / ``start_minutes``: per trial the record
@@ -52,6 +53,7 @@ class BoundDesign(NamedTuple):
 
     family: object
     signal: np.ndarray
+    start_signal: np.ndarray
     trials: list
     controller: dict
     bounds: list
@@ -213,6 +215,7 @@ def _assemble(
     return BoundDesign(
         family=replace_unchecked(designed, rms=np.sqrt(np.mean(f**2, axis=0))),
         signal=f,
+        start_signal=f0,
         trials=looped,
         controller=cd.controller_record(looped[0]),
         bounds=after,

@@ -308,6 +308,7 @@ def identify(
 
     n_draws, n_jac = indirect.draw_counts(model, draws, jacobian_draws)
     keys = jax.random.split(key, n_draws)
+    given = p
     arm_stat, p, statistic = _arm_statistic(layout, model, p, f, x, fh, statistic, numerics, keys)
     b = np.asarray(_statistics(layout, model, f, x, fh, arm_stat))
     if not np.all(np.isfinite(b)):
@@ -335,7 +336,14 @@ def identify(
         prior_mean,
         slack,
     )
-    state = search.init(problem, p)
+    try:
+        state = search.init(problem, p)
+    except ValueError:
+        if p is given:
+            raise
+        # the linear fit's start can sit where the model's noisy simulations diverge (its
+        # noise-free run did not): the user's start, which the checks above passed, instead
+        state = search.init(problem, given)
     while not state.done:
         state = search.step(problem, state, max_steps)
     return _assemble(problem, state, f, x, fh, statistic, t_start, forward_s)

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.signal
 
-from .._checks import as_float64, check_int, is_concrete, require_x64
+from .._checks import as_float64, check_int, check_key, is_concrete, require_x64
 
 SAMPLE_RATE = 1000.0  # [Hz], one sample per 1 ms control period
 PERTURBATION_CUTOFF = 15.0  # Butterworth cut-off f_max [Hz]
@@ -75,6 +75,7 @@ def perturbation(
     The paper's per-level peaks are ``paper.perturbation_peak(level)``.
     """
     require_x64("perturbation")
+    check_key(key, where="perturbation")
     n_samples = check_int("n_samples", n_samples, minimum=1)
     warmup = check_int("warmup", warmup, minimum=0)
     peak = as_float64("peak", peak, where="perturbation")

@@ -15,14 +15,16 @@ Keys, units and defaults: docs/experiment_design.md.
 
 from __future__ import annotations
 
+import io
 import pathlib
 
 import jax
 import numpy as np
 from matplotlib.figure import Figure  # no pyplot: no global figure state
 
+from .._identification.bound_design import BoundDesign
 from .._identification.criterion import default_targets, relative_se
-from .._identification.design import AGGREGATES, CRITERIA
+from .._identification.design import AGGREGATES, CRITERIA, METHODS
 from .._identification.identify import identify
 from .._identification.indirect import IDENTIFY_NUMERICS
 from .._identification.layout import PARAMETERS, make_layout, natural, pack
@@ -32,7 +34,7 @@ from .._simulate import simulate
 from ..presets import arm as paper_arm
 from .config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
 from .figures import save_figure
-from .results import atomic_write_json, atomic_write_text, package_version
+from .results import atomic_write_bytes, atomic_write_json, atomic_write_text, package_version
 
 FAMILIES = ("shaped_noise", "multisine")
 SECTIONS = {
@@ -42,6 +44,7 @@ SECTIONS = {
         "low": ("scalar", "Hz", 0.5),
         "high": ("scalar", "Hz", 15.0),
         "lines": ("int", 2, 8),
+        "spacing": ("text", ("linear", "log"), None),
         "duty": ("numbers", "", [1.0]),
         "burst": ("scalar", "s", 2.0),
     },
@@ -50,12 +53,18 @@ SECTIONS = {
         "peak_force": ("pair", "N", REQUIRED),
         "record": ("scalar", "s", REQUIRED),
         "peak_displacement": ("scalar", "m", None),
+        "drift": ("scalar", "m", None),
+        "min_stiffness": ("scalar", "N/m", 0.0),
+        "min_damping": ("scalar", "N s/m", 0.0),
     },
     "design": {
         "free": ("names", tuple(PARAMETERS), REQUIRED),
         "targets": ("texts", "", []),
         "criterion": ("text", CRITERIA, "max_relative_se"),
         "aggregate": ("text", AGGREGATES, "worst"),
+        "method": ("text", METHODS, "auto"),
+        "controller": ("text", ("fixed", "design"), "fixed"),
+        "precision": ("scalar", "", 0.1),
         "robust": ("choices", (1, 2, 3, 4), []),
         "steps": ("int", 1, 40),
         "learning_rate": ("scalar", "", 0.15),
@@ -92,11 +101,15 @@ def read_design_config(path) -> dict:
             ShapedNoise([fam["low"], fam["high"]], np.ones((2, 2)), 1.0, duty=d, burst=fam["burst"])
     except ValueError as err:
         raise ConfigError(f"{path}: [family] {err}") from None
-    lim = config["limits"]
     try:
-        Limits(lim["rms_force"], lim["peak_force"], lim["record"], lim["peak_displacement"])
+        make_limits(config["limits"])
     except ValueError as err:
         raise ConfigError(f"{path}: [limits] {err}") from None
+    d = config["design"]
+    if not 0 < d["precision"] < 1:
+        raise ConfigError(f"{path}: [design] precision must lie in (0, 1) (relative, at 95%), got {d['precision']}")
+    if d["controller"] == "design" and d["method"] == "monte_carlo":
+        raise ConfigError(f"{path}: [design] controller = 'design' needs method 'bound' or 'auto', not 'monte_carlo'")
     try:
         labels = make_layout(config["design"]["free"]).labels()
     except ValueError as err:
@@ -113,6 +126,12 @@ def read_design_config(path) -> dict:
     return config
 
 
+def make_limits(lim: dict) -> Limits:
+    """The ``Limits`` of a config's ``[limits]`` section."""
+    keys = ("peak_displacement", "drift", "min_stiffness", "min_damping")
+    return Limits(lim["rms_force"], lim["peak_force"], lim["record"], **{k: lim[k] for k in keys})
+
+
 def build_design(config: dict, *, where: str = "config") -> tuple:
     """``(trials, family, limits, options)`` of a config of ``read_design_config``; ``options``
     are ``design``'s keyword arguments (``robust_over`` included). Needs float64."""
@@ -122,14 +141,14 @@ def build_design(config: dict, *, where: str = "config") -> tuple:
     else:
         trials = [build_trial(config, where=where)]
     fam = config["family"]
-    lim = config["limits"]
-    limits = Limits(lim["rms_force"], lim["peak_force"], lim["record"], lim["peak_displacement"])
+    limits = make_limits(config["limits"])
+    # default spacing: a multisine's lines evenly (one per Welch bin), a shaped noise's knots in log
+    spacing = fam["spacing"] or ("linear" if fam["type"] == "multisine" else "log")
+    grid = (np.linspace if spacing == "linear" else np.geomspace)(fam["low"], fam["high"], fam["lines"])
     if fam["type"] == "multisine":
-        family = multisine(np.linspace(fam["low"], fam["high"], fam["lines"]), 1.0, offset=0.5)
+        family = multisine(grid, 1.0, offset=0.5)
     else:
-        # knots spaced evenly in log frequency: the low band, where K is seen, gets as many as the high
-        knots = np.geomspace(fam["low"], fam["high"], fam["lines"])
-        starts = [ShapedNoise(knots, np.ones((2, fam["lines"])), 1.0, duty=d, burst=fam["burst"]) for d in fam["duty"]]
+        starts = [ShapedNoise(grid, np.ones((2, fam["lines"])), 1.0, duty=d, burst=fam["burst"]) for d in fam["duty"]]
         family = starts[0] if len(starts) == 1 else starts  # several duties: design starts from the best
     d = config["design"]
     options = dict(
@@ -137,6 +156,9 @@ def build_design(config: dict, *, where: str = "config") -> tuple:
         targets=d["targets"] or None,
         criterion=d["criterion"],
         aggregate=d["aggregate"],
+        method=d["method"],
+        controller=d["controller"] == "design",
+        precision=float(d["precision"]),
         robust_over=trials,
         steps=d["steps"],
         learning_rate=float(d["learning_rate"]),
@@ -190,19 +212,53 @@ def validate(signal, trials, free, *, seeds: int, draws: int = 32, progress=None
     return out
 
 
-def result_dict(result, trials, *, settings: dict, free, targets, validation=None, paper=None) -> dict:
-    """What ``design.json`` holds (before strict JSON conversion)."""
-    labels = list(result.before[0].labels)
-    targets = list(targets or [labels[i] for i in default_targets(make_layout(free))])
-    per_trial = []
+def _validation_row(v, se) -> dict:
+    return dict(
+        recordings=v["recordings"],
+        diverged=v["diverged"],
+        converged=v["converged"],
+        spread=v["spread"],
+        spread_over_predicted=v["spread"] / se,
+        mean_error=v["mean_error"],
+    )
+
+
+def _arm_record(trial) -> dict:
+    a = trial.arm
+    return {k: np.asarray(getattr(a, k)) for k in ("mass", "damping", "stiffness", "endpoint")}
+
+
+def _bound_relative(bound, targets) -> dict:
+    flat = np.concatenate([np.ravel(v) for v in bound.relative_se.values()])
+    return {t: float(flat[bound.labels.index(t)]) for t in targets}
+
+
+def _bound_rows(result, targets, paper):
+    """Per arm: the bound's relative SEs before, after (and under the paper's perturbation), its
+    SEs, the minutes for the design's precision, and whether the loop stayed near-linear."""
+    rows = []
+    for k, (b0, b1) in enumerate(zip(result.start_bounds, result.bounds)):
+        row = dict(
+            arm=_arm_record(result.trials[k]),
+            relative_se_before=_bound_relative(b0, targets),
+            relative_se_after=_bound_relative(b1, targets),
+            se_after=np.concatenate([np.ravel(v) for v in b1.se.values()]),
+            minutes_before=result.start_minutes[k],
+            minutes_after=result.minutes[k],
+            near_linear=b1.near_linear,
+            nonlinearity=b1.nonlinearity,
+        )
+        if paper is not None:
+            row["relative_se_paper"] = _bound_relative(paper[k], targets)
+        rows.append(row)
+    return rows
+
+
+def _predicted_rows(result, trials, free, targets, paper):
+    rows = []
     for k, trial in enumerate(trials):
         row = dict(
-            arm=dict(
-                mass=np.asarray(trial.arm.mass),
-                damping=np.asarray(trial.arm.damping),
-                stiffness=np.asarray(trial.arm.stiffness),
-                endpoint=np.asarray(trial.arm.endpoint),
-            ),
+            arm=_arm_record(trial),
             relative_se_before=relative_se(result.before[k], trial, free=free, targets=targets),
             relative_se_after=relative_se(result.after[k], trial, free=free, targets=targets),
             se_before=np.sqrt(np.diag(np.asarray(result.before[k].covariance))),
@@ -210,32 +266,38 @@ def result_dict(result, trials, *, settings: dict, free, targets, validation=Non
         )
         if paper is not None:
             row["relative_se_paper"] = relative_se(paper[k], trial, free=free, targets=targets)
+        rows.append(row)
+    return rows
+
+
+def result_dict(result, trials, *, settings: dict, free, targets, validation=None, paper=None) -> dict:
+    """What ``design.json`` holds (before strict JSON conversion), for a ``Design`` (Monte Carlo)
+    or a ``BoundDesign``: the latter adds the ``controller`` and the minutes per arm."""
+    labels = make_layout(free).labels()
+    targets = list(targets or [labels[i] for i in default_targets(make_layout(free))])
+    on_bound = isinstance(result, BoundDesign)
+    rows = _bound_rows(result, targets, paper) if on_bound else _predicted_rows(result, trials, free, targets, paper)
+    for k, row in enumerate(rows):
         if validation is not None:
-            v = validation[k]
-            row["validation"] = dict(
-                recordings=v["recordings"],
-                diverged=v["diverged"],
-                converged=v["converged"],
-                spread=v["spread"],
-                spread_over_predicted=v["spread"] / row["se_after"],
-                mean_error=v["mean_error"],
-            )
-        per_trial.append(row)
-    return {
+            row["validation"] = _validation_row(validation[k], row["se_after"])
+    doc = {
         "settings": {**settings, "armimp_jax": package_version()},
+        "method": "bound" if on_bound else "monte_carlo",
         "labels": labels,
         "targets": targets,
         "criterion_before": result.criterion_before,
         "criterion_after": result.criterion_after,
         "achieved": result.achieved,
         "trace": result.trace,
-        "improved": result.improved,
-        "skipped_steps": result.skipped,
-        "start_criteria": result.start_criteria,
         "family": dict(type=type(result.family).__name__, **_family_arrays(result.family)),
-        "trials": per_trial,
+        "trials": rows,
         "time_s": result.time_s,
     }
+    if on_bound:
+        doc.update(controller=result.controller, minutes=max(result.minutes), start_minutes=max(result.start_minutes))
+    else:
+        doc.update(improved=result.improved, skipped_steps=result.skipped, start_criteria=result.start_criteria)
+    return doc
 
 
 def _family_arrays(family) -> dict:
@@ -252,6 +314,8 @@ def spectrum_figure(fs, start, designed, limits_band=None):
         for sig, label, style in ((start, "start", ":"), (designed, "designed", "-")):
             amp = 2.0 * np.abs(np.fft.rfft(sig[:, k])) / sig.shape[0]
             ax.semilogy(freq[band][1:], amp[band][1:], style, lw=0.8, label=label)
+        top = max(np.max(2.0 * np.abs(np.fft.rfft(sig[:, k])) / sig.shape[0]) for sig in (start, designed))
+        ax.set_ylim(1e-4 * top, 2.0 * top)  # the band, not the round-off far below it
         ax.set_title(f"axis {'xy'[k]}: amplitude spectrum of F_Delta", fontsize=10)
         ax.set_xlabel("frequency [Hz]")
     axes[0].set_ylabel("amplitude [N]")
@@ -264,6 +328,8 @@ def se_figure(doc: dict):
     per trial: bars from zero."""
     targets = doc["targets"]
     trials = doc["trials"]
+    robust = doc["settings"].get("config", {}).get("design", {}).get("robust") or []
+    names = [f"the paper's arm at location {loc}" for loc in robust] if len(robust) == len(trials) else None
     fig = Figure(figsize=(max(7.0, 1.2 * len(targets) + 3), 3.2 * len(trials)), layout="constrained")
     axes = np.atleast_1d(fig.subplots(len(trials), 1, sharex=True))
     x = np.arange(len(targets))
@@ -275,7 +341,7 @@ def se_figure(doc: dict):
         for j, (key, label) in enumerate(kinds):
             ax.bar(x + (j - (len(kinds) - 1) / 2) * width, [row[key][t] for t in targets], width, label=label)
         ax.set_ylabel("predicted SE / |value|")
-        ax.set_title(f"trial {k + 1}", fontsize=10)
+        ax.set_title(names[k] if names else f"trial {k + 1}", fontsize=10)
         ax.set_ylim(bottom=0.0)
     axes[0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     axes[-1].set_xticks(x, targets, rotation=30, ha="right", fontsize=8)
@@ -307,10 +373,28 @@ def trace_figure(fs, signal, limits: Limits, trace):
     return fig
 
 
+def minutes_figure(doc: dict, precision: float):
+    """Bars per arm: the bound's minutes of recording for +-``precision`` at 95% on every target,
+    at the start and with the design."""
+    rows = doc["trials"]
+    fig = Figure(figsize=(6.5, 3.6), layout="constrained")
+    ax = fig.subplots()
+    x = np.arange(len(rows))
+    for j, (key, label) in enumerate((("minutes_before", "start"), ("minutes_after", "designed"))):
+        ax.bar(x + (j - 0.5) * 0.4, [r[key] for r in rows], 0.4, label=label)
+    ax.set_xticks(x, [f"arm {k + 1}" for k in x])
+    ax.set_ylabel("minutes of recording")
+    ax.set_title(f"Cramér-Rao minutes for +-{precision:.0%} at 95% on every target", fontsize=10)
+    ax.set_ylim(bottom=0.0)
+    ax.legend(fontsize=8)
+    return fig
+
+
 def write_results(out_dir, result, trials, limits: Limits, *, doc: dict) -> list[pathlib.Path]:
     """``perturbation.csv`` (header ``f_delta_x,f_delta_y``, one row per 1 ms sample [N]),
     ``perturbation.npz``, ``design.json`` (``doc``, strict JSON) and ``spectrum.png``,
-    ``se.png``, ``trace.png`` under ``out_dir``, each atomically; returns their paths."""
+    ``se.png``, ``trace.png`` (and, for a ``BoundDesign``, ``minutes.png``) under ``out_dir``,
+    each atomically; returns their paths."""
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     fs = 1.0 / trials[0].period
@@ -318,9 +402,9 @@ def write_results(out_dir, result, trials, limits: Limits, *, doc: dict) -> list
     rows = "\n".join(f"{a:.17g},{b:.17g}" for a, b in result.signal)
     atomic_write_text(csv, "f_delta_x,f_delta_y\n" + rows + "\n")
     npz = out_dir / "perturbation.npz"
-    tmp = out_dir / ".perturbation.npz.tmp.npz"
-    np.savez(tmp, f_delta=result.signal, fs_hz=fs, **_family_arrays(result.family))
-    tmp.replace(npz)
+    buf = io.BytesIO()
+    np.savez(buf, f_delta=result.signal, fs_hz=fs, **_family_arrays(result.family))
+    atomic_write_bytes(npz, buf.getvalue())
     json_path = out_dir / "design.json"
     atomic_write_json(json_path, doc)
     figures = {
@@ -328,4 +412,6 @@ def write_results(out_dir, result, trials, limits: Limits, *, doc: dict) -> list
         "se.png": se_figure(doc),
         "trace.png": trace_figure(fs, result.signal, limits, result.trace),
     }
+    if isinstance(result, BoundDesign):
+        figures["minutes.png"] = minutes_figure(doc, doc["settings"]["config"]["design"]["precision"])
     return [csv, npz, json_path] + [save_figure(fig, out_dir / name) for name, fig in figures.items()]

@@ -1,0 +1,124 @@
+"""Design on the Cramér-Rao bound (issue 35): the controller's gains as a design variable,
+the limits held by construction on the returned experiment, the projection onto the drift
+limit, the criterion's gradient against finite differences, and one-line refusals."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import armimp_jax as aj
+from armimp_jax import paper
+from armimp_jax._identification import bound_design as bd
+from armimp_jax._identification import controller_design as cd
+from armimp_jax._identification import layout as lay
+
+ARM = ("arm.mass", "arm.damping", "arm.stiffness")
+NOISE = dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(0.3, 2.0))
+LIMITS = aj.Limits(0.66, 2.25, 3.0, peak_displacement=0.006, drift=0.003, min_stiffness=50.0, min_damping=2.0)
+
+
+def _trial(controller=None, location=2, **kw):
+    controller = aj.IMBIC() if controller is None else controller
+    return aj.make_trial(controller, arm=paper.arm(location), friction=aj.NO_FRICTION, **NOISE, **kw)
+
+
+def _family():
+    return aj.ShapedNoise(np.geomspace(0.3, 15.0, 4), np.ones((2, 4)), 1.0)
+
+
+def test_the_projection_meets_the_drift_limit_and_the_minimum_gains():
+    """From a compliant start (20 N/m, below the minimum, drift far above 3 mm): the projected
+    gains sit at the minimum damping and raise the stiffness just until the drift is at its limit."""
+    trials = [_trial(location=2), _trial(location=4)]
+    soft = np.log([20.0, 20.0, 1.0, 1.0])
+    d_soft, _ = cd.drift_and_stability(trials, np.log([50.0, 50.0, 2.0, 2.0]))
+    assert d_soft > LIMITS.drift  # the minimum alone does not meet the drift limit here
+    g, d, stable = cd.project(trials, soft, LIMITS)
+    k, b = np.exp(g[:2]), np.exp(g[2:])
+    assert stable
+    np.testing.assert_allclose(b, 2.0)
+    assert np.all(k > 50.0) and k[0] == pytest.approx(k[1])
+    assert LIMITS.drift * (1 - 5e-3) < d <= LIMITS.drift
+    # the drift is the simulation's: the stationary RMS length under the person's force
+    t = cd.with_gains(trials[0], g)
+    sim = jax.jit(aj.simulate)(t, jnp.zeros((60_000, 2)), key=jax.random.key(1))
+    x = np.asarray(sim.x)[5000:] - np.asarray(t.x0)
+    assert np.sqrt(np.mean(np.sum(x**2, axis=1))) == pytest.approx(float(aj.drift(t)), rel=0.2)
+
+
+def test_the_criterion_differentiates_in_the_spectrum_and_the_gains():
+    """The design's objective (worst log relative SE bound, the signal scaled to the displacement
+    limit) against central differences in a knot and in the stiffness."""
+    trial = _trial()
+    family = _family()
+    layout = lay.make_layout(ARM)
+    idx = np.asarray([0, 3, 4, 7, 8, 11])
+    n = 2000
+    key = jax.random.key(0)
+    limits = dataclasses.replace(LIMITS, record=2.0)
+
+    def fun(z):
+        return bd._objective(z, family, [trial], layout, idx, limits, "worst", key, n, 1e-3, True)[0]
+
+    z = {"shape": jnp.zeros((2, 4)), "gains": jnp.asarray(cd.initial_log_gains(trial))}
+    value_and_grad = jax.jit(jax.value_and_grad(fun))  # one program for the values and the gradient
+    grad = value_and_grad(z)[1]
+    h = 1e-4
+    for part, where in (("shape", (0, 1)), ("gains", (0,)), ("gains", (2,))):
+        up = {**z, part: z[part].at[where].add(h)}
+        down = {**z, part: z[part].at[where].add(-h)}
+        fd = (float(value_and_grad(up)[0]) - float(value_and_grad(down)[0])) / (2 * h)
+        assert float(grad[part][where]) == pytest.approx(fd, rel=1e-4, abs=1e-8), (part, where)
+
+
+def test_a_designed_experiment_meets_every_limit_exactly():
+    """Two steps on a 2 s record: the returned signal at (or within) the RMS and peak limits, the
+    full simulation's displacement within its limit, the drift within its limit, gains at least
+    the minimum, the loop stable, and the minutes the bound's own."""
+    trials = [_trial(location=2)]
+    res = aj.design(
+        trials[0],
+        _family(),
+        free=ARM,
+        limits=dataclasses.replace(LIMITS, record=2.0),
+        method="bound",
+        controller=True,
+        steps=2,
+        key=jax.random.key(1),
+    )
+    assert isinstance(res, aj.BoundDesign)
+    a = res.achieved
+    assert np.all(np.asarray(a["rms_force"]) <= 0.66 + 1e-9)
+    assert np.all(np.asarray(a["peak_force"]) <= 2.25 + 1e-12)
+    assert a["peak_displacement"] <= 0.006
+    assert a["drift"] <= 0.003 * (1 + 1e-9)
+    c = res.controller
+    assert c["type"] == "imbic" and set(c) == {"type", "mhat", "k_rd", "b_rd", "m_rd"}
+    assert np.all(np.diag(c["k_rd"]) >= 50.0) and np.all(np.diag(c["b_rd"]) >= 2.0)
+    assert res.bounds[0].spectral_radius < 1.0
+    assert res.minutes[0] == pytest.approx(res.bounds[0].record_for(0.1) / 60)
+    assert res.criterion_after <= res.criterion_before
+    # the controller record rebuilds the designed controller
+    rebuilt = aj.IMBIC(**{k: np.asarray(v) for k, v in c.items() if k != "type"})
+    np.testing.assert_allclose(rebuilt.k_rd, res.trials[0].controller.k_rd)
+
+
+def test_bad_controllers_and_limits_are_one_line_errors():
+    trial = _trial()
+    unstable = _trial(aj.IMBIC(b_rd=np.eye(2) * 5e3))
+    with pytest.raises(ValueError, match="unstable for robust_over"):
+        aj.design(unstable, _family(), free=ARM, limits=LIMITS, method="bound", controller=True, steps=1)
+    tight = dataclasses.replace(LIMITS, drift=1e-6)
+    with pytest.raises(ValueError, match="no controller within the limits"):
+        aj.design(trial, _family(), free=ARM, limits=tight, method="bound", controller=True, steps=1)
+    with pytest.raises(ValueError, match="Limits: drift"):
+        aj.Limits(0.66, 2.25, 3.0, drift=-1.0)
+    with pytest.raises(ValueError, match="Limits: min_stiffness"):
+        aj.Limits(0.66, 2.25, 3.0, min_stiffness=float("nan"))
+    with pytest.raises(ValueError, match="controller=True designs the gains on the Cramér-Rao bound"):
+        aj.design(trial, _family(), free=ARM, limits=LIMITS, method="monte_carlo", controller=True, steps=1)
+    with pytest.raises(ValueError, match="method='bound' covers the arm's matrices"):
+        aj.design(trial, _family(), free=(*ARM, "friction.tau_c"), limits=LIMITS, method="bound", steps=1)
