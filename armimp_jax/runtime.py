@@ -49,8 +49,9 @@ _COLLECTIVE_FLAGS = (
 
 
 CACHE_ENV = "ARMIMP_JAX_CACHE_DIR"
-# Programs that compile faster than this are not worth a file (JAX's own default is 1 s).
-_CACHE_MIN_COMPILE_S = 0.5
+# Every program gets a file (JAX's default skips those under 1 s): a second identify of a lab's
+# recording loads hundreds of small ones, which together cost as much as the few large ones.
+_CACHE_MIN_COMPILE_S = 0.0
 
 
 def compilation_cache_dir() -> str | None:

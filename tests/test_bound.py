@@ -160,6 +160,11 @@ def test_no_bound_through_stick_slip_and_plain_refusals():
     unstable = _trial(aj.IMBIC(mhat=4.0 * np.eye(2)), **NOISE)
     with pytest.raises(ValueError, match="unstable"):
         aj.crlb(unstable, F, check=False)
+    # interval means record the exact mean position: no reading noise, so no bound (it would be
+    # the 1 nm floor's; measured: a quarter of the filter's position innovation variance was real)
+    mean = aj.crlb(_trial(aj.IMBIC(), acquisition="interval_mean", **NOISE), F, check=False)
+    assert not mean.near_linear and "x1, x2 carry no reading noise" in mean.message
+    assert all(np.all(np.isnan(v)) for v in mean.se.values())
 
 
 def test_the_hands_drift_under_the_persons_force_is_the_simulations():

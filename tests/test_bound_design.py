@@ -57,20 +57,22 @@ def test_the_criterion_differentiates_in_the_spectrum_and_the_gains():
     layout = lay.make_layout(ARM)
     idx = np.asarray([0, 3, 4, 7, 8, 11])
     n = 2000
-    key = jax.random.key(0)
+    # the design's own family key and shapes (the test below): one compiled program serves both
+    key = jax.random.split(jax.random.key(1))[0]
     limits = dataclasses.replace(LIMITS, record=2.0)
 
     def fun(z):
-        return bd._objective(z, family, [trial], layout, idx, limits, "worst", key, n, 1e-3, True)[0]
+        return bd._objective(z, family, [trial], layout, idx, limits, "worst", key, n, 1e-3, True)
 
-    z = {"shape": jnp.zeros((2, 4)), "gains": jnp.asarray(cd.initial_log_gains(trial))}
-    value_and_grad = jax.jit(jax.value_and_grad(fun))  # one program for the values and the gradient
+    z = {"shape": np.zeros((2, 4)), "gains": cd.initial_log_gains(trial)}
+    value_and_grad = jax.jit(jax.value_and_grad(fun, has_aux=True))  # values and gradient in one program
     grad = value_and_grad(z)[1]
     h = 1e-4
     for part, where in (("shape", (0, 1)), ("gains", (0,)), ("gains", (2,))):
-        up = {**z, part: z[part].at[where].add(h)}
-        down = {**z, part: z[part].at[where].add(-h)}
-        fd = (float(value_and_grad(up)[0]) - float(value_and_grad(down)[0])) / (2 * h)
+        step = np.zeros_like(z[part])
+        step[where] = h
+        up, down = {**z, part: z[part] + step}, {**z, part: z[part] - step}
+        fd = (float(value_and_grad(up)[0][0]) - float(value_and_grad(down)[0][0])) / (2 * h)
         assert float(grad[part][where]) == pytest.approx(fd, rel=1e-4, abs=1e-8), (part, where)
 
 

@@ -106,8 +106,9 @@ class Bound:
         seconds: the record length [s] the bound is for.
         reference: what the bound is of: the trial's loop, or that loop without its joint
             friction (the loop IMBIC promises to leave).
-        near_linear: whether the trial's own hand motion stays within ``NEAR_LINEAR`` of the
-            reference loop's; when not, ``se`` is NaN and ``message`` says why.
+        near_linear: whether a bound holds: every recorded channel carries reading noise
+            (``silent_readings``) and the trial's own hand motion stays within ``NEAR_LINEAR`` of
+            the reference loop's; when not, ``se`` is NaN and ``message`` says why.
         nonlinearity: ``(4,)`` RMS departure of the trial's noise-free ``x`` and ``F_h`` from
             the reference loop's, relative to their RMS (NaN when not checked).
         spectral_radius: of the linearised loop per control period (stable below 1).
@@ -133,13 +134,18 @@ class Bound:
         the square root of the record length when the perturbation goes on with the same
         statistics."""
         z = scipy.stats.norm.ppf(0.5 + level / 2)
+        worst = max(self.relative(entries).values())
+        return self.seconds * (z * worst / precision) ** 2
+
+    def relative(self, entries=None) -> dict:
+        """``{label: relative SE bound}`` of ``entries`` (default: the diagonals of the free
+        matrices); a one-line error for an entry this bound does not have."""
         rel = dict(zip(self.labels, np.concatenate([v.reshape(-1) for v in self.relative_se.values()]), strict=True))
         entries = [e for e in DIAGONALS if e in rel] if entries is None else list(entries)
         unknown = [e for e in entries if e not in rel]
         if unknown:
-            raise ValueError(f"record_for: unknown entries {unknown}; entries of this bound: {self.labels}")
-        worst = max(float(rel[e]) for e in entries)
-        return self.seconds * (z * worst / precision) ** 2
+            raise ValueError(f"Bound: unknown entries {unknown}; entries of this bound: {self.labels}")
+        return {e: float(rel[e]) for e in entries}
 
     def summary(self) -> str:
         """Lines: what the bound is of, then each free matrix's SE bound and relative SE."""
@@ -188,6 +194,20 @@ def is_near_linear(trial: Trial, f, numerics=None) -> bool:
     return bool(np.max(departure[:2]) <= NEAR_LINEAR)
 
 
+@jax.jit
+def _reading_noise(trial):
+    return jnp.diag(kalman.noise_covariances(linear.linearise(trial))[1])
+
+
+def silent_readings(trial: Trial) -> list[str]:
+    """The recorded outputs (of ``linear.OUTPUTS``) whose reading carries no noise of its own in
+    the model (within 10x ``kalman.READING_FLOOR``): there a bound would rest on that floor, an
+    artefact (e.g. ``acquisition="interval_mean"`` records the exact mean position)."""
+    r = np.asarray(_reading_noise(trial))
+    floor = np.asarray(kalman.READING_FLOOR)
+    return [name for name, v, f in zip(linear.OUTPUTS, r, floor, strict=True) if not v > (10 * f) ** 2]
+
+
 def has_friction(trial: Trial) -> bool:
     """Whether the trial's robot has Coulomb (or Stribeck) joint friction, the nonlinear part
     (concrete values; viscous friction is linear and stays in the linearised loop)."""
@@ -229,7 +249,15 @@ def crlb(trial: Trial, f, *, free=ARM, symmetric=(), check: bool = True, numeric
     friction = has_friction(trial)
     reference = "the trial's loop without its Coulomb friction" if friction else "the trial's loop"
     departure, message = np.full(4, np.nan), ""
-    if check:
+    silent = silent_readings(trial)
+    if silent:
+        message = (
+            f"the recorded {', '.join(silent)} carry no reading noise in this model (acquisition "
+            f"{trial.acquisition!r} and these sensors): a bound would rest on the {kalman.READING_FLOOR[0]:g} m / "
+            f"{kalman.READING_FLOOR[2]:g} N reading floor, not on the experiment; predict_se measures it instead"
+        )
+        se = np.full_like(se, np.nan)
+    elif check:
         departure = nonlinearity(trial, f, y_lin, IDENTIFY_NUMERICS if numerics is None else numerics)
         worst = float(np.max(departure[:2]))
         if not worst <= NEAR_LINEAR:

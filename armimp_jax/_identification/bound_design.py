@@ -99,11 +99,7 @@ def _bounds(trials, f, free, precision, entries):
 
 
 def _worst(bounds, entries):
-    rel = []
-    for b in bounds:
-        flat = dict(zip(b.labels, np.concatenate([v.reshape(-1) for v in b.relative_se.values()])))
-        rel.extend(float(flat[e]) for e in entries)
-    return max(rel)
+    return max(max(b.relative(entries).values()) for b in bounds)
 
 
 def _step(z, state, opt, value_and_grad, trials, limits, design_gains):

@@ -69,10 +69,17 @@ def drift_of(trial):
 
 
 @jax.jit
-def _drift_and_radius(trial, log_gains):
+def _drift_and_loops(trial, log_gains):
     loops = [linear.linearise(with_gains(trial, log_gains + s)) for s in (0.0, jnp.log(STABILITY_MARGIN))]
-    radius = [jnp.max(jnp.abs(jnp.linalg.eigvals(loop.a))) for loop in loops]
-    return jnp.sqrt(jnp.trace(linear.stationary_cov(loops[0], ("voluntary",))[:2, :2])), jnp.stack(radius)
+    drift = jnp.sqrt(jnp.trace(linear.stationary_cov(loops[0], ("voluntary",))[:2, :2]))
+    return drift, [loop.a for loop in loops]
+
+
+def _drift_and_radius(trial, log_gains):
+    """The drift [m] at ``log_gains`` and the spectral radii ``(2,)`` there and with the gains times
+    ``STABILITY_MARGIN`` (eigenvalues on the host: XLA has no general eigensolver on every device)."""
+    drift, mats = _drift_and_loops(trial, jnp.asarray(log_gains))
+    return float(drift), np.array([np.max(np.abs(np.linalg.eigvals(np.asarray(a)))) for a in mats])
 
 
 def drift_and_stability(trials, log_gains) -> tuple[float, bool]:
@@ -80,10 +87,9 @@ def drift_and_stability(trials, log_gains) -> tuple[float, bool]:
     there and with the gains times ``STABILITY_MARGIN``."""
     worst, stable = 0.0, True
     for t in trials:
-        d, r = _drift_and_radius(t, jnp.asarray(log_gains))
-        r = np.asarray(r)
+        d, r = _drift_and_radius(t, log_gains)
         stable &= bool(np.all(r < 1.0))
-        worst = max(worst, float(d) if np.isfinite(float(d)) else np.inf)
+        worst = max(worst, d if np.isfinite(d) else np.inf)
     return worst, stable
 
 
@@ -114,11 +120,11 @@ def check_start(trials, log_gains, limits):
     """One-line errors before any long computation: a starting controller that is unstable for an
     arm, or a drift limit that no stiffening within ``MAX_STIFFENING`` meets stably."""
     for i, t in enumerate(trials):
-        _, r = _drift_and_radius(t, jnp.asarray(log_gains))
-        if not float(np.asarray(r)[0]) < 1.0:
+        _, r = _drift_and_radius(t, log_gains)
+        if not r[0] < 1.0:
             raise ValueError(
                 f"design: the starting controller's loop is unstable for robust_over[{i}] (spectral radius "
-                f"{float(np.asarray(r)[0]):.6f} per period, must be < 1): lower its gains"
+                f"{r[0]:.6f} per period, must be < 1): lower its gains"
             )
     g, d, stable = project(trials, log_gains, limits)
     if not stable or (limits.drift is not None and d > limits.drift):

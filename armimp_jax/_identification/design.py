@@ -47,7 +47,7 @@ from .._pytree import replace_unchecked
 from .._simulate import Trial
 from . import indirect
 from . import layout as lay
-from .bound import is_near_linear
+from .bound import is_near_linear, silent_readings
 from .bound_design import design_on_bound
 from .criterion import _aggregate, _criterion_value, _targets, relative_se
 from .indirect import IDENTIFY_NUMERICS
@@ -144,6 +144,14 @@ def _choose_method(method, controller, trials, candidates, layout, criterion, li
     if method not in METHODS:
         raise ValueError(f"design: unknown method {method!r}; allowed: {', '.join(METHODS)}")
     covered = all(n in lay.ARM_PARAMETERS for n in layout.names) and criterion == "max_relative_se"
+    silent = [(i, silent_readings(t)) for i, t in enumerate(trials)] if method == "bound" else []
+    silent = [(i, names) for i, names in silent if names]
+    if silent:
+        raise ValueError(
+            f"design: method='bound' needs reading noise on every recorded channel; robust_over[{silent[0][0]}] "
+            f"records {', '.join(silent[0][1])} without any (acquisition {trials[silent[0][0]].acquisition!r}): "
+            "use method='monte_carlo'"
+        )
     if method == "bound" and not covered:
         raise ValueError(
             "design: method='bound' covers the arm's matrices with criterion='max_relative_se'; got free "
@@ -154,7 +162,7 @@ def _choose_method(method, controller, trials, candidates, layout, criterion, li
         if covered and len(candidates) == 1:
             n = limits.n_samples(trials[0].period)
             f = _limited_signal(candidates[0], jax.random.split(key)[0], n, limits, trials[0].period)
-            near = all(is_near_linear(t, f) for t in trials)
+            near = all(not silent_readings(t) and is_near_linear(t, f) for t in trials)
         method = "bound" if near else "monte_carlo"
     if controller and method != "bound":
         raise ValueError(

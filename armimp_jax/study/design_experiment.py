@@ -228,11 +228,6 @@ def _arm_record(trial) -> dict:
     return {k: np.asarray(getattr(a, k)) for k in ("mass", "damping", "stiffness", "endpoint")}
 
 
-def _bound_relative(bound, targets) -> dict:
-    flat = np.concatenate([np.ravel(v) for v in bound.relative_se.values()])
-    return {t: float(flat[bound.labels.index(t)]) for t in targets}
-
-
 def _bound_rows(result, targets, paper):
     """Per arm: the bound's relative SEs before, after (and under the paper's perturbation), its
     SEs, the minutes for the design's precision, and whether the loop stayed near-linear."""
@@ -240,8 +235,8 @@ def _bound_rows(result, targets, paper):
     for k, (b0, b1) in enumerate(zip(result.start_bounds, result.bounds)):
         row = dict(
             arm=_arm_record(result.trials[k]),
-            relative_se_before=_bound_relative(b0, targets),
-            relative_se_after=_bound_relative(b1, targets),
+            relative_se_before=b0.relative(targets),
+            relative_se_after=b1.relative(targets),
             se_after=np.concatenate([np.ravel(v) for v in b1.se.values()]),
             minutes_before=result.start_minutes[k],
             minutes_after=result.minutes[k],
@@ -249,7 +244,7 @@ def _bound_rows(result, targets, paper):
             nonlinearity=b1.nonlinearity,
         )
         if paper is not None:
-            row["relative_se_paper"] = _bound_relative(paper[k], targets)
+            row["relative_se_paper"] = paper[k].relative(targets)
         rows.append(row)
     return rows
 
