@@ -319,8 +319,8 @@ def spectrum_figure(fs, start, designed, limits_band=None):
 
 
 def se_figure(doc: dict):
-    """Predicted relative SE of each target, start against design (and the paper's perturbation),
-    per trial: bars from zero."""
+    """Predicted relative SE (or its Cramér-Rao bound, for a design on the bound) of each target,
+    start against design (and the paper's perturbation), per trial: bars from zero."""
     targets = doc["targets"]
     trials = doc["trials"]
     robust = doc["settings"].get("config", {}).get("design", {}).get("robust") or []
@@ -335,7 +335,7 @@ def se_figure(doc: dict):
     for ax, row, k in zip(axes, trials, range(len(trials))):
         for j, (key, label) in enumerate(kinds):
             ax.bar(x + (j - (len(kinds) - 1) / 2) * width, [row[key][t] for t in targets], width, label=label)
-        ax.set_ylabel("predicted SE / |value|")
+        ax.set_ylabel("bound on SE / |value|" if doc.get("method") == "bound" else "predicted SE / |value|")
         ax.set_title(names[k] if names else f"trial {k + 1}", fontsize=10)
         ax.set_ylim(bottom=0.0)
     axes[0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
