@@ -120,6 +120,11 @@ def test_bad_controllers_and_limits_are_one_line_errors():
         aj.Limits(0.66, 2.25, 3.0, drift=-1.0)
     with pytest.raises(ValueError, match="Limits: min_stiffness"):
         aj.Limits(0.66, 2.25, 3.0, min_stiffness=float("nan"))
+    soft = _trial(aj.IMBIC(k_rd=np.eye(2) * 60.0))  # drifts 3.86 mm under the person's force
+    with pytest.raises(
+        ValueError, match=r"the controller lets the hand drift \d\.\d\d mm RMS .* above the drift limit 3 mm"
+    ):
+        aj.design(soft, _family(), free=ARM, limits=LIMITS, method="bound", steps=1)
     with pytest.raises(ValueError, match="controller=True designs the gains on the Cramér-Rao bound"):
         aj.design(trial, _family(), free=ARM, limits=LIMITS, method="monte_carlo", controller=True, steps=1)
     with pytest.raises(ValueError, match="method='bound' covers the arm's matrices"):

@@ -49,6 +49,7 @@ from . import indirect
 from . import layout as lay
 from .bound import is_near_linear, silent_readings
 from .bound_design import design_on_bound
+from .controller_design import drift_of
 from .criterion import _aggregate, _criterion_value, _targets, relative_se
 from .indirect import IDENTIFY_NUMERICS
 from .limits import Limits, _displacement_gain, _limited_signal, _peak_displacement
@@ -136,6 +137,18 @@ def _check_design(trial, family, free, limits, targets, criterion, robust_over, 
     if not (isinstance(learning_rate, (int, float)) and 0 < learning_rate < 10):
         raise ValueError(f"design: learning_rate must lie in (0, 10) (a step in log amplitude), got {learning_rate!r}")
     return candidates, layout, idx, trials
+
+
+def _check_fixed_drift(trials, limit):
+    """A fixed controller must meet the drift limit itself (no design changes it): one line if not."""
+    drifts = [float(drift_of(t)) for t in trials]
+    worst = int(np.argmax(drifts))
+    if not drifts[worst] <= limit:
+        raise ValueError(
+            f"design: the controller lets the hand drift {1e3 * drifts[worst]:.2f} mm RMS under the person's force "
+            f"at robust_over[{worst}], above the drift limit {1e3 * limit:g} mm; stiffen it, or design it "
+            "(controller=True)"
+        )
 
 
 def _choose_method(method, controller, trials, candidates, layout, criterion, limits, key):
@@ -238,6 +251,8 @@ def design(
     if not 0 < precision < 1:
         raise ValueError(f"design: precision must lie in (0, 1) (relative half-width at 95%), got {precision!r}")
     key = jax.random.key(0) if key is None else key
+    if limits.drift is not None and not controller:
+        _check_fixed_drift(trials, limits.drift)
     if _choose_method(method, controller, trials, candidates, layout, criterion, limits, key) == "bound":
         return design_on_bound(
             trials,
