@@ -29,6 +29,20 @@ class Parser(argparse.ArgumentParser):
         fail(message, self.prog)
 
 
+Z95 = 1.959963984540054  # the two-sided 95% normal quantile
+
+
+def spread_and_hits(rows, name: str, true):
+    """Over the saved ``rows`` of fits: the estimates ``e`` and SEs ``s`` of parameter ``name``
+    (stacked over rows), the estimates' spread (SD, ``ddof=1``), and whether each 95% interval
+    ``e +- Z95 s`` held the ``true`` value."""
+    import numpy as np
+
+    e = np.array([r["values"][name] for r in rows])
+    s = np.array([r["se"][name] for r in rows])
+    return e, s, e.std(axis=0, ddof=1), np.abs(e - true) <= Z95 * s
+
+
 def resumable(path, settings: dict, prog: str, **empty):
     """A benchmark's saved state: the file at ``path`` when it holds the same ``settings`` (the
     run resumes), else a new state (``empty``'s entries and the stamped settings); one line

@@ -22,11 +22,10 @@ import pathlib
 import sys
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _cli import Parser, fail, resumable, run_seeds  # noqa: E402
+from _cli import Parser, fail, resumable, run_seeds, spread_and_hits  # noqa: E402
 
 PROG = "bench_design_bound"
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
-Z95 = 1.959963984540054
 
 
 def parse(argv):
@@ -85,15 +84,12 @@ def one_seed(aj, np, jax, trial, f, seed):
 
 def summarise(np, rows, trial, row_doc, targets):
     ok = [r for r in rows if not r["diverged"] and r["converged"]]
-    labels, rel_spread, rel_bound, out = [], [], [], dict(seeds=len(rows), converged=len(ok), entries={})
+    rel_spread, rel_bound, out = [], [], dict(seeds=len(rows), converged=len(ok), entries={})
     se_bound = dict(zip([f"{n}[{i},{j}]" for n in ARM for i in range(2) for j in range(2)], row_doc["se_after"]))
     hits = []
     for n in ARM:
         true = np.asarray(getattr(trial.arm, n.split(".")[1]))
-        e = np.array([r["values"][n] for r in ok])
-        s = np.array([r["se"][n] for r in ok])
-        spread = e.std(axis=0, ddof=1)
-        hit = np.abs(e - true) <= Z95 * s
+        _, _, spread, hit = spread_and_hits(ok, n, true)
         hits.append(hit.reshape(len(ok), -1))
         for i in range(2):
             label = f"{n}[{i},{i}]"
@@ -102,7 +98,6 @@ def summarise(np, rows, trial, row_doc, targets):
                 bound=b, spread=float(spread[i, i]), ratio=float(spread[i, i] / b), coverage=float(hit[:, i, i].mean())
             )
             if label in targets:
-                labels.append(label)
                 rel_spread.append(spread[i, i] / abs(true[i, i]))
                 rel_bound.append(b / abs(true[i, i]))
     out["coverage_all"] = float(np.concatenate(hits, axis=1).mean())

@@ -23,10 +23,9 @@ import pathlib
 import sys
 import time
 
-from _cli import Parser, fail, resumable, run_seeds
+from _cli import Parser, fail, resumable, run_seeds, spread_and_hits
 
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
-Z95 = 1.959963984540054
 
 
 def parse(argv):
@@ -127,10 +126,7 @@ def summarise(np, rows, true, pred, names):
     )
     hits_all, hits_cls = [], []
     for n in names:
-        e = np.array([r["values"][n] for r in ok])
-        s = np.array([r["se"][n] for r in ok])
-        spread = e.std(axis=0, ddof=1)
-        hit = np.abs(e - true[n]) <= Z95 * s
+        e, s, spread, hit = spread_and_hits(ok, n, true[n])
         hits_all.append(hit.reshape(len(ok), -1))
         row = dict(
             coverage=hit.mean(axis=0).ravel().tolist(),

@@ -21,11 +21,10 @@ import pathlib
 import sys
 import time
 
-from _cli import Parser, fail, resumable, run_seeds
+from _cli import Parser, fail, resumable, run_seeds, spread_and_hits
 from bench_identify_coverage import one_seed
 
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
-Z95 = 1.959963984540054
 # name: (controller, arm location, IMBIC's k_rd [N/m] or None for the paper's, tau_c [N m], peak [N] or "L1",
 # free: the arm's matrices, and the Coulomb torque too with "tau_c"; optionally the acquisition, default instant)
 CASES = {
@@ -105,10 +104,7 @@ def summarise(aj, np, truth, f, rows, a):
     hits = []
     for n in ARM:
         true = np.asarray(getattr(truth.arm, n.split(".")[1]))
-        e = np.array([r["values"][n] for r in ok])
-        s = np.array([r["se"][n] for r in ok])
-        spread = e.std(axis=0, ddof=1)
-        hit = np.abs(e - true) <= Z95 * s
+        e, s, spread, hit = spread_and_hits(ok, n, true)
         hits.append(hit.reshape(len(ok), -1))
         b = np.asarray(bound.se[n])
         out["parameters"][n] = dict(
@@ -156,7 +152,7 @@ def print_table(state, a):
     for name, case in state["cases"].items():
         s = case.get("summary")
         if s is None:  # interrupted before the case finished: resuming completes it
-            print(f"| {name} | (unfinished: resume the run) | | | | | | |")
+            print(f"{name:<18}(unfinished: resume the run)")
             continue
         for n, r in s["parameters"].items():
             for i, j in DIAGONAL:
