@@ -28,7 +28,7 @@ _EXPORTS = {
     "MAX_PER_DEVICE": "._batch",
     "NumericsCheck": "._batch",
     "TrialOutcome": "._batch",
-    "Welch": "._batch",
+    "Welch": "._estimation.welch",
     "assess": "._batch",
     "assess_batch": "._batch",
     "batch_groups": "._batch",
@@ -47,6 +47,7 @@ _EXPORTS = {
     "cross_spectral_matrix": "._estimation.welch",
     "estimate": "._estimation.welch",
     "input_coherence": "._estimation.welch",
+    "welch_segments": "._estimation.welch",
     "Arm": "._model.arm",
     "IMBIC": "._model.control",
     "PD": "._model.control",
@@ -116,7 +117,6 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._batch import MAX_PER_DEVICE as MAX_PER_DEVICE
     from ._batch import NumericsCheck as NumericsCheck
     from ._batch import TrialOutcome as TrialOutcome
-    from ._batch import Welch as Welch
     from ._batch import assess as assess
     from ._batch import assess_batch as assess_batch
     from ._batch import batch_groups as batch_groups
@@ -131,10 +131,12 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._estimation.fit import fit_impedance as fit_impedance
     from ._estimation.metrics import accuracy as accuracy
     from ._estimation.welch import Estimate as Estimate
+    from ._estimation.welch import Welch as Welch
     from ._estimation.welch import ZError as ZError
     from ._estimation.welch import cross_spectral_matrix as cross_spectral_matrix
     from ._estimation.welch import estimate as estimate
     from ._estimation.welch import input_coherence as input_coherence
+    from ._estimation.welch import welch_segments as welch_segments
     from ._identification.bound import Bound as Bound
     from ._identification.bound import crlb as crlb
     from ._identification.bound import fisher_information as fisher_information

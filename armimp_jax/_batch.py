@@ -28,35 +28,11 @@ from jax.sharding import PartitionSpec as P
 
 from ._checks import check_int
 from ._estimation.metrics import impedance_error
-from ._estimation.welch import (
-    ESTIMATION_FMAX,
-    SAMPLE_RATE,
-    WELCH_NOVERLAP,
-    WELCH_NPERSEG,
-    Estimate,
-    check_welch,
-    estimate,
-)
+from ._estimation.welch import Estimate, Welch, estimate
 from ._model.arm import impedance_response
 from ._simulate import SimResult, Trial, simulate_chunk, simulate_init
 from ._solver.numerics import Numerics
 from .runtime import vector_lanes
-
-
-class Welch(NamedTuple):
-    """Welch settings (static): segment, overlap, highest frequency [Hz], sample rate [Hz],
-    window (a name or tuple ``scipy.signal.get_window`` knows; hashable) and FFT length
-    (``None``: ``nperseg``)."""
-
-    nperseg: int = WELCH_NPERSEG
-    noverlap: int = WELCH_NOVERLAP
-    fmax: float = ESTIMATION_FMAX
-    fs: float = SAMPLE_RATE
-    window: str | tuple = "hann"
-    nfft: int | None = None
-
-    def check(self, n_samples: int) -> None:
-        check_welch(n_samples, **self._asdict())
 
 
 class TrialOutcome(NamedTuple):

@@ -168,6 +168,6 @@ def test_grouped_chunked_batches_give_the_numbers_of_one_vmapped_batch():
     groups, _ = _batch.batch_groups(len(cases), jax.device_count(), max_per_device=2)
     assert [d for d, _ in seen] == sorted(d for d, _ in seen) and len(seen) == 3 * len(groups)
     assert seen[-1] == (5 * 300, 5 * 300)
-    welch = _batch.Welch(nperseg=128, noverlap=64, fmax=15.0)
+    welch = aj.Welch(nperseg=128, noverlap=64, fmax=15.0)
     one = _batch.assess_batch(params, fd, grouped, welch, max_per_device=None)
     assert tree_equal(_batch.assess_batch(params, fd, grouped, welch, max_per_device=2), one)

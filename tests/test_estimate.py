@@ -279,8 +279,8 @@ def test_non_finite_record_names_the_array_and_the_first_bad_sample(name, row, c
 
 def test_the_error_model_leaves_the_estimate_unchanged():
     u, y, n_out = _synthetic(n=20_000, noise=0.1)
-    plain = aj.estimate(u, y + n_out, 2.0 * y, nperseg=2048, noverlap=1536)
-    with_errors = aj.estimate(u, y + n_out, 2.0 * y, nperseg=2048, noverlap=1536, errors=True)
+    plain = aj.estimate(u, y + n_out, 2.0 * y, nperseg=2048, noverlap=1536, errors=False)
+    with_errors = aj.estimate(u, y + n_out, 2.0 * y, nperseg=2048, noverlap=1536)  # the default
     assert plain.error is None and with_errors.error is not None
     for field in plain._fields[:-1]:
         np.testing.assert_array_equal(getattr(with_errors, field), getattr(plain, field), err_msg=field)
@@ -314,3 +314,21 @@ def test_error_model_predicts_the_variance_and_bin_correlation_of_z():
     corr = np.mean(d[:, :-1] * np.conj(d[:, 1:]), axis=0) / np.sqrt(emp[:-1] * emp[1:])
     np.testing.assert_allclose(np.median(corr.real), ests.error.bin_corr[0, 1], atol=0.05)
     np.testing.assert_allclose(ests.error.bin_corr[0, 1], 0.489, atol=0.005)
+
+
+def test_welch_segments_follow_the_record():
+    """Table 4's 8192/6144 from 16384 samples on (the paper's records unchanged); a 12 s record
+    at 1 kHz gets 4096-sample segments (8 of them, not Table 4's 2); a given nperseg alone
+    gets 75% overlap; the default estimate uses exactly these settings."""
+    assert aj.welch_segments(50_000) == (8192, 6144) == aj.welch_segments(16_384)
+    assert aj.welch_segments(12_000) == (4096, 3072)
+    assert aj.welch_segments(16_383) == (4096, 3072)
+    with pytest.raises(ValueError, match="n_samples"):
+        aj.welch_segments(8)
+    u, y, n_out = _synthetic(n=12_000, noise=0.1)
+    auto = aj.estimate(u, y + n_out, 2.0 * y, errors=False)
+    given = aj.estimate(u, y + n_out, 2.0 * y, nperseg=4096, errors=False)
+    explicit = aj.estimate(u, y + n_out, 2.0 * y, nperseg=4096, noverlap=3072, errors=False)
+    for field in ("f", "Z", "coh_inputs"):
+        np.testing.assert_array_equal(getattr(auto, field), getattr(explicit, field))
+        np.testing.assert_array_equal(getattr(given, field), getattr(explicit, field))

@@ -15,6 +15,7 @@ Single-trial functions; batch with ``jax.vmap``. Differentiable end to end.
 from __future__ import annotations
 
 import functools
+import math
 from typing import NamedTuple
 
 import jax.numpy as jnp
@@ -31,6 +32,28 @@ ESTIMATION_FMAX = 15.0  # [Hz]
 N_INPUTS = 2  # perturbation axes: the residual spectrum loses about N_INPUTS * kappa averages
 
 
+def welch_segments(n_samples: int) -> tuple[int, int]:
+    """The Welch segment length and overlap that follow a record's length.
+
+    The largest power of two up to Table 4's ``WELCH_NPERSEG`` (8192) that fits twice in the
+    record, with 75% overlap: Table 4's settings from 16384 samples on (the paper's 50 s record
+    is unchanged), and at least five segments on a shorter one (8 on a 12 s record at 1 kHz)
+    instead of the two that Table 4's segment would leave. Returns ``(nperseg, noverlap)``;
+    raises ``ValueError`` below 16 samples.
+    """
+    n_samples = check_int("n_samples", n_samples, minimum=16)
+    nperseg = int(min(WELCH_NPERSEG, 2 ** math.floor(math.log2(n_samples / 2))))
+    return nperseg, 3 * nperseg // 4
+
+
+def _segments(n_samples: int, nperseg: int | None, noverlap: int | None) -> tuple[int, int]:
+    """``estimate``'s defaults: the record's own segments, or 75% overlap of a given ``nperseg``."""
+    if nperseg is None:
+        auto, auto_overlap = welch_segments(n_samples)
+        return auto, auto_overlap if noverlap is None else noverlap
+    return nperseg, 3 * nperseg // 4 if noverlap is None else noverlap
+
+
 def check_finite(name: str, a, *, where: str, index: str = "sample") -> None:
     """Refuse a concrete array with NaN or inf in one line naming ``name`` and the first bad
     entry (its index along axis 0 as ``index``, and the rest of its position); tracers pass."""
@@ -44,6 +67,22 @@ def check_finite(name: str, a, *, where: str, index: str = "sample") -> None:
         raise ValueError(
             f"{where}: {name} holds a non-finite value, {arr[pos]}, at {index} {pos[0]}{rest}; all must be finite"
         )
+
+
+class Welch(NamedTuple):
+    """Welch settings for batched studies (static; Table 4's by default): segment, overlap,
+    highest frequency [Hz], sample rate [Hz], window (a name or tuple
+    ``scipy.signal.get_window`` knows; hashable) and FFT length (``None``: ``nperseg``)."""
+
+    nperseg: int = WELCH_NPERSEG
+    noverlap: int = WELCH_NOVERLAP
+    fmax: float = ESTIMATION_FMAX
+    fs: float = SAMPLE_RATE
+    window: str | tuple = "hann"
+    nfft: int | None = None
+
+    def check(self, n_samples: int) -> None:
+        check_welch(n_samples, **self._asdict())
 
 
 def check_welch(
@@ -344,12 +383,12 @@ def estimate(
     fh,
     *,
     fs: float = SAMPLE_RATE,
-    nperseg: int = WELCH_NPERSEG,
-    noverlap: int = WELCH_NOVERLAP,
+    nperseg: int | None = None,
+    noverlap: int | None = None,
     fmax: float = ESTIMATION_FMAX,
     window="hann",
     nfft: int | None = None,
-    errors: bool = False,
+    errors: bool = True,
 ) -> Estimate:
     """Estimate the arm impedance from a record (docs/model.md section 11, paper eq. 9).
 
@@ -357,15 +396,19 @@ def estimate(
         f_delta: perturbation ``(N, 2)`` [N] (the inputs).
         x: recorded hand position ``(N, 2)`` [m] (any constant offset is removed per segment).
         fh: recorded hand force ``(N, 2)`` [N].
-        fs, nperseg, noverlap: Welch settings (Table 4 defaults).
+        fs: sample rate [Hz].
+        nperseg, noverlap: Welch segment length and overlap [samples]; by default they follow
+            the record (``welch_segments``: Table 4's 8192 and 6144 from 16384 samples on,
+            shorter segments on a shorter record); a given ``nperseg`` alone gets 75% overlap.
         fmax: highest frequency of interest [Hz], between ``fs / nfft`` and Nyquist.
         window: ``"hann"`` (periodic, default), any name or tuple ``scipy.signal.get_window``
             knows (periodic), or an array ``(nperseg,)``.
         nfft: FFT length ``>= nperseg`` (zero padding; default ``nperseg``); bins are
             ``fs / nfft`` apart.
         errors: also return ``Estimate.error``, the ``ZError`` of ``Z`` (what
-            ``fit_impedance(..., se="spectral")`` and its lack-of-fit test need). Off by
-            default: the other fields are the same either way.
+            ``fit_impedance``'s spectral standard errors and its lack-of-fit test need). On by
+            default; ``False`` saves its memory (about 0.1 MB a trial) where only ``Z`` and the
+            coherences are wanted. The other fields are the same either way.
 
     Single-trial; ``jax.vmap`` batches it (the settings are static). Raises ``ValueError``
     for mismatched lengths, NaN or inf in a concrete record (naming the first bad sample),
@@ -379,6 +422,7 @@ def estimate(
         raise ValueError(f"f_delta, x and fh must all have the same shape (N, 2); got {shapes}")
     for name, a in zip(("f_delta", "x", "fh"), arrays, strict=True):
         check_finite(name, a, where="estimate")
+    nperseg, noverlap = _segments(shapes[0][0], nperseg, noverlap)
     freqs, g = band_spectra(
         jnp.concatenate(arrays, axis=1), fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax, window=window, nfft=nfft
     )
@@ -407,8 +451,8 @@ def input_coherence(
     f_delta,
     *,
     fs: float = SAMPLE_RATE,
-    nperseg: int = WELCH_NPERSEG,
-    noverlap: int = WELCH_NOVERLAP,
+    nperseg: int | None = None,
+    noverlap: int | None = None,
     fmax: float = ESTIMATION_FMAX,
     window="hann",
     nfft: int | None = None,
@@ -423,5 +467,6 @@ def input_coherence(
     if f_delta.ndim != 2 or f_delta.shape[1] != 2:
         raise ValueError(f"f_delta must have shape (N, 2), got {f_delta.shape}")
     check_finite("f_delta", f_delta, where="input_coherence")
+    nperseg, noverlap = _segments(f_delta.shape[0], nperseg, noverlap)
     _, g = band_spectra(f_delta, fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax, window=window, nfft=nfft)
     return jnp.max(ordinary_coherence(g, 0, 1))

@@ -61,7 +61,7 @@ def arm_statistics(trial, f, x, fh):
     trial's acquisition model, uniform weights)."""
     n = f.shape[0]
     nperseg = welch_nperseg(n)
-    est = estimate(f, x, fh, fs=1.0 / trial.period, nperseg=nperseg, noverlap=3 * nperseg // 4)
+    est = estimate(f, x, fh, fs=1.0 / trial.period, nperseg=nperseg, noverlap=3 * nperseg // 4, errors=False)
     fit = fit_impedance(est.Z, est.f, acquisition=trial.acquisition, period=trial.period)
     return fit.mass, fit.damping, fit.stiffness
 

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 import time
 
 import jax
@@ -185,10 +184,8 @@ def _ljung_box_p(e, lags: int):
 
 
 def _classical(f, x, fh, acquisition, period):
-    n = f.shape[0]
-    nperseg = min(8192, 2 ** int(math.floor(math.log2(n / 2))))
     try:
-        est = estimate(f, x, fh, fs=1.0 / period, nperseg=nperseg, noverlap=3 * nperseg // 4, errors=True)
+        est = estimate(f, x, fh, fs=1.0 / period)  # segments that follow the record (welch_segments)
     except ValueError:
         return None
     return fit_impedance(est, acquisition=acquisition, period=period, se="spectral")

@@ -40,8 +40,9 @@ import numpy as np
 import optax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from .._batch import Welch, _batch_size, assess, make_mesh, shard_batch, to_host
+from .._batch import _batch_size, assess, make_mesh, shard_batch, to_host
 from .._checks import check_choice
+from .._estimation.welch import Welch
 from .._pytree import replace_unchecked
 from .._simulate import Trial, simulate
 from .._solver.numerics import Numerics

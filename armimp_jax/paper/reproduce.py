@@ -47,8 +47,8 @@ import jax
 import numpy as np
 import pandas as pd
 
-from .._batch import Welch, assess_batch, make_mesh, simulate_batch
-from .._estimation.welch import input_coherence
+from .._batch import assess_batch, make_mesh, simulate_batch
+from .._estimation.welch import Welch, input_coherence
 from .._simulate import stack_trials
 from .._solver.numerics import PAPER_NUMERICS, Numerics
 from ..presets import perturbation_peak, trial

@@ -9,7 +9,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from .._batch import Welch, assess_batch, simulate_batch
+from .._batch import assess_batch, simulate_batch
+from .._estimation.welch import Welch
 from .._simulate import stack_trials
 from .._solver.numerics import Numerics
 from .._solver.rk4 import RK4

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from .._batch import Welch
+from .._estimation.welch import Welch
 from .._model.arm import Arm
 from .._model.control import IMBIC, PD
 from .._model.friction import LuGre
