@@ -10,7 +10,8 @@ Float64 is required: call ``jax.config.update("jax_enable_x64", True)`` before u
 Importing ``armimp_jax`` does not import JAX: each public name is loaded on first use, so a
 script's ``--help`` answers at once. When the first of the package's JAX modules loads, and
 no JAX backend has started yet, ``runtime.apply_cpu_defaults`` asks for one CPU device per
-core and sets two XLA:CPU code-generation options (see ``armimp_jax.runtime``).
+core, sets two XLA:CPU code-generation options and lets devices wait for each other at
+collectives (see ``armimp_jax.runtime``).
 """
 
 from __future__ import annotations
@@ -39,7 +40,8 @@ _EXPORTS = {
     "shard_batch": "._batch",
     "simulate_batch": "._batch",
     "fit_warnings": "._estimation.diagnose",
-    "ImpedanceFit": "._estimation.fit",
+    "ImpedanceFit": "._estimation.impedance_fit",
+    "FitDiagnostics": "._estimation.diagnose",
     "fit_impedance": "._estimation.fit",
     "accuracy": "._estimation.metrics",
     "Estimate": "._estimation.welch",
@@ -62,6 +64,7 @@ _EXPORTS = {
     "crest_factor": "._model.families",
     "PlantState": "._model.plant",
     "MIT_MANUS": "._model.robot",
+    "jacobian": "._model.robot",
     "Robot": "._model.robot",
     "Sensors": "._model.sensors",
     "VoluntaryForce": "._model.voluntary",
@@ -77,7 +80,7 @@ _EXPORTS = {
     "PredictedSE": "._identification.predict",
     "predict_se": "._identification.predict",
     "Limits": "._identification.limits",
-    "Design": "._identification.design",
+    "Design": "._identification.monte_carlo_design",
     "design": "._identification.design",
     "record_for": "._identification.design",
     "BoundDesign": "._identification.bound_design",
@@ -126,9 +129,10 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._batch import padded_batch_size as padded_batch_size
     from ._batch import shard_batch as shard_batch
     from ._batch import simulate_batch as simulate_batch
+    from ._estimation.diagnose import FitDiagnostics as FitDiagnostics
     from ._estimation.diagnose import fit_warnings as fit_warnings
-    from ._estimation.fit import ImpedanceFit as ImpedanceFit
     from ._estimation.fit import fit_impedance as fit_impedance
+    from ._estimation.impedance_fit import ImpedanceFit as ImpedanceFit
     from ._estimation.metrics import accuracy as accuracy
     from ._estimation.welch import Estimate as Estimate
     from ._estimation.welch import Welch as Welch
@@ -141,7 +145,6 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._identification.bound import crlb as crlb
     from ._identification.bound import fisher_information as fisher_information
     from ._identification.bound_design import BoundDesign as BoundDesign
-    from ._identification.design import Design as Design
     from ._identification.design import design as design
     from ._identification.design import record_for as record_for
     from ._identification.identify import Identification as Identification
@@ -152,6 +155,7 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._identification.linear import LinearLoop as LinearLoop
     from ._identification.linear import drift as drift
     from ._identification.linear import linearise as linearise
+    from ._identification.monte_carlo_design import Design as Design
     from ._identification.predict import PredictedSE as PredictedSE
     from ._identification.predict import predict_se as predict_se
     from ._model.arm import Arm as Arm
@@ -169,6 +173,7 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._model.plant import PlantState as PlantState
     from ._model.robot import MIT_MANUS as MIT_MANUS
     from ._model.robot import Robot as Robot
+    from ._model.robot import jacobian as jacobian
     from ._model.sensors import Sensors as Sensors
     from ._model.voluntary import VoluntaryForce as VoluntaryForce
     from ._simulate import SimResult as SimResult

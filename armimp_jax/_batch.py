@@ -167,6 +167,18 @@ def _key_data(keys, b: int):
     return keys
 
 
+def _check_batch(trials: Trial, f_delta) -> np.ndarray:
+    """``f_delta`` as a host ``(B, N, 2)`` array; one-line errors for what cannot be a batch."""
+    if not isinstance(trials, Trial):
+        raise ValueError(f"trials must be stacked Trial values (stack_trials), got {type(trials).__name__}")
+    f_delta = np.asarray(f_delta)
+    if f_delta.ndim != 3 or f_delta.shape[2] != 2:
+        raise ValueError(f"f_delta must have shape (B, N, 2), got {f_delta.shape}")
+    if f_delta.shape[1] < 1:
+        raise ValueError(f"f_delta must hold at least one sample per trial, got shape {f_delta.shape}")
+    return f_delta
+
+
 def simulate_batch(
     trials: Trial,
     f_delta,
@@ -201,14 +213,8 @@ def simulate_batch(
     """
     mesh = make_mesh() if mesh is None else mesh
     numerics = Numerics() if numerics is None else numerics
-    if not isinstance(trials, Trial):
-        raise ValueError(f"trials must be stacked Trial values (stack_trials), got {type(trials).__name__}")
-    f_delta = np.asarray(f_delta)
-    if f_delta.ndim != 3 or f_delta.shape[2] != 2:
-        raise ValueError(f"f_delta must have shape (B, N, 2), got {f_delta.shape}")
+    f_delta = _check_batch(trials, f_delta)
     b, n = f_delta.shape[:2]
-    if n < 1:
-        raise ValueError(f"f_delta must hold at least one sample per trial, got shape {f_delta.shape}")
     chunk = n if chunk_samples is None else max(1, min(int(chunk_samples), n))
     n_chunks = math.ceil(n / chunk)
     f_padded = np.concatenate([f_delta, np.zeros((b, n_chunks * chunk - n, 2))], axis=1)

@@ -46,7 +46,7 @@ def check_int(name: str, value, *, minimum: int) -> int:
 
 
 def check_key(key, *, where: str) -> None:
-    """A ``jax.random`` key: a typed key (``jax.random.key(seed)``) or a legacy ``(2,)`` uint32
+    """A ``jax.random`` key: a typed key (``jax.random.key(seed)``) or a raw ``(2,)`` uint32
     one (``jax.random.PRNGKey(seed)``); a one-line error naming what was given otherwise."""
     dtype = getattr(key, "dtype", None)
     if dtype is not None and jnp.issubdtype(dtype, jax.dtypes.prng_key):
@@ -59,7 +59,7 @@ def check_key(key, *, where: str) -> None:
 
 
 def is_concrete(x) -> bool:
-    """True when ``x`` has values we can inspect now (not a tracer under jit/grad/vmap)."""
+    """True when every leaf of ``x`` holds values to inspect (no tracer under jit/grad/vmap)."""
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(x))
 
 

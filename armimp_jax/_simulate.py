@@ -28,12 +28,12 @@ from ._model.friction import LuGre
 from ._model.plant import PlantState, Trig, displacement, measure, plant_model, rest_state, trig_of
 from ._model.robot import MIT_MANUS, Robot, fk, ik, jacobian_from_trig
 from ._model.sensors import IDEAL, Sensors, quantise, sample_noise
+from ._model.timing import CONTROL_PERIOD
 from ._model.voluntary import VoluntaryForce, voluntary_init, voluntary_key, voluntary_normals, voluntary_update
 from ._pytree import params
 from ._solver.numerics import Numerics
 
 ACQUISITIONS = ("instant", "interval_mean")
-CONTROL_PERIOD = 1e-3  # L [s], control and acquisition period (docs/model.md section 7)
 # A trial is flagged as diverged when its state is not finite or a joint has moved this
 # far from its equilibrium [rad] (about 0.2 m at the handle; real trials move < 1 cm).
 DIVERGENCE_ANGLE = 0.5

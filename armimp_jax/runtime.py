@@ -82,16 +82,31 @@ def apply_cpu_defaults() -> bool:
     has started yet (and ``ARMIMP_JAX_XLA_DEFAULTS`` is not ``0``); options already there win.
     They change code generation only (results may move in their last bits: FMA contraction).
     Returns whether they are in effect for this process."""
-    from jax._src import xla_bridge  # imported here: importing armimp_jax does not import JAX
-
     if os.environ.get("ARMIMP_JAX_XLA_DEFAULTS", "1") == "0":
         return False
-    if not xla_bridge.backends_are_initialized():
+    if not backend_started():
         _add_extra_option(*_LOOP_OPTION)
         _add_extra_option(*_NO_UNROLL_OPTION)
         _add_collective_timeouts()
         _default_cpu_devices()
     return cpu_defaults_active()
+
+
+def backend_started() -> bool:
+    """Whether a JAX backend has started in this process (imports JAX).
+
+    Asked through public API: JAX refuses to change ``jax_num_cpu_devices`` once a backend
+    exists (its documented rule: set it before JAX is initialised), so a change that is taken
+    means none exists yet; the setting is put back at once."""
+    import jax
+
+    value = jax.config.jax_num_cpu_devices
+    try:
+        jax.config.update("jax_num_cpu_devices", value + 1)
+    except RuntimeError:
+        return True
+    jax.config.update("jax_num_cpu_devices", value)
+    return False
 
 
 def _add_collective_timeouts() -> None:
@@ -177,7 +192,8 @@ def configure(
     one kernel. ``unroll_loops=False`` adds the option that stops LLVM unrolling the
     short per-fusion loops over the batch inside that kernel (faster at small per-device
     batches). Both change where LLVM contracts ``a*b + c`` into an FMA, so
-    results may move in their last bits (bounded in ``tests/test_plant.py``).
+    results may move in their last bits (bounded in ``tests/test_batch.py``,
+    ``test_entry_point_codegen_options_agree_with_plain_xla_to_round_off``).
     ``vector_width`` (bits) is XLA:CPU's preferred SIMD width: ``"auto"`` asks for 512 on
     AVX-512 hosts and leaves the default elsewhere, ``None`` leaves it alone.
     ``compilation_cache``: keep compiled programs in ``compilation_cache_dir()`` across runs.
@@ -209,12 +225,10 @@ def configure(
         _add_extra_option(*_NO_UNROLL_OPTION)
     _add_collective_timeouts()
     if host_devices is not None:
-        from jax._src import xla_bridge
-
         n = host_devices or os.cpu_count() or 1
         if _FLAG in os.environ.get("XLA_FLAGS", ""):
             pass  # the caller's own count wins
-        elif not xla_bridge.backends_are_initialized():
+        elif not backend_started():
             jax.config.update("jax_num_cpu_devices", n)
         elif jax.default_backend() == "cpu" and jax.device_count() != n:
             warnings.warn(

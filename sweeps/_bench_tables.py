@@ -2,47 +2,47 @@
 
 from __future__ import annotations
 
+from _bench_run import markdown_head, markdown_table
+
 import armimp_jax as aj
 
 
 def markdown_unrolling(rows, seconds, substeps, repeats):
-    lines = [
+    caption = (
         f"LLVM loop unrolling on (XLA default) vs off (`configure` default): {seconds:g} s records, "
-        f"{substeps} substeps, median of {repeats}, alternating between the two processes.",
-        "",
-        "| kernel | devices | batch | M substeps/s, unrolled | M substeps/s, not unrolled | speed-up | same bits |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    lines += [
-        f"| {r['kernel']} | {r['devices']} | {r['batch']} | {r['msubsteps_per_s_unrolled']:.2f} | "
-        f"{r['msubsteps_per_s_not_unrolled']:.2f} | {r['speedup']:.2f}x | {'yes' if r['same_bits'] else 'no'} |"
+        f"{substeps} substeps, median of {repeats}, alternating between the two processes."
+    )
+    columns = ("kernel", "devices", "batch", "M substeps/s, unrolled", "M substeps/s, not unrolled", "speed-up")
+    cells = [
+        (r["kernel"], r["devices"], r["batch"], f"{r['msubsteps_per_s_unrolled']:.2f}")
+        + (f"{r['msubsteps_per_s_not_unrolled']:.2f}", f"{r['speedup']:.2f}x", "yes" if r["same_bits"] else "no")
         for r in rows
     ]
-    return "\n".join(lines)
+    return markdown_table(caption, columns + ("same bits",), cells)
+
+
+HOW = {  # the processes of --library-path, in words
+    "library": "library: `import armimp_jax`, float64 only",
+    "configured": "configured: `runtime.configure(host_devices=1)`",
+    "plain": "plain XLA: `ARMIMP_JAX_XLA_DEFAULTS=0`, float64 only",
+}
 
 
 def markdown_library(rows, repeats):
     r0 = rows[0]
-    how = {
-        "library": "library: `import armimp_jax`, float64 only",
-        "configured": "configured: `runtime.configure(host_devices=1)`",
-        "plain": "plain XLA: `ARMIMP_JAX_XLA_DEFAULTS=0`, float64 only",
-    }
-    lines = [
+    caption = (
         f"Library path: `aj.simulate_batch(trials, f_delta, numerics=aj.Numerics(solver=aj.RK4(), "
         f"substeps={r0['substeps']}))`, "
         f"{r0['batch']} IMBIC trials of {r0['record_s']:g} s, one device, compile excluded, median of {repeats}, "
-        "alternating between three processes:",
-        "",
-        "| process | XLA:CPU code generation | devices | M substeps/s | vs configured | same bits as configured |",
-        "|---|---|---|---|---|---|",
-    ]
-    lines += [
-        f"| {how[r['setup']]} | {r['codegen']} | {r['devices']} | {r['msubsteps_per_s']:.2f} | "
-        f"{r['vs_configured']:.2f}x | {'yes' if r['same_bits_as_configured'] else 'no'} |"
+        "alternating between three processes:"
+    )
+    columns = ("process", "XLA:CPU code generation", "devices", "M substeps/s", "vs configured")
+    cells = [
+        (HOW[r["setup"]], r["codegen"], r["devices"], f"{r['msubsteps_per_s']:.2f}", f"{r['vs_configured']:.2f}x")
+        + ("yes" if r["same_bits_as_configured"] else "no",)
         for r in rows
     ]
-    return "\n".join(lines)
+    return markdown_table(caption, columns + ("same bits as configured",), cells)
 
 
 def markdown_lanes(rows, lanes):
@@ -53,8 +53,7 @@ def markdown_lanes(rows, lanes):
         f"One device, unpadded batches ({lanes} float64 lanes per vector); 'padded' is the measured rate of "
         "the padded batch times its share of real trials:",
         "",
-        "| batch | M substeps/s | padded to | M real substeps/s padded |",
-        "|---|---|---|---|",
+        *markdown_head("batch", "M substeps/s", "padded to", "M real substeps/s padded"),
     ]
     for r in rows:
         p = aj.padded_batch_size(r["batch"], 1, lanes)
@@ -64,15 +63,11 @@ def markdown_lanes(rows, lanes):
 
 
 def markdown_large(sim, grouped):
-    lines = [
-        "| batch on one device | M substeps/s | compile s |",
-        "|---|---|---|",
-    ]
+    lines = markdown_head("batch on one device", "M substeps/s", "compile s")
     lines += [f"| {r['batch']} | {r['msubsteps_per_s']:.2f} | {r['compile_s']:.1f} |" for r in sim]
     lines += [
         "",
-        "| `simulate_batch` | batch | devices | groups x padded size | M substeps/s |",
-        "|---|---|---|---|---|",
+        *markdown_head("`simulate_batch`", "batch", "devices", "groups x padded size", "M substeps/s"),
     ]
     lines += [
         f"| max_per_device={r['max_per_device']} | {r['batch']} | {r['devices']} | {r['groups']} x {r['group_size']} | "
@@ -86,8 +81,9 @@ def markdown(sim, full, est, numba_row=None, library=None, library_repeats=None,
     lines = [
         f"Simulation on {device} (RK4, {sim[0]['substeps']} substeps, {sim[0]['record_s']:g} s records):",
         "",
-        "| kernel | devices | batch (padded) | M substeps/s | s per 50 s trial (from 5 s) | compile s |",
-        "|---|---|---|---|---|---|",
+        *markdown_head(
+            *("kernel", "devices", "batch (padded)", "M substeps/s", "s per 50 s trial (from 5 s)", "compile s")
+        ),
     ]
     lines += [
         f"| {r['kernel']} | {r['devices']} | {r['batch']} ({r['padded_batch']}) | {r['msubsteps_per_s']:.2f} | "
@@ -118,7 +114,7 @@ def markdown(sim, full, est, numba_row=None, library=None, library_repeats=None,
             f"Measured 50 s batch ({f['kernel']} kernel): {f['batch']} trials on {f['devices']} device(s) in "
             f"{f['wall_s']:.1f} s = **{f['s_per_trial']:.2f} s per 50 s trial**.",
         ]
-    lines += ["", "| estimator (50 s records) | batch | run s | XLA temp MiB | inputs MiB |", "|---|---|---|---|---|"]
+    lines += ["", *markdown_head("estimator (50 s records)", "batch", "run s", "XLA temp MiB", "inputs MiB")]
     lines += [
         f"| {r['method']} | {r['batch']} | {r['run_s']:.3f} | {r['temp_mib']:.0f} | {r['input_mib']:.0f} |" for r in est
     ]

@@ -29,7 +29,35 @@ class Parser(argparse.ArgumentParser):
         fail(message, self.prog)
 
 
+# The solvers' names, as ``Numerics.method`` and saved run settings spell them (spelled out
+# here so that --help needs no JAX; tests/test_bench_helpers.py holds them to the library's).
+METHODS = ("rk4", "ark3", "ark4", "gark4")
+
+
+def solver(method: str, *, kernel: str = "fast"):
+    """The solver named ``method`` (one of ``METHODS``) with RK4's ``kernel`` (or the kernel
+    the others accept)."""
+    import armimp_jax as aj
+
+    return dict(zip(METHODS, (aj.RK4, aj.ARK3, aj.ARK4, aj.GradedARK4)))[method](kernel=kernel)
+
+
 Z95 = 1.959963984540054  # the two-sided 95% normal quantile
+
+
+def parse_cases(text: str, prog: str, example: str) -> list[tuple[str, float]]:
+    """``--cases`` as ``[(controller, tau_c [N m]), ...]`` from ``"pd:0.3,imbic:1"``; one line
+    (showing ``example``) and exit status 2 when it does not read so."""
+    try:
+        return [(c.split(":")[0], float(c.split(":")[1])) for c in text.split(",")]
+    except (IndexError, ValueError):
+        fail(f"--cases must look like {example}; got {text!r}", prog)
+
+
+def bench_noise(aj, voluntary: float = 0.3) -> dict:
+    """``make_trial``'s noise in the identification and design benchmarks: force noise 0.05 N,
+    2^18-count encoders, and the person's own force, ``voluntary`` N RMS below 2 Hz."""
+    return dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(voluntary, 2.0))
 
 
 def spread_and_hits(rows, name: str, true):

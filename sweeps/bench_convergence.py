@@ -37,9 +37,10 @@ import statistics
 import sys
 import time
 
+from _cli import METHODS, solver
+
 DEFAULT_TAUS = (0.0, 1e-4, 1e-3, 1e-2, 0.1, 1.0, 4.0)  # issue 26's Coulomb torques [N m]
 DEFAULT_SETTINGS = "rk4:25,rk4:100,ark3:10,ark3:20,ark4:5,ark4:10,gark4:4,gark4:5"
-METHODS = ("rk4", "ark3", "ark4", "gark4")
 CHUNK = 5000  # samples per compiled chunk: the warm-up runs one chunk
 TOLERANCE = 1e-4  # issue 26: converged means both errors at most this, and no divergence
 
@@ -86,8 +87,7 @@ def numerics(method, substeps):
     """The ``Numerics`` of a ``METHOD:SUBSTEPS`` setting (the solver's default kernel)."""
     import armimp_jax as aj
 
-    solvers = {"rk4": aj.RK4, "ark3": aj.ARK3, "ark4": aj.ARK4, "gark4": aj.GradedARK4}
-    return aj.Numerics(solver=solvers[method](), substeps=substeps)
+    return aj.Numerics(solver=solver(method), substeps=substeps)
 
 
 def label(setting):

@@ -21,7 +21,7 @@ from __future__ import annotations
 import sys
 import time
 
-from _cli import Parser, fail
+from _cli import Parser, bench_noise, fail, parse_cases
 
 TARGETS = [f"arm.{n}[{i},{i}]" for n in ("mass", "damping", "stiffness") for i in (0, 1)]
 FREE = ("arm.mass", "arm.damping", "arm.stiffness")
@@ -42,10 +42,7 @@ def parse(argv):
     p.add_argument("--seeds", type=int, default=40, help="Monte Carlo recordings per arm (default 40; 0: none)")
     p.add_argument("--out", default="bench_design.json", help="JSON file of the results")
     a = p.parse_args(argv)
-    try:
-        a.cases = [(c.split(":")[0], float(c.split(":")[1])) for c in a.cases.split(",")]
-    except (IndexError, ValueError):
-        fail(f"--cases must look like pd:0.3,imbic:1; got {a.cases!r}", p.prog)
+    a.cases = parse_cases(a.cases, p.prog, "pd:0.3,imbic:1")
     if any(c not in ("pd", "imbic") or t < 0 for c, t in a.cases):
         fail(f"--cases: controller pd or imbic and tau_c >= 0; got {a.cases}", p.prog)
     if a.record < 2 or a.steps < 1 or a.draws < 8 or a.seeds < 0 or a.displacement <= 0:
@@ -67,17 +64,17 @@ def criterion(dx, preds, trials):
     return max(max(r.values()) for r in per), per
 
 
-def run_case(aj, np, jax, controller, tau_c, a):
+def make_case(aj, np, jax, controller, tau_c, a):
+    """``(trials, paper_signal, limits, knots)`` of one case: the four arms, the paper's level-1
+    perturbation (key 2024), the limits at its RMS and peak, and the ShapedNoise knots [Hz]."""
     from armimp_jax import paper
-    from armimp_jax.study import design_experiment as dx
 
-    noise = dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(0.3, 2.0))
     trials = [
         aj.make_trial(
             aj.PD() if controller == "pd" else aj.IMBIC(),
             arm=paper.arm(loc),
             friction=aj.LuGre(tau_c, 1.5 * tau_c),
-            **noise,
+            **bench_noise(aj),
         )
         for loc in (1, 2, 3, 4)
     ]
@@ -85,16 +82,18 @@ def run_case(aj, np, jax, controller, tau_c, a):
     paper_signal = np.asarray(aj.PaperNoise(paper.perturbation_peak(1)).signal(jax.random.key(2024), n))
     rms = np.sqrt(np.mean(paper_signal**2, axis=0))
     limits = aj.Limits(rms_force=tuple(rms), peak_force=2.25, record=a.record, peak_displacement=a.displacement)
-    knots = np.geomspace(a.low, 15.0, a.knots)
+    return trials, paper_signal, limits, np.geomspace(a.low, 15.0, a.knots)
+
+
+def run_design(aj, np, trials, limits, knots, a, name):
+    """``aj.design`` from one flat ShapedNoise start per ``--duty``, printing each step."""
     starts = [aj.ShapedNoise(knots, np.ones((2, a.knots)), 1.0, duty=d, burst=a.burst) for d in a.duty]
     t0 = time.perf_counter()
 
     def progress(step, steps, value):
-        print(
-            f"  {controller} {tau_c:g}: step {step}/{steps}, criterion {value:.4g} ({time.perf_counter() - t0:.0f} s)"
-        )
+        print(f"  {name}: step {step}/{steps}, criterion {value:.4g} ({time.perf_counter() - t0:.0f} s)")
 
-    result = aj.design(
+    return aj.design(
         trials[0],
         starts,
         free=FREE,
@@ -106,27 +105,68 @@ def run_case(aj, np, jax, controller, tau_c, a):
         learning_rate=a.learning_rate,
         progress=progress,
     )
-    labels = list(result.before[0].labels)
-    # every signal on the same draws (key 0), the paper's and the flat continuous noise's too
+
+
+def compare(aj, np, jax, dx, result, trials, paper_signal, limits, knots, a) -> dict:
+    """``{signal: (criterion, per trial per target)}`` predicted for the paper's perturbation,
+    the flat continuous noise, the design's start and the design, all on the same draws (key 0)."""
     flat = aj.ShapedNoise(knots, np.ones((2, a.knots)), 1.0)
     flat_signal = aj.limited_signal(flat, limits, key=jax.random.split(jax.random.key(0))[0], trials=trials)
+    signals = dict(paper=paper_signal, flat=flat_signal, start=result.start_signal, designed=result.signal)
+    return {
+        k: criterion(dx, [aj.predict_se(t, s, free=FREE, draws=64) for t in trials], trials) for k, s in signals.items()
+    }
 
-    def predicted(signal):
-        return criterion(dx, [aj.predict_se(t, signal, free=FREE, draws=64) for t in trials], trials)
 
-    crit_paper, per_paper = predicted(paper_signal)
-    crit_flat, per_flat = predicted(flat_signal)
-    crit_before, per_before = predicted(result.start_signal)
-    crit_after, per_after = predicted(result.signal)
+def monte_carlo(dx, result, trials, predicted, a) -> dict:
+    """``--seeds`` recordings per arm with the designed signal, each identified from the truth:
+    the relative spread per target against the predicted relative SE."""
+    crit_after, per_after = predicted
+    labels = list(result.before[0].labels)
+    check = dx.validate(result.signal, trials, FREE, seeds=a.seeds)
+    spread_rel, ratios = [], []
+    for k, (t, v) in enumerate(zip(trials, check)):
+        truth = dx.truth(t, FREE)
+        row = {}
+        for lab in TARGETS:
+            row[lab] = float(v["spread"][labels.index(lab)] / abs(truth[labels.index(lab)]))
+            ratios.append(row[lab] / per_after[k][lab])
+        spread_rel.append(row)
+    achieved_crit = max(max(r.values()) for r in spread_rel)
+    print(
+        f"  Monte Carlo ({a.seeds} per arm): largest relative spread {achieved_crit:.4g} against predicted "
+        f"{crit_after:.4g} ({achieved_crit / crit_after:.2f}); spread / predicted SE per target and arm "
+        f"{min(ratios):.2f}-{max(ratios):.2f}",
+        flush=True,
+    )
+    return dict(
+        seeds=a.seeds,
+        recordings=[v["recordings"] for v in check],
+        diverged=[v["diverged"] for v in check],
+        converged=[v["converged"] for v in check],
+        relative_spread=spread_rel,
+        spread_over_predicted=ratios,
+        criterion_achieved=achieved_crit,
+        achieved_over_predicted=achieved_crit / crit_after,
+    )
+
+
+def run_case(aj, np, jax, controller, tau_c, a):
+    """One case: the design, its comparison with the other signals and (``--seeds``) its check."""
+    from armimp_jax.study import design_experiment as dx
+
+    trials, paper_signal, limits, knots = make_case(aj, np, jax, controller, tau_c, a)
+    result = run_design(aj, np, trials, limits, knots, a, f"{controller} {tau_c:g}")
+    crit = compare(aj, np, jax, dx, result, trials, paper_signal, limits, knots, a)
     out = dict(
         controller=controller,
         tau_c=tau_c,
-        paper_rms_force=rms.tolist(),
-        criterion=dict(paper=crit_paper, flat=crit_flat, start=crit_before, designed=crit_after),
+        paper_rms_force=np.asarray(limits.rms_force).tolist(),
+        criterion={k: c for k, (c, _) in crit.items()},
         start_duty=result.start_family.duty,
         start_criteria=dict(zip([str(d) for d in a.duty], result.start_criteria)),
-        paper_over_designed=crit_paper / crit_after,
-        relative_se=dict(paper=per_paper, flat=per_flat, start=per_before, designed=per_after),
+        paper_over_designed=crit["paper"][0] / crit["designed"][0],
+        relative_se={k: per for k, (_, per) in crit.items()},
         achieved=result.achieved,
         design_time_s=result.time_s,
         improved=result.improved,
@@ -136,41 +176,14 @@ def run_case(aj, np, jax, controller, tau_c, a):
         knots=np.asarray(result.family.knots).tolist(),
     )
     print(
-        f"{controller} {tau_c:g} N m: largest relative SE, paper {crit_paper:.4g}, flat continuous {crit_flat:.4g}, "
-        f"start (duty {result.start_family.duty:g}; candidates {result.start_criteria}) {crit_before:.4g}, "
-        f"designed {crit_after:.4g} ({crit_paper / crit_after:.2f}x; improved on the start: {result.improved}); "
-        f"design {result.time_s:.0f} s; "
-        f"achieved {result.achieved}",
+        f"{controller} {tau_c:g} N m: largest relative SE, paper {crit['paper'][0]:.4g}, flat continuous "
+        f"{crit['flat'][0]:.4g}, start (duty {result.start_family.duty:g}; candidates {result.start_criteria}) "
+        f"{crit['start'][0]:.4g}, designed {crit['designed'][0]:.4g} ({out['paper_over_designed']:.2f}x; improved "
+        f"on the start: {result.improved}); design {result.time_s:.0f} s; achieved {result.achieved}",
         flush=True,
     )
     if a.seeds:
-        check = dx.validate(result.signal, trials, FREE, seeds=a.seeds)
-        spread_rel = []
-        ratios = []
-        for k, (t, v) in enumerate(zip(trials, check)):
-            truth = dx.truth(t, FREE)
-            row = {}
-            for lab in TARGETS:
-                row[lab] = float(v["spread"][labels.index(lab)] / abs(truth[labels.index(lab)]))
-                ratios.append(row[lab] / per_after[k][lab])
-            spread_rel.append(row)
-        achieved_crit = max(max(r.values()) for r in spread_rel)
-        out["validation"] = dict(
-            seeds=a.seeds,
-            recordings=[v["recordings"] for v in check],
-            diverged=[v["diverged"] for v in check],
-            converged=[v["converged"] for v in check],
-            relative_spread=spread_rel,
-            spread_over_predicted=ratios,
-            criterion_achieved=achieved_crit,
-            achieved_over_predicted=achieved_crit / crit_after,
-        )
-        print(
-            f"  Monte Carlo ({a.seeds} per arm): largest relative spread {achieved_crit:.4g} against predicted "
-            f"{crit_after:.4g} ({achieved_crit / crit_after:.2f}); spread / predicted SE per target and arm "
-            f"{min(ratios):.2f}-{max(ratios):.2f}",
-            flush=True,
-        )
+        out["validation"] = monte_carlo(dx, result, trials, crit["designed"], a)
     return out
 
 

@@ -42,6 +42,9 @@ import subprocess
 import sys
 import time
 
+from _bench_run import alternate, markdown_head, save_table
+from _cli import solver
+
 # configure() in each child sets code generation: keep the import-time options out of it
 # (the children inherit this). No JAX backend starts on import, so configure() still applies.
 os.environ["ARMIMP_JAX_XLA_DEFAULTS"] = "0"
@@ -88,21 +91,13 @@ def child(mode, kernel, checkpoint, seconds, substeps, repeats, codegen):
         compiled = fn.lower(theta, params, f_delta).compile()
         return functools.partial(compiled, theta, params, f_delta), time.perf_counter() - t0, compiled
 
-    def timed(fn):
-        t0 = time.perf_counter()
-        out = jax.block_until_ready(fn())
-        return time.perf_counter() - t0, out
-
     target, compile_s, compiled = build(mode, kernel, checkpoint)
-    first_s, out = timed(target)
+    out = jax.block_until_ready(target())  # the first run, untimed
     peak_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # before the baseline exists
     # The forward simulation (fast kernel) is timed alternately with the target in this
     # process, so that the shared host's drift hits both alike; the ratio is paired.
     baseline = target if (mode, kernel) == ("primal", "fast") else build("primal", "fast", "period")[0]
-    runs, base_runs = [], []
-    for _ in range(repeats):
-        runs.append(timed(target)[0])
-        base_runs.append(timed(baseline)[0])
+    runs, base_runs = alternate([target, baseline], repeats)
     grad = None if mode == "primal" else np.asarray(out[1]).tolist()
     return dict(
         mode=mode,
@@ -140,8 +135,7 @@ def child_jacobian(setting, seconds, repeats, codegen):
     from armimp_jax import paper
 
     method, kernel, substeps = setting.split(":")
-    solvers = {"rk4": aj.RK4, "ark3": aj.ARK3, "ark4": aj.ARK4, "gark4": aj.GradedARK4}
-    numerics = aj.Numerics(solver=solvers[method](kernel=kernel), substeps=int(substeps))
+    numerics = aj.Numerics(solver=solver(method, kernel=kernel), substeps=int(substeps))
     n = int(round(seconds * 1000))
     trial = paper.trial("imbic", 2, 1)
     f_delta = jnp.asarray(aj.perturbation(jax.random.key(0), n, peak=paper.perturbation_peak(1)))
@@ -169,12 +163,7 @@ def child_jacobian(setting, seconds, repeats, codegen):
     runs["16 forwards"] = lambda: [forward(t) for t in thetas]
     jac = jax.block_until_ready(runs["jacobian"]())
     jax.block_until_ready(runs["forward"]())
-    times = {name: [] for name in runs}
-    for _ in range(repeats):
-        for name, run in runs.items():
-            t0 = time.perf_counter()
-            jax.block_until_ready(run())
-            times[name].append(time.perf_counter() - t0)
+    times = dict(zip(runs, alternate(list(runs.values()), repeats)))
     med = {name: statistics.median(t) for name, t in times.items()}
     return dict(
         setting=setting,
@@ -225,19 +214,15 @@ def child_training(repeats, codegen):
             trials = int(params.q0.shape[0])
             built.append((functools.partial(compiled, t, params, f_delta), checkpoint, n, compile_s, temp, trials))
             jax.block_until_ready(built[-1][0]())
-    runs = [[] for _ in built]
-    for _ in range(repeats):
-        for (fn, *_), times in zip(built, runs):
-            t0 = time.perf_counter()
-            jax.block_until_ready(fn())
-            times.append(time.perf_counter() - t0)
+    runs = alternate([b[0] for b in built], repeats)
     return [
         dict(trials=b, checkpoint=c, devices=n, compile_s=cs, xla_temp_mib=temp, run_s=statistics.median(t), runs_s=t)
         for (_, c, n, cs, temp, b), t in zip(built, runs)
     ]
 
 
-def main():
+def parser() -> argparse.ArgumentParser:
+    """The command line (no JAX: ``--help`` is instant)."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seconds", type=float, default=50.0)
     ap.add_argument("--substeps", type=int, default=100)
@@ -261,21 +246,27 @@ def main():
         help="reverse-mode tapes (Numerics.checkpoint)",
     )
     ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/bench"))
-    args = ap.parse_args()
+    return ap
+
+
+def run_as_child(args, codegen) -> dict | list:
+    """What a child process (``--child``) measures: its JSON-ready result."""
+    if args.child == "training":
+        return child_training(args.repeats, codegen)
+    if args.child == "jacobian":
+        return child_jacobian(args.child_setting, args.seconds, args.repeats, codegen)
+    return child(
+        args.child, args.child_kernel, args.child_checkpoint, args.seconds, args.substeps, args.repeats, codegen
+    )
+
+
+def main():
+    args = parser().parse_args()
     codegen = dict(hoist_small_loops=not args.no_hoist, unroll_loops=args.unroll_loops)
     codegen_args = ["--no-hoist"] * args.no_hoist + ["--unroll-loops"] * args.unroll_loops
-    if args.child == "training":
-        print(json.dumps(child_training(args.repeats, codegen)))
-        return
-    if args.child == "jacobian":
-        print(json.dumps(child_jacobian(args.child_setting, args.seconds, args.repeats, codegen)))
-        return
     if args.child:
-        result = child(
-            args.child, args.child_kernel, args.child_checkpoint, args.seconds, args.substeps, args.repeats, codegen
-        )
-        print(json.dumps(result))
-        return
+        print(json.dumps(run_as_child(args, codegen)))
+        return None
 
     def run_child(*extra):
         cmd = [sys.executable, __file__, *extra, "--repeats", str(args.repeats), *codegen_args]
@@ -286,7 +277,12 @@ def main():
 
     if args.jacobian:
         return jacobian_table(args, run_child)
+    return gradient_table(args, run_child)
 
+
+def gradient_table(args, run_child):
+    """The default run: one child per (mode, kernel, checkpoint) and the primal baselines, the
+    training batch (``--training-batch``), then the table (Markdown and JSON under ``--out``)."""
     runs = [("primal", "fast", "period")] + [("primal", k, "period") for k in args.kernels if k != "fast"]
     runs += [(mode, k, c) for k in args.kernels for c in args.checkpoints for mode in args.modes]
     rows = []
@@ -306,9 +302,10 @@ def main():
         f"{'without' if args.no_hoist else 'with'} the XLA small-loop option, LLVM loop unrolling "
         f"{'on' if args.unroll_loops else 'off'}:",
         "",
-        "| mode | kernel | checkpoint | run s | forward simulation s (same process) | x forward simulation "
-        "| compile s | XLA temp MiB | peak RSS MiB |",
-        "|---|---|---|---|---|---|---|---|---|",
+        *markdown_head(
+            *("mode", "kernel", "checkpoint", "run s", "forward simulation s (same process)"),
+            *("x forward simulation", "compile s", "XLA temp MiB", "peak RSS MiB"),
+        ),
     ]
     lines += [
         f"| {r['mode']} | {r['kernel']} | {r['checkpoint'] if r['mode'] != 'primal' else '-'} | {r['run_s']:.2f} | "
@@ -322,8 +319,7 @@ def main():
             "",
             "Gradient of the tuner's training batch (tune_mhat.py defaults), one process, alternating:",
             "",
-            "| trials | checkpoint | devices | run s | compile s | XLA temp MiB |",
-            "|---|---|---|---|---|---|",
+            *markdown_head("trials", "checkpoint", "devices", "run s", "compile s", "XLA temp MiB"),
         ]
         lines += [
             f"| {r['trials']} | {r['checkpoint']} | {r['devices']} | {r['run_s']:.2f} | {r['compile_s']:.1f} | "
@@ -332,11 +328,7 @@ def main():
         ]
     table = "\n".join(lines)
     print("\n" + table)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "bench_gradient.md").write_text(table + "\n")
-    (args.out / "bench_gradient.json").write_text(
-        json.dumps(dict(single_trial=rows, training_batch=training), indent=1)
-    )
+    save_table(args.out, "bench_gradient", table, dict(single_trial=rows, training_batch=training))
 
 
 def jacobian_table(args, run_child):
@@ -354,9 +346,10 @@ def jacobian_table(args, run_child):
         f"Forward-mode Jacobian of one trial's x and fh ({args.seconds:g} s record, IMBIC, friction 2, location 1) "
         f"with respect to {JAC_PARAMETERS} parameters, one device, compile excluded, median of {args.repeats}:",
         "",
-        "| solver:kernel:substeps | forward s | jacfwd s | jacfwd in forwards (target <= 8) | 16 forwards s "
-        "| compile forward / jacfwd s | load |",
-        "|---|---|---|---|---|---|---|",
+        *markdown_head(
+            *("solver:kernel:substeps", "forward s", "jacfwd s", "jacfwd in forwards (target <= 8)"),
+            *("16 forwards s", "compile forward / jacfwd s", "load"),
+        ),
     ]
     lines += [
         f"| {r['setting']} | {r['forward_s']:.3f} | {r['jacobian_s']:.3f} | {r['jacobian_in_forwards']:.2f} | "
@@ -366,9 +359,7 @@ def jacobian_table(args, run_child):
     ]
     table = "\n".join(lines)
     print("\n" + table)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "bench_jacobian.md").write_text(table + "\n")
-    (args.out / "bench_jacobian.json").write_text(json.dumps(rows, indent=1))
+    save_table(args.out, "bench_jacobian", table, rows)
 
 
 if __name__ == "__main__":

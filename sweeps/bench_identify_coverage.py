@@ -23,7 +23,7 @@ import pathlib
 import sys
 import time
 
-from _cli import Parser, fail, resumable, run_seeds, spread_and_hits
+from _cli import Parser, bench_noise, fail, parse_cases, resumable, run_seeds, spread_and_hits
 
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
 
@@ -50,10 +50,7 @@ def parse(argv):
         a.seconds = 20.0
     if a.seeds < 2 or a.seconds < 2 or a.peak <= 0 or a.draws < 8:
         fail("need --seeds >= 2, --seconds >= 2, --peak > 0 and --draws >= 8", p.prog)
-    try:
-        a.cases = [(c.split(":")[0], float(c.split(":")[1])) for c in a.cases.split(",")]
-    except (IndexError, ValueError):
-        fail(f"--cases must look like pd:0.2,imbic:1; got {a.cases!r}", p.prog)
+    a.cases = parse_cases(a.cases, p.prog, "pd:0.2,imbic:1")
     friction_free = any(n.startswith("friction.") for n in a.free)
     if any(c not in ("pd", "imbic") or t < 0 or (friction_free and t == 0) for c, t in a.cases):
         fail(f"--cases: controller pd or imbic and tau_c >= 0 (> 0 with friction free); got {a.cases}", p.prog)
@@ -67,9 +64,8 @@ def make_truth(aj, controller, tau_c, a):
         aj.PD() if controller == "pd" else aj.IMBIC(),
         arm=presets.arm(2),
         friction=aj.LuGre(tau_c, 1.5 * tau_c),
-        sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18),
-        voluntary=aj.VoluntaryForce(a.voluntary, 2.0),
         acquisition=a.acquisition,
+        **bench_noise(aj, a.voluntary),
     )
 
 
@@ -97,10 +93,7 @@ def one_seed(aj, np, jax, truth, f, seed, a, free=None, statistic="auto"):
         diverged=False,
         converged=res.converged,
         reliable=res.intervals_reliable,
-        not_told=res.not_told,
-        statistic=res.statistic,
-        iterations=res.iterations,
-        time_s=res.time_s,
+        **{k: getattr(res, k) for k in ("not_told", "statistic", "iterations", "time_s")},
         values={n: np.asarray(v).tolist() for n, v in res.values.items()},
         se={n: np.asarray(v).tolist() for n, v in res.se.items()},
     )
@@ -112,6 +105,16 @@ def one_seed(aj, np, jax, truth, f, seed, a, free=None, statistic="auto"):
             low, high = c.interval(n.split(".")[1])
             out["classical_half_width"][n] = (0.5 * (np.asarray(high) - np.asarray(low))).tolist()
     return out
+
+
+def run_case(aj, np, jax, state, group, name, truth, f, opts, *, seeds, path, free=None, statistic="auto", report=None):
+    """The recordings ``0 .. seeds - 1`` of case ``name`` in ``state[group]`` that it lacks
+    (``_cli.run_seeds``, saved after each), each ``one_seed`` of ``truth`` under ``f``."""
+
+    def one(seed):
+        return one_seed(aj, np, jax, truth, f, seed, opts, free, statistic)
+
+    return run_seeds(state, group, name, seeds, one, path, report)
 
 
 def summarise(np, rows, true, pred, names):
@@ -160,14 +163,11 @@ def run_cases(aj, np, jax, a, settings):
     for controller, tau_c in a.cases:
         name = f"{controller}:{tau_c:g}"
         truth = make_truth(aj, controller, tau_c, a)
-        case = run_seeds(
-            state,
-            "cases",
-            name,
-            a.seeds,
-            lambda seed: one_seed(aj, np, jax, truth, f, seed, a),  # noqa: B023 (run at once)
-            path,
-            lambda seed, row: f"  {name} seed {seed}: {row['time_s']:.1f} s, {row['iterations']} steps",  # noqa: B023
+        case = run_case(
+            *(aj, np, jax, state, "cases", name, truth, f, a),
+            seeds=a.seeds,
+            path=path,
+            report=lambda seed, row: f"  {name} seed {seed}: {row['time_s']:.1f} s, {row['iterations']} steps",  # noqa: B023
         )
         if "summary" not in case or case["summary"].get("seeds") != len(case["seeds"]):
             pred = aj.predict_se(truth, f, free=a.free, draws=a.draws)
@@ -200,7 +200,7 @@ def must_show(aj, np, jax, a):
     from armimp_jax import presets
 
     arm = presets.arm(2)
-    noise = dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(0.3, 2.0))
+    noise = bench_noise(aj)
     truth = aj.make_trial(aj.PD(), arm=arm, friction=aj.LuGre(0.8, 1.2), **noise)
     # half the friction where it is estimated; a fixed tau_s keeps its (known) value
     start_friction = aj.LuGre(0.4, 0.6 if "friction.tau_s" in a.free else 1.2)

@@ -21,8 +21,8 @@ import pathlib
 import sys
 import time
 
-from _cli import Parser, fail, resumable, run_seeds, spread_and_hits
-from bench_identify_coverage import one_seed
+from _cli import Parser, bench_noise, fail, resumable, spread_and_hits
+from bench_identify_coverage import run_case
 
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
 # name: (controller, arm location, IMBIC's k_rd [N/m] or None for the paper's, tau_c [N m], peak [N] or "L1",
@@ -70,9 +70,8 @@ def make_case(aj, np, jax, name, a):
         ctrl,
         arm=presets.arm(location),
         friction=aj.LuGre(tau_c, 1.5 * tau_c) if tau_c > 0 else aj.NO_FRICTION,
-        sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18),
-        voluntary=aj.VoluntaryForce(0.3, 2.0),
         acquisition=acquisition[0] if acquisition else "instant",
+        **bench_noise(aj),
     )
     peak = presets.perturbation_peak(1) if peak == "L1" else peak
     return truth, aj.perturbation(jax.random.key(2024), int(round(a.seconds * 1000)), peak)
@@ -128,19 +127,28 @@ def run_cases(aj, np, jax, a, settings):
     state = resumable(path, settings, "bench_identify_efficiency", cases={})
     for name in a.cases:
         truth, f = make_case(aj, np, jax, name, a)
-        case = run_seeds(
-            state,
-            "cases",
-            name,
-            a.seeds,
-            lambda seed: one_seed(aj, np, jax, truth, f, seed, a, free_of(name), a.statistic),  # noqa: B023
-            path,
-            lambda seed, row: f"  {name} seed {seed}: {row['time_s']:.1f} s, {row['statistic']}",  # noqa: B023
+        case = run_case(
+            *(aj, np, jax, state, "cases", name, truth, f, a),
+            seeds=a.seeds,
+            path=path,
+            free=free_of(name),
+            statistic=a.statistic,
+            report=lambda seed, row: f"  {name} seed {seed}: {row['time_s']:.1f} s, {row['statistic']}",  # noqa: B023
         )
         if "summary" not in case or case["summary"].get("seeds") != len(case["seeds"]):
             case["summary"] = summarise(aj, np, truth, f, case["seeds"], a)
             atomic_write_json(path, state)
     return state
+
+
+def diagonal_entries(state):
+    """Per case of ``state``: ``(name, summary, [(label, parameter's row, i, j)])`` over the
+    diagonal entries; the summary ``None`` for a case interrupted before it finished
+    (resuming completes it)."""
+    for name, case in state["cases"].items():
+        s = case.get("summary")
+        params = {} if s is None else s["parameters"]
+        yield name, s, [(f"{n}[{i},{j}]", r, i, j) for n, r in params.items() for i, j in DIAGONAL]
 
 
 def print_table(state, a):
@@ -149,18 +157,16 @@ def print_table(state, a):
         f"{'case':<18}{'entry':<22}{'bound':>10}{'predict_se':>12}{'spread':>10}{'spread/bound':>14}{'coverage':>10}"
         f"{'welch/bound':>13}"
     )
-    for name, case in state["cases"].items():
-        s = case.get("summary")
-        if s is None:  # interrupted before the case finished: resuming completes it
+    for name, s, entries in diagonal_entries(state):
+        if s is None:
             print(f"{name:<18}(unfinished: resume the run)")
             continue
-        for n, r in s["parameters"].items():
-            for i, j in DIAGONAL:
-                print(
-                    f"{name:<18}{f'{n}[{i},{j}]':<22}{r['bound'][i][j]:>10.4g}{r['predicted'][i][j]:>12.4g}"
-                    f"{r['spread'][i][j]:>10.4g}{r['spread_over_bound'][i][j]:>14.2f}{r['coverage'][i][j]:>10.2f}"
-                    f"{r['predicted_welch'][i][j] / r['bound'][i][j]:>13.2f}"
-                )
+        for label, r, i, j in entries:
+            print(
+                f"{name:<18}{label:<22}{r['bound'][i][j]:>10.4g}{r['predicted'][i][j]:>12.4g}"
+                f"{r['spread'][i][j]:>10.4g}{r['spread_over_bound'][i][j]:>14.2f}{r['coverage'][i][j]:>10.2f}"
+                f"{r['predicted_welch'][i][j] / r['bound'][i][j]:>13.2f}"
+            )
         print(
             f"{'':<18}coverage of all 12 entries {s['coverage_all']:.3f}; converged {s['converged']}/{s['seeds']}; "
             f"{', '.join(s['statistics'])}; {s['mean_time_s']:.1f} s per identify"
@@ -173,23 +179,21 @@ def print_markdown(state):
     """The saved results as docs/identification.md's table."""
     print("| case | entry | bound | predict_se | spread | spread / bound | coverage | classical predicted / bound |")
     print("|---|---|---|---|---|---|---|---|")
-    for name, case in state["cases"].items():
-        s = case.get("summary")
-        if s is None:  # interrupted before the case finished: resuming completes it
+    for name, s, entries in diagonal_entries(state):
+        if s is None:
             print(f"| {name} | (unfinished: resume the run) | | | | | | |")
             continue
-        for n, r in s["parameters"].items():
-            for i, j in DIAGONAL:
-                b = r["bound"][i][j]  # None (strict JSON's NaN) where no bound holds
-                cells = [
-                    "-" if b is None else f"{b:.4g}",
-                    f"{r['predicted'][i][j]:.4g}",
-                    f"{r['spread'][i][j]:.4g}",
-                    "-" if b is None else f"{r['spread_over_bound'][i][j]:.2f}",
-                    f"{r['coverage'][i][j]:.2f}",
-                    "-" if b is None else f"{r['predicted_welch'][i][j] / b:.2f}",
-                ]
-                print(f"| {name} | `{n}[{i},{j}]` | {' | '.join(cells)} |")
+        for label, r, i, j in entries:
+            b = r["bound"][i][j]  # None (strict JSON's NaN) where no bound holds
+            cells = [
+                "-" if b is None else f"{b:.4g}",
+                f"{r['predicted'][i][j]:.4g}",
+                f"{r['spread'][i][j]:.4g}",
+                "-" if b is None else f"{r['spread_over_bound'][i][j]:.2f}",
+                f"{r['coverage'][i][j]:.2f}",
+                "-" if b is None else f"{r['predicted_welch'][i][j] / b:.2f}",
+            ]
+            print(f"| {name} | `{label}` | {' | '.join(cells)} |")
         extra = f"; not told: {', '.join(s['not_told'])} in {s['flagged_share']:.0%}" if s.get("not_told") else ""
         print(
             f"| | **all 12 entries** | | | | | **{s['coverage_all']:.3f}** | converged {s['converged']}/{s['seeds']}, "

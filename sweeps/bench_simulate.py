@@ -36,18 +36,16 @@ from __future__ import annotations
 
 import argparse
 import functools
-import hashlib
 import json
 import os
 import pathlib
 import platform
 import statistics
-import subprocess
 import sys
 import time
 
-# The set-ups that --library-path compares, each in a child process ("--library-child SETUP").
-SETUPS = ("library", "configured", "plain")
+from _bench_paired import LIBRARY_BATCH, SETUPS, compare_unrolling, library_path
+from _bench_run import alternate, digest, save_table, serve_cases
 
 
 def parser() -> argparse.ArgumentParser:
@@ -116,8 +114,6 @@ import numpy as np  # noqa: E402
 
 import armimp_jax as aj  # noqa: E402
 from armimp_jax import paper  # noqa: E402
-
-LIBRARY_BATCH = 24  # trials of --library-path
 
 
 def environment():
@@ -202,12 +198,7 @@ def bench_simulation(configs, seconds, substeps, repeats, *, lanes=None):
     (the scaling ratios compare runs taken minutes apart otherwise). Median of repeats."""
     n = int(seconds * 1000)
     cases = build_cases(configs, seconds, substeps, lanes=lanes)
-    times = [[] for _ in cases]
-    for _ in range(repeats):
-        for case, t in zip(cases, times):
-            t0 = time.perf_counter()
-            jax.block_until_ready(case[3]())
-            t.append(time.perf_counter() - t0)
+    times = alternate([case[3] for case in cases], repeats)
     rows = []
     for (kernel, n_dev, b, _, padded, compile_s), t in zip(cases, times):
         run_s = statistics.median(t)
@@ -240,83 +231,9 @@ def serve(configs, seconds, substeps):
     outputs (one JSON line), then run the case named by each stdin line and print its
     seconds."""
     cases = build_cases(configs, seconds, substeps)
-    digests = []
-    for case in cases:
-        out = case[3]()
-        leaves = (out.x, out.xd, out.fh, out.fu, out.diverged)
-        digests.append(hashlib.sha256(b"".join(np.asarray(a).tobytes() for a in leaves)).hexdigest())
+    digests = [digest(case[3]()) for case in cases]
     print(json.dumps(dict(digests=digests, compile_s=[c[5] for c in cases])), flush=True)
-    for line in sys.stdin:
-        run = cases[int(line)][3]
-        t0 = time.perf_counter()
-        jax.block_until_ready(run())
-        print(time.perf_counter() - t0, flush=True)
-
-
-def compare_unrolling(configs, seconds, substeps, repeats, wide_vectors=True):
-    """The same configurations with LLVM's loop unrolling on (XLA's default) and off
-    (``configure``'s default), in two child processes, alternating case by case."""
-    cmd = [sys.executable, __file__, "--serve", json.dumps(configs), "--seconds", str(seconds)]
-    cmd += ["--substeps", str(substeps)] + ([] if wide_vectors else ["--no-wide-vectors"])
-    children, ready = {}, {}
-    for unroll in (True, False):
-        child = subprocess.Popen(
-            cmd + (["--unroll-loops"] if unroll else []),
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            text=True,
-            env=dict(os.environ, XLA_FLAGS=CALLER_XLA_FLAGS),
-        )
-        children[unroll], ready[unroll] = child, json.loads(child.stdout.readline())
-    times = {(unroll, i): [] for unroll in children for i in range(len(configs))}
-    for _ in range(repeats):
-        for i in range(len(configs)):
-            for unroll, child in children.items():
-                child.stdin.write(f"{i}\n")
-                child.stdin.flush()
-                times[(unroll, i)].append(float(child.stdout.readline()))
-    for child in children.values():
-        child.stdin.close()
-        child.wait()
-    n = int(seconds * 1000)
-    rows = []
-    for i, (kernel, n_dev, b) in enumerate(configs):
-        rate = {u: b * n * substeps / statistics.median(times[(u, i)]) / 1e6 for u in children}
-        rows.append(
-            dict(
-                kernel=kernel,
-                devices=n_dev,
-                batch=b,
-                msubsteps_per_s_unrolled=rate[True],
-                msubsteps_per_s_not_unrolled=rate[False],
-                speedup=rate[False] / rate[True],
-                same_bits=ready[True]["digests"][i] == ready[False]["digests"][i],
-                compile_s_unrolled=ready[True]["compile_s"][i],
-                compile_s_not_unrolled=ready[False]["compile_s"][i],
-                runs_s_unrolled=times[(True, i)],
-                runs_s_not_unrolled=times[(False, i)],
-            )
-        )
-        print(
-            f"  {kernel} devices={n_dev} batch={b:3d}: unrolled {rate[True]:.2f}, not unrolled {rate[False]:.2f} "
-            f"M substeps/s ({rows[-1]['speedup']:.2f}x), same bits: {rows[-1]['same_bits']}",
-            flush=True,
-        )
-    return rows
-
-
-def _strip_device_count(flags):
-    """``XLA_FLAGS`` without a host device count (the library path runs on one device)."""
-    return " ".join(f for f in flags.split() if not f.startswith("--xla_force_host_platform_device_count"))
-
-
-def _codegen(flags):
-    """The XLA:CPU code-generation options in ``flags``, in words."""
-    opts = ["small-loop kernel" if "xla_cpu_small_while_loop_byte_threshold" in flags else "no small-loop kernel"]
-    opts.append("no LLVM unrolling" if "xla_cpu_disable_loop_unrolling" in flags else "LLVM unrolling")
-    width = next((f.split("=", 1)[1] for f in flags.split() if f.startswith("--xla_cpu_prefer_vector_width=")), None)
-    opts.append(f"{width}-bit vectors" if width else "default vector width")
-    return ", ".join(opts)
+    serve_cases([c[3] for c in cases])
 
 
 def serve_library(setup, seconds, substeps):
@@ -330,74 +247,10 @@ def serve_library(setup, seconds, substeps):
     t0 = time.perf_counter()
     out = jax.block_until_ready(run())  # compiles
     first_s = time.perf_counter() - t0
-    leaves = (out.x, out.xd, out.fh, out.fu, out.diverged)
-    digest = hashlib.sha256(b"".join(np.asarray(a).tobytes() for a in leaves)).hexdigest()
     flags = os.environ.get("XLA_FLAGS", "")
     ready = dict(setup=setup, devices=jax.device_count(), xla_flags=flags, lanes=runtime.vector_lanes())
-    print(json.dumps(ready | dict(digest=digest, first_s=first_s)), flush=True)
-    for _ in sys.stdin:
-        t0 = time.perf_counter()
-        jax.block_until_ready(run())
-        print(time.perf_counter() - t0, flush=True)
-
-
-def library_path(seconds, substeps, repeats):
-    """``simulate_batch`` on one device in three child processes (library, configured, plain
-    XLA), compiled once each, timed in alternation (so the host's drift hits all alike)."""
-    base = {k: v for k, v in CALLER_ENV.items() if k != "ARMIMP_JAX_XLA_DEFAULTS"}
-    base["XLA_FLAGS"] = _strip_device_count(CALLER_XLA_FLAGS)
-    base["ARMIMP_JAX_CPU_DEVICES"] = "1"  # one device each (the library's own default is one per core)
-    envs = dict(library=base, configured=base, plain=dict(base, ARMIMP_JAX_XLA_DEFAULTS="0"))
-    cmd = [sys.executable, __file__, "--seconds", str(seconds), "--substeps", str(substeps), "--library-child"]
-    children, ready = {}, {}
-    for setup in SETUPS:
-        child = subprocess.Popen(
-            cmd + [setup], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=envs[setup]
-        )
-        line = child.stdout.readline()
-        if not line:
-            sys.exit(f"--library-path: the {setup} child failed (exit {child.wait()})")
-        children[setup], ready[setup] = child, json.loads(line)
-    times = {setup: [] for setup in SETUPS}
-    for _ in range(repeats):
-        for setup, child in children.items():
-            child.stdin.write("\n")
-            child.stdin.flush()
-            times[setup].append(float(child.stdout.readline()))
-    for child in children.values():
-        child.stdin.close()
-        child.wait()
-    work = LIBRARY_BATCH * int(seconds * 1000) * substeps
-    rate = {setup: work / statistics.median(times[setup]) / 1e6 for setup in SETUPS}
-    rows = []
-    for setup in SETUPS:
-        r = ready[setup]
-        rows.append(
-            dict(
-                setup=setup,
-                batch=LIBRARY_BATCH,
-                record_s=seconds,
-                substeps=substeps,
-                devices=r["devices"],
-                lanes=r["lanes"],
-                xla_flags=r["xla_flags"],
-                codegen=_codegen(r["xla_flags"]),
-                first_s=r["first_s"],
-                run_s=statistics.median(times[setup]),
-                runs_s=times[setup],
-                msubsteps_per_s=rate[setup],
-                vs_configured=rate[setup] / rate["configured"],
-                same_bits_as_configured=r["digest"] == ready["configured"]["digest"],
-            )
-        )
-        print(
-            f"  {setup}: {rate[setup]:.2f} M substeps/s on {r['devices']} device(s) ({rows[-1]['codegen']}; "
-            f"first call {r['first_s']:.1f} s), {rows[-1]['vs_configured']:.2f}x configured, "
-            f"same bits as configured: {rows[-1]['same_bits_as_configured']}",
-            flush=True,
-        )
-    print(f"  library/configured = {rate['library'] / rate['configured']:.2f}", flush=True)
-    return rows
+    print(json.dumps(ready | dict(digest=digest(out), first_s=first_s)), flush=True)
+    serve_cases([run])
 
 
 def bench_grouped(b, seconds, substeps, repeats):
@@ -515,56 +368,45 @@ def bench_estimator(batches, repeats, n=50_000):
     return rows
 
 
-def main():
-    args = ARGS if ARGS is not None else parser().parse_args()
-    if args.serve:
-        return serve([tuple(c) for c in json.loads(args.serve)], args.seconds, args.substeps)
-    if args.library_child:
-        return serve_library(args.library_child, args.seconds, args.substeps)
-    args.out.mkdir(parents=True, exist_ok=True)
-    devs = sorted({1, N_DEVICES})
-    if args.compare_unrolling:
-        batches = (4, 8) if args.quick else (8, 16, 24, 32, 48, 96)
-        configs = [("fast", d, b) for d in devs for b in batches if b >= 8 * d or args.quick]
-        seconds, substeps = (0.5, 10) if args.quick else (args.seconds, args.substeps)
-        repeats = 1 if args.quick else args.repeats
-        rows = compare_unrolling(configs, seconds, substeps, repeats, wide_vectors=not args.no_wide_vectors)
-        table = markdown_unrolling(rows, seconds, substeps, repeats)
-        print("\n" + table)
-        (args.out / "bench_unrolling.md").write_text(table + "\n")
-        (args.out / "bench_unrolling.json").write_text(json.dumps(rows, indent=1))
-        return None
-    if args.lanes:
-        lanes = runtime.vector_lanes()
-        sizes = (1, 2, 3, 4) if args.quick else (*range(1, 2 * lanes + 1), 3 * lanes, 6 * lanes)
-        seconds, substeps = (0.5, 10) if args.quick else (args.seconds, args.substeps)
-        rows = bench_simulation([("fast", 1, b) for b in sizes], seconds, substeps, args.repeats, lanes=1)
-        table = markdown_lanes(rows, lanes) + f"\n\n{environment()}"
-        print("\n" + table)
-        (args.out / "bench_lanes.md").write_text(table + "\n")
-        (args.out / "bench_lanes.json").write_text(json.dumps(dict(env=environment(), sim=rows), indent=1))
-        return None
-    if args.large_batch:
-        sizes, seconds, substeps, big = (
-            ((8, 16), 0.2, 10, 8 * N_DEVICES) if args.quick else ((96, 128, 192, 256, 512), 2.0, args.substeps, 1024)
-        )
-        sim = bench_simulation([("fast", 1, b) for b in sizes], seconds, substeps, args.repeats)
-        grouped = bench_grouped(big, seconds, substeps, args.repeats)
-        table = markdown_large(sim, grouped) + f"\n\n{environment()}"
-        print("\n" + table)
-        (args.out / "bench_large.md").write_text(table + "\n")
-        record = dict(env=environment(), sim=sim, grouped=grouped)
-        (args.out / "bench_large.json").write_text(json.dumps(record, indent=1))
-        return None
-    # --library-path: the library batch at the requested sizes (--quick: short records, few substeps)
-    lib_seconds, lib_substeps, lib_repeats = (0.5, 10, 1) if args.quick else (args.seconds, args.substeps, args.repeats)
-    if args.library_path:
-        rows = library_path(lib_seconds, lib_substeps, lib_repeats)
-        table = markdown_library(rows, lib_repeats) + f"\n\n{environment()}"
-        print("\n" + table)
-        (args.out / "bench_library.md").write_text(table + "\n")
-        (args.out / "bench_library.json").write_text(json.dumps(dict(env=environment(), library=rows), indent=1))
-        return None
+def run_unrolling(args, devs):
+    """``--compare-unrolling``: the paired child processes, then their table."""
+    batches = (4, 8) if args.quick else (8, 16, 24, 32, 48, 96)
+    configs = [("fast", d, b) for d in devs for b in batches if b >= 8 * d or args.quick]
+    seconds, substeps = (0.5, 10) if args.quick else (args.seconds, args.substeps)
+    repeats = 1 if args.quick else args.repeats
+    env = dict(os.environ, XLA_FLAGS=CALLER_XLA_FLAGS)  # the children start from the caller's flags
+    rows = compare_unrolling(__file__, env, configs, seconds, substeps, repeats, wide_vectors=not args.no_wide_vectors)
+    table = markdown_unrolling(rows, seconds, substeps, repeats)
+    print("\n" + table)
+    save_table(args.out, "bench_unrolling", table, rows)
+
+
+def run_lanes(args):
+    """``--lanes``: unpadded batches around the vector width, one device."""
+    lanes = runtime.vector_lanes()
+    sizes = (1, 2, 3, 4) if args.quick else (*range(1, 2 * lanes + 1), 3 * lanes, 6 * lanes)
+    seconds, substeps = (0.5, 10) if args.quick else (args.seconds, args.substeps)
+    rows = bench_simulation([("fast", 1, b) for b in sizes], seconds, substeps, args.repeats, lanes=1)
+    table = markdown_lanes(rows, lanes) + f"\n\n{environment()}"
+    print("\n" + table)
+    save_table(args.out, "bench_lanes", table, dict(env=environment(), sim=rows))
+
+
+def run_large(args):
+    """``--large-batch``: large batches on one device, and grouped ``simulate_batch``."""
+    sizes, seconds, substeps, big = (
+        ((8, 16), 0.2, 10, 8 * N_DEVICES) if args.quick else ((96, 128, 192, 256, 512), 2.0, args.substeps, 1024)
+    )
+    sim = bench_simulation([("fast", 1, b) for b in sizes], seconds, substeps, args.repeats)
+    grouped = bench_grouped(big, seconds, substeps, args.repeats)
+    table = markdown_large(sim, grouped) + f"\n\n{environment()}"
+    print("\n" + table)
+    save_table(args.out, "bench_large", table, dict(env=environment(), sim=sim, grouped=grouped))
+
+
+def run_default(args, devs, library_settings):
+    """The default run: simulation scaling, the full 50 s batch, numba, the estimator and the
+    library path (``--quick``: tiny sizes of the first, numba and the library path)."""
     if not args.no_numba:
         try:
             import numba  # noqa: F401
@@ -582,14 +424,37 @@ def main():
         full = [bench_full_trial(48, args.substeps, "fast")]
         numba_row = None if args.no_numba else bench_numba(24, 2.0, args.substeps, args.repeats)
         est = bench_estimator([24, 96], args.repeats)
-    library = library_path(lib_seconds, lib_substeps, lib_repeats)
+    library = library_path(__file__, CALLER_ENV, *library_settings)
     env = environment()
-    table = markdown(sim, full, est, numba_row, library, lib_repeats, device=device_kind())
+    table = markdown(sim, full, est, numba_row, library, library_settings[2], device=device_kind())
     print("\n" + table + f"\n\n{env}")
-    (args.out / "bench_simulate.md").write_text(table + f"\n\n{env}\n")
-    (args.out / "bench_simulate.json").write_text(
-        json.dumps(dict(env=env, sim=sim, full=full, numba=numba_row, est=est, library=library), indent=1)
-    )
+    record = dict(env=env, sim=sim, full=full, numba=numba_row, est=est, library=library)
+    save_table(args.out, "bench_simulate", table + f"\n\n{env}", record)
+
+
+def main():
+    args = ARGS if ARGS is not None else parser().parse_args()
+    if args.serve:
+        return serve([tuple(c) for c in json.loads(args.serve)], args.seconds, args.substeps)
+    if args.library_child:
+        return serve_library(args.library_child, args.seconds, args.substeps)
+    args.out.mkdir(parents=True, exist_ok=True)
+    devs = sorted({1, N_DEVICES})
+    if args.compare_unrolling:
+        return run_unrolling(args, devs)
+    if args.lanes:
+        return run_lanes(args)
+    if args.large_batch:
+        return run_large(args)
+    # --library-path: the library batch at the requested sizes (--quick: short records, few substeps)
+    library_settings = (0.5, 10, 1) if args.quick else (args.seconds, args.substeps, args.repeats)
+    if args.library_path:
+        rows = library_path(__file__, CALLER_ENV, *library_settings)
+        table = markdown_library(rows, library_settings[2]) + f"\n\n{environment()}"
+        print("\n" + table)
+        save_table(args.out, "bench_library", table, dict(env=environment(), library=rows))
+        return None
+    return run_default(args, devs, library_settings)
 
 
 if __name__ == "__main__":

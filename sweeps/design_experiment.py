@@ -47,6 +47,84 @@ def fail(message: str) -> int:
     return error_line(message, PROG)
 
 
+def describe(trials, family, limits, options) -> str:
+    """The one line said before the design starts."""
+    candidates = family if isinstance(family, list) else [family]
+    what = type(candidates[0]).__name__ + (f" ({len(candidates)} candidate starts)" if len(candidates) > 1 else "")
+    how = {
+        "bound": "on the Cramér-Rao bound",
+        "monte_carlo": f"of {options['draws']} noise draws per arm",
+        "auto": f"on the bound where the loops are near-linear, else of {options['draws']} noise draws per arm",
+    }[options["method"]]
+    gains = " and the controller's gains" if options["controller"] else ""
+    return (
+        f"designing {what}{gains} for {len(trials)} arm(s), {limits.record:g} s records, {options['steps']} steps {how}"
+    )
+
+
+def run_design(aj, trials, family, limits, options):
+    """``aj.design`` with a progress bar in steps (opened at the first step: a config the design
+    refuses stays one line)."""
+    from tqdm import tqdm
+
+    bars = []
+
+    def progress(step, steps, value):
+        if not bars:
+            bars.append(tqdm(total=steps, unit="step"))
+        bars[0].n = step
+        bars[0].set_postfix_str(f"criterion {value:.3g}", refresh=False)
+        bars[0].refresh()
+
+    try:
+        return aj.design(trials[0], family, limits=limits, progress=progress, **options)
+    finally:
+        for bar in bars:
+            bar.close()
+
+
+def paper_reference(aj, jax, result, trials, limits, options) -> list:
+    """Per arm, the paper's perturbation at the same peak and length: its Cramér-Rao bound (a
+    design on the bound, with the designed controller's trials) or its predicted SEs."""
+    free = options["free"]
+    signal = aj.PaperNoise(limits.peak_force).signal(jax.random.key(2024), result.signal.shape[0])
+    if isinstance(result, aj.BoundDesign):
+        return [aj.crlb(t, signal, free=free, check=False) for t in trials]
+    return [aj.predict_se(t, signal, free=free, draws=options["predict_draws"]) for t in trials]
+
+
+def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:
+    """The criterion before and after, the controller and minutes (on the bound), the paper's
+    perturbation, the limits met, and the Monte Carlo check per arm (where it ran)."""
+    what = "bound on the relative SE" if on_bound else "relative SE"
+    print(
+        f"criterion (largest {what} over targets and arms, {limits.record:g} s): start "
+        f"{result.criterion_before:.4g}, designed {result.criterion_after:.4g}"
+    )
+    if on_bound:
+        p = config["design"]["precision"]
+        print(f"controller: {result.controller}")
+        print(
+            f"minutes for +-{p:.0%} at 95% on every target, per arm: start "
+            f"{np.round(result.start_minutes, 2).tolist()}, designed {np.round(result.minutes, 2).tolist()}; "
+            f"drift {1e3 * result.achieved['drift']:.3f} mm"
+        )
+    worst_paper = max(max(row["relative_se_paper"].values()) for row in doc["trials"])
+    print(f"the paper's perturbation at the same peak: {worst_paper:.4g}")
+    print(
+        f"limits met: RMS {np.round(result.achieved['rms_force'], 4).tolist()} N, peak "
+        f"{np.round(result.achieved['peak_force'], 4).tolist()} N, displacement "
+        f"{1e3 * result.achieved['peak_displacement']:.3f} mm"
+    )
+    for k, row in enumerate(doc["trials"]):
+        if "validation" in row:
+            ratio = np.asarray(row["validation"]["spread_over_predicted"])
+            print(
+                f"arm {k + 1}: spread / predicted SE {np.round(ratio, 2).tolist()} "
+                f"({row['validation']['converged']} of {row['validation']['recordings']} recordings converged)"
+            )
+
+
 def main(argv=None) -> int:
     args = parse(argv)
     import jax  # after the arguments: --help stays fast
@@ -68,93 +146,48 @@ def main(argv=None) -> int:
         return fail(str(err))
     seeds = config["validate"]["seeds"] if args.validate is None else args.validate
     start = time.perf_counter()
-    candidates = family if isinstance(family, list) else [family]
-    what = type(candidates[0]).__name__ + (f" ({len(candidates)} candidate starts)" if len(candidates) > 1 else "")
-    how = {
-        "bound": "on the Cramér-Rao bound",
-        "monte_carlo": f"of {options['draws']} noise draws per arm",
-        "auto": f"on the bound where the loops are near-linear, else of {options['draws']} noise draws per arm",
-    }[options["method"]]
-    gains = " and the controller's gains" if options["controller"] else ""
-    print(
-        f"designing {what}{gains} for {len(trials)} arm(s), {limits.record:g} s records, "
-        f"{options['steps']} steps {how}",
-        flush=True,
-    )
-    bars = []  # opened at the first step: a config the design refuses stays one line
-
-    def progress(step, steps, value):
-        if not bars:
-            bars.append(tqdm(total=steps, unit="step"))
-        bars[0].n = step
-        bars[0].set_postfix_str(f"criterion {value:.3g}", refresh=False)
-        bars[0].refresh()
-
+    print(describe(trials, family, limits, options), flush=True)
     try:
-        result = aj.design(trials[0], family, limits=limits, progress=progress, **options)
+        result = run_design(aj, trials, family, limits, options)
     except ValueError as err:
         return fail(str(err))
-    finally:
-        for bar in bars:
-            bar.close()
-    free, targets = options["free"], options["targets"]
-    on_bound = isinstance(result, aj.BoundDesign)
-    paper_signal = aj.PaperNoise(limits.peak_force).signal(jax.random.key(2024), result.signal.shape[0])
-    if on_bound:
-        paper = [aj.crlb(t, paper_signal, free=free, check=False) for t in trials]
+    paper = paper_reference(aj, jax, result, trials, limits, options)
+    if isinstance(result, aj.BoundDesign):
         trials = result.trials  # with the designed controller
-    else:
-        paper = [aj.predict_se(t, paper_signal, free=free, draws=options["predict_draws"]) for t in trials]
     settings = dict(config_path=str(args.config), config=config, validate_seeds=seeds)
 
     def write(validation):
         doc = dx.result_dict(
-            result, trials, settings=settings, free=free, targets=targets, validation=validation, paper=paper
+            result,
+            trials,
+            settings=settings,
+            free=options["free"],
+            targets=options["targets"],
+            validation=validation,
+            paper=paper,
         )
         return doc, dx.write_results(args.out, result, trials, limits, doc=doc)
 
     # the design is written before the (long) validation, which then rewrites it: a failed or
     # interrupted check loses no design
     doc, paths = write(None)
-    validation = None
     if seeds:
         vbar = tqdm(total=seeds * len(trials), unit="fit", desc="validating")
         try:
             validation = dx.validate(
-                result.signal, trials, free, seeds=seeds, draws=config["validate"]["draws"], progress=vbar.update
+                result.signal,
+                trials,
+                options["free"],
+                seeds=seeds,
+                draws=config["validate"]["draws"],
+                progress=vbar.update,
             )
         except RuntimeError as err:
             vbar.close()
             return fail(f"{err} (the design, unvalidated, is in {args.out})")
         vbar.close()
         doc, paths = write(validation)
-    what = "bound on the relative SE" if on_bound else "relative SE"
-    print(
-        f"criterion (largest {what} over targets and arms, {limits.record:g} s): start "
-        f"{result.criterion_before:.4g}, designed {result.criterion_after:.4g}"
-    )
-    if on_bound:
-        p = config["design"]["precision"]
-        print(f"controller: {result.controller}")
-        print(
-            f"minutes for +-{p:.0%} at 95% on every target, per arm: start "
-            f"{np.round(result.start_minutes, 2).tolist()}, designed {np.round(result.minutes, 2).tolist()}; "
-            f"drift {1e3 * result.achieved['drift']:.3f} mm"
-        )
-    worst_paper = max(max(row["relative_se_paper"].values()) for row in doc["trials"])
-    print(f"the paper's perturbation at the same peak: {worst_paper:.4g}")
-    print(
-        f"limits met: RMS {np.round(result.achieved['rms_force'], 4).tolist()} N, peak "
-        f"{np.round(result.achieved['peak_force'], 4).tolist()} N, displacement "
-        f"{1e3 * result.achieved['peak_displacement']:.3f} mm"
-    )
-    if validation is not None:
-        for k, row in enumerate(doc["trials"]):
-            ratio = np.asarray(row["validation"]["spread_over_predicted"])
-            print(
-                f"arm {k + 1}: spread / predicted SE {np.round(ratio, 2).tolist()} "
-                f"({row['validation']['converged']} of {row['validation']['recordings']} recordings converged)"
-            )
+    print_summary(np, result, doc, config, limits, on_bound=isinstance(result, aj.BoundDesign))
     print(f"{time.perf_counter() - start:.0f} s; wrote " + ", ".join(p.name for p in paths))
     return 0
 

@@ -26,13 +26,19 @@ Timing (--acquisition): how force and position were sampled decides the model fi
 Z. 'delay' (default, for a recording whose timing is unknown) fits a force-channel delay
 with M, B, K; 'instant' (samples at the control instants, force read just before the
 command's zero-order-hold update, as the simulator does by default), 'interval_mean'
-(box-car means over each sample period) and 'plain' (M s^2 + B s + K as it stands, the
-old fit) are the others. Standard errors (--se) come from the Welch estimate's own error
-model ('spectral', default) or from the fit's residuals ('residual', too small: the
-Welch bins are correlated).
+(box-car means over each sample period) and 'plain' (M s^2 + B s + K as it stands, no
+model of the sampling) are the others. Instant or delayed force samples through a robot
+with joint friction bias M and B in a way the record cannot show: give --friction, your
+robot's friction torque, and a warning says so when it is above 0 (not given, the robot is
+taken as frictionless, and the report's first line says so). Standard errors (--se) come
+from the Welch estimate's own error model ('spectral', default) or from the fit's
+residuals ('residual', too small: the Welch bins are correlated). Welch segments follow
+the record's length unless --nperseg is given (armimp_jax.welch_segments).
 
-Prints the 95% intervals of M, B, K (and the delay), the lack-of-fit test, the coherence
-summary and every warning. Writes DIR/estimate.json (settings, values, standard errors,
+Prints the 95% intervals of M, B, K (and the delay), the VAF and the lack-of-fit test
+with one verdict on both (a passing test on a noisy estimate: no evidence against the
+model at that noise, and the low VAF is the noise), the coherence summary and every
+warning. Writes DIR/estimate.json (settings, values, standard errors,
 dof, 95% intervals, delay, lack of fit, %VAF, coherence summaries, warnings),
 DIR/estimate.npz (f [Hz], R [m/N], T [N/N], Z [N/m], Z_fit, coherences, the error model)
 and DIR/bode.png, DIR/coherence.png. Every bad input gets one line on stderr and exit
@@ -45,8 +51,9 @@ TOML file (keys, units and defaults: docs/identify_recording.md). The recording 
 be sampled at the simulator's control rate (1000 Hz), f_delta must be the force [N] added
 to the robot's command in the frame of x and fh, and x must be in the model's world frame
 (origin at the shoulder, as the config's arm endpoint). The Welch and fit options above do
-not apply. Prints convergence, each parameter as value +- SE and where the fit cannot be
-trusted; writes DIR/identification.json, DIR/identification.csv, DIR/position.png,
+not apply. Prints convergence, each parameter as value +- SE (the arm's beside the
+classical answer: the Welch route at its defaults on the same recording) and where the
+fit cannot be trusted; writes DIR/identification.json, DIR/identification.csv, DIR/position.png,
 DIR/residual_spectrum.png, DIR/frf.png and DIR/stiffness_ellipse.png.
 """
 
@@ -62,19 +69,8 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from _cli import Parser, error_line  # noqa: E402
 
 PROG = "estimate_recording"
-# the Welch route's options and their defaults (None: derived; the model route takes none of them)
-WELCH_DEFAULTS = dict(
-    nperseg=8192,
-    noverlap=None,
-    nfft=None,
-    window="hann",
-    fmax=15.0,
-    weights="uniform",
-    acquisition="delay",
-    period=None,
-    se="spectral",
-    friction=None,
-)
+# the Welch route's options (study.estimate_recording.ROUTE_DEFAULTS, then --friction); the model route takes none
+WELCH_OPTIONS = ("nperseg", "noverlap", "nfft", "window", "fmax", "weights", "acquisition", "period", "se", "friction")
 
 
 def _window(text: str):
@@ -99,57 +95,66 @@ def parse(argv):
         help="the model route: identify through the closed-loop simulation with this config "
         "(docs/identify_recording.md); the Welch and fit options below do not apply",
     )
-    ap.add_argument("--nperseg", type=int, help="Welch segment length [samples] (default 8192)")
+    ap.add_argument(
+        "--nperseg",
+        type=int,
+        help="Welch segment length [samples] (default: follows the record's length, armimp_jax.welch_segments; "
+        "Table 4's 8192 on a long record)",
+    )
     ap.add_argument("--noverlap", type=int, help="Welch overlap [samples] (default 3/4 of nperseg)")
     ap.add_argument("--nfft", type=int, help="FFT length >= nperseg, zero padded (default nperseg)")
     ap.add_argument("--window", type=_window, help="scipy window name, parameters after commas (default hann)")
     ap.add_argument("--fmax", type=float, metavar="HZ", help="highest frequency fitted [Hz] (default 15)")
-    ap.add_argument(
-        "--weights",
-        choices=("uniform", "coherence"),
-        help="least-squares weights per bin (default uniform; coherence: docs/estimation.md)",
+    choices = (  # option, its choices (the first is the default), help
+        ("weights", ("uniform", "coherence"), "least-squares weights per bin (coherence: docs/estimation.md)"),
+        (
+            "acquisition",
+            ("delay", "instant", "interval_mean", "plain"),
+            "how the record was sampled: the model fitted to Z (delay: timing unknown, see above)",
+        ),
+        ("se", ("spectral", "residual"), "standard errors from the estimate's error model or the fit's residuals"),
     )
-    ap.add_argument(
-        "--acquisition",
-        choices=("delay", "instant", "interval_mean", "plain"),
-        help="how the record was sampled: the model fitted to Z (default delay: timing unknown, see above)",
-    )
-    ap.add_argument(
-        "--period",
-        type=float,
-        metavar="S",
-        help="hold period [s] of --acquisition instant (default 1/fs)",
-    )
-    ap.add_argument(
-        "--se",
-        choices=("spectral", "residual"),
-        help="standard errors from the estimate's error model (default) or the fit's residuals",
-    )
+    for name, allowed, text in choices:
+        ap.add_argument(f"--{name}", choices=allowed, help=f"{text} (default {allowed[0]})")
+    ap.add_argument("--period", type=float, metavar="S", help="hold period [s] of --acquisition instant (default 1/fs)")
     ap.add_argument(
         "--friction",
         type=float,
         metavar="N_M",
-        help="your robot's Coulomb friction torque [N m] if known (0: none); with instant or delay "
-        "timing a robot with friction biases M and B in ways the record cannot show, and a warning says so",
+        help="your robot's largest joint Coulomb friction torque [N m] (default: taken as none, as the report "
+        "says); with instant or delay timing a robot with friction biases M and B in ways the record cannot "
+        "show, and a warning says so",
     )
     args = ap.parse_args(argv)
-    given = [f"--{k}" for k in WELCH_DEFAULTS if getattr(args, k) is not None]
-    if args.model is not None:
-        if given:
-            ap.error(f"--model takes its settings from the config; not with the Welch route's {', '.join(given)}")
-        return args
-    for k, default in WELCH_DEFAULTS.items():
-        if getattr(args, k) is None:
-            setattr(args, k, default)
+    given = [f"--{k}" for k in WELCH_OPTIONS if getattr(args, k) is not None]
+    if args.model is not None and given:
+        ap.error(f"--model takes its settings from the config; not with the Welch route's {', '.join(given)}")
     if args.friction is not None and not args.friction >= 0:
         ap.error(f"--friction must be >= 0 N m, got {args.friction}")
-    if args.noverlap is None:
-        args.noverlap = 3 * args.nperseg // 4
     return args
 
 
 def fail(message: str) -> int:
     return error_line(message, PROG)
+
+
+def start_jax() -> None:
+    """Float64 and the compilation cache, after the arguments (--help stays fast)."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from armimp_jax import runtime
+
+    runtime.use_compilation_cache(runtime.compilation_cache_dir())  # a second run loads, not compiles
+
+
+def load(args, recording) -> tuple[dict, dict]:
+    """``(columns, recording)`` of the command line; a missing column's message names --columns."""
+    columns = recording.parse_columns(args.columns)
+    try:
+        return columns, recording.load_recording(args.recording, columns=columns)
+    except recording.MissingColumnsError as err:
+        raise ValueError(err.for_option("--columns")) from None
 
 
 def main(argv=None) -> int:
@@ -158,47 +163,29 @@ def main(argv=None) -> int:
         return fail(f"--fs must be a finite sample rate > 0 Hz, got {args.fs:g}")
     if args.model is not None:
         return model_route(args)
-    period = 1.0 / args.fs if args.period is None else args.period
-    if not (math.isfinite(period) and period > 0):
-        return fail(f"--period must be a finite hold period > 0 s, got {period:g}")
-    import jax  # after the arguments: --help stays fast
-
-    jax.config.update("jax_enable_x64", True)
-    from armimp_jax import runtime
-
-    runtime.use_compilation_cache(runtime.compilation_cache_dir())  # a second run loads, not compiles
+    if args.period is not None and not (math.isfinite(args.period) and args.period > 0):
+        return fail(f"--period must be a finite hold period > 0 s, got {args.period:g}")
+    start_jax()
     import armimp_jax as aj
-    from armimp_jax.study import recording
+    from armimp_jax.study import estimate_recording, recording, recording_report
 
+    options = {k: getattr(args, k) for k in WELCH_OPTIONS if k != "friction" and getattr(args, k) is not None}
     try:
-        columns = recording.parse_columns(args.columns)
-        rec = recording.load_recording(args.recording, columns=columns)
+        columns, rec = load(args, recording)
         n = rec["x"].shape[0]
-        welch = dict(
-            fs=args.fs, nperseg=args.nperseg, noverlap=args.noverlap, nfft=args.nfft, window=args.window, fmax=args.fmax
-        )
-        n_seg = recording.check_settings(n, **welch)
+        welch, fit_settings, n_seg = estimate_recording.route_settings(n, fs=args.fs, **options)
     except ValueError as err:  # RecordingError included
         return fail(str(err))
     start = time.perf_counter()
-    fit_settings = dict(weights=args.weights, acquisition=args.acquisition, period=period, se=args.se)
-    est, fit = recording.analyse(rec, **welch, **fit_settings)
-    warnings = aj.fit_warnings(fit, est, acquisition=args.acquisition, friction=args.friction)
+    est, fit = estimate_recording.analyse(rec, **welch, **fit_settings)
+    acquisition = fit_settings["acquisition"]
+    # friction not given: taken as none, as the report's first line says (a warning that always fired was noise)
+    friction = 0.0 if args.friction is None else args.friction
+    warnings = aj.fit_warnings(fit, est, acquisition=acquisition, friction=friction)
     settings = dict(
-        recording=str(args.recording),
-        columns=columns,
-        fs_hz=args.fs,
-        nperseg=args.nperseg,
-        noverlap=args.noverlap,
-        nfft=args.nperseg if args.nfft is None else args.nfft,
-        window=list(args.window) if isinstance(args.window, tuple) else args.window,
-        fmax_hz=args.fmax,
-        weights=args.weights,
-        acquisition=args.acquisition,
-        period_s=period,
-        se=args.se,
-        friction_n_m=args.friction,
+        recording=str(args.recording), columns=columns, **estimate_recording.settings_record(welch, fit_settings)
     )
+    settings["friction_n_m"] = args.friction
     f = est.f
     record = dict(
         n_samples=n,
@@ -210,32 +197,32 @@ def main(argv=None) -> int:
         resolution_hz=args.fs / settings["nfft"],
     )
     try:
-        paths = recording.write_results(args.out, est, fit, settings=settings, record=record, warnings=warnings)
+        paths = estimate_recording.write_results(
+            args.out, est, fit, settings=settings, record=record, warnings=warnings
+        )
     except OSError as err:
         return fail(f"cannot write to {args.out}: {err.strerror or err}")
-    print(f"{n} samples, {n_seg} segments, {f.shape[0]} bins in (0, {args.fmax:g}] Hz")
-    print("\n".join(recording.report_lines(est, fit, acquisition=args.acquisition, warnings=warnings)))
+    print(f"{n} samples, {n_seg} segments, {f.shape[0]} bins in (0, {welch['fmax']:g}] Hz")
+    report = recording_report.welch_report(
+        est, fit, acquisition=acquisition, warnings=warnings, friction_given=args.friction is not None
+    )
+    print("\n".join(report))
     print(f"wrote {', '.join(str(p) for p in paths)} in {time.perf_counter() - start:.1f} s")
     return 0
 
 
 def model_route(args) -> int:
-    """Identify through the closed-loop model (armimp_jax.study.identify_recording)."""
-    import jax
-
-    jax.config.update("jax_enable_x64", True)
-    from armimp_jax import runtime
-
-    runtime.use_compilation_cache(runtime.compilation_cache_dir())  # a second run loads, not compiles
+    """Identify through the closed-loop model (armimp_jax.study.identify_recording), with the
+    Welch route's answer at its defaults beside it (the classical column)."""
+    start_jax()
     from armimp_jax.study import identify_recording as idr
-    from armimp_jax.study import recording
+    from armimp_jax.study import recording, recording_report
 
     try:  # every check before the fit: the config, the rate, the recording
         config = idr.read_identify_config(args.model)
         model, options = idr.build_model(config, where=str(args.model))
         idr.check_rate(args.fs, model)
-        columns = recording.parse_columns(args.columns)
-        rec = recording.load_recording(args.recording, columns=columns)
+        columns, rec = load(args, recording)
     except ValueError as err:  # IdentifyConfigError and RecordingError included
         return fail(str(err))
     n = rec["x"].shape[0]
@@ -244,17 +231,25 @@ def model_route(args) -> int:
         res = idr.run(rec, model, options)
     except ValueError as err:  # identify's own refusals (e.g. a start at which the model diverges)
         return fail(str(err))
+    classical = idr.classical_fit(rec, args.fs)
     warnings = idr.trust_warnings(res, rec)
     settings = dict(
         recording=str(args.recording), columns=columns, fs_hz=args.fs, config_path=str(args.model), config=config
     )
     try:
         paths = idr.write_results(
-            args.out, res, rec, model=model, settings=settings, numerics=options["numerics"], warnings=warnings
+            args.out,
+            res,
+            rec,
+            model=model,
+            settings=settings,
+            numerics=options["numerics"],
+            warnings=warnings,
+            classical=classical,
         )
     except OSError as err:
         return fail(f"cannot write to {args.out}: {err.strerror or err}")
-    print("\n".join(idr.report_lines(res, warnings)))
+    print("\n".join(recording_report.model_report(res, None if classical is None else classical[1], warnings)))
     print(f"wrote {', '.join(str(p) for p in paths)}")
     return 0
 

@@ -34,7 +34,6 @@ as one Markdown section to ``--out``, with the wall time.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import pathlib
 import sys
 import time
@@ -43,49 +42,7 @@ PROG = "explain_claims"
 HERE = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 import _cli as cli  # noqa: E402
-
-SLIDE_RATE = 0.01  # [rad/s]; pre-sliding bristle motion stays below ~2e-3 rad/s at 15 Hz
-PAPER_PEAKS = {1: 2.25, 2: 3.75, 3: 4.5}  # [N], the paper's Table 3
-SIGMA1_LOW = 10.0  # [N m s/rad]: Table 1 lost sigma1's typesetting; ours is sqrt(1e5) ~ 316
-
-
-@dataclasses.dataclass(frozen=True)
-class Setup:
-    """How one study runs: record lengths [s] and the Welch segments [samples] to compare."""
-
-    short: float = 50.0
-    long: float = 200.0
-    nperseg: int = 8192
-    fine: int = 32768
-    seeds: int = 3
-    seeds_b: int = 10
-
-
-FULL = Setup()
-QUICK = Setup(short=6.0, long=12.0, nperseg=1024, fine=4096, seeds=2, seeds_b=2)
-
-
-@dataclasses.dataclass(frozen=True)
-class Run:
-    """One trial: controller, arm location, friction (paper level, or Coulomb torque with
-    stiction 1.5x), perturbation peak [N], seed, IMBIC's Mhat [kg] and acceleration
-    estimate, acquisition, record length [s]."""
-
-    controller: str
-    location: int
-    seed: int
-    seconds: float
-    level: int | None = None
-    tau_c: float | None = None
-    peak: float = PAPER_PEAKS[1]
-    mhat: float = 0.25
-    accel: str = "velocity"
-    acquisition: str = "instant"
-    sigma1: float | None = None  # bristle damping [N m s/rad]; None: the paper's (Canudas de Wit's)
-
-    @property
-    def static(self):
-        return (self.controller, self.accel if self.controller == "imbic" else "", self.acquisition, self.seconds)
+from _claims_lab import FULL, PAPER_PEAKS, QUICK, SIGMA1_LOW, SLIDE_RATE, Lab, Run, Setup, ci, pm, span, table  # noqa: E402
 
 
 def parse(argv):
@@ -103,149 +60,9 @@ def parse(argv):
     return args
 
 
-# --- running trials ------------------------------------------------------------------------
-
-
-class Lab:
-    """Runs ``Run`` values in batches (one per static setting) and measures each record."""
-
-    def __init__(self, batch_size: int):
-        import jax
-
-        jax.config.update("jax_enable_x64", True)
-        self.batch_size = batch_size
-        self._signals: dict = {}
-        self.trials = 0
-
-    def signal(self, seed: int, seconds: float, peak: float):
-        import jax
-        import numpy as np
-
-        import armimp_jax as aj
-
-        key = (seed, seconds, peak)
-        if key not in self._signals:
-            base = jax.random.fold_in(jax.random.PRNGKey(0), seed)
-            self._signals[key] = np.asarray(aj.perturbation(base, int(round(seconds * 1000)), peak))
-        return self._signals[key]
-
-    @staticmethod
-    def trial(r: Run):
-        import numpy as np
-
-        import armimp_jax as aj
-        from armimp_jax import paper
-
-        if r.controller == "pd":
-            ctrl = aj.PD()
-        else:
-            ctrl = aj.IMBIC(r.mhat * np.eye(2), accel_estimate=r.accel)
-        return aj.make_trial(ctrl, arm=paper.arm(r.location), friction=Lab.friction(r), acquisition=r.acquisition)
-
-    @staticmethod
-    def friction(r: Run):
-        import armimp_jax as aj
-        from armimp_jax import paper
-
-        lugre = paper.friction(r.level) if r.level is not None else aj.LuGre(tau_c=r.tau_c, tau_s=1.5 * r.tau_c)
-        return lugre if r.sigma1 is None else dataclasses.replace(lugre, sigma1=r.sigma1)
-
-    def run(self, runs: list[Run], welch: dict) -> list[dict]:
-        """Metrics of every run, in order: ``welch`` maps a record length [s] to the Welch
-        segments [samples] to estimate with (overlap 3/4), each giving its own metrics under
-        ``"w<nperseg>"``; plus the run's sliding share and stiction-torque share."""
-        import numpy as np
-
-        import armimp_jax as aj
-
-        out: list = [None] * len(runs)
-        groups: dict = {}
-        for i, r in enumerate(runs):
-            groups.setdefault(r.static, []).append(i)
-        for idx in groups.values():
-            for lo in range(0, len(idx), self.batch_size):
-                part = idx[lo : lo + self.batch_size]
-                rs = [runs[i] for i in part]
-                f_delta = np.stack([self.signal(r.seed, r.seconds, r.peak) for r in rs])
-                sim = aj.simulate_batch(
-                    aj.stack_trials([self.trial(r) for r in rs]), f_delta, numerics=aj.SWEEP_NUMERICS
-                )
-                self.trials += len(rs)
-                for j, (i, r) in enumerate(zip(part, rs)):
-                    out[i] = self.measure(r, f_delta[j], sim, j, welch[r.seconds])
-        return out
-
-    @staticmethod
-    def measure(r: Run, f_delta, sim, j: int, segments) -> dict:
-        import numpy as np
-
-        import armimp_jax as aj
-        from armimp_jax.paper.claims import trial_metrics
-
-        q = np.asarray(sim.q[j])
-        m = dict(diverged=bool(sim.diverged[j]))
-        m["slide"] = float(np.mean(np.any(np.abs(np.diff(q, axis=0)) * 1000.0 > SLIDE_RATE, axis=1)))
-        # the perturbation's own joint torque J(q0)^T F_Delta against the stiction torque
-        robot = aj.MIT_MANUS
-        ls, le = float(robot.shoulder_link), float(robot.elbow_link)
-        q1, q2 = q[0]
-        jac = np.array([[-ls * np.sin(q1), -le * np.sin(q2)], [ls * np.cos(q1), le * np.cos(q2)]])
-        tau = np.abs(f_delta @ jac)  # (N, 2): J^T F per sample
-        lugre = Lab.friction(r)
-        tau_s = float(np.max(lugre.tau_s))
-        m["over_stiction"] = float(np.mean(np.any(tau > tau_s, axis=1))) if tau_s > 0 else float("nan")
-        # bristle load sigma0 |z| / tau_s: ~0 a linear spring, -> 1 at breakaway (LuGre's z' = v - sigma0 |v| z / g)
-        load = np.max(np.abs(np.asarray(sim.z[j])) * np.asarray(lugre.sigma0), axis=1) / tau_s if tau_s > 0 else None
-        m["load_p95"] = float(np.percentile(load, 95)) if load is not None else float("nan")
-        for seg in segments:
-            est = aj.estimate(f_delta, sim.x[j], sim.fh[j], nperseg=seg, noverlap=3 * seg // 4, errors=False)
-            arrays = {k: np.asarray(v) for k, v in est._asdict().items()}
-            f = arrays["f"]
-            mm = trial_metrics(f, arrays["Z"], arrays, r.location)
-            coh = arrays["coh_multiple_x"]
-            k = np.unravel_index(np.argmin(coh), coh.shape)
-            low = f < 2.0
-            mm["coh_min"] = float(coh.min())
-            mm["coh_min_f"] = float(f[k[0]])
-            mm["coh_min_low_f"] = float(f[low][np.argmin(coh[low].min(axis=1))]) if low.any() else float("nan")
-            m[f"w{seg}"] = mm
-        return m
-
-
-# --- statistics and tables -----------------------------------------------------------------
-
-
-def ci(values) -> tuple[float, float | None]:
-    """Mean and half-width of the 95% t-interval over seeds (``None`` under two values)."""
-    import numpy as np
-
-    from armimp_jax.paper.claims import mean_ci
-
-    v = np.asarray([x for x in values if np.isfinite(x)], dtype=float)
-    if v.size == 0:
-        return float("nan"), None
-    mean, _, half = mean_ci(v)
-    return float(mean), None if half is None else float(half)
-
-
-def pm(values, fmt=".3g") -> str:
-    mean, half = ci(values)
-    if mean != mean:
-        return "—"
-    return format(mean, fmt) if half is None else f"{format(mean, fmt)} ± {format(half, fmt)}"
-
-
-def span(values, fmt=".2f") -> str:
-    return f"{format(min(values), fmt)}-{format(max(values), fmt)}"
-
-
-def table(head: list[str], rows: list[list]) -> list[str]:
-    return ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)] + [
-        "| " + " | ".join(str(c) for c in row) + " |" for row in rows
-    ]
-
-
 class Study:
+    """The five experiments; each runs its trials on ``lab`` and emits one Markdown table."""
+
     def __init__(self, setup: Setup, lab: Lab):
         self.s, self.lab = setup, lab
         self.lines: list[str] = []
@@ -459,69 +276,41 @@ class Study:
         )
 
     # E -------------------------------------------------------------------------------------
+    IMBIC_CONFIGS = (
+        ("Mhat 0.25 I kg (the reproduction)", dict()),
+        ("Mhat 0.1 I kg", dict(mhat=0.1)),
+        ("Mhat 0.5 I kg", dict(mhat=0.5)),
+        ("Mhat 1.0 I kg", dict(mhat=1.0)),
+        ("acceleration from positions", dict(accel="position")),
+        ("interval-mean acquisition", dict(acquisition="interval_mean")),
+    )
+    IMBIC_LONG = (  # with long records and fine segments
+        IMBIC_CONFIGS[0],
+        IMBIC_CONFIGS[2],
+        IMBIC_CONFIGS[3],
+        ("Mhat 1.0 I kg, interval-mean acquisition", dict(mhat=1.0, acquisition="interval_mean")),
+    )
+
     def imbic_settings(self):
         s = self.s
-        configs = [
-            ("Mhat 0.25 I kg (the reproduction)", dict()),
-            ("Mhat 0.1 I kg", dict(mhat=0.1)),
-            ("Mhat 0.5 I kg", dict(mhat=0.5)),
-            ("Mhat 1.0 I kg", dict(mhat=1.0)),
-            ("acceleration from positions", dict(accel="position")),
-            ("interval-mean acquisition", dict(acquisition="interval_mean")),
-        ]
-        long_configs = [
-            configs[0],
-            configs[2],
-            configs[3],
-            ("Mhat 1.0 I kg, interval-mean acquisition", dict(mhat=1.0, acquisition="interval_mean")),
-        ]
         runs, tags = [], []
-        for tag, kw in configs:
-            for loc in (1, 2, 3, 4):
-                for fr in (0, 1, 2):
-                    for sd in range(s.seeds):
-                        runs.append(Run("imbic", loc, sd, s.short, level=fr, **kw))
-                        tags.append((tag, s.short))
-        for tag, kw in long_configs:
-            for loc in (1, 2, 3, 4):
-                for fr in (0, 1, 2):
-                    for sd in range(min(2, s.seeds)):
-                        runs.append(Run("imbic", loc, sd, s.long, level=fr, **kw))
-                        tags.append((tag, s.long))
+        for configs, seconds, seeds in (
+            (self.IMBIC_CONFIGS, s.short, s.seeds),
+            (self.IMBIC_LONG, s.long, min(2, s.seeds)),
+        ):
+            for tag, kw in configs:
+                for loc in (1, 2, 3, 4):
+                    for fr in (0, 1, 2):
+                        for sd in range(seeds):
+                            runs.append(Run("imbic", loc, sd, seconds, level=fr, **kw))
+                            tags.append((tag, seconds))
         res = self.lab.run(runs, {s.short: [s.nperseg], s.long: [s.fine]})
-        rows = []
-        for (tag, _), t, seg in [(c, s.short, s.nperseg) for c in configs] + [
-            (c, s.long, s.fine) for c in long_configs
-        ]:
-            cond: dict = {}
-            for r, m, tg in zip(runs, res, tags):
-                if tg == (tag, t) and not m["diverged"]:
-                    cond.setdefault((r.location, r.level), []).append(m[f"w{seg}"])
-            names = ("coh_min", "coh_multiple_x_median", "phi_T")
-            mean = {k: {n: ci([m[n] for m in v])[0] for n in names} for k, v in cond.items()}
-            worst_min = min(mean, key=lambda k: mean[k]["coh_min"])
-            worst_med = min(mean[k]["coh_multiple_x_median"] for k in mean)
-            ratios = {
-                (loc, fr): mean[(loc, fr)]["phi_T"] / mean[(loc, 0)]["phi_T"]
-                for (loc, fr) in mean
-                if fr > 0 and (loc, 0) in mean
-            }
-            worst_ratio = max(ratios, key=ratios.get)
-            f_at = [m["coh_min_f"] for m in cond[worst_min]]
-            n_div = sum(1 for r, m, tg in zip(runs, res, tags) if tg == (tag, t) and m["diverged"])
-            rows.append(
-                [
-                    tag,
-                    f"{t:g} s, {seg}",
-                    f"{mean[worst_min]['coh_min']:.3f} (L{worst_min[0]}, F{worst_min[1]}, {span(f_at, '.1f')} Hz)",
-                    "holds" if mean[worst_min]["coh_min"] > 0.9 else "fails",
-                    f"{worst_med:.3f}",
-                    f"{ratios[worst_ratio]:.2f} (L{worst_ratio[0]}, F{worst_ratio[1]})",
-                    "holds" if ratios[worst_ratio] <= 2.0 else "fails",
-                    f"{max(mean[(loc, 0)]['phi_T'] for loc in (1, 2, 3, 4) if (loc, 0) in mean):.0f}",
-                    n_div,
-                ]
-            )
+        cases = [(tag, s.short, s.nperseg) for tag, _ in self.IMBIC_CONFIGS]
+        cases += [(tag, s.long, s.fine) for tag, _ in self.IMBIC_LONG]
+        rows = [
+            self._imbic_row(tag, t, seg, [(r, m) for r, m, tg in zip(runs, res, tags) if tg == (tag, t)])
+            for tag, t, seg in cases
+        ]
         self.emit(
             "E. Claims (d) and (e): IMBIC's settings and the acquisition (4 locations x 3 friction levels)",
             f"Seeds 0-{s.seeds - 1} at {s.short:g} s (0-{min(2, s.seeds) - 1} at {s.long:g} s); the reproduction's "
@@ -542,6 +331,36 @@ class Study:
                 rows,
             ),
         )
+
+    @staticmethod
+    def _imbic_row(tag: str, t: float, seg: int, results: list) -> list:
+        """One row of table E from the ``(Run, metrics)`` of one IMBIC setting and record."""
+        cond: dict = {}
+        for r, m in results:
+            if not m["diverged"]:
+                cond.setdefault((r.location, r.level), []).append(m[f"w{seg}"])
+        names = ("coh_min", "coh_multiple_x_median", "phi_T")
+        mean = {k: {n: ci([m[n] for m in v])[0] for n in names} for k, v in cond.items()}
+        worst_min = min(mean, key=lambda k: mean[k]["coh_min"])
+        worst_med = min(mean[k]["coh_multiple_x_median"] for k in mean)
+        ratios = {
+            (loc, fr): mean[(loc, fr)]["phi_T"] / mean[(loc, 0)]["phi_T"]
+            for (loc, fr) in mean
+            if fr > 0 and (loc, 0) in mean
+        }
+        worst_ratio = max(ratios, key=ratios.get)
+        f_at = [m["coh_min_f"] for m in cond[worst_min]]
+        return [
+            tag,
+            f"{t:g} s, {seg}",
+            f"{mean[worst_min]['coh_min']:.3f} (L{worst_min[0]}, F{worst_min[1]}, {span(f_at, '.1f')} Hz)",
+            "holds" if mean[worst_min]["coh_min"] > 0.9 else "fails",
+            f"{worst_med:.3f}",
+            f"{ratios[worst_ratio]:.2f} (L{worst_ratio[0]}, F{worst_ratio[1]})",
+            "holds" if ratios[worst_ratio] <= 2.0 else "fails",
+            f"{max(mean[(loc, 0)]['phi_T'] for loc in (1, 2, 3, 4) if (loc, 0) in mean):.0f}",
+            sum(1 for _, m in results if m["diverged"]),
+        ]
 
 
 def main(argv=None):

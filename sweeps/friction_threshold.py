@@ -39,7 +39,7 @@ def parse(argv):
     ap.add_argument("--seconds", type=float, help="record length [s] (default 50; quick 12)")
     ap.add_argument("--nperseg", type=int, help="Welch segment [samples] (default 8192; quick 2048), overlap 3/4")
     ap.add_argument("--points", type=int, help="log-spaced tau_c points in [1e-3, 4] N m (default 13; quick 7)")
-    ap.add_argument("--method", choices=("rk4", "ark3", "ark4", "gark4"), help="integrator (default ark3)")
+    ap.add_argument("--method", choices=_cli.METHODS, help="integrator (default ark3)")
     ap.add_argument("--substeps", type=int, help="integration steps per 1 ms (default 20)")
     ap.add_argument("--check", type=int, default=0, metavar="N", help="re-run N trials per controller at 4x substeps")
     ap.add_argument("--batch-size", type=int, default=64, help="trials per vmapped batch (does not change results)")
@@ -75,6 +75,8 @@ def tau_grid(points: int) -> list[float]:
 
 
 def settings_of(args, sweep):
+    from armimp_jax.study import points
+
     grid = dict(
         controller=["pd", "imbic"],
         arm=[1, 2, 3, 4],
@@ -88,7 +90,7 @@ def settings_of(args, sweep):
         run["method"] = args.method
     if args.substeps is not None:
         run["substeps"] = args.substeps
-    return sweep.SweepSettings(tuple(sweep.expand(grid)), **run)
+    return sweep.SweepSettings(tuple(points.expand(grid)), **run)
 
 
 # --- analysis ------------------------------------------------------------------------------
@@ -120,6 +122,8 @@ def ratio_band(phi, *, n_boot: int = 2000, seed: int = 0):
 
     import numpy as np
 
+    from armimp_jax.study import stats
+
     def ratio(v):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
@@ -130,8 +134,7 @@ def ratio_band(phi, *, n_boot: int = 2000, seed: int = 0):
     s = phi.shape[0]
     if s < 2:
         return mean, np.full_like(mean, np.nan), np.full_like(mean, np.nan)
-    rng = np.random.default_rng(seed)
-    boots = np.array([ratio(phi[rng.integers(0, s, s)]) for _ in range(n_boot)])
+    boots = stats.bootstrap(phi, ratio, n_boot=n_boot, seed=seed)
     lo, hi = np.nanquantile(boots, [0.025, 0.975], axis=0)
     return mean, lo, hi
 

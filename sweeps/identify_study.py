@@ -21,7 +21,7 @@ import pathlib
 import sys
 import types
 
-from _cli import Parser, fail, resumable, run_seeds
+from _cli import Z95, Parser, fail, resumable
 
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
 ACQUISITIONS = ("instant", "interval_mean")
@@ -52,7 +52,7 @@ def cell_summary(np, rows, true):
     for route, values, half in (("identify", "values", None), ("classical", "classical", "classical_half_width")):
         e = np.array([np.concatenate([np.ravel(r[values][n]) for n in ARM]) for r in rows])
         if half is None:
-            w = 1.959963984540054 * np.array([np.concatenate([np.ravel(r["se"][n]) for n in ARM]) for r in rows])
+            w = Z95 * np.array([np.concatenate([np.ravel(r["se"][n]) for n in ARM]) for r in rows])
         else:
             w = np.array([np.concatenate([np.ravel(r[half][n]) for n in ARM]) for r in rows])
         spread = e.std(axis=0, ddof=1)
@@ -69,7 +69,7 @@ def cell_summary(np, rows, true):
 
 
 def run(aj, np, jax, a):
-    from bench_identify_coverage import make_truth, one_seed
+    from bench_identify_coverage import make_truth, run_case
 
     from armimp_jax.study import atomic_write_json
 
@@ -83,14 +83,7 @@ def run(aj, np, jax, a):
             for tau_c in a.frictions:
                 name = f"{acquisition}/{controller}/{tau_c:g}"
                 truth = make_truth(aj, controller, tau_c, opts)
-                cell = run_seeds(
-                    state,
-                    "cells",
-                    name,
-                    a.seeds,
-                    lambda seed: one_seed(aj, np, jax, truth, f, seed, opts),
-                    path,  # noqa: B023
-                )
+                cell = run_case(aj, np, jax, state, "cells", name, truth, f, opts, seeds=a.seeds, path=path)
                 # scored: recordings whose fit converged (the rest are counted in the summary)
                 rows = [r for r in cell["seeds"] if not r["diverged"] and r["converged"] and "classical" in r]
                 true = np.concatenate([np.ravel(getattr(truth.arm, n.split(".")[1])) for n in ARM])

@@ -114,16 +114,6 @@ def check_args(args) -> None:
         fail("--replot runs in one process: drop --coordinator, --num-processes, --process-id and --auto-cluster")
 
 
-def batch_sizes(todo, batch_size: int) -> list[int]:
-    """Trials per batch, in the order ``reproduce.run_reproduction`` runs them (one group per
-    controller and acquisition, split into ``batch_size`` pieces); the bar only uses it to
-    name what runs between chunks."""
-    groups: dict[tuple, int] = {}
-    for c, _ in todo:
-        groups[(c.controller, c.acquisition)] = groups.get((c.controller, c.acquisition), 0) + 1
-    return [min(batch_size, n - i) for n in groups.values() for i in range(0, n, batch_size)]
-
-
 def _clock(seconds: float) -> str:
     return f"{int(seconds // 60)}:{int(seconds % 60):02d}"
 
@@ -144,7 +134,7 @@ class ProgressBar:
         self.start = time.monotonic()
         self.last_draw = -1.0
         self.prev = None  # (time, done, trials_done) of the previous call
-        self.steady_s = self.steady_work = 0.0  # time and substeps of chunks that did not start a batch
+        self.steady_s = self.steady_work = 0.0  # time and trial samples of chunks that did not start a batch
         self.starts: list[float] = []  # measured extra cost of starting a batch (estimation, compilation)
 
     def begin(self) -> None:
@@ -215,9 +205,13 @@ def warn(message: str) -> None:
     sys.stderr.write(f"{PROG}: warning: {message}\n")
 
 
-def finish(repro, plots, report, out):
+def finish(repro, plots, report, out, start: float):
+    """Aggregate, plot and write the report; the run's recorded wall time gains everything
+    this command did since ``start`` (``time.perf_counter()`` when it began), the report's
+    writing aside."""
     results, arrays = step("aggregating", lambda: repro.aggregate(out, warn=warn))
     figures = step("plotting", lambda: plots.all_figures(results, arrays, out))
+    repro.record_wall_time(out, results, time.perf_counter() - start)
     path = step("writing the report", lambda: report.write_report(results, out, figures))
     return results, path
 
@@ -229,12 +223,15 @@ def settings_for(args, repro):
     if args.resume is None:
         out = args.out or pathlib.Path("results/paper-quick" if args.quick else "results/paper")
         return repro.ReproSettings(**asked), out
-    saved = repro.saved_settings(args.resume)
-    repro.check_resume(args.resume, saved, dataclasses.replace(saved, **asked))
+    from armimp_jax.study import engine
+
+    saved = engine.saved_settings(repro.ReproSettings, args.resume)
+    engine.check_resume(args.resume, saved, dataclasses.replace(saved, **asked))
     return saved, args.resume
 
 
 def main(argv=None):
+    start = time.perf_counter()  # the recorded wall time covers the whole command
     args = parse(argv)
     check_args(args)
     from armimp_jax.study import distributed
@@ -245,9 +242,10 @@ def main(argv=None):
     configure()
     from armimp_jax.paper import plots, report
     from armimp_jax.paper import reproduce as repro
+    from armimp_jax.study import engine
 
     if args.replot:
-        with repro.run_folder(args.replot).lock():
+        with engine.run_folder(repro.ReproSettings, args.replot).lock():
             results, arrays = repro.load_results(args.replot)
             figures = step("plotting", lambda: plots.all_figures(results, arrays, args.replot))
             path = step("writing the report", lambda: report.write_report(results, args.replot, figures))
@@ -257,7 +255,7 @@ def main(argv=None):
     settings.validate()
     writer = distributed.is_writer()
     # the writer holds the lock and reads the folder; every process gets its list of trials to run
-    with repro.open_run(settings, out, resume=args.resume is not None, warn=warn) as (done, todo):
+    with engine.open_study(settings, out, resume=args.resume is not None, warn=warn) as (done, todo):
         if writer:
             print(
                 f"{len(settings.conditions)} conditions x {settings.seeds} seed(s), {settings.seconds:g} s records, "
@@ -266,9 +264,9 @@ def main(argv=None):
             )
         bar = None
         if writer and todo:
-            bar = ProgressBar(len(todo), batch_sizes(todo, args.batch_size), settings.n_samples * settings.substeps)
+            sizes = [len(b) for b in engine.batches(todo, settings.group, args.batch_size)]
+            bar = ProgressBar(len(todo), sizes, settings.n_samples)
             bar.begin()
-        start = time.perf_counter()
         try:
             computed = repro.run_reproduction(
                 settings,
@@ -281,12 +279,10 @@ def main(argv=None):
         except KeyboardInterrupt:
             if not writer:
                 raise
-            repro.add_wall_time(out, time.perf_counter() - start)
             sys.stderr.write("\ninterrupted: finished trials are saved\n")
-            _, path = finish(repro, plots, report, out)
+            _, path = finish(repro, plots, report, out, start)
             print(f"partial report: {path}\nresume with: python sweeps/reproduce_paper.py --resume {out}")
             return 130
-        wall = time.perf_counter() - start
         if not writer:
             import jax
 
@@ -294,15 +290,14 @@ def main(argv=None):
             return 0
         if bar is not None:
             bar.end(len(computed))
-        repro.add_wall_time(out, wall)
-        results, path = finish(repro, plots, report, out)
+        results, path = finish(repro, plots, report, out, start)
     for c in results["claims"]:
         print(f"  ({c['key']}) {c['verdict']:10s} {c['ours']}\n      {'':10s} {c['robustness']}")
     if results["diverged"]:
         print(f"  {len(results['diverged'])} diverged trial(s) left out of the means and claims (see the report)")
     if not results["complete"]:
         print(f"  incomplete: {len(results['missing'])} trial(s) missing; --resume {out} to finish")
-    print(f"done in {wall:.1f} s: {path}")
+    print(f"done in {time.perf_counter() - start:.1f} s: {path}")
     return 0 if results["complete"] else 1
 
 

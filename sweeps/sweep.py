@@ -26,7 +26,7 @@ import pathlib
 import sys
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _cli import Parser, distributed_options, run_sweep  # noqa: E402
+from _cli import METHODS, Parser, distributed_options, run_sweep  # noqa: E402
 from _cli import fail as cli_fail  # noqa: E402
 
 PROG = "sweep"
@@ -47,7 +47,7 @@ def parser(prog: str = PROG, description: str | None = __doc__) -> Parser:
     ap.add_argument("--mhat", type=float, help="IMBIC Mhat, times the identity [kg] (default 0.25)")
     ap.add_argument("--seeds", type=int, help="perturbation seeds per point (default 3)")
     ap.add_argument("--base-seed", type=int, help="PRNG seed the perturbations are folded from (default 0)")
-    ap.add_argument("--method", choices=("rk4", "ark3", "ark4", "gark4"), help="integrator (default ark3)")
+    ap.add_argument("--method", choices=METHODS, help="integrator (default ark3)")
     ap.add_argument("--substeps", type=int, help="integration steps per 1 ms period (default 20)")
     ap.add_argument("--check", type=int, default=0, metavar="N", help="re-run N trials per group at 4x substeps")
     ap.add_argument("--batch-size", type=int, default=64, help="trials per vmapped batch (does not change results)")
@@ -82,10 +82,13 @@ def run_options(args, toml_run: dict) -> dict:
     return out
 
 
-def requested(args, sweep):
+def requested(args):
     """``SweepSettings`` from the command line and ``--config``."""
-    grid, points, run = sweep.read_toml(args.config) if args.config else ({}, None, {})
-    cli = sweep.parse_set(args.set)
+    from armimp_jax.study import points as pts
+    from armimp_jax.study.sweep import SweepSettings
+
+    grid, points, run = pts.read_toml(args.config) if args.config else ({}, None, {})
+    cli = pts.parse_set(args.set)
     both = sorted(set(cli) & set(grid))
     if both:
         raise ValueError(f"setting(s) {', '.join(both)} given both in --set and in {args.config}")
@@ -96,30 +99,32 @@ def requested(args, sweep):
             if name in grid:
                 raise ValueError(f"--{name} and --set {name} (or the TOML grid) both given")
             grid[name] = [value]
-    return sweep.SweepSettings(tuple(sweep.expand(grid, points)), **run_options(args, run))
+    return SweepSettings(tuple(pts.expand(grid, points)), **run_options(args, run))
 
 
-def settings_for(args, sweep):
+def settings_for(args):
     """``(settings, out)``; for ``--resume`` the saved settings (options given must agree)."""
+    from armimp_jax.study import engine
+    from armimp_jax.study.points import normalize_point
+    from armimp_jax.study.sweep import SweepSettings
+
     if args.resume is None:
-        return requested(args, sweep), args.out
-    saved = sweep.saved_settings(args.resume)
+        return requested(args), args.out
+    saved = engine.saved_settings(SweepSettings, args.resume)
     if args.set or args.config:
-        wanted = requested(args, sweep)
+        wanted = requested(args)
     else:  # options given with --resume apply to every saved point
         given = {k: getattr(args, k) for k in SHORTCUTS if getattr(args, k) is not None}
-        points = tuple(sweep.normalize_point(dict(p) | given) for p in saved.points)
+        points = tuple(normalize_point(dict(p) | given) for p in saved.points)
         wanted = dataclasses.replace(saved, points=points, **run_options(args, {}))
-    sweep.check_resume(args.resume, saved, wanted)
+    engine.check_resume(args.resume, saved, wanted)
     return saved, args.resume
 
 
 def run(args, *, prog: str = PROG, quiet: bool = False):
     """Run (or resume) a sweep from parsed options; returns ``(summary, out)`` (in a
     ``jax.distributed`` job, the processes other than 0 get only ``computed``)."""
-    from armimp_jax.study import sweep
-
-    settings, out = settings_for(args, sweep)
+    settings, out = settings_for(args)
     result = run_sweep(settings, out, prog=prog, batch_size=args.batch_size, check=args.check, x=args.x, quiet=quiet)
     return result, out
 

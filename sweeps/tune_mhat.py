@@ -22,6 +22,7 @@ import pathlib
 import shlex
 import sys
 import time
+from typing import NamedTuple
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from _cli import Parser  # noqa: E402
@@ -168,6 +169,132 @@ def setup(options: dict, tune, paper_tune, Welch):
     return config, train, evals, locations, eval_every, settings
 
 
+class Run(NamedTuple):
+    """A tuning run, set up: its options, training configuration, training and evaluation
+    settings, arm locations, evaluation period, saved settings, and state (``None``: new)."""
+
+    options: dict
+    config: object
+    train: dict
+    evals: dict
+    locations: tuple
+    eval_every: int
+    settings: dict
+    state: object
+
+
+def open_tuning(folder, out: pathlib.Path, args) -> Run:
+    """The run in ``folder`` (locked by the caller): the options of the command (over those of
+    the run resumed), checked against the folder's settings; its saved state, if any."""
+    from armimp_jax import Welch
+    from armimp_jax.paper import tune as paper_tune
+    from armimp_jax.study import tune
+    from armimp_jax.study.results import ResultsError, to_jsonable
+
+    resumed = folder.read() if args.resume is not None else None
+    options = DEFAULTS | (resumed["options"] if resumed else {}) | explicit(args)
+    config, train, evals, locations, eval_every, settings = setup(options, tune, paper_tune, Welch)
+    train["welch"].check(int(train["seconds"] * 1000))
+    if resumed is not None:
+        folder.check_resume(resumed["settings"], settings)
+    run = folder.prepare(settings, resume=args.resume is not None, extra=dict(options=options))
+    if run.get("options") != to_jsonable(options):  # a resume finds the options of the last command
+        folder.update(options=options)
+    state = None
+    if (out / STATE).exists():
+        try:
+            state = tune.load_state(out / STATE, settings, config)
+        except ResultsError as err:
+            raise ResultsError(f"{err}; delete it to start over") from None
+        print(f"continuing the tuning run in {out} from iteration {state.iteration}", flush=True)
+    return Run(options, config, train, evals, locations, eval_every, settings, state)
+
+
+def heldout(run: Run, mhats: dict) -> dict:
+    """``paper_tune.heldout_phi`` of ``mhats`` at the run's evaluation settings."""
+    from armimp_jax.paper import tune as paper_tune
+
+    e = run.evals
+    seeds = tuple(range(run.options["eval_seeds"]))
+    return paper_tune.heldout_phi(
+        mhats, locations=run.locations, seeds=seeds, seconds=e["seconds"], substeps=e["substeps"], welch=e["welch"]
+    )
+
+
+def train(run: Run, out: pathlib.Path):
+    """Adam on the training batch from the run's state (or its start), saving the state after
+    each step; ``(final state, perf_counter at the start of the steps)``, the state ``None``
+    when interrupted (the saved state resumes it)."""
+    import numpy as np
+
+    from armimp_jax.paper import tune as paper_tune
+    from armimp_jax.study import tune
+
+    options, config = run.options, run.config
+    params, f_delta = paper_tune.training_batch(
+        tuple(options["frictions"]), run.locations, tuple(range(options["train_seeds"])), seconds=run.train["seconds"]
+    )
+
+    def evaluate(iteration, theta):
+        phi = heldout(run, {"current": np.asarray(tune.mhat_from_theta(theta, config.parameterisation))})
+        return dict(mean_phi_T=float(phi["current"].mean()), diverged=bool(phi["_diverged"]))
+
+    def log(rec):
+        keep = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in rec.items() if k != "phi_T"}
+        print(json.dumps(keep), flush=True)
+
+    def save(st):
+        tune.save_state(out / STATE, st, run.settings, meta=dict(options=options))
+
+    print(
+        f"training on {params.q0.shape[0]} trials of {run.train['seconds']:g} s ({run.train['substeps']} substeps), "
+        f"{config.mode}-mode gradients -> {out}",
+        flush=True,
+    )
+    start = time.perf_counter()
+    theta0 = tune.theta_from_mhat(options["start"] * np.eye(2), config.parameterisation)
+    try:
+        state = tune.tune(
+            theta0,
+            params,
+            f_delta,
+            run.train["welch"],
+            config,
+            state=run.state,
+            log=log,
+            on_iteration=save,
+            evaluate=evaluate,
+            eval_every=run.eval_every,
+        )
+    except KeyboardInterrupt:
+        return None, start
+    save(state)
+    return state, start
+
+
+def write_outputs(run: Run, state, out: pathlib.Path, train_s: float):
+    """``mhat.json``, ``loss_curve.png`` and the held-out comparison (``comparison.md`` and
+    ``.json``) of the tuned gain against the hand-picked ones; returns ``(mhat, markdown)``."""
+    import numpy as np
+
+    from armimp_jax.paper import tune as paper_tune
+    from armimp_jax.paper.plots import loss_curve
+    from armimp_jax.study import tune
+    from armimp_jax.study.results import atomic_write_json, atomic_write_text, settings_key
+
+    mhat = np.asarray(tune.mhat_from_theta(state.theta, run.config.parameterisation))
+    record = dict(mhat=mhat, settings=run.settings, key=settings_key(run.settings), iterations=state.iteration)
+    atomic_write_json(out / "mhat.json", record | dict(train_loss=state.value, train_s=train_s))
+    loss_curve(state.history.records(), out / "loss_curve.png")
+    candidates = {"tuned": mhat} | {f"{v:g} I": v * np.eye(2) for v in run.options["compare"]}
+    table = heldout(run, candidates)
+    seeds = tuple(range(run.options["eval_seeds"]))
+    md = paper_tune.comparison_markdown(table, mhat, locations=run.locations, evals=run.evals, seeds=seeds)
+    atomic_write_text(out / "comparison.md", md)
+    atomic_write_json(out / "comparison.json", table | dict(best=paper_tune.best_candidate(table)))
+    return mhat, md
+
+
 def main(argv=None):
     args = parse(argv)
     check_args(args)
@@ -176,106 +303,15 @@ def main(argv=None):
     configure()
     import numpy as np
 
-    from armimp_jax import Welch
-    from armimp_jax.paper import tune as paper_tune
-    from armimp_jax.study import tune
-    from armimp_jax.study.results import ResultsError, atomic_write_json, atomic_write_text, settings_key, to_jsonable
-
     out = args.resume or args.out or pathlib.Path("results/tune-quick" if args.quick else "results/tune")
     folder = run_folder(out)
     with folder.lock():
-        resumed = folder.read() if args.resume is not None else None
-        options = DEFAULTS | (resumed["options"] if resumed else {}) | explicit(args)
-        config, train, evals, locations, eval_every, settings = setup(options, tune, paper_tune, Welch)
-        train["welch"].check(int(train["seconds"] * 1000))
-        if resumed is not None:
-            folder.check_resume(resumed["settings"], settings)
-        run = folder.prepare(settings, resume=args.resume is not None, extra=dict(options=options))
-        if run.get("options") != to_jsonable(options):  # a resume finds the options of the last command
-            folder.update(options=options)
-        state_path = out / STATE
-        state = None
-        if state_path.exists():
-            try:
-                state = tune.load_state(state_path, settings, config)
-            except ResultsError as err:
-                raise ResultsError(f"{err}; delete it to start over") from None
-            print(f"continuing the tuning run in {out} from iteration {state.iteration}", flush=True)
-        params, f_delta = paper_tune.training_batch(
-            tuple(options["frictions"]), locations, tuple(range(options["train_seeds"])), seconds=train["seconds"]
-        )
-        eval_seeds = tuple(range(options["eval_seeds"]))
-
-        def evaluate(iteration, theta):
-            mhat = np.asarray(tune.mhat_from_theta(theta, config.parameterisation))
-            phi = paper_tune.heldout_phi(
-                {"current": mhat},
-                locations=locations,
-                seeds=eval_seeds,
-                seconds=evals["seconds"],
-                substeps=evals["substeps"],
-                welch=evals["welch"],
-            )
-            return dict(mean_phi_T=float(phi["current"].mean()), diverged=bool(phi["_diverged"]))
-
-        def log(rec):
-            keep = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in rec.items() if k != "phi_T"}
-            print(json.dumps(keep), flush=True)
-
-        def save(st):
-            tune.save_state(state_path, st, settings, meta=dict(options=options))
-
-        print(
-            f"training on {params.q0.shape[0]} trials of {train['seconds']:g} s ({train['substeps']} substeps), "
-            f"{config.mode}-mode gradients -> {out}",
-            flush=True,
-        )
-        start = time.perf_counter()
-        theta0 = tune.theta_from_mhat(options["start"] * np.eye(2), config.parameterisation)
-        try:
-            state = tune.tune(
-                theta0,
-                params,
-                f_delta,
-                train["welch"],
-                config,
-                state=state,
-                log=log,
-                on_iteration=save,
-                evaluate=evaluate,
-                eval_every=eval_every,
-            )
-        except KeyboardInterrupt:
-            print(f"interrupted; resume with:\n  {command_line(out, options)}")
+        run = open_tuning(folder, out, args)
+        state, start = train(run, out)
+        if state is None:
+            print(f"interrupted; resume with:\n  {command_line(out, run.options)}")
             return 130
-        save(state)
-        mhat = np.asarray(tune.mhat_from_theta(state.theta, config.parameterisation))
-        atomic_write_json(
-            out / "mhat.json",
-            dict(
-                mhat=mhat,
-                settings=settings,
-                key=settings_key(settings),
-                iterations=state.iteration,
-                train_loss=state.value,
-                train_s=time.perf_counter() - start,
-            ),
-        )
-        from armimp_jax.paper.plots import loss_curve
-
-        loss_curve(state.history.records(), out / "loss_curve.png")
-        candidates = {"tuned": mhat} | {f"{v:g} I": v * np.eye(2) for v in options["compare"]}
-        table = paper_tune.heldout_phi(
-            candidates,
-            locations=locations,
-            seeds=eval_seeds,
-            seconds=evals["seconds"],
-            substeps=evals["substeps"],
-            welch=evals["welch"],
-        )
-        md = paper_tune.comparison_markdown(table, mhat, locations=locations, evals=evals, seeds=eval_seeds)
-        atomic_write_text(out / "comparison.md", md)
-        atomic_write_json(out / "comparison.json", table | dict(best=paper_tune.best_candidate(table)))
+        mhat, md = write_outputs(run, state, out, time.perf_counter() - start)
     print(md)
     print(f"tuned Mhat = {np.round(mhat, 4).tolist()} kg; done in {time.perf_counter() - start:.0f} s")
     return 0

@@ -317,18 +317,18 @@ def test_error_model_predicts_the_variance_and_bin_correlation_of_z():
 
 
 def test_welch_segments_follow_the_record():
-    """Table 4's 8192/6144 from 16384 samples on (the paper's records unchanged); a 12 s record
-    at 1 kHz gets 4096-sample segments (8 of them, not Table 4's 2); a given nperseg alone
+    """Table 4's 8192/6144 from 24576 samples on (the paper's records unchanged); a 12 s record
+    at 1 kHz gets 2048-sample segments (20 of them, not Table 4's 2); a given nperseg alone
     gets 75% overlap; the default estimate uses exactly these settings."""
-    assert aj.welch_segments(50_000) == (8192, 6144) == aj.welch_segments(16_384)
-    assert aj.welch_segments(12_000) == (4096, 3072)
-    assert aj.welch_segments(16_383) == (4096, 3072)
+    assert aj.welch_segments(50_000) == (8192, 6144) == aj.welch_segments(24_576)
+    assert aj.welch_segments(12_000) == (2048, 1536)
+    assert aj.welch_segments(24_575) == (4096, 3072)
     with pytest.raises(ValueError, match="n_samples"):
         aj.welch_segments(8)
     u, y, n_out = _synthetic(n=12_000, noise=0.1)
     auto = aj.estimate(u, y + n_out, 2.0 * y, errors=False)
-    given = aj.estimate(u, y + n_out, 2.0 * y, nperseg=4096, errors=False)
-    explicit = aj.estimate(u, y + n_out, 2.0 * y, nperseg=4096, noverlap=3072, errors=False)
+    given = aj.estimate(u, y + n_out, 2.0 * y, nperseg=2048, errors=False)
+    explicit = aj.estimate(u, y + n_out, 2.0 * y, nperseg=2048, noverlap=1536, errors=False)
     for field in ("f", "Z", "coh_inputs"):
         np.testing.assert_array_equal(getattr(auto, field), getattr(explicit, field))
         np.testing.assert_array_equal(getattr(given, field), getattr(explicit, field))

@@ -1,5 +1,7 @@
 """The parametric fit of M, B, K: exact recovery, interval coverage, batching, gradients, bad input."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -17,6 +19,8 @@ B = np.array([[7.17, -6.14], [-6.19, 12.08]])
 K = np.array([[105.72, -104.11], [-127.35, 234.78]])
 F = np.arange(1, 123) * (1000.0 / 8192)  # the paper's bins in (0, 15] Hz
 NAMES = (("mass", M), ("damping", B), ("stiffness", K))
+# The textbook fit (continuous model, residual errors): a named option, tested as such.
+textbook = functools.partial(aj.fit_impedance, acquisition="plain", se="residual")
 
 
 def model(f, m=M, b=B, k=K):
@@ -28,7 +32,7 @@ def model(f, m=M, b=B, k=K):
 def test_noise_free_model_is_recovered_to_round_off(f):
     """Round-off: errors below 1e-15 of the largest |Z|, in each parameter's units (K is a
     small part of Z at 400 Hz, so its relative error may reach ~1e-12 there)."""
-    fit = aj.fit_impedance(jnp.asarray(model(f)), jnp.asarray(f))
+    fit = textbook(jnp.asarray(model(f)), jnp.asarray(f))
     z_max, w_max = np.abs(model(f)).max(), 2 * np.pi * np.max(f)
     for (name, truth), scale in zip(NAMES, (w_max**-2, w_max**-1, 1.0)):
         np.testing.assert_allclose(getattr(fit, name), truth, rtol=0, atol=1e-15 * z_max * scale)
@@ -41,7 +45,7 @@ def test_noise_free_model_is_recovered_to_round_off(f):
 
 def test_arm_impedance_round_trips_through_the_fit():
     arm = paper.arm(3)
-    fit = aj.fit_impedance(arm.impedance(F), F)
+    fit = textbook(arm.impedance(F), F)
     for name in ("mass", "damping", "stiffness"):
         np.testing.assert_allclose(getattr(fit, name), getattr(arm, name), rtol=0, atol=1e-12 * 250)
 
@@ -52,7 +56,7 @@ def _noisy_fits(n_draws, sigma, f, seed=0):
 
     def one(key):
         re, im = jax.random.normal(key, (2,) + z0.shape)
-        return aj.fit_impedance(z0 + sigma / np.sqrt(2) * (re + 1j * im), f)
+        return textbook(z0 + sigma / np.sqrt(2) * (re + 1j * im), f)
 
     return jax.jit(jax.vmap(one))(keys)
 
@@ -79,9 +83,9 @@ def test_vmap_over_a_batch_equals_a_loop():
     rng = np.random.default_rng(1)
     zs = model(F)[None] + rng.standard_normal((3, len(F), 2, 2)) + 1j * rng.standard_normal((3, len(F), 2, 2))
     ws = rng.uniform(0.5, 2.0, (3, len(F)))
-    batched = jax.vmap(lambda z, w: aj.fit_impedance(z, F, weights=w))(jnp.asarray(zs), jnp.asarray(ws))
+    batched = jax.vmap(lambda z, w: textbook(z, F, weights=w))(jnp.asarray(zs), jnp.asarray(ws))
     for i in range(3):
-        single = aj.fit_impedance(zs[i], F, weights=ws[i])
+        single = textbook(zs[i], F, weights=ws[i])
         for a, b in zip(jax.tree.leaves(single), jax.tree.leaves(batched)):
             np.testing.assert_allclose(b[i], a, rtol=1e-12, atol=1e-12)
 
@@ -93,7 +97,7 @@ def test_gradient_equals_finite_differences():
     w = jnp.asarray(rng.uniform(0.5, 2.0, len(F)))
 
     def loss(a):  # stiffness SE and damping through the noise amplitude and the weights
-        fit = aj.fit_impedance(z0 + a * noise, F, weights=w**a)
+        fit = textbook(z0 + a * noise, F, weights=w**a)
         return jnp.sum(fit.stiffness_se) + fit.damping[0, 1] + fit.vaf_overall
 
     a0, eps = 2.0, 1e-6
@@ -108,33 +112,33 @@ def test_weights_per_bin_per_element_scale_and_zeros():
     rng = np.random.default_rng(3)
     z = model(F) + 2.0 * (rng.standard_normal((len(F), 2, 2)) + 1j * rng.standard_normal((len(F), 2, 2)))
     w = rng.uniform(0.1, 1.0, len(F))
-    a = aj.fit_impedance(z, F, weights=w)
-    b = aj.fit_impedance(z, F, weights=np.broadcast_to(w[:, None, None], (len(F), 2, 2)))
-    c = aj.fit_impedance(z, F, weights=1e6 * w)  # the fit and its errors do not depend on the scale
+    a = textbook(z, F, weights=w)
+    b = textbook(z, F, weights=np.broadcast_to(w[:, None, None], (len(F), 2, 2)))
+    c = textbook(z, F, weights=1e6 * w)  # the fit and its errors do not depend on the scale
     for x, y in ((a, b), (a, c)):
         for u, v in zip(jax.tree.leaves(x), jax.tree.leaves(y)):
             np.testing.assert_allclose(u, v, rtol=1e-9)
     keep = F < 8.0  # zero weights drop bins, degrees of freedom included (the VAF stays over all bins)
-    d = aj.fit_impedance(z, F, weights=keep.astype(float))
-    e = aj.fit_impedance(z[keep], F[keep])
+    d = textbook(z, F, weights=keep.astype(float))
+    e = textbook(z[keep], F[keep])
     for name in ("mass", "damping", "stiffness", "mass_se", "damping_se", "stiffness_se", "dof"):
         np.testing.assert_allclose(getattr(d, name), getattr(e, name), rtol=1e-9)
     # per-element weights: element (0, 1) sees only the first half
     w4 = np.ones((len(F), 2, 2))
     w4[~keep, 0, 1] = 0.0
-    g = aj.fit_impedance(z, F, weights=w4)
+    g = textbook(z, F, weights=w4)
     np.testing.assert_allclose(g.mass[0, 1], e.mass[0, 1], rtol=1e-9)
-    np.testing.assert_allclose(g.mass[1, 0], aj.fit_impedance(z, F).mass[1, 0], rtol=1e-12)
+    np.testing.assert_allclose(g.mass[1, 0], textbook(z, F).mass[1, 0], rtol=1e-12)
 
 
 def test_vaf_is_the_fraction_of_power_explained():
     z = model(F)
     z_off = z + 30.0  # a constant real offset is absorbed by K: still 100 %
-    np.testing.assert_allclose(aj.fit_impedance(z_off, F).vaf, 100.0, rtol=1e-12)
+    np.testing.assert_allclose(textbook(z_off, F).vaf, 100.0, rtol=1e-12)
     w = 2 * np.pi * F
     bump = 5.0j * w**3 / w.max() ** 2  # an odd power no M, B, K captures
     z_bad = z + bump[:, None, None]
-    fit = aj.fit_impedance(z_bad, F)
+    fit = textbook(z_bad, F)
     resid = np.abs(z_bad - np.asarray(fit.impedance(F))) ** 2
     expected = 100 * (1 - resid.sum(0) / (np.abs(z_bad) ** 2).sum(0))
     np.testing.assert_allclose(fit.vaf, expected, rtol=1e-12)
@@ -162,17 +166,17 @@ def test_an_estimate_is_fitted_directly_with_uniform_or_coherence_weights():
     z = model(F) + rng.standard_normal((len(F), 2, 2))
     cx, cf = rng.uniform(0.5, 1.0, (len(F), 2)), rng.uniform(0.5, 1.0, (len(F), 2))
     est = _estimate_like(z, F, cx, cf)
-    assert aj.fit_impedance(est).mass.tolist() == aj.fit_impedance(est.Z, est.f).mass.tolist()
-    assert aj.fit_impedance(est, weights="uniform").mass.tolist() == aj.fit_impedance(est.Z, est.f).mass.tolist()
+    assert textbook(est).mass.tolist() == textbook(est.Z, est.f).mass.tolist()
+    assert textbook(est, weights="uniform").mass.tolist() == textbook(est.Z, est.f).mass.tolist()
     e = lambda g: (1 - g) / g  # noqa: E731
     w = 1 / (e(cf)[:, :, None] + e(cx).sum(-1)[:, None, None])
     np.testing.assert_allclose(coherence_weights(est), np.broadcast_to(w, (len(F), 2, 2)), rtol=1e-12)
-    by_name = aj.fit_impedance(est, weights="coherence")
-    by_array = aj.fit_impedance(est.Z, est.f, weights=np.broadcast_to(w, (len(F), 2, 2)))
+    by_name = textbook(est, weights="coherence")
+    by_array = textbook(est.Z, est.f, weights=np.broadcast_to(w, (len(F), 2, 2)))
     np.testing.assert_allclose(by_name.damping, by_array.damping, rtol=1e-12)
     # a batch of estimates (TrialOutcome.estimate of assess_batch) fits under vmap
     batch = jax.tree.map(lambda a: jnp.stack([a, a]), est)
-    fits = jax.vmap(lambda e_: aj.fit_impedance(e_, weights="coherence"))(batch)
+    fits = jax.vmap(lambda e_: textbook(e_, weights="coherence"))(batch)
     np.testing.assert_allclose(fits.damping[1], by_name.damping, rtol=1e-12)
     # unit coherence (a noise-free simulation) gives finite weights
     assert np.all(np.isfinite(coherence_weights(_estimate_like(z, F, np.ones((len(F), 2)), cf))))
@@ -196,7 +200,7 @@ def test_an_estimate_is_fitted_directly_with_uniform_or_coherence_weights():
 )
 def test_bad_input_is_refused_with_a_clear_message(args, kwargs, message):
     with pytest.raises(ValueError, match=message):
-        aj.fit_impedance(*args, **kwargs)
+        textbook(*args, **kwargs)
 
 
 def test_estimate_and_frequencies_together_are_refused():
@@ -224,14 +228,14 @@ def recorded(f, acquisition, delay=0.7e-3):
 @pytest.mark.parametrize("acquisition", ["instant", "interval_mean", "delay", "plain"])
 def test_each_acquisition_model_is_recovered_to_round_off(acquisition):
     z = recorded(F, acquisition)
-    fit = aj.fit_impedance(jnp.asarray(z), F, acquisition=acquisition, period=PERIOD)
+    fit = aj.fit_impedance(jnp.asarray(z), F, acquisition=acquisition, period=PERIOD, se="residual")
     for name, truth in NAMES:
         np.testing.assert_allclose(getattr(fit, name), truth, rtol=1e-9, atol=1e-9 * np.abs(truth).max())
     np.testing.assert_allclose(fit.delay, 0.7e-3 if acquisition == "delay" else 0.0, rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(fit.impedance(F, acquisition=acquisition, period=PERIOD), z, rtol=1e-9)
     np.testing.assert_allclose(fit.vaf, 100.0, rtol=1e-12)
     if acquisition != "plain":  # the plain model cannot absorb the lag or the delay: B takes it
-        plain = aj.fit_impedance(jnp.asarray(z), F)
+        plain = textbook(jnp.asarray(z), F)
         assert np.abs(np.diagonal(plain.damping / B - 1)).max() > (0.05 if acquisition != "interval_mean" else -1)
 
 
@@ -312,7 +316,7 @@ def test_spectral_intervals_cover_with_correlated_welch_bins_and_residual_ones_d
 
     def one(key):
         est = _mc_record(key)
-        return aj.fit_impedance(est), aj.fit_impedance(est, se="spectral")
+        return textbook(est), aj.fit_impedance(est, acquisition="plain", se="spectral")
 
     cover = {}
     for label, fits in zip(("residual", "spectral"), jax.tree.map(np.asarray, jax.jit(jax.vmap(one))(keys))):
@@ -330,11 +334,11 @@ def test_lack_of_fit_is_quiet_when_the_model_holds_and_warns_when_it_does_not():
     M, B, K can follow makes it several times larger, and fit_warnings says so."""
     record = jax.jit(_mc_record, static_argnames="white")
     good, bad = (jax.tree.map(np.asarray, record(jax.random.PRNGKey(7), extra=a, white=10.0)) for a in (0.0, 4e3))
-    fit_good, fit_bad = map(jax.jit(lambda e: aj.fit_impedance(e, se="spectral")), (good, bad))
+    fit_good, fit_bad = map(jax.jit(lambda e: aj.fit_impedance(e, acquisition="plain")), (good, bad))
     assert 0.6 < float(fit_good.lack_of_fit_overall) < 1.4 and float(fit_good.lack_of_fit_p_overall) > 0.01
     assert not [w for w in aj.fit_warnings(fit_good, good) if w.startswith("lack of fit")]
     assert float(fit_bad.lack_of_fit_overall) > 3 and float(fit_bad.lack_of_fit_p_overall) < 1e-6
-    assert [w for w in fit_bad.warnings(bad) if w.startswith("lack of fit")]
+    assert [w for w in fit_bad.warnings if w.startswith("lack of fit")]  # carried by the fit itself
 
 
 @pytest.mark.slow  # vmap and grad of the fit are checked fast above (residual SEs), the delay fit with spectral SEs too
@@ -373,9 +377,9 @@ def test_non_finite_input_names_the_array_and_the_bin(z_edit, f_edit, message):
     if f_edit:
         f[f_edit] = np.inf
     with pytest.raises(ValueError, match=message):
-        aj.fit_impedance(z, f)
+        textbook(z, f)
     # under jit the values are not inspected: the fit runs (the caller checks transformed inputs)
-    assert jax.jit(aj.fit_impedance)(z, f).mass.shape == (2, 2)
+    assert jax.jit(textbook)(z, f).mass.shape == (2, 2)
 
 
 @pytest.mark.parametrize(
@@ -383,10 +387,46 @@ def test_non_finite_input_names_the_array_and_the_bin(z_edit, f_edit, message):
     [
         (dict(acquisition="sampled"), "unknown acquisition 'sampled'"),
         (dict(se="bootstrap"), "unknown se 'bootstrap'"),
-        (dict(se="spectral"), r"se=\"spectral\" needs the estimate's error model"),
-        (dict(acquisition="instant", period=0.0), "period must be a finite hold period > 0 s"),
+        (dict(), r"se=\"spectral\" \(the default\) needs an error model"),
+        (dict(se="residual", friction=-1.0), "friction must be a Coulomb torque >= 0 N m"),
+        (dict(acquisition="instant", period=0.0, se="residual"), "period must be a finite hold period > 0 s"),
     ],
 )
 def test_bad_fit_options_are_refused(kwargs, message):
     with pytest.raises(ValueError, match=message):
         aj.fit_impedance(model(F), F, **kwargs)
+
+
+def test_the_default_fit_carries_its_diagnostics_warnings_and_summary():
+    """fit_impedance(est) alone: the delay model with spectral errors, the estimate's
+    diagnostics inside the result (so fit.warnings needs nothing else, and agrees with
+    fit_warnings given the estimate), a summary with every interval; batches under vmap."""
+    ests = jax.jit(jax.vmap(_mc_record))(jax.random.split(jax.random.PRNGKey(11), 2))
+    fits = jax.jit(jax.vmap(aj.fit_impedance))(ests)
+    fit, est = (jax.tree.map(lambda a: np.asarray(a)[0], t) for t in (fits, ests))
+    assert np.isfinite(fit.delay_dof) and np.all(np.isfinite(fit.lack_of_fit))
+    assert fit.diagnostics.n_eff == est.error.n_eff and fits.diagnostics.coherence_min.shape == (2, 4)
+    np.testing.assert_allclose(fit.diagnostics.input_coherence, np.max(est.coh_inputs))
+    assert fit.warnings == aj.fit_warnings(fit, est)
+    text = fit.summary()
+    low, high = fit.interval("stiffness")
+    assert f"{'Kxy [N/m]':14s} {float(fit.stiffness[0, 1]):10.4g}   [{low[0, 1]:.4g}, {high[0, 1]:.4g}]" in text
+    assert "delay [ms]" in text and ("no warnings" in text) == (not fit.warnings)
+    with pytest.raises(ValueError, match="one fit"):
+        fits.summary()
+
+
+def test_friction_warning_fires_with_cause_only(noise_free_records):
+    """Unknown friction says nothing of friction; told friction > 0 it warns where the force is
+    read at an instant: an instant fit, or a delay fit whose delay is the hold's lag (instant
+    samples), not one whose delay is about 0 (interval means)."""
+    said = lambda ws: any(w.startswith("instant force samples") for w in ws)  # noqa: E731
+    for data in ("instant", "interval_mean"):
+        fit = aj.fit_impedance(noise_free_records[data])
+        assert not said(fit.warnings)
+        assert said(aj.fit_warnings(fit, friction=1.0)) == (data == "instant"), data
+        assert not said(aj.fit_warnings(fit, friction=0.0))
+    own = aj.fit_impedance(noise_free_records["instant"], acquisition="instant", friction=0.5)
+    assert said(own.warnings) and not said(aj.fit_warnings(own, friction=0.0))
+    box = aj.fit_impedance(noise_free_records["interval_mean"], acquisition="interval_mean", friction=0.5)
+    assert not said(box.warnings)

@@ -18,6 +18,7 @@ import pytest
 
 import armimp_jax as aj
 from armimp_jax import presets
+from armimp_jax.study import estimate_recording, recording, recording_figures
 from armimp_jax.study import identify_recording as idr
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -301,20 +302,39 @@ def test_example_config_builds_the_documented_model():
 
 def test_stiffness_ellipse_radius_and_draws_from_the_covariance():
     phi = np.array([0.0, np.pi / 2, np.pi / 4])
-    np.testing.assert_allclose(idr.ellipse_radius(np.diag([100.0, 400.0]), phi)[:2], [100.0, 400.0])
+    np.testing.assert_allclose(recording_figures.ellipse_radius(np.diag([100.0, 400.0]), phi)[:2], [100.0, 400.0])
     # the ellipse's extremes are the eigenvalues of the symmetric part, whatever the rotation
     k = np.array([[200.0, -80.0], [-20.0, 300.0]])
     grid = np.linspace(0.0, np.pi, 20001)
-    r = idr.ellipse_radius(k, grid)
+    r = recording_figures.ellipse_radius(k, grid)
     np.testing.assert_allclose([r.min(), r.max()], np.linalg.eigvalsh(0.5 * (k + k.T)), rtol=1e-6)
-    assert idr.ellipse_radius(np.stack([k, 2 * k]), phi).shape == (2, 3)
+    assert recording_figures.ellipse_radius(np.stack([k, 2 * k]), phi).shape == (2, 3)
     # draws of K from the covariance of its entries (others in the covariance ignored)
     labels = ["arm.mass[0,0]"] + [f"arm.stiffness[{i},{j}]" for i in range(2) for j in range(2)]
     cov = np.diag([1.0, 4.0, 1.0, 1.0, 9.0])
     cov[1, 4] = cov[4, 1] = 3.0
     res = types.SimpleNamespace(labels=labels, covariance=cov, values={"arm.stiffness": k})
-    draws = idr.stiffness_draws(res, n=20000)
+    draws = recording_figures.stiffness_draws(res, n=20000)
     assert draws.shape == (20000, 2, 2)
     np.testing.assert_allclose(draws.mean(axis=0), k, atol=0.1)
     np.testing.assert_allclose(np.cov(draws.reshape(-1, 4).T), cov[1:, 1:], atol=0.25)
-    assert idr.stiffness_draws(types.SimpleNamespace(labels=labels[:1])) is None
+    assert recording_figures.stiffness_draws(types.SimpleNamespace(labels=labels[:1])) is None
+
+
+def test_classical_column_is_the_welch_routes_default_fit(identified, recording_csv):
+    """The classical answer beside the arm's is what the Welch route prints by default for the
+    same recording: segments that follow the record, a fitted delay, spectral SEs."""
+    code, printed, out = identified
+    assert code == 0, printed
+    result = _strict(out / "identification.json")
+    rec = recording.load_recording(recording_csv)
+    _, fit = estimate_recording.analyse(rec, fs=1000.0)
+    classical = result["classical"]
+    assert classical["settings"]["acquisition"] == "delay" and classical["settings"]["se"] == "spectral"
+    assert classical["settings"]["nperseg"] == aj.welch_segments(N_SAMPLES)[0]
+    for name in ("mass", "damping", "stiffness", "damping_se", "delay"):
+        np.testing.assert_allclose(classical[name], getattr(fit, name), rtol=1e-9, err_msg=name)
+    entry = result["parameters"]["arm.damping"]["entries"]["1,1"]
+    assert entry["classical"] == pytest.approx(float(fit.damping[1, 1]), rel=1e-9)
+    assert entry["classical_se"] == pytest.approx(float(fit.damping_se[1, 1]), rel=1e-9)
+    assert f"(classical {float(fit.damping[1, 1]):.4g})" in printed

@@ -1,4 +1,4 @@
-"""sweeps/estimate_recording.py and armimp_jax.study.recording: a simulated trial through CSV, NPZ
+"""sweeps/estimate_recording.py and armimp_jax.study.recording, .estimate_recording: a simulated trial through CSV, NPZ
 and MAT-files gives the library's numbers; every bad recording gets its own one-line message."""
 
 import importlib.util
@@ -15,7 +15,7 @@ import pytest
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax.study import recording
+from armimp_jax.study import estimate_recording, recording
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "estimate_recording.py"
@@ -99,12 +99,16 @@ def test_csv_round_trip_gives_the_library_numbers(trial, reference, tmp_path, ca
     np.testing.assert_allclose(result["interval_95"]["damping"]["low"], low, rtol=1e-9)
     np.testing.assert_allclose(result["delay"]["value"], fit.delay, rtol=1e-9)
     np.testing.assert_allclose(result["lack_of_fit"]["p"], fit.lack_of_fit_p_overall, rtol=1e-9)
-    # the script does not know the robot's friction: the instant-sampling warning is among them
-    assert result["warnings"] == aj.fit_warnings(fit, est, acquisition="delay", friction=None)
-    assert any(w.startswith("instant force samples through a robot with joint friction") for w in result["warnings"])
-    for acquisition, friction in (("delay", 0.0), ("interval_mean", None), ("interval_mean", 1.0)):
-        said = aj.fit_warnings(fit, est, acquisition=acquisition, friction=friction)
-        assert not [w for w in said if w.startswith("instant force samples")], (acquisition, friction)
+    # no --friction: the robot is taken as frictionless (the report's first line says so) and no
+    # warning blames friction that nobody said is there
+    assert result["warnings"] == aj.fit_warnings(fit, est, acquisition="delay", friction=0.0)
+    assert not [w for w in result["warnings"] if w.startswith("instant force samples")]
+    assert (
+        printed.splitlines()[1]
+        == "fit: acquisition 'delay' (robot friction taken as none; --friction N_M if yours has some)"
+    )
+    assert result["settings"]["friction_n_m"] is None
+    assert f"verdict: {': '.join(estimate_recording.verdict(fit))}" in printed
     assert result["settings"]["acquisition"] == "delay" and result["settings"]["se"] == "spectral"
     np.testing.assert_allclose(result["vaf"]["per_element"], fit.vaf, rtol=1e-9)
     np.testing.assert_allclose(result["vaf"]["overall"], fit.vaf_overall, rtol=1e-9)
@@ -163,12 +167,16 @@ def _truncate(column, n):
 
 
 CSV_CASES = {
-    "missing column": (
+    "missing column": (  # the command line's own option, not the library's columns=
         dict(header=[h for h in HEADER if h != "fh_y"]),
         [],
-        r"missing column\(s\) 'fh_y'; found 'time'",
+        r"missing column\(s\) 'fh_y'; found 'time'.*; name the file's columns with --columns fh_y=NAME$",
     ),
-    "misnamed column": (dict(rename={"fh_x": "fhx"}), [], r"missing column\(s\) 'fh_x' \(did you mean 'fhx'\?\)"),
+    "misnamed column": (
+        dict(rename={"fh_x": "fhx"}),
+        [],
+        r"missing column\(s\) 'fh_x' \(did you mean 'fhx'\?\).* with --columns fh_x=fhx$",
+    ),
     "non-numeric cell": (
         dict(edit=_spoil(9, "y", "abc")),
         [],
@@ -359,3 +367,79 @@ def test_bad_mat_files_get_their_message(trial, tmp_path, capsys):
         line = _run_bad(tmp_path / name, [], tmp_path, capsys)
         assert re.search(message, line), line
         assert line.count("\n") == 0
+
+
+def test_friction_warning_fires_only_when_given_and_segments_follow_the_record(trial, tmp_path, capsys):
+    """--friction above 0 (with delayed force samples, the default) is the warning's cause; the
+    same run without Welch options takes segments that follow the record (welch_segments)."""
+    path = write_csv(tmp_path / "rec.csv", trial)
+    out = tmp_path / "out"
+    assert script.main([str(path), "--fs", "1000", "--out", str(out), "--friction", "0.5"]) == 0
+    printed = capsys.readouterr().out
+    result = _strict(out / "estimate.json")
+    said = [w for w in result["warnings"] if w.startswith("instant force samples through a robot with joint friction")]
+    assert len(said) == 1 and f"WARNING: {said[0]}" in printed.splitlines()
+    assert printed.splitlines()[1] == "fit: acquisition 'delay'"  # friction given: nothing assumed
+    assert result["settings"]["friction_n_m"] == 0.5
+    nperseg, noverlap = aj.welch_segments(len(trial["x"]))
+    assert (result["settings"]["nperseg"], result["settings"]["noverlap"]) == (nperseg, noverlap)
+    assert nperseg < 4500 // 2  # not Table 4's 8192, which a 4.5 s record cannot hold twice
+    assert result["record"]["n_segments"] == (len(trial["x"]) - noverlap) // (nperseg - noverlap)
+
+
+def test_missing_columns_name_the_library_mapping_or_the_command_line_option(trial, tmp_path):
+    path = write_csv(tmp_path / "rec.csv", trial, rename={"fh_x": "fhx"})
+    with pytest.raises(recording.MissingColumnsError) as err:
+        recording.load_recording(path)
+    assert str(err.value).endswith("name the file's columns with columns={'fh_x': 'fhx'}")
+    assert err.value.for_option("--columns").endswith("name the file's columns with --columns fh_x=fhx")
+    np.savez(tmp_path / "rec.npz", **{k: v for k, v in _columns(trial).items() if k != "y"})
+    with pytest.raises(recording.MissingColumnsError, match=r"arrays with columns=\{'y': 'NAME'\} \(or give"):
+        recording.load_recording(tmp_path / "rec.npz")
+
+
+def _noisy_z(seed: int = 0):
+    """A second-order ``Z`` (negative stiffness on the diagonal: its phase starts at 180 deg) and
+    an estimate of it whose phase noise crosses the branch cut again and again."""
+    f = np.geomspace(0.1, 15.0, 150)
+    s = 2j * np.pi * f[:, None, None]
+    z_fit = np.array([[1.5, -0.6], [-0.6, 1.0]]) * s**2 + 10.0 * s + np.array([[-300.0, 80.0], [80.0, 250.0]])
+    rng = np.random.default_rng(seed)
+    return f, z_fit, z_fit * np.exp(1j * rng.uniform(-2.8, 2.8, z_fit.shape))
+
+
+def test_bode_phase_of_a_noisy_estimate_stays_on_the_models_branch():
+    from armimp_jax.study import recording_figures as rf
+
+    f, z_fit, z = _noisy_z()
+    unwrapped = np.degrees(np.unwrap(np.angle(z), axis=0))
+    model = np.degrees(np.unwrap(np.angle(z_fit), axis=0))
+    assert np.abs(unwrapped - model).max() > 360.0  # what the old plot drew: whole turns of drift
+    near = rf.phase_near(z, z_fit)
+    assert np.abs(near - model).max() <= 180.0 + 1e-9
+    np.testing.assert_allclose(np.exp(1j * np.radians(near)), z / np.abs(z), atol=1e-12)  # the same angle
+    fig = rf.bode_figure(f, z, z_fit, title="a title")
+    assert fig._suptitle.get_text() == "a title"
+    for col, (i, j) in enumerate(rf.ELEMENTS):
+        estimate, fitted = fig.axes[4 + col].get_lines()
+        np.testing.assert_allclose(estimate.get_ydata(), near[:, i, j])
+        np.testing.assert_allclose(fitted.get_ydata(), model[:, i, j])
+
+
+def test_verdict_reads_lack_of_fit_and_vaf_together():
+    import types
+
+    def fit(vaf, p):
+        return types.SimpleNamespace(vaf_overall=vaf, lack_of_fit_p_overall=p)
+
+    headline, why = estimate_recording.verdict(
+        fit(7.8, 0.47)
+    )  # the newcomer's kind: a low VAF, a lack-of-fit ratio about 1
+    assert headline.startswith("no evidence against the model at this noise") and "noisy estimate" in headline
+    assert "the low VAF means noise, not a misfit" in why
+    assert estimate_recording.verdict(fit(99.7, 0.85))[0].startswith(
+        "the model describes Z within the estimate's noise"
+    )
+    for vaf in (99.7, 7.8):  # a significant lack of fit is a misfit, whatever the VAF
+        assert estimate_recording.verdict(fit(vaf, 1e-6))[0].startswith("the model does not describe Z")
+    assert estimate_recording.verdict(fit(50.0, float("nan")))[0] == "no lack-of-fit test"

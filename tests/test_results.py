@@ -90,6 +90,29 @@ def test_atomic_write_leaves_the_old_file_when_the_write_fails(tmp_path, monkeyp
     assert [p.name for p in tmp_path.iterdir()] == ["r.json"]  # no temporary file left behind
 
 
+def test_atomic_npz_writes_savez_bytes_through_a_unique_temporary_file(tmp_path, monkeypatch):
+    """The one npz writer: what ``np.savez`` writes, renamed into place from a temporary file
+    of its own in the same folder (two writers never share a temporary name)."""
+    arrays = dict(f_delta=np.arange(6.0).reshape(3, 2), fs_hz=1000.0, duty=np.float64(0.25))
+    temporaries = []
+    replace = res.os.replace
+
+    def spy(src, dst):
+        temporaries.append(pathlib.Path(src))
+        replace(src, dst)
+
+    monkeypatch.setattr(res.os, "replace", spy)
+    for _ in range(2):
+        assert res.atomic_write_npz(tmp_path / "p.npz", **arrays) == tmp_path / "p.npz"
+    expected = tmp_path / "expected.npz"
+    np.savez(expected, **arrays)
+    assert (tmp_path / "p.npz").read_bytes() == expected.read_bytes()
+    assert len(set(temporaries)) == 2 and all(t.parent == tmp_path for t in temporaries)
+    with np.load(tmp_path / "p.npz") as z:
+        np.testing.assert_array_equal(z["f_delta"], arrays["f_delta"])
+        assert float(z["fs_hz"]) == 1000.0
+
+
 def test_read_json_refuses_nan_and_names_the_file(tmp_path):
     path = tmp_path / "bad.json"
     path.write_text('{"a": NaN}')

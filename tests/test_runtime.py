@@ -76,3 +76,12 @@ def test_the_compilation_cache_folder_follows_the_environment(monkeypatch, tmp_p
     monkeypatch.delenv("ARMIMP_JAX_CACHE_DIR")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     assert runtime.compilation_cache_dir() == str(tmp_path / "xdg" / "armimp_jax" / "jax")
+
+
+def test_backend_started_asks_jax_without_changing_its_settings():
+    code = (
+        "import jax; from armimp_jax import runtime; "
+        "before = runtime.backend_started(); jax.devices(); "
+        "print(before, runtime.backend_started(), jax.config.jax_num_cpu_devices)"
+    )
+    assert _devices_after_import({}, code) == "False True -1"

@@ -2,7 +2,6 @@
 imported), and numba_baseline.py says what it needs when numba is missing."""
 
 import ast
-import collections
 import importlib.util
 import io
 import os
@@ -15,7 +14,6 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPTS = sorted(p for p in (ROOT / "sweeps").glob("*.py") if not p.name.startswith("_"))  # _cli.py: a module
-Cond = collections.namedtuple("Cond", "controller acquisition")
 HELP_LIMIT_S = 3.0  # importing JAX alone takes longer than this on a loaded 2-core host
 
 
@@ -96,10 +94,3 @@ def test_reproduce_progress_bar_leaves_compilation_out_and_ends_at_100(monkeypat
     bar.end(4)
     last = stream.getvalue().rstrip("\n").rsplit("\r", 1)[-1]
     assert "100.0%" in last and "trials 4/4" in last and "done" in last
-    assert script.batch_sizes([(Cond("pd", "instant"), 0)] * 5 + [(Cond("imbic", "instant"), 0)] * 3, 2) == [
-        2,
-        2,
-        1,
-        2,
-        1,
-    ]

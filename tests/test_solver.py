@@ -83,25 +83,22 @@ def test_the_default_is_stable_where_the_papers_rk4_diverges(controller):
 
 
 @pytest.mark.parametrize(
-    "old, new",
+    "options, message",
     [
-        # the old spelling keeps its old default substeps (100) for every method
-        (dict(method="ark3", kernel="fast"), dict(solver=aj.ARK3(kernel="fast"), substeps=100)),
-        (dict(method="ark4", kernel="reference", substeps=7), dict(solver=aj.ARK4(kernel="reference"), substeps=7)),
-        (dict(kernel="grad", checkpoint="substep"), dict(solver=aj.RK4(kernel="grad"), checkpoint="substep")),
-        (dict(method="rk4", substeps=20), dict(solver=aj.RK4(), substeps=20)),
+        (dict(method="ark3", kernel="fast"), r"write Numerics\(solver=ARK3\(kernel='fast'\)\)"),
+        (dict(kernel="grad"), r"write Numerics\(solver=RK4\(kernel='grad'\)\)"),
+        (dict(method="euler"), r"write Numerics\(solver=RK4\(\), ARK3\(\), ARK4\(\) or GradedARK4\(\)\)"),
+        (dict(solver=aj.ARK3(), substep=4), "unexpected option.* substep; it takes solver, substeps, checkpoint"),
     ],
 )
-def test_the_string_spelling_warns_and_builds_the_same_numerics(old, new):
-    with pytest.warns(DeprecationWarning, match=r"Numerics\(method=\.\.\., kernel=\.\.\.\) is deprecated"):
-        num = aj.Numerics(**old)
-    assert num == aj.Numerics(**new) and hash(num) == hash(aj.Numerics(**new))
+def test_a_solver_named_by_a_string_is_refused_with_the_object_to_pass(options, message):
+    with pytest.raises(TypeError, match=message):
+        aj.Numerics(**options)
 
 
-def test_saved_settings_keep_the_former_keys_and_order():
-    """Run settings record ``settings()``; existing result folders were written with the
-    former string fields (substeps, kernel, checkpoint, method), and resume only if the
-    JSON text is the same."""
+def test_saved_settings_keep_their_keys_and_order():
+    """Run settings record ``settings()``; saved result folders hold these keys in this
+    order (substeps, kernel, checkpoint, method), and resume only if the JSON text is the same."""
     saved = '{"substeps": 20, "kernel": "grad", "checkpoint": "substep", "method": "rk4"}'
     num = aj.Numerics(solver=aj.RK4(kernel="grad"), substeps=20, checkpoint="substep")
     assert json.dumps(num.settings()) == saved
@@ -136,9 +133,6 @@ def test_jit_compiles_once_per_numerics_value():
             dict(solver=aj.ARK3),
             r"Numerics: solver must be RK4\(...\), ARK3\(...\), ARK4\(...\) or GradedARK4\(...\), got <class",
         ),
-        (dict(solver=aj.ARK3(), method="ark3"), "pass solver=ARK3.* or the deprecated method/kernel, not both"),
-        (dict(method="euler"), "unknown method 'euler'; allowed: 'rk4', 'ark3', 'ark4'"),
-        (dict(method="ark3", kernel="grad"), "ARK3: unknown kernel 'grad'; allowed: 'fast', 'reference'"),
         (dict(checkpoint="step"), "unknown checkpoint 'step'; allowed: 'period', 'substep'"),
         (dict(substeps=0), "substeps .* must be >= 1, got 0"),
     ],

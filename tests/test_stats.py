@@ -46,5 +46,5 @@ def test_seed_stats_leave_out_undefined_values():
 
 
 def test_every_study_uses_one_level_and_one_interval():
-    assert claims.CI_LEVEL is stats.CI_LEVEL is sweep.CI_LEVEL
-    assert claims.mean_ci is stats.mean_ci is sweep.mean_ci
+    assert claims.CI_LEVEL is stats.CI_LEVEL
+    assert claims.mean_ci is stats.mean_ci and sweep.seed_stats is stats.seed_stats

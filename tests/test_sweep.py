@@ -14,6 +14,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from armimp_jax.study import points as sp
+from armimp_jax.study import stats as study_stats
 from armimp_jax.study import sweep
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -148,10 +150,10 @@ def test_the_dataframes_are_the_csv_files_read_back(tiny):
     assert len(trials) == 12 and list(trials.columns) == tables.trial_columns(sweep.saved_settings(tiny).points[0])
     assert trials["phi_T"].dtype == "float64" and trials["diverged"].dtype == bool and trials["arm"].iloc[0] == "1"
     assert trials.loc[trials["controller"] == "pd", "mhat"].isna().all()  # PD has no mhat
-    pd.testing.assert_frame_equal(tables.read_table(tiny / "trials.csv", sweep.TRIAL_DTYPES), trials, check_exact=True)
+    pd.testing.assert_frame_equal(tables.read_table(tiny / "trials.csv", tables.TRIAL_DTYPES), trials, check_exact=True)
     summary = load_summary(tiny)
     pd.testing.assert_frame_equal(
-        tables.read_table(tiny / "summary.csv", sweep.SUMMARY_DTYPES), summary, check_exact=True
+        tables.read_table(tiny / "summary.csv", tables.SUMMARY_DTYPES), summary, check_exact=True
     )
     if tables.has_parquet():
         pd.testing.assert_frame_equal(pd.read_parquet(tiny / "trials.parquet"), trials, check_exact=True)
@@ -184,8 +186,8 @@ def test_rerun_reuses_every_trial_and_toml_equals_the_command_line(tiny, main, t
     assert main(["--config", str(config), "--out", str(tiny)]) == 0  # the same run: nothing computed
     assert "12 trials on disk, 0 to run" in capsys.readouterr().out
     assert {p.name: p.stat().st_mtime_ns for p in (tiny / "trials").glob("*.npz")} == before
-    grid, points, run = sweep.read_toml(config)
-    from_toml = sweep.SweepSettings(tuple(sweep.expand(grid, points)), **run)
+    grid, points, run = sp.read_toml(config)
+    from_toml = sweep.SweepSettings(tuple(sp.expand(grid, points)), **run)
     from_cli = sweep.saved_settings(tiny)
     assert from_toml == from_cli
 
@@ -239,7 +241,7 @@ def test_a_folder_in_use_is_refused_at_once(tmp_path, main, capsys):
     "argv, fragment",
     [
         (["--set", "friction=1", "--out", "X"], "unknown setting(s) 'friction'"),
-        (["--set", "tau_c=-1", "--out", "X"], "tau_c [N m] must be >= 0"),
+        (["--set", "tau_c=-1", "--out", "X"], "LuGre: tau_c must be >= 0 N m"),
         (["--set", "tau_c", "--out", "X"], "--set needs NAME=V1,V2"),
         (["--set", "arm=7", "--out", "X"], "arm must be a paper location"),
         (["--seconds", "0.5", "--out", "X"], "shorter than one Welch segment"),
@@ -273,28 +275,28 @@ def test_bad_toml_fails_in_one_line(main, capsys, tmp_path, text, fragment):
 
 def test_points_normalise_and_deduplicate():
     user = dict(mass=[[1.5, 0], [0, 1]], damping=[[5, 0], [0, 5]], stiffness=[[100, 0], [0, 100]], endpoint=[0, 0.4])
-    pts = sweep.expand(
+    pts = sp.expand(
         dict(controller=["pd", "imbic"], mhat=[0.25, 0.5], arm=[1, user]), points=[dict(peak=3.0), dict(tau_c=1)]
     )
     # PD ignores mhat: 2 (peak/tau) x (PD 2 arms + IMBIC 2 mhat x 2 arms)
     assert len(pts) == 2 * (2 + 4)
     assert pts[0]["peak"] == [3.0, 3.0] and pts[0]["perturbation_level"] is None and pts[0]["mhat"] is None
     assert pts[-1]["peak"] == [2.25, 2.25] and pts[-1]["noverlap"] == 6144
-    assert sweep.normalize_point(pts[3]) == pts[3]  # idempotent
-    assert sweep.point_columns(pts[1])["arm"].startswith("user-")
-    assert sweep.parse_set(["tau_c=geom:0.001:4:3", "peak=[1,2],3", 'window=hann,["tukey",0.5]']) == dict(
+    assert sp.normalize_point(pts[3]) == pts[3]  # idempotent
+    assert sp.point_columns(pts[1])["arm"].startswith("user-")
+    assert sp.parse_set(["tau_c=geom:0.001:4:3", "peak=[1,2],3", 'window=hann,["tukey",0.5]']) == dict(
         tau_c=pytest.approx([1e-3, 0.063245553, 4.0]), peak=[[1, 2], 3], window=["hann", ["tukey", 0.5]]
     )
-    trial = sweep.build_trial(sweep.normalize_point(dict(tau_c=2.0, arm=user, controller="imbic", mhat=0.5)))
+    trial = sp.build_trial(sp.normalize_point(dict(tau_c=2.0, arm=user, controller="imbic", mhat=0.5)))
     np.testing.assert_allclose(trial.friction.tau_s, [3.0, 3.0])
     np.testing.assert_allclose(trial.controller.mhat, 0.5 * np.eye(2))
 
 
 def test_first_crossing_interpolates_in_log_tau():
     x = [0.0, 0.01, 0.1, 1.0]
-    assert sweep.first_crossing(x, [1.0, 1.0, 1.5, 3.0], 2.0) == pytest.approx(10 ** (-1 + 1 / 3))
-    assert sweep.first_crossing(x, [1.0, 3.0, 4.0, 5.0], 2.0) == pytest.approx(0.005)  # linear from 0
-    assert math.isnan(sweep.first_crossing(x, [1.0, 1.1, 1.2, 1.3], 2.0))
-    assert sweep.first_crossing(x, [0.99, 0.95, 0.8, 0.5], 0.9, above=False) == pytest.approx(10 ** (-2 + 1 / 3))
-    boot = sweep.bootstrap_crossing(x, np.array([[1.0, 1.0, 1.5, 3.0], [1.0, 1.2, 2.5, 3.0]]), lambda m: 2 * m[0])
+    assert study_stats.first_crossing(x, [1.0, 1.0, 1.5, 3.0], 2.0) == pytest.approx(10 ** (-1 + 1 / 3))
+    assert study_stats.first_crossing(x, [1.0, 3.0, 4.0, 5.0], 2.0) == pytest.approx(0.005)  # linear from 0
+    assert math.isnan(study_stats.first_crossing(x, [1.0, 1.1, 1.2, 1.3], 2.0))
+    assert study_stats.first_crossing(x, [0.99, 0.95, 0.8, 0.5], 0.9, above=False) == pytest.approx(10 ** (-2 + 1 / 3))
+    boot = study_stats.bootstrap_crossing(x, np.array([[1.0, 1.0, 1.5, 3.0], [1.0, 1.2, 2.5, 3.0]]), lambda m: 2 * m[0])
     assert boot["seeds"] == 2 and boot["ci_lo"] <= boot["value"] <= boot["ci_hi"]

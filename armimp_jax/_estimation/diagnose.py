@@ -1,125 +1,245 @@
-"""Warnings in words for a fitted impedance: when the classical route cannot be trusted.
+"""What a fitted impedance says about its own trustworthiness, in numbers and in words.
 
-``fit_warnings`` reads a concrete ``ImpedanceFit`` (its lack-of-fit test and standard
-errors) and, optionally, its ``Estimate`` (coherences); ``input_coherence_chance`` says
-whether the perturbation axes' coherence is more than short records give by chance.
-Host-side (NumPy) functions of one fit: not for ``jit`` or ``vmap``.
+``diagnostics_of`` reduces an ``Estimate`` to the few numbers the warnings need
+(``FitDiagnostics``: effective averages, coherences, the inputs' coherence and its chance
+probability); ``fit_impedance`` stores them in its result, so ``fit.warnings`` needs nothing
+else. ``fit_warnings`` turns a concrete fit into one-line warnings: host-side (NumPy), one fit
+at a time.
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
+import jax.numpy as jnp
 import numpy as np
 
-from .fit import ELEMENTS, ImpedanceFit
+from .._model.timing import CONTROL_PERIOD
 from .welch import Estimate
 
 LACK_OF_FIT_ALPHA = 1e-3  # p-value below which the model is said not to fit
 LOW_COHERENCE = 0.5  # a multiple coherence below this somewhere in the band
 INPUT_COHERENCE_GUIDE = 0.4  # the paper's bound on the perturbation axes' ordinary coherence
 FEW_AVERAGES = 4.0  # effective Welch averages below which the error model is rough
+TIMING_SHIFT = 0.5  # standard errors: a delay that could be a mass lag moves M or B this far
+CHANNELS = ("fh_x", "fh_y", "x", "y")  # the multiple coherences' outputs, in FitDiagnostics' order
+_ELEMENTS = ((0, 0), (0, 1), (1, 0), (1, 1))
 
 
-def fit_warnings(
-    fit: ImpedanceFit, est: Estimate | None = None, *, acquisition: str | None = None, friction: float | None = None
-) -> list[str]:
-    """What makes a fit's intervals untrustworthy, in words (an empty list when nothing does).
+class FitDiagnostics(NamedTuple):
+    """Numbers about the estimate a fit came from (a pytree; NaN where unknown).
 
-    ``acquisition`` (the fit's) and ``friction`` (the robot's largest Coulomb torque [N m],
-    ``None`` when unknown) add what no statistic of the record shows: force samples taken at
-    an instant (``"instant"``, ``"delay"``) through a robot with joint friction, whose
-    within-period acceleration the sampled-data model does not describe (docs/estimation.md
-    section 3). It fires when ``friction`` is ``> 0`` or unknown.
-
-    Checks (single concrete fit): a significant lack of fit (``lack_of_fit_p_overall`` or an
-    element's p-value below ``LACK_OF_FIT_ALPHA``), standard errors that could not be
-    computed, and, with the ``Estimate``, fewer than ``FEW_AVERAGES`` effective averages, a
-    multiple coherence below ``LOW_COHERENCE`` somewhere in the band and an input coherence
-    above ``INPUT_COHERENCE_GUIDE`` (the paper's 0.4) that independent inputs would reach by
-    chance with probability below 1% (``input_coherence_chance``; without ``est.error``, any
-    value above the guide). Each warning is one line saying what was seen and what it means.
+    ``n_eff``: effective Welch averages (``ZError.n_eff``). ``coherence_min``,
+    ``coherence_min_f`` [Hz], ``coherence_median``: ``(4,)``, the multiple coherence of each
+    output ``CHANNELS`` (``fh_x, fh_y, x, y``) over the band: its smallest value, where, and its
+    median. ``input_coherence``, ``input_coherence_f`` [Hz]: the perturbation axes' largest
+    ordinary coherence and where; ``input_coherence_p``: the probability that independent
+    inputs reach it by chance (``input_coherence_chance``). ``friction`` [N m]: the robot's
+    largest Coulomb torque as the caller gave it (NaN: unknown); ``instant_samples``: 1 where
+    the fit's model reads the force at an instant (``"instant"``), 0 where it does not
+    (``"plain"``, ``"interval_mean"``), NaN where the fit asks the record (``"delay"``: instant
+    when the delay's 95% interval reaches a quarter of ``period``); ``period`` [s]: the hold
+    period the fit was given. Under ``jax.vmap`` every field gains the batch axis.
     """
-    out = []
-    p_all = float(np.asarray(fit.lack_of_fit_p_overall))
-    p_el = np.asarray(fit.lack_of_fit_p)
-    if np.ndim(p_el) != 2:
-        raise ValueError(
-            "fit_warnings takes one fit (not a batch): index it first, e.g. jax.tree.map(lambda a: a[i], fits)"
-        )
-    ratio_el = np.asarray(fit.lack_of_fit)
-    bad = [(i, j) for i, j in ELEMENTS if p_el[i, j] < LACK_OF_FIT_ALPHA]
-    if p_all < LACK_OF_FIT_ALPHA or bad:
-        worst = max(ELEMENTS, key=lambda e: ratio_el[e])
-        out.append(
-            f"lack of fit: the residuals are {float(np.asarray(fit.lack_of_fit_overall)):.3g} times their predicted "
-            f"variance (p = {p_all:.2g}; worst Z{'xy'[worst[0]]}{'xy'[worst[1]]}: {ratio_el[worst]:.3g}, "
-            f"p = {p_el[worst]:.2g}): M s^2 + B s + K (with this acquisition) does not describe Z, so M, B, K and "
-            "their intervals describe a wrong model (friction, a non-linearity or a wrong acquisition setting)"
-        )
-    for name in ("mass_se", "damping_se", "stiffness_se"):
-        if not np.all(np.isfinite(np.asarray(getattr(fit, name)))):
-            out.append(
-                "standard errors unavailable (NaN): too few Welch segments to estimate the residual spectrum "
-                "(need more than about 4: a longer record or a shorter nperseg)"
-            )
-            break
-    if est is not None and est.error is not None and float(np.asarray(est.error.n_eff)) < FEW_AVERAGES:
-        out.append(
-            f"few averages: {float(np.asarray(est.error.n_eff)):.1f} effective Welch averages (segments over the "
-            "overlap's correlation): the error model is first order and rough here (intervals measured too wide, "
-            "the lack-of-fit test weak); use a longer record or a shorter nperseg"
-        )
-    if est is not None:
-        low = []
-        for field, names in (("fh", ("fh_x", "fh_y")), ("x", ("x", "y"))):
-            c = np.asarray(getattr(est, f"coh_multiple_{field}"))
-            for k, name in enumerate(names):
-                if np.nanmin(c[:, k]) < LOW_COHERENCE:
-                    at = float(np.asarray(est.f)[int(np.nanargmin(c[:, k]))])
-                    low.append(f"{name} {np.nanmin(c[:, k]):.2f} at {at:.3g} Hz (median {np.nanmedian(c[:, k]):.2f})")
-        if low:
-            out.append(
-                f"low coherence: multiple coherence down to {'; '.join(low)}: much of the output is not explained "
-                "linearly by the perturbation there (friction, other non-linearity or noise); estimates are noisy "
-                "and may be biased"
-            )
-        ci_max, chance = input_coherence_chance(est)
-        if ci_max > INPUT_COHERENCE_GUIDE and not chance >= 0.01:
-            at = float(np.asarray(est.f)[int(np.nanargmax(np.asarray(est.coh_inputs)))])
-            why = "" if np.isnan(chance) else f", more than independent inputs reach by chance (p = {chance:.2g})"
-            out.append(
-                f"input coherence {ci_max:.2f} at {at:.3g} Hz exceeds the paper's guide {INPUT_COHERENCE_GUIDE}{why}: "
-                "the two perturbation axes are correlated, so Z's columns are poorly separated (wider intervals)"
-            )
-    if acquisition in ("instant", "delay") and (friction is None or friction > 0):
-        robot = (
-            "a robot with joint friction" if friction is not None else "a robot with joint friction (if yours has any)"
-        )
-        out.append(
-            f"instant force samples through {robot}: the sampled-data model assumes the hand accelerates as the "
-            "linear arm alone would within each hold period; friction changes that and biases M (low) and B without "
-            "a trace in coherence or lack of fit, so the intervals may miss; interval-mean (integrating) acquisition "
-            "has no such bias"
-        )
-    return out
+
+    n_eff: jnp.ndarray
+    coherence_min: jnp.ndarray
+    coherence_min_f: jnp.ndarray
+    coherence_median: jnp.ndarray
+    input_coherence: jnp.ndarray
+    input_coherence_f: jnp.ndarray
+    input_coherence_p: jnp.ndarray
+    friction: jnp.ndarray
+    instant_samples: jnp.ndarray
+    period: jnp.ndarray
+
+
+def unknown_diagnostics(n_eff=jnp.nan) -> FitDiagnostics:
+    """Diagnostics of a fit to a bare ``Z`` array: nothing known but, at most, ``n_eff``."""
+    nan, nan4 = jnp.full((), jnp.nan), jnp.full((4,), jnp.nan)
+    return FitDiagnostics(jnp.asarray(n_eff, dtype=jnp.float64), nan4, nan4, nan4, nan, nan, nan, nan, nan, nan)
+
+
+def diagnostics_of(est: Estimate) -> FitDiagnostics:
+    """``FitDiagnostics`` of one ``Estimate`` (pure JAX; vmappable, differentiable where it
+    matters to nobody: minima and medians)."""
+    coh = jnp.concatenate([est.coh_multiple_fh, est.coh_multiple_x], axis=-1)  # (F, 4)
+    coh = jnp.where(jnp.isfinite(coh), coh, jnp.inf)
+    at = jnp.argmin(coh, axis=0)
+    ci = jnp.where(jnp.isfinite(est.coh_inputs), est.coh_inputs, -jnp.inf)
+    k = jnp.argmax(ci)
+    if est.error is None:
+        n_eff, chance = jnp.full((), jnp.nan), jnp.full((), jnp.nan)
+    else:
+        n_eff = est.error.n_eff
+        chance = _chance(ci[k], n_eff, est.error.bin_corr, ci.shape[0])
+    return FitDiagnostics(
+        n_eff=n_eff,
+        coherence_min=jnp.min(coh, axis=0),
+        coherence_min_f=est.f[at],
+        coherence_median=jnp.nanmedian(jnp.where(jnp.isinf(coh), jnp.nan, coh), axis=0),
+        input_coherence=ci[k],
+        input_coherence_f=est.f[k],
+        input_coherence_p=chance,
+        friction=jnp.full((), jnp.nan),
+        instant_samples=jnp.full((), jnp.nan),
+        period=jnp.full((), jnp.nan),
+    )
+
+
+def _chance(c, n_eff, bin_corr, n_bins: int):
+    """P(max over the band of independent inputs' coherence > c): each about independent bin's
+    sample coherence is ``Beta(1, n_eff - 1)`` (Carter 1973), ``P(> c) = (1 - c)^(n_eff - 1)``,
+    over ``F / (1 + 2 sum bin_corr[1:]^2)`` about independent bins."""
+    bins = n_bins / (1.0 + 2.0 * jnp.sum(jnp.asarray(bin_corr)[1:] ** 2))
+    per_bin = jnp.minimum((1.0 - c) ** jnp.maximum(n_eff - 1.0, 0.0), 1.0 - 1e-16)
+    return -jnp.expm1(bins * jnp.log1p(-per_bin))
 
 
 def input_coherence_chance(est: Estimate) -> tuple[float, float]:
     """The largest ordinary coherence of the two inputs over the band, and the probability
-    that independent inputs reach it by chance (NaN without ``est.error``).
-
-    With ``n`` independent averages the sample coherence of independent signals is
-    ``Beta(1, n - 1)`` (Carter 1973), ``P(> c) = (1 - c)^(n - 1)``; here ``n = error.n_eff``,
-    and the maximum runs over ``F / (1 + 2 sum bin_corr[1:]^2)`` about independent bins.
-    Short records reach the paper's 0.4 by chance: 30 s (``n_eff`` about 6) typically 0.6.
-    """
-    ci = np.asarray(est.coh_inputs)
-    if np.ndim(ci) != 1:
+    that independent inputs reach it by chance (NaN without ``est.error``). Host-side, one
+    estimate. Short records reach the paper's 0.4 by chance: 30 s at Table 4's segments
+    (``n_eff`` about 6) typically 0.6."""
+    if np.ndim(np.asarray(est.coh_inputs)) != 1:
         raise ValueError("input_coherence_chance takes one estimate, not a batch")
-    c = float(np.nanmax(ci))
-    if est.error is None:
-        return c, float("nan")
-    n_eff = float(np.asarray(est.error.n_eff))
-    rho = np.asarray(est.error.bin_corr)
-    bins = len(ci) / (1.0 + 2.0 * float(np.sum(rho[1:] ** 2)))
-    per_bin = (1.0 - c) ** max(n_eff - 1.0, 0.0)
-    return c, float(-np.expm1(bins * np.log1p(-min(per_bin, 1.0 - 1e-16))))
+    d = diagnostics_of(est)
+    return float(d.input_coherence), float(d.input_coherence_p)
+
+
+def fit_warnings(fit, est: Estimate | None = None, *, acquisition: str | None = None, friction: float | None = None):
+    """What makes a fit's intervals untrustworthy, in words (an empty list when nothing does).
+
+    ``fit``: one concrete ``ImpedanceFit``. Its own ``diagnostics`` are used, or those of
+    ``est`` when given. ``acquisition`` (the fit's) and ``friction`` (the robot's largest
+    Coulomb torque [N m]) override what the fit recorded (``fit_impedance(..., friction=)``):
+    with ``friction > 0`` and instant force samples (``"instant"`` or ``"delay"``) it adds
+    what no statistic of the record shows (docs/estimation.md section 3); with friction
+    unknown it says nothing of it.
+
+    Each warning is one line saying what was seen and what it means: a significant lack of
+    fit, standard errors that could not be computed, few effective averages, a low multiple
+    coherence, correlated inputs beyond chance, a fitted delay whose reading as the hold's
+    lag on the mass would move M or B by more than ``TIMING_SHIFT`` standard errors, and
+    instant samples through friction.
+    """
+    if np.ndim(np.asarray(fit.lack_of_fit_p)) != 2:
+        raise ValueError(
+            "fit_warnings takes one fit (not a batch): index it first, e.g. jax.tree.map(lambda a: a[i], fits)"
+        )
+    own = FitDiagnostics(*(np.asarray(v, dtype=float) for v in fit.diagnostics))
+    diag = own if est is None else FitDiagnostics(*(np.asarray(v, dtype=float) for v in diagnostics_of(est)))
+    friction = float(own.friction) if friction is None else float(friction)
+    instant = _instant_samples(fit, own, acquisition)
+    out = [*_lack_of_fit_warning(fit), *_se_warning(fit), *_estimate_warnings(diag), *_timing_warning(fit)]
+    if friction > 0 and instant:
+        out.append(
+            "instant force samples through a robot with joint friction: the sampled-data model assumes the hand "
+            "accelerates as the linear arm alone would within each hold period; friction changes that and biases M "
+            "(low) and B without a trace in coherence or lack of fit, so the intervals may miss; interval-mean "
+            "(integrating) acquisition has no such bias"
+        )
+    return out
+
+
+def _instant_samples(fit, own: FitDiagnostics, acquisition: str | None) -> bool:
+    """Does the fit read the force at an instant? Told, or for a delay fit, asked of the record:
+    a fitted delay whose 95% interval reaches a quarter of the hold period is consistent with
+    the hold's lag of instant samples (about half a period); interval means give about 0."""
+    if acquisition is None and not np.isnan(own.instant_samples):
+        return bool(own.instant_samples == 1)
+    if acquisition not in (None, "delay"):
+        return acquisition == "instant"
+    if not np.isfinite(np.asarray(fit.delay_dof)):
+        return False
+    high = fit.interval("delay")[1]
+    period = own.period if np.isfinite(own.period) else CONTROL_PERIOD
+    return bool(high > 0.25 * period)
+
+
+def _lack_of_fit_warning(fit) -> list[str]:
+    p_all = float(np.asarray(fit.lack_of_fit_p_overall))
+    p_el, ratio_el = np.asarray(fit.lack_of_fit_p), np.asarray(fit.lack_of_fit)
+    if not (p_all < LACK_OF_FIT_ALPHA or np.any(p_el < LACK_OF_FIT_ALPHA)):
+        return []
+    worst = max(_ELEMENTS, key=lambda e: ratio_el[e])
+    return [
+        f"lack of fit: the residuals are {float(np.asarray(fit.lack_of_fit_overall)):.3g} times their predicted "
+        f"variance (p = {p_all:.2g}; worst Z{'xy'[worst[0]]}{'xy'[worst[1]]}: {ratio_el[worst]:.3g}, "
+        f"p = {p_el[worst]:.2g}): M s^2 + B s + K (with this acquisition) does not describe Z, so M, B, K and "
+        "their intervals describe a wrong model (friction, a non-linearity or a wrong acquisition setting)"
+    ]
+
+
+def _se_warning(fit) -> list[str]:
+    if all(np.all(np.isfinite(np.asarray(getattr(fit, n)))) for n in ("mass_se", "damping_se", "stiffness_se")):
+        return []
+    return [
+        "standard errors unavailable (NaN): too few Welch segments to estimate the residual spectrum "
+        "(need more than about 4: a longer record or a shorter nperseg)"
+    ]
+
+
+def _estimate_warnings(d: FitDiagnostics) -> list[str]:
+    out = []
+    if d.n_eff < FEW_AVERAGES:
+        out.append(
+            f"few averages: {float(d.n_eff):.1f} effective Welch averages (segments over the overlap's "
+            "correlation): the error model is first order and rough here (intervals measured too wide, the "
+            "lack-of-fit test weak, chance coherences high); use a longer record or a shorter nperseg"
+        )
+    low = [
+        f"{name} {d.coherence_min[k]:.2f} at {d.coherence_min_f[k]:.3g} Hz (median {d.coherence_median[k]:.2f})"
+        for k, name in enumerate(CHANNELS)
+        if d.coherence_min[k] < LOW_COHERENCE
+    ]
+    if low:
+        out.append(
+            f"low coherence: multiple coherence down to {'; '.join(low)}: much of the output is not explained "
+            "linearly by the perturbation there (friction, other non-linearity or noise); estimates are noisy "
+            "and may be biased"
+        )
+    if d.input_coherence > INPUT_COHERENCE_GUIDE and not d.input_coherence_p >= 0.01:
+        why = (
+            ""
+            if np.isnan(d.input_coherence_p)
+            else (
+                f", more than independent inputs reach by chance at {float(d.n_eff):.1f} averages "
+                f"(p = {float(d.input_coherence_p):.2g})"
+            )
+        )
+        out.append(
+            f"input coherence {float(d.input_coherence):.2f} at {float(d.input_coherence_f):.3g} Hz exceeds the "
+            f"paper's guide {INPUT_COHERENCE_GUIDE}{why}: the two perturbation axes are correlated, so Z's columns "
+            "are poorly separated (wider intervals)"
+        )
+    return out
+
+
+def timing_shift(fit) -> float:
+    """How far, in standard errors, M or B would move if a fitted delay ``tau`` were the hold's
+    lag on the mass instead of a force-channel delay: ``max |tau B| / se(M), |tau K| / se(B)``
+    over the elements (0 for a fit without a delay). To first order the two timings give the
+    same recorded ``Z`` with ``M -> M + tau B``, ``B -> B + tau K``: the record cannot tell them
+    apart (docs/estimation.md section 2)."""
+    tau = float(np.asarray(fit.delay))
+    if not np.isfinite(np.asarray(fit.delay_dof)) or tau == 0.0:
+        return 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        on_m = np.abs(tau * np.asarray(fit.damping)) / np.asarray(fit.mass_se)
+        on_b = np.abs(tau * np.asarray(fit.stiffness)) / np.asarray(fit.damping_se)
+    return float(np.nanmax(np.concatenate([on_m.ravel(), on_b.ravel()])))
+
+
+def _timing_warning(fit) -> list[str]:
+    shift = timing_shift(fit)
+    if not shift > TIMING_SHIFT:
+        return []
+    tau_ms = 1e3 * float(np.asarray(fit.delay))
+    return [
+        f"timing: the fitted force-channel delay {tau_ms:.3g} ms could equally be the hold's lag on the mass "
+        f"(force sampled at the control instants: about half a period), which moves M or B by up to "
+        f"{shift:.2g} standard errors (M by tau B, B by tau K); the record cannot tell the two apart. If the "
+        "samples are instant, fit acquisition='instant' with the hold period; if the force channel is known to "
+        "lag by this delay, the intervals hold as printed"
+    ]

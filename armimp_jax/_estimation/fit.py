@@ -6,21 +6,22 @@ Each element of a measured impedance is linear in three parameters. In continuou
 as ``Arm.impedance``); what a sampled record measures depends on how it was acquired
 (``acquisition``, docs/estimation.md section 2):
 
-- ``"plain"``: the continuous model as it stands (the default, today's fit);
+- ``"delay"`` (the default): a recording of unknown timing: ``exp(-s tau) (M s^2 + B s + K)``,
+  a force-channel delay ``tau`` fitted with ``M, B, K``;
 - ``"instant"``: samples at the control instants with the force read just before the
   zero-order hold's update (the simulator's default): the mass term carries the hold's
   half-sample lag, ``M s (1 - exp(-s L)) / L`` (derived in docs/estimation.md);
 - ``"interval_mean"``: box-car means over each period of position and force: the means
   cancel in ``Z``, so the continuous model holds;
-- ``"delay"``: a lab's recording of unknown timing: ``exp(-s tau) (M s^2 + B s + K)``, a
-  force-channel delay ``tau`` fitted with ``M, B, K``.
+- ``"plain"``: the continuous model as it stands, whatever the timing.
 
-Weighted least squares over the bins. Standard errors either from the residuals
-(``se="residual"``: one pooled variance, bins independent; today's default) or from the
-Welch estimate's own error model (``se="spectral"``: ``Estimate.error``, correlated bins,
+Weighted least squares over the bins. Standard errors from the Welch estimate's own error
+model (``se="spectral"``, the default: ``Estimate.error``, correlated bins,
 frequency-dependent variance; a sandwich covariance), which also gives a lack-of-fit test
-(the residuals against their predicted variance). ``fit_warnings`` says in words when the
-result cannot be trusted.
+(the residuals against their predicted variance), or from the residuals (``se="residual"``:
+one pooled variance, bins independent: the textbook errors, too small for Welch estimates).
+The result carries the estimate's diagnostics, and ``ImpedanceFit.warnings`` says in words
+when it cannot be trusted.
 
 Single-fit functions; batch with ``jax.vmap``. Differentiable end to end.
 """
@@ -28,7 +29,6 @@ Single-fit functions; batch with ``jax.vmap``. Differentiable end to end.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -36,82 +36,12 @@ import jax.scipy.special as jsp
 import numpy as np
 
 from .._checks import as_float64, check_choice, is_concrete, require_x64
-from .._simulate import CONTROL_PERIOD
+from .diagnose import diagnostics_of, unknown_diagnostics
+from .impedance_fit import ImpedanceFit
+from .parametric import ACQUISITIONS, DEFAULT_PERIOD, SE_METHODS, regressors
 from .welch import Estimate, ZError, check_finite
 
-ACQUISITIONS = ("plain", "instant", "interval_mean", "delay")
-SE_METHODS = ("residual", "spectral")
 DELAY_ITERATIONS = 8  # Gauss-Newton steps from tau = 0: w tau is small, so 3-4 already converge
-ELEMENTS = ((0, 0), (0, 1), (1, 0), (1, 1))
-
-
-class ImpedanceFit(NamedTuple):
-    """``M, B, K`` fitted to an impedance, with standard errors, %VAF and lack of fit (a pytree).
-
-    ``mass`` [kg], ``damping`` [N s/m], ``stiffness`` [N/m], each ``(2, 2)`` indexed
-    ``[output, input]`` like ``Z``, and their standard errors ``mass_se``, ``damping_se``,
-    ``stiffness_se`` (same units and shapes). ``vaf`` ``(2, 2)`` and ``vaf_overall`` (scalar):
-    variance accounted for [%], ``100 (1 - sum |Z - Z_fit|^2 / sum |Z|^2)`` per element and
-    over all elements, ``Z_fit`` the model of the recorded ``Z`` (its acquisition included).
-    ``dof`` ``(2, 2)``: degrees of freedom of the standard errors (``se="residual"``: ``2 F_w
-    - 3``, ``F_w`` bins with positive weight; ``se="spectral"``: the smallest of the
-    element's three Satterthwaite values); a two-sided 95% interval is
-    ``value +- t_0.975(dof) * se`` (``interval``).
-
-    ``delay``, ``delay_se`` [s], ``delay_dof``: the fitted force-channel delay
-    (``acquisition="delay"``; 0, 0 and NaN otherwise). ``lack_of_fit`` ``(2, 2)`` and
-    ``lack_of_fit_overall``: the residuals' weighted sum of squares over its expected value
-    when the model holds (about 1 then; larger when it does not), and ``lack_of_fit_p``,
-    ``lack_of_fit_p_overall``: their p-values (an F test); NaN without ``Estimate.error``.
-    Under ``jax.vmap`` every field gains the batch axis.
-    """
-
-    mass: jnp.ndarray
-    damping: jnp.ndarray
-    stiffness: jnp.ndarray
-    mass_se: jnp.ndarray
-    damping_se: jnp.ndarray
-    stiffness_se: jnp.ndarray
-    vaf: jnp.ndarray
-    vaf_overall: jnp.ndarray
-    dof: jnp.ndarray
-    delay: jnp.ndarray
-    delay_se: jnp.ndarray
-    delay_dof: jnp.ndarray
-    lack_of_fit: jnp.ndarray
-    lack_of_fit_p: jnp.ndarray
-    lack_of_fit_overall: jnp.ndarray
-    lack_of_fit_p_overall: jnp.ndarray
-
-    def impedance(self, f, *, acquisition: str = "plain", period: float = CONTROL_PERIOD):
-        """The fitted model at ``f`` [Hz] ``(F,)``: ``(F, 2, 2)`` [N/m]. ``acquisition="plain"``
-        (default): the arm's ``M s^2 + B s + K`` at ``s = j 2 pi f``; another acquisition gives
-        the model of the recorded ``Z`` (``fit_impedance``), with ``period`` ``L`` [s]."""
-        check_choice("acquisition", acquisition, ACQUISITIONS)
-        omega = 2.0 * jnp.pi * jnp.asarray(f, dtype=jnp.float64)
-        x = _regressors(omega, acquisition, period)  # (F, 3): K, M, B
-        z = sum(x[:, k, None, None] * p[None] for k, p in enumerate((self.stiffness, self.mass, self.damping)))
-        if acquisition == "delay":
-            z = z * jnp.exp(-1j * omega * self.delay)[:, None, None]
-        return z
-
-    def interval(self, name: str, level: float = 0.95):
-        """Two-sided ``level`` interval of ``name`` (``"mass"``, ``"damping"``, ``"stiffness"``
-        or ``"delay"``) as ``(low, high)`` NumPy arrays: ``value -+ t_(1+level)/2(dof) * se``
-        (host only: the quantile comes from SciPy)."""
-        import scipy.stats
-
-        check_choice("parameter", name, ("mass", "damping", "stiffness", "delay"))
-        value, se = np.asarray(getattr(self, name)), np.asarray(getattr(self, f"{name}_se"))
-        dof = np.asarray(self.delay_dof if name == "delay" else self.dof)
-        half = scipy.stats.t.ppf(0.5 + level / 2, np.where(np.isfinite(dof), dof, np.inf)) * se
-        return value - half, value + half
-
-    def warnings(self, est: Estimate | None = None) -> list[str]:
-        """``fit_warnings(self, est)``: what makes this fit untrustworthy, in words."""
-        from .diagnose import fit_warnings
-
-        return fit_warnings(self, est)
 
 
 def coherence_weights(est: Estimate):
@@ -183,17 +113,6 @@ def _as_error(error, n_freq: int) -> ZError:
     return error
 
 
-def _regressors(omega, acquisition: str, period):
-    """Complex regressors ``(F, 3)`` of ``K, M, B`` in the recorded ``Z`` (the delay apart)."""
-    if acquisition == "instant":
-        # s (1 - exp(-s L)) / L with s = j w, written without the cancellation of 1 - exp(-j w L)
-        half = 0.5 * omega * period
-        c_m = -2.0 * omega * jnp.sin(half) / period * jnp.exp(-1j * half)
-    else:
-        c_m = -(omega**2) + 0j
-    return jnp.stack([jnp.ones_like(omega) + 0j, c_m, 1j * omega], axis=-1)
-
-
 def _sqrt_psd2(a):
     """Hermitian square root of ``(..., 2, 2)`` positive semi-definite matrices (closed form)."""
     det = jnp.real(a[..., 0, 0] * a[..., 1, 1] - a[..., 0, 1] * a[..., 1, 0])
@@ -226,64 +145,6 @@ def _banded_sum(a, b, rho, fn):
     return total
 
 
-def _no_extras() -> dict:
-    """The fields beyond today's: no delay, no lack-of-fit test."""
-    nan = jnp.full((), jnp.nan)
-    return dict(
-        delay=jnp.zeros(()),
-        delay_se=jnp.zeros(()),
-        delay_dof=nan,
-        lack_of_fit=jnp.full((2, 2), jnp.nan),
-        lack_of_fit_p=jnp.full((2, 2), jnp.nan),
-        lack_of_fit_overall=nan,
-        lack_of_fit_p_overall=nan,
-    )
-
-
-def _legacy_fit(z, f, w) -> ImpedanceFit:
-    """Today's fit (``acquisition="plain"``, ``se="residual"``), unchanged to the bit."""
-    omega = 2.0 * jnp.pi * f
-    # Regressors scaled to [0, 1]: w^4 reaches ~1e13 at 500 Hz, which round-off would feel.
-    w0 = jnp.max(omega)
-    u = ((omega / w0) ** 2)[:, None, None]  # (F, 1, 1)
-    v = (omega / w0)[:, None, None]
-    re, im = jnp.real(z), jnp.imag(z)
-
-    s0 = jnp.sum(w, axis=0)
-    u_bar = jnp.sum(w * u, axis=0) / s0
-    du = u - u_bar[None]  # weight-centred: the (K, M) normal matrix becomes diagonal
-    s_uu = jnp.sum(w * du**2, axis=0)
-    s_vv = jnp.sum(w * v**2, axis=0)
-    a = jnp.sum(w * re, axis=0) / s0  # intercept at u_bar
-    c = jnp.sum(w * du * re, axis=0) / s_uu  # slope in u, = -w0^2 M
-    b = jnp.sum(w * v * im, axis=0) / s_vv  # = w0 B
-
-    r_re = re - (a[None] + c[None] * du)
-    r_im = im - b[None] * v
-    dof = 2.0 * jnp.sum(w > 0, axis=0) - 3.0
-    s2 = jnp.sum(w * (r_re**2 + r_im**2), axis=0) / dof
-    var_a, var_c, var_b = s2 / s0, s2 / s_uu, s2 / s_vv
-
-    fit = ImpedanceFit(
-        mass=-c / w0**2,
-        damping=b / w0,
-        stiffness=a - c * u_bar,
-        mass_se=jnp.sqrt(var_c) / w0**2,
-        damping_se=jnp.sqrt(var_b) / w0,
-        stiffness_se=jnp.sqrt(var_a + u_bar**2 * var_c),  # K = a - c u_bar, a and c uncorrelated
-        vaf=jnp.zeros((2, 2)),
-        vaf_overall=jnp.zeros(()),
-        dof=dof,
-        **_no_extras(),
-    )
-    err = jnp.abs(z - fit.impedance(f)) ** 2
-    power = jnp.abs(z) ** 2
-    return fit._replace(
-        vaf=100.0 * (1.0 - jnp.sum(err, axis=0) / jnp.sum(power, axis=0)),
-        vaf_overall=100.0 * (1.0 - jnp.sum(err) / jnp.sum(power)),
-    )
-
-
 def _solve_elements(x, wts, y):
     """Per-element weighted least squares with real parameters: ``theta`` ``(4, 3)`` and the
     normal matrices ``(4, 3, 3)`` for ``y ~ x theta_e`` (``x`` ``(F, 3)``, ``y``, ``wts`` ``(F, 4)``)."""
@@ -305,48 +166,71 @@ def fit_impedance(
     f=None,
     *,
     weights=None,
-    acquisition: str = "plain",
-    period: float = CONTROL_PERIOD,
-    se: str = "residual",
+    acquisition: str = "delay",
+    period: float = DEFAULT_PERIOD,
+    se: str = "spectral",
     error: ZError | None = None,
+    friction: float | None = None,
 ) -> ImpedanceFit:
     """Fit ``M, B, K`` to an impedance ``Z(f)`` element by element (docs/model.md section 13).
 
     Args:
-        Z: impedance [N/m] ``(F, 2, 2)`` complex, indexed ``[output, input]`` (e.g.
-            ``Estimate.Z``); or an ``Estimate``, whose ``Z``, ``f`` and ``error`` are used
-            (then ``f`` and ``error`` must be omitted).
-        f: frequencies [Hz] ``(F,)``, ``>= 0`` with at least two distinct values.
+        Z: an ``Estimate`` (``estimate``'s result: its ``Z``, ``f``, ``error`` and
+            coherences are used; then ``f`` and ``error`` must be omitted), or an impedance
+            [N/m] ``(F, 2, 2)`` complex, indexed ``[output, input]``.
+        f: frequencies [Hz] ``(F,)`` of a ``Z`` array, ``>= 0`` with two or more distinct values.
         weights: ``None`` (uniform), an array ``(F,)`` or ``(F, 2, 2)`` of weights ``>= 0``
             (per bin, or per bin and element), or, with an ``Estimate``, ``"uniform"`` or
             ``"coherence"`` (``coherence_weights``).
         acquisition: how the record was sampled, which decides the model of the recorded
-            ``Z``: ``"plain"`` (default: ``M s^2 + B s + K`` as it stands), ``"instant"``
-            (samples at the control instants, force just before the hold's update:
-            ``M s (1 - exp(-s L)) / L + B s + K``), ``"interval_mean"`` (box-car means:
-            ``M s^2 + B s + K``), or ``"delay"`` (``exp(-s tau) (M s^2 + B s + K)`` with the
-            force-channel delay ``tau`` fitted too). docs/estimation.md section 2.
-        period: the hold (control and acquisition) period ``L`` [s] of ``"instant"``
-            (default 1 ms, the simulator's).
-        se: ``"residual"`` (default): the usual WLS errors from the residuals, one pooled
-            variance per element and independent bins (too small for Welch estimates,
-            whose bins are correlated); ``"spectral"``: from the estimate's error model
-            ``error`` (``estimate(..., errors=True)``), a sandwich covariance over
-            correlated bins of unequal variance. docs/estimation.md section 3.
+            ``Z``: ``"delay"`` (default, for unknown timing: ``exp(-s tau) (M s^2 + B s + K)``
+            with the force-channel delay ``tau`` fitted too), ``"instant"`` (samples at the
+            control instants, force just before the hold's update: ``M s (1 - exp(-s L)) / L
+            + B s + K``), ``"interval_mean"`` (box-car means: ``M s^2 + B s + K``) or
+            ``"plain"`` (``M s^2 + B s + K`` whatever the timing). docs/estimation.md section 2.
+        period: the hold (control and acquisition) period ``L`` [s] of ``"instant"``, and
+            the scale against which a fitted delay is read as the hold's lag (default 1 ms,
+            the simulator's; ``1 / fs`` for a recording).
+        se: ``"spectral"`` (default): from the estimate's error model (``Estimate.error``,
+            or ``error``), a sandwich covariance over correlated bins of unequal variance;
+            ``"residual"``: the textbook WLS errors from the residuals, one pooled variance
+            per element and independent bins (too small for Welch estimates, whose bins are
+            correlated). docs/estimation.md section 3.
         error: a ``ZError`` for a ``Z`` array (with an ``Estimate``, its own ``error``).
+        friction: the robot's largest Coulomb joint torque [N m], when known (``None``:
+            unknown). It changes no number; with ``friction > 0`` and force samples taken at
+            an instant (``"instant"``, or a fitted delay that is consistent with the hold's
+            lag) the result warns that friction biases M and B there without a trace in the
+            record (docs/estimation.md section 3).
 
-    The lack-of-fit fields need ``error`` (else NaN), whatever ``se``. Solved in closed form
-    (``"delay"``: Gauss-Newton on ``tau`` with ``M, B, K`` eliminated, from ``tau = 0``, a
+    The lack-of-fit fields need an error model (else NaN), whatever ``se``. Solved in closed
+    form (``"delay"``: Gauss-Newton on ``tau`` with ``M, B, K`` eliminated, from ``tau = 0``, a
     fixed number of steps), on regressors scaled by the highest frequency.
 
-    Returns an ``ImpedanceFit``. Single fit; ``jax.vmap`` batches it (shape checks are
-    static; value checks, e.g. NaN in ``Z``, run only on concrete inputs). Differentiable
-    in ``Z``, ``f``, ``weights`` and ``error``; standard errors have no finite gradient on
-    noise-free data (``sqrt`` at 0).
+    Returns an ``ImpedanceFit``; ``fit.summary()`` prints its intervals and warnings. Single
+    fit; ``jax.vmap`` batches it (shape checks are static; value checks, e.g. NaN in ``Z``,
+    run only on concrete inputs). Differentiable in ``Z``, ``f``, ``weights`` and ``error``;
+    standard errors have no finite gradient on noise-free data (``sqrt`` at 0).
     """
     require_x64("fit_impedance")
     check_choice("acquisition", acquisition, ACQUISITIONS)
     check_choice("se", se, SE_METHODS)
+    z, f, w, error, diagnostics = _inputs(Z, f, weights, error, se)
+    if acquisition in ("instant", "delay"):
+        period = _check_period(period)
+    if friction is not None and not 0 <= friction < math.inf:
+        raise ValueError(f"friction must be a Coulomb torque >= 0 N m (or None: unknown), got {friction!r}")
+    diagnostics = diagnostics._replace(
+        friction=jnp.asarray(jnp.nan if friction is None else friction, dtype=jnp.float64),
+        instant_samples=jnp.asarray({"instant": 1.0, "delay": jnp.nan}.get(acquisition, 0.0)),
+        period=jnp.asarray(period, dtype=jnp.float64),
+    )
+    fit = _general_fit(z, f, w, acquisition, period, se, error)
+    return fit._replace(diagnostics=diagnostics)
+
+
+def _inputs(Z, f, weights, error, se):
+    """Checked ``(z, f, w, error, diagnostics)`` from ``fit_impedance``'s arguments."""
     if isinstance(Z, Estimate):
         if f is not None:
             raise ValueError("pass an Estimate alone, or Z and f; not an Estimate and f")
@@ -357,14 +241,17 @@ def fit_impedance(
             if weights not in ("uniform", "coherence"):
                 raise ValueError(f"unknown weights {weights!r}; allowed: 'uniform', 'coherence'")
             weights = None if weights == "uniform" else coherence_weights(est)
-    elif isinstance(weights, str):
-        raise ValueError(f"weights={weights!r} needs an Estimate as the first argument; with a Z array pass an array")
+        diagnostics = diagnostics_of(est)
+    else:
+        if isinstance(weights, str):
+            raise ValueError(f"weights={weights!r} needs an Estimate as the first argument; with Z pass an array")
+        diagnostics = unknown_diagnostics(jnp.nan if error is None else getattr(error, "n_eff", jnp.nan))
     if f is None:
         raise ValueError("f (the frequencies of Z [Hz], shape (F,)) is required with a Z array")
     if se == "spectral" and error is None:
         raise ValueError(
-            'se="spectral" needs the estimate\'s error model: fit an Estimate from estimate(..., errors=True) '
-            "(or pass error=Estimate.error)"
+            'se="spectral" (the default) needs an error model: fit the Estimate of estimate(...) (it carries one '
+            'unless errors=False), or pass error=Estimate.error; se="residual" gives the textbook errors instead'
         )
     z = _as_impedance(Z)
     n_freq = z.shape[0]
@@ -376,88 +263,42 @@ def fit_impedance(
         fn = np.asarray(f)
         if np.any(fn < 0) or len(np.unique(fn)) < 2:
             raise ValueError("f must be finite, >= 0 Hz and hold at least two distinct frequencies")
-    if acquisition == "instant":
-        try:
-            period = float(period)
-        except (TypeError, ValueError):
-            raise ValueError(f"period must be a number (the hold period [s]), got {period!r}") from None
-        if not 0 < period < math.inf:
-            raise ValueError(f"period must be a finite hold period > 0 s, got {period!r}")
     w = _as_weights(weights, n_freq, f)
-    if error is not None:
-        error = _as_error(error, n_freq)
+    return z, f, w, None if error is None else _as_error(error, n_freq), diagnostics
 
-    if acquisition == "plain" and se == "residual":
-        fit = _legacy_fit(z, f, w)
-        if error is None:
-            return fit
-        return _general_fit(z, f, w, acquisition, period, se, error)._replace(
-            **{k: getattr(fit, k) for k in ImpedanceFit._fields if not k.startswith("lack_of_fit")}
-        )
-    return _general_fit(z, f, w, acquisition, period, se, error)
+
+def _check_period(period) -> float:
+    try:
+        period = float(period)
+    except (TypeError, ValueError):
+        raise ValueError(f"period must be a number (the hold period [s]), got {period!r}") from None
+    if not 0 < period < math.inf:
+        raise ValueError(f"period must be a finite hold period > 0 s, got {period!r}")
+    return period
 
 
 def _general_fit(z, f, w, acquisition, period, se, error) -> ImpedanceFit:
+    """The weighted least-squares fit of the recorded model, its covariance and lack of fit."""
     n_freq = z.shape[0]
     omega = 2.0 * jnp.pi * f
     w0 = jnp.max(omega)
     scale = jnp.stack([jnp.ones(()), w0**2, w0])  # K, M, B: the fit solves for K, w0^2 M, w0 B
-    x = _regressors(omega, acquisition, period) / scale[None]  # (F, 3), entries O(1)
+    x = regressors(omega, acquisition, period) / scale[None]  # (F, 3), entries O(1)
     v = omega / w0
     y = z.reshape(n_freq, 4)  # element e = 2 i + j
     wts = w.reshape(n_freq, 4)
     delay = acquisition == "delay"
-
-    tau = jnp.zeros(())  # w0 * delay
-    if delay:
-        for _ in range(DELAY_ITERATIONS):
-            rot = jnp.exp(1j * v * tau)[:, None]
-            theta, a = _solve_elements(x, wts, y * rot)
-            r = y * rot - x @ theta.T
-            dy = 1j * v[:, None] * y * rot  # d(y rot)/d tau
-            c = jnp.linalg.solve(a, jnp.real(jnp.einsum("fe,fp,fe->ep", wts, jnp.conj(x), dy))[..., None])[..., 0]
-            dyp = dy - x @ c.T  # its part that M, B, K cannot absorb
-            tau = tau - jnp.sum(wts * jnp.real(jnp.conj(dyp) * r)) / jnp.sum(wts * jnp.abs(dyp) ** 2)
+    tau = _delay_search(x, v, y, wts) if delay else jnp.zeros(())  # w0 * delay
     phase = jnp.exp(-1j * v * tau)[:, None]  # (F, 1)
     theta, _ = _solve_elements(x, wts, y * jnp.conj(phase))
     model = (x @ theta.T) * phase  # (F, 4): the recorded Z as fitted
     r = y - model
-
-    # Jacobian of the recorded model in the parameters [theta_e (3 each) ..., tau]: (F, 4, P)
-    n_par = 13 if delay else 12
-    eye4 = jnp.eye(4)
-    jac = (eye4[None, :, :, None] * (x * phase)[:, None, None, :]).reshape(n_freq, 4, 12)
-    if delay:
-        jac = jnp.concatenate([jac, (-1j * v[:, None] * model)[..., None]], axis=-1)
-    normal = jnp.real(jnp.einsum("fe,fep,feq->pq", wts, jnp.conj(jac), jac))
-    g = jnp.linalg.solve(normal, jnp.swapaxes(jnp.conj(jac) * wts[..., None], 0, 2).reshape(n_par, 4 * n_freq))
-    g = jnp.swapaxes(g.reshape(n_par, 4, n_freq), 0, 2).reshape(n_freq, 4, n_par)
-    gk = jnp.swapaxes(g, -1, -2)  # (F, P, 4): the parameters' error is Re sum_k gk[k] dZ[k]
-
-    if error is not None:
-        root = jnp.einsum("fac,fbd->fabcd", _sqrt_psd2(error.force), _sqrt_psd2(error.position)).reshape(n_freq, 4, 4)
-        rho = jnp.asarray(error.bin_corr)
-        q = gk @ root  # (F, P, 4)
-        yq = _banded_sum(q, q, rho, lambda a, b: b)  # sum_d rho q[k + d]
-        cov_spec = 0.5 * jnp.real(jnp.einsum("fpm,fqm->pq", yq, jnp.conj(q)))
-        cov_spec = 0.5 * (cov_spec + cov_spec.T)
+    jac, normal, gk = _sensitivities(x, v, wts, phase, model, delay)
+    spectral = None if error is None else _spectral_covariance(gk, error)
     if se == "residual":
-        dof_e = 2.0 * jnp.sum(wts > 0, axis=0) - 3.0
-        s2 = jnp.sum(wts * jnp.abs(r) ** 2, axis=0) / dof_e  # (4,)
-        meat = jnp.real(jnp.einsum("fe,fep,feq->pq", wts * s2[None], jnp.conj(jac), jac))
-        cov = jnp.linalg.solve(normal, jnp.linalg.solve(normal, meat).T)
-        dof = dof_e.reshape(2, 2)
-        par_dof = jnp.concatenate([jnp.repeat(dof_e, 3), jnp.full((n_par - 12,), jnp.min(dof_e))])
+        cov, dof, par_dof = _residual_covariance(r, wts, jac, normal)
     else:
-        cov = cov_spec
-        # Satterthwaite: the variance is a sum of bins' residual spectra, each with error.dof
-        # degrees of freedom and correlated between bins as bin_corr^2.
-        share = jnp.abs(0.5 * jnp.real(jnp.einsum("fpm,fpm->fp", yq, jnp.conj(q))))  # (F, P)
-        rel = share / jnp.sqrt(error.dof)[:, None]  # each share's sd is sqrt(2 / dof) of it
-        spread = _banded_sum(rel, rel, rho**2, lambda a, b: a * b)
-        par_dof = jnp.sum(share, axis=0) ** 2 / jnp.sum(spread, axis=0)
-        dof = jnp.min(par_dof[:12].reshape(4, 3), axis=-1).reshape(2, 2)
-
+        cov, dof, par_dof = _spectral_dof(spectral, error)
     sd = jnp.sqrt(jnp.diag(cov))
     th = theta.reshape(2, 2, 3)
     sd_e = sd[:12].reshape(2, 2, 3)
@@ -471,13 +312,96 @@ def _general_fit(z, f, w, acquisition, period, se, error) -> ImpedanceFit:
         vaf=100.0 * (1.0 - jnp.sum(jnp.abs(r) ** 2, axis=0) / jnp.sum(jnp.abs(y) ** 2, axis=0)).reshape(2, 2),
         vaf_overall=100.0 * (1.0 - jnp.sum(jnp.abs(r) ** 2) / jnp.sum(jnp.abs(y) ** 2)),
         dof=dof,
-        **_no_extras(),
+        **_no_delay_no_test(),
+        diagnostics=unknown_diagnostics(),
     )
     if delay:
         fit = fit._replace(delay=tau / w0, delay_se=sd[12] / w0, delay_dof=par_dof[12])
     if error is None:
         return fit
+    cov_spec, yq, _, rho, root = spectral
     return fit._replace(**_lack_of_fit(r, wts, jac, root, gk, yq, cov_spec, rho, error.dof))
+
+
+def _no_delay_no_test() -> dict:
+    """The delay and lack-of-fit fields of a fit without either: 0 delay, NaN test."""
+    nan = jnp.full((), jnp.nan)
+    return dict(
+        delay=jnp.zeros(()),
+        delay_se=jnp.zeros(()),
+        delay_dof=nan,
+        lack_of_fit=jnp.full((2, 2), jnp.nan),
+        lack_of_fit_p=jnp.full((2, 2), jnp.nan),
+        lack_of_fit_overall=nan,
+        lack_of_fit_p_overall=nan,
+    )
+
+
+def _delay_search(x, v, y, wts):
+    """Gauss-Newton on the scaled delay ``w0 tau`` with ``M, B, K`` eliminated (variable
+    projection), from 0, ``DELAY_ITERATIONS`` steps."""
+    tau = jnp.zeros(())
+    for _ in range(DELAY_ITERATIONS):
+        rot = jnp.exp(1j * v * tau)[:, None]
+        theta, a = _solve_elements(x, wts, y * rot)
+        r = y * rot - x @ theta.T
+        dy = 1j * v[:, None] * y * rot  # d(y rot)/d tau
+        c = jnp.linalg.solve(a, jnp.real(jnp.einsum("fe,fp,fe->ep", wts, jnp.conj(x), dy))[..., None])[..., 0]
+        dyp = dy - x @ c.T  # its part that M, B, K cannot absorb
+        tau = tau - jnp.sum(wts * jnp.real(jnp.conj(dyp) * r)) / jnp.sum(wts * jnp.abs(dyp) ** 2)
+    return tau
+
+
+def _sensitivities(x, v, wts, phase, model, delay: bool):
+    """The recorded model's Jacobian ``(F, 4, P)`` in the parameters [theta_e (3 each) ...,
+    tau], the normal matrix ``(P, P)`` and the gain ``gk`` ``(F, P, 4)``: the parameters'
+    error is ``Re sum_k gk[k] dZ[k]``."""
+    n_freq = x.shape[0]
+    n_par = 13 if delay else 12
+    eye4 = jnp.eye(4)
+    jac = (eye4[None, :, :, None] * (x * phase)[:, None, None, :]).reshape(n_freq, 4, 12)
+    if delay:
+        jac = jnp.concatenate([jac, (-1j * v[:, None] * model)[..., None]], axis=-1)
+    normal = jnp.real(jnp.einsum("fe,fep,feq->pq", wts, jnp.conj(jac), jac))
+    g = jnp.linalg.solve(normal, jnp.swapaxes(jnp.conj(jac) * wts[..., None], 0, 2).reshape(n_par, 4 * n_freq))
+    g = jnp.swapaxes(g.reshape(n_par, 4, n_freq), 0, 2).reshape(n_freq, 4, n_par)
+    return jac, normal, jnp.swapaxes(g, -1, -2)
+
+
+def _spectral_covariance(gk, error: ZError):
+    """The parameters' covariance under the estimate's error model, with the pieces the
+    lack-of-fit test and the degrees of freedom reuse: ``(cov, yq, root, rho)``."""
+    n_freq = gk.shape[0]
+    root = jnp.einsum("fac,fbd->fabcd", _sqrt_psd2(error.force), _sqrt_psd2(error.position)).reshape(n_freq, 4, 4)
+    rho = jnp.asarray(error.bin_corr)
+    q = gk @ root  # (F, P, 4)
+    yq = _banded_sum(q, q, rho, lambda a, b: b)  # sum_d rho q[k + d]
+    cov = 0.5 * jnp.real(jnp.einsum("fpm,fqm->pq", yq, jnp.conj(q)))
+    return 0.5 * (cov + cov.T), yq, q, rho, root
+
+
+def _spectral_dof(spectral, error: ZError):
+    """``(cov, dof (2, 2), per-parameter dof)`` of ``se="spectral"``. Satterthwaite: the
+    variance is a sum of bins' residual spectra, each with ``error.dof`` degrees of freedom
+    and correlated between bins as ``bin_corr^2``."""
+    cov, yq, q, rho, _ = spectral
+    share = jnp.abs(0.5 * jnp.real(jnp.einsum("fpm,fpm->fp", yq, jnp.conj(q))))  # (F, P)
+    rel = share / jnp.sqrt(error.dof)[:, None]  # each share's sd is sqrt(2 / dof) of it
+    spread = _banded_sum(rel, rel, rho**2, lambda a, b: a * b)
+    par_dof = jnp.sum(share, axis=0) ** 2 / jnp.sum(spread, axis=0)
+    return cov, jnp.min(par_dof[:12].reshape(4, 3), axis=-1).reshape(2, 2), par_dof
+
+
+def _residual_covariance(r, wts, jac, normal):
+    """``(cov, dof (2, 2), per-parameter dof)`` of ``se="residual"``: one pooled residual
+    variance per element, bins independent."""
+    n_par = normal.shape[0]
+    dof_e = 2.0 * jnp.sum(wts > 0, axis=0) - 3.0
+    s2 = jnp.sum(wts * jnp.abs(r) ** 2, axis=0) / dof_e  # (4,)
+    meat = jnp.real(jnp.einsum("fe,fep,feq->pq", wts * s2[None], jnp.conj(jac), jac))
+    cov = jnp.linalg.solve(normal, jnp.linalg.solve(normal, meat).T)
+    par_dof = jnp.concatenate([jnp.repeat(dof_e, 3), jnp.full((n_par - 12,), jnp.min(dof_e))])
+    return cov, dof_e.reshape(2, 2), par_dof
 
 
 def _lack_of_fit(r, wts, jac, root, gk, yq, cov, rho, dof_bin) -> dict:

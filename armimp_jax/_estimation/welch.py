@@ -23,8 +23,8 @@ import numpy as np
 import scipy.signal
 
 from .._checks import as_float64, check_int, is_concrete, require_x64
+from .._model.timing import SAMPLE_RATE
 
-SAMPLE_RATE = 1000.0  # [Hz]
 # Table 4 of the paper (docs/model.md section 11): 21 segments in a 50 s record.
 WELCH_NPERSEG = 8192  # = nfft
 WELCH_NOVERLAP = 6144
@@ -35,14 +35,15 @@ N_INPUTS = 2  # perturbation axes: the residual spectrum loses about N_INPUTS * 
 def welch_segments(n_samples: int) -> tuple[int, int]:
     """The Welch segment length and overlap that follow a record's length.
 
-    The largest power of two up to Table 4's ``WELCH_NPERSEG`` (8192) that fits twice in the
-    record, with 75% overlap: Table 4's settings from 16384 samples on (the paper's 50 s record
-    is unchanged), and at least five segments on a shorter one (8 on a 12 s record at 1 kHz)
-    instead of the two that Table 4's segment would leave. Returns ``(nperseg, noverlap)``;
-    raises ``ValueError`` below 16 samples.
+    The largest power of two up to Table 4's ``WELCH_NPERSEG`` (8192) that fits three times
+    in the record, with 75% overlap: Table 4's settings from 24576 samples on (the paper's
+    50 s record is unchanged), and at least nine segments (about five effective averages) on
+    a shorter one, where Table 4's segment would leave as few as two (a 12 s record at 1 kHz
+    gets 2048-sample segments, 20 of them). Returns ``(nperseg, noverlap)``; raises
+    ``ValueError`` below 24 samples.
     """
-    n_samples = check_int("n_samples", n_samples, minimum=16)
-    nperseg = int(min(WELCH_NPERSEG, 2 ** math.floor(math.log2(n_samples / 2))))
+    n_samples = check_int("n_samples", n_samples, minimum=24)
+    nperseg = int(min(WELCH_NPERSEG, 2 ** math.floor(math.log2(n_samples / 3))))
     return nperseg, 3 * nperseg // 4
 
 

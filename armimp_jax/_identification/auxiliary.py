@@ -62,7 +62,7 @@ def arm_statistics(trial, f, x, fh):
     n = f.shape[0]
     nperseg = welch_nperseg(n)
     est = estimate(f, x, fh, fs=1.0 / trial.period, nperseg=nperseg, noverlap=3 * nperseg // 4, errors=False)
-    fit = fit_impedance(est.Z, est.f, acquisition=trial.acquisition, period=trial.period)
+    fit = fit_impedance(est.Z, est.f, acquisition=trial.acquisition, period=trial.period, se="residual")
     return fit.mass, fit.damping, fit.stiffness
 
 

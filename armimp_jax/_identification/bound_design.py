@@ -32,7 +32,7 @@ from . import controller_design as cd
 from . import layout as lay
 from . import linear
 from .bound import _fisher, crlb
-from .criterion import _aggregate
+from .criterion import DesignPlan, _aggregate
 from .limits import _displacement_gain, _limited_signal, _peak_displacement
 
 BACKTRACKS = 6  # halvings of a step whose gains leave the loop unstable before it is skipped
@@ -122,33 +122,18 @@ def _step(z, state, opt, value_and_grad, trials, limits, design_gains):
     return {**new, "gains": np.asarray(z["gains"])}, new_state, float(value)
 
 
-def design_on_bound(
-    trials,
-    family,
-    *,
-    free,
-    targets_idx,
-    target_labels,
-    limits,
-    aggregate: str,
-    design_gains: bool,
-    precision: float,
-    steps: int,
-    learning_rate: float,
-    key,
-    progress,
-) -> BoundDesign:
+def design_on_bound(plan: DesignPlan, family, *, design_gains: bool, precision: float) -> BoundDesign:
     """The design loop (``design`` checks the inputs first)."""
     t_start = time.perf_counter()
-    layout = lay.make_layout(free)
+    trials, layout, limits, aggregate = plan.trials, plan.layout, plan.limits, plan.aggregate
     period = trials[0].period
     n = limits.n_samples(period)
-    family_key = jax.random.split(key)[0]
+    family_key = jax.random.split(plan.key)[0]
     gains0 = cd.initial_log_gains(trials[0])
     if design_gains:
         gains0 = cd.check_start(trials, gains0, limits)
     start_trials = [cd.with_gains(t, gains0) if design_gains else t for t in trials]
-    idx = np.asarray(targets_idx)
+    idx = np.asarray(plan.idx)
 
     def fun(z, smooth=True):
         return _objective(
@@ -158,27 +143,28 @@ def design_on_bound(
     value_and_grad = jax.jit(jax.value_and_grad(fun, has_aux=True))
     shape0 = np.asarray(family.shape)
     z = {"shape": np.log(np.maximum(shape0, 1e-6 * shape0.max())), "gains": np.asarray(gains0)}
-    opt = optax.adam(learning_rate)
+    opt = optax.adam(plan.learning_rate)
     state = jax.tree.map(np.asarray, opt.init(z))
     trace = []
-    for step in range(steps):
+    for step in range(plan.steps):
         z, state, value = _step(z, state, opt, value_and_grad, trials, limits, design_gains)
         trace.append(float(np.exp(value)) if np.isfinite(value) else float("nan"))
-        if progress is not None:
-            progress(step + 1, steps, trace[-1])
+        if plan.progress is not None:
+            plan.progress(step + 1, plan.steps, trace[-1])
+    entries = [layout.labels()[i] for i in plan.idx]
     return _assemble(
         z,
         family,
         trials,
         start_trials,
-        free,
+        plan.free,
         limits,
         family_key,
         n,
         period,
         design_gains,
         precision,
-        target_labels,
+        entries,
         trace,
         t_start,
     )

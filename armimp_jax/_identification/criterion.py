@@ -1,7 +1,11 @@
 """The design criterion: the targets' relative standard errors, per trial and aggregated over
-trials (the worst or the mean), smoothed for a gradient by a log-sum-exp."""
+trials (the worst or the mean), smoothed for a gradient by a log-sum-exp; and the
+``DesignPlan`` that every design method holds fixed."""
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -11,6 +15,25 @@ from .._simulate import Trial
 from . import layout as lay
 
 SOFTMAX_TEMPERATURE = 0.05  # in log relative SE: the smooth maximum is within ~0.05 * log(n) of the true one
+
+
+class DesignPlan(NamedTuple):
+    """What a design holds fixed, whatever its method: the ``trials`` designed for at once,
+    the ``free`` parameters' names and ``layout``, the indices ``idx`` of the target entries,
+    the ``Limits``, the ``criterion`` and its ``aggregate`` over the trials, the Adam
+    ``steps`` and ``learning_rate``, the ``key`` and the ``progress`` callback (or None)."""
+
+    trials: list
+    free: tuple
+    layout: lay.Layout
+    idx: list
+    limits: object
+    criterion: str
+    aggregate: str
+    steps: int
+    learning_rate: float
+    key: jax.Array
+    progress: Callable[[int, int, float], None] | None
 
 
 def default_targets(layout) -> list[int]:

@@ -2,9 +2,8 @@
 patient's limits (``design``), and the record length a target needs (``record_for``).
 
 A design moves a perturbation family's ``shape`` (its spectrum, ``_model/families.py``) to
-minimise a criterion of ``identify``'s predicted standard errors (``predict.py``'s method:
-the statistics' covariance over simulated noise draws through the friction-aware closed
-loop), for one trial or over a set of trials (the patient's arm is what is unknown):
+minimise a criterion of ``identify``'s predicted standard errors, for one trial or over a
+set of trials (the patient's arm is what is unknown):
 
 - ``criterion="max_relative_se"`` (default): the largest ``SE / |value|`` among the
   ``targets`` entries (e.g. the diagonals of M, B and K), over the trials (worst case) or
@@ -13,79 +12,35 @@ loop), for one trial or over a set of trials (the patient's arm is what is unkno
 - ``criterion="d_optimal"``: the log-determinant of the targets' covariance in relative
   units (the volume of the confidence region).
 
-**Limits are honoured by construction, not penalised**: the family's RMS is set to
-``rms_force``, samples beyond ``peak_force`` are clipped and the rest re-scaled until both
-hold (so a design uses the whole RMS it is allowed), then the whole signal is scaled down
-until the hand's peak displacement in the noise-free simulation of every trial is at most
-``peak_displacement``. So every signal the optimiser sees, and the one it
-returns, meets them (the displacement's gain is re-found every ``REGAIN_EVERY`` steps and
-for the returned design). Each step draws new noise (a stochastic gradient, optax's Adam):
-a design that fitted one fixed set of draws would promise more than the experiment gives.
-The last iterate is returned (a cosine-decayed rate with the second half's iterates
-averaged was measured worse: docs/experiment_design.md). A step whose draws diverged or
-gave a non-finite criterion is skipped and counted. The binding's Jacobian ``A`` is held at its value for the starting
-design during the optimisation (it is near the identity and moves little with the
-spectrum); the predictions before and after are computed afresh with ``predict_se`` on
-the same draws, and if the design does not beat the start there, the start is returned
-with ``improved=False``: a design never promises less than its start.
+Two methods predict the standard errors: the Cramér-Rao bound of the loop linearised about
+rest (``bound_design.py``: deterministic, exact in its gradient, for near-linear loops; it
+can design the controller's gains too), and ``predict.py``'s Monte Carlo prediction through
+the friction-aware closed loop (``monte_carlo_design.py``). Both honour the limits by
+construction (``limits.py``). This module checks the inputs and chooses the method.
 """
 
 from __future__ import annotations
 
 import math
-import time
-from typing import NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
-import optax
 
 from .._checks import require_x64
 from .._model.families import Multisine, PaperNoise, ShapedNoise
-from .._pytree import replace_unchecked
 from .._simulate import Trial
-from . import indirect
 from . import layout as lay
 from .bound import is_near_linear, silent_readings
-from .bound_design import design_on_bound
+from .bound_design import BoundDesign, design_on_bound
 from .controller_design import drift_of
-from .criterion import _aggregate, _criterion_value, _targets, relative_se
-from .indirect import IDENTIFY_NUMERICS
-from .limits import Limits, _displacement_gain, _limited_signal, _peak_displacement
+from .criterion import DesignPlan, _targets, relative_se
+from .limits import Limits, _limited_signal
+from .monte_carlo_design import Design, design_monte_carlo
 from .predict import predict_se
 
 CRITERIA = ("max_relative_se", "d_optimal")
 METHODS = ("auto", "bound", "monte_carlo")
 AGGREGATES = ("worst", "mean")
-REGAIN_EVERY = 10  # steps between re-finding the displacement gain (each is a bisection of forward runs)
-
-
-class Design(NamedTuple):
-    """``design``'s answer (host values): the designed ``family`` (at its limited level) and its
-    ``signal`` ``(N, 2)`` [N]; ``start_family`` and ``start_signal`` likewise; ``before`` and
-    ``after``: per trial the ``PredictedSE`` of the start and of the design; ``criterion``
-    before and after (unsmoothed); ``trace``: the smoothed criterion per optimisation step
-    (on that step's draws; NaN for a skipped step); ``achieved``: RMS and peak force per
-    axis [N] and the largest peak hand displacement over the trials [m] of the designed
-    signal; ``improved``: whether the design beat the start (if not, ``family`` and
-    ``signal`` are the start's); ``skipped``: steps skipped for diverged draws; ``time_s``;
-    ``start_criteria``: the criterion of each candidate start (the family argument's order)."""
-
-    family: object
-    signal: np.ndarray
-    start_family: object
-    start_signal: np.ndarray
-    before: list
-    after: list
-    criterion_before: float
-    criterion_after: float
-    trace: list
-    achieved: dict
-    improved: bool
-    skipped: int
-    time_s: float
-    start_criteria: list
 
 
 def _designable(family):
@@ -95,7 +50,9 @@ def _designable(family):
         raise ValueError(f"design: family must be a ShapedNoise or a Multisine, got {type(family).__name__}")
 
 
-def _check_design(trial, family, free, limits, targets, criterion, robust_over, aggregate, counts, learning_rate):
+def _check_design(
+    trial, family, free, limits, targets, criterion, robust_over, aggregate, counts, learning_rate, precision
+):
     """``(candidates, layout, target indices, trials)``; one-line errors for bad inputs."""
     if not isinstance(trial, Trial):
         raise ValueError(f"design: trial must be a Trial (from make_trial), got {type(trial).__name__}")
@@ -136,6 +93,8 @@ def _check_design(trial, family, free, limits, targets, criterion, robust_over, 
             raise ValueError(f"design: {name} must be an integer >= {low}, got {v!r}")
     if not (isinstance(learning_rate, (int, float)) and 0 < learning_rate < 10):
         raise ValueError(f"design: learning_rate must lie in (0, 10) (a step in log amplitude), got {learning_rate!r}")
+    if not 0 < precision < 1:
+        raise ValueError(f"design: precision must lie in (0, 1) (relative half-width at 95%), got {precision!r}")
     return candidates, layout, idx, trials
 
 
@@ -204,7 +163,7 @@ def design(
     predict_draws: int = 64,
     key=None,
     progress=None,
-):
+) -> Design | BoundDesign:
     """Design the experiment: the ``family``'s spectrum (and, with ``controller=True``, the
     controller's gains) that minimises ``criterion`` within ``limits``.
 
@@ -246,182 +205,15 @@ def design(
     require_x64("design")
     counts = {"steps": (steps, 1), "draws": (draws, 8), "predict_draws": (predict_draws, 8)}
     candidates, layout, idx, trials = _check_design(
-        trial, family, free, limits, targets, criterion, robust_over, aggregate, counts, learning_rate
+        trial, family, free, limits, targets, criterion, robust_over, aggregate, counts, learning_rate, precision
     )
-    if not 0 < precision < 1:
-        raise ValueError(f"design: precision must lie in (0, 1) (relative half-width at 95%), got {precision!r}")
     key = jax.random.key(0) if key is None else key
     if limits.drift is not None and not controller:
         _check_fixed_drift(trials, limits.drift)
+    plan = DesignPlan(trials, free, layout, idx, limits, criterion, aggregate, steps, learning_rate, key, progress)
     if _choose_method(method, controller, trials, candidates, layout, criterion, limits, key) == "bound":
-        return design_on_bound(
-            trials,
-            candidates[0],
-            free=free,
-            targets_idx=idx,
-            target_labels=[layout.labels()[i] for i in idx],
-            limits=limits,
-            aggregate=aggregate,
-            design_gains=controller,
-            precision=precision,
-            steps=steps,
-            learning_rate=learning_rate,
-            key=key,
-            progress=progress,
-        )
-    return _design_monte_carlo(
-        trials,
-        candidates,
-        layout,
-        idx,
-        free,
-        limits,
-        criterion,
-        aggregate,
-        steps,
-        learning_rate,
-        draws,
-        predict_draws,
-        key,
-        progress,
-    )
-
-
-def _design_monte_carlo(
-    trials,
-    candidates,
-    layout,
-    idx,
-    free,
-    limits,
-    criterion,
-    aggregate,
-    steps,
-    learning_rate,
-    draws,
-    predict_draws,
-    key,
-    progress,
-) -> Design:
-    """The Monte Carlo design loop (module docstring)."""
-    t_start = time.perf_counter()
-    trial = trials[0]
-    family_key, draw_key = jax.random.split(key)
-    period = trial.period
-    n = limits.n_samples(period)
-    n_draws, n_jac = indirect.draw_counts(trial, draws, 2)
-
-    points = [lay.pack(layout, t) for t in trials]
-    values = [lay.natural(layout, p, t) for t, p in zip(trials, points)]
-    predict_key = jax.random.fold_in(draw_key, 2 * 10**6)
-
-    def predictions(f):
-        preds = [
-            predict_se(t, f, free=free, statistic="welch", key=predict_key, draws=predict_draws, jacobian_draws=8)
-            for t in trials
-        ]
-        bad = [i for i, pr in enumerate(preds) if bool(pr.diverged)]
-        if bad:
-            raise RuntimeError(f"design: the prediction's simulations diverged for trial {bad[0]} of robust_over")
-        return preds
-
-    def plain(preds):
-        per_trial = [_criterion_value(pr.covariance, v, idx, criterion) for pr, v in zip(preds, values)]
-        return float(_aggregate(per_trial, criterion, aggregate, smooth=False))
-
-    # the start: the candidate the prediction rates best (on the same draws)
-    starts = []
-    for c in candidates:
-        g = _displacement_gain(c, family_key, n, limits, trials, period)
-        f = _limited_signal(c, family_key, n, limits, period, g)
-        preds = predictions(f) if len(candidates) > 1 else None
-        starts.append((c, g, f, preds, plain(preds) if preds is not None else None))
-    family, gain, f0, before, _ = min(starts, key=lambda st: st[4] if st[4] is not None else 0.0)
-    start_criteria = [st[4] for st in starts]
-
-    # the binding's Jacobian of each trial, held during the optimisation (near the identity)
-    jac_keys = jax.random.split(jax.random.fold_in(draw_key, 10**6), n_jac)
-    # one at a time (block): programs split over the CPU devices must not queue up together
-    jacs = [
-        jax.block_until_ready(indirect.binding_jacobian(layout, t, p, f0, jac_keys, IDENTIFY_NUMERICS)[0])
-        for t, p in zip(trials, points)
-    ]
-    naturals = [lay.natural_jacobian(layout, p, t) for t, p in zip(trials, points)]
-
-    def objective(log_shape, keys, gain, smooth=True):
-        fam = replace_unchecked(family, shape=jnp.exp(log_shape))
-        f = _limited_signal(fam, family_key, n, limits, period, gain)
-        per_trial, diverged = [], jnp.bool_(False)
-        for t, p, jac, g, v in zip(trials, points, jacs, naturals, values):
-            stats, div = indirect.binding_draws(layout, t, p, f, keys, IDENTIFY_NUMERICS)
-            diverged = diverged | jnp.any(div)
-            cov = g @ indirect.covariance(jac, stats, n_draws) @ g.T
-            per_trial.append(_criterion_value(cov, v, idx, criterion))
-        return _aggregate(per_trial, criterion, aggregate, smooth), diverged
-
-    value_and_grad = jax.jit(jax.value_and_grad(objective, has_aux=True))
-    shape0 = np.asarray(family.shape)
-    log_shape = np.log(np.maximum(shape0, 1e-6 * shape0.max()))
-    opt = optax.adam(learning_rate)
-    state = opt.init(log_shape)
-    trace, skipped = [], 0
-    for step in range(steps):
-        keys = jax.random.split(jax.random.fold_in(draw_key, step), n_draws)
-        (value, diverged), grad = value_and_grad(log_shape, keys, gain)
-        grad = np.asarray(grad)
-        if bool(diverged) or not (np.isfinite(float(value)) and np.all(np.isfinite(grad))):
-            skipped += 1  # a diverged draw poisons the criterion: no step on it
-            trace.append(float("nan"))
-        else:
-            trace.append(float(value))
-            updates, state = opt.update(grad, state)
-            # kept on the host: arrays placed by the sharded step would make the next call recompile
-            log_shape = np.asarray(log_shape + updates)
-            state = jax.tree.map(np.asarray, state)
-        # the displacement limit is re-checked as the spectrum moves (it scales the whole signal)
-        if limits.peak_displacement is not None and (step + 1) % REGAIN_EVERY == 0:
-            gain = _displacement_gain(
-                replace_unchecked(family, shape=jnp.exp(log_shape)), family_key, n, limits, trials, period
-            )
-        if progress is not None:
-            progress(step + 1, steps, trace[-1])
-    if skipped == steps:
-        raise RuntimeError(f"design: every step's noise draws diverged ({steps} steps); the trial is unstable")
-
-    designed = replace_unchecked(family, shape=np.exp(log_shape))
-    gain_after = _displacement_gain(designed, family_key, n, limits, trials, period)
-    signal = np.asarray(_limited_signal(designed, family_key, n, limits, period, gain_after))
-    start_signal = np.asarray(f0)
-    before = predictions(jnp.asarray(start_signal)) if before is None else before
-    after = predictions(jnp.asarray(signal))
-    if start_criteria[0] is None:
-        start_criteria = [plain(before)]
-    improved = plain(after) < plain(before)
-    if not improved:  # same draws for both: the start is the better design
-        designed, signal, after = family, start_signal, before
-    displacement = max(float(_peak_displacement(t, jnp.asarray(signal))[0]) for t in trials)
-    final_rms = np.sqrt(np.mean(signal**2, axis=0))
-    achieved = dict(
-        rms_force=final_rms.tolist(),
-        peak_force=np.max(np.abs(signal), axis=0).tolist(),
-        peak_displacement=displacement,
-    )
-    return Design(
-        family=replace_unchecked(designed, rms=final_rms),
-        signal=signal,
-        start_family=replace_unchecked(family, rms=np.sqrt(np.mean(start_signal**2, axis=0))),
-        start_signal=start_signal,
-        before=before,
-        after=after,
-        criterion_before=plain(before),
-        criterion_after=plain(after),
-        trace=trace,
-        achieved=achieved,
-        improved=improved,
-        skipped=skipped,
-        start_criteria=start_criteria,
-        time_s=time.perf_counter() - t_start,
-    )
+        return design_on_bound(plan, candidates[0], design_gains=controller, precision=precision)
+    return design_monte_carlo(plan, candidates, draws=draws, predict_draws=predict_draws)
 
 
 def record_for(
@@ -458,9 +250,9 @@ def record_for(
     def relative(pred):
         return relative_se(pred, trial, free=free, targets=target)
 
-    now = relative(predict_se(trial, f, free=free, statistic="welch", draws=draws, key=key))
+    given = relative(predict_se(trial, f, free=free, statistic="welch", draws=draws, key=key))
     seconds = f.shape[0] * period
-    need = {t: seconds * (now[t] / float(target[t])) ** 2 for t in target}
+    need = {t: seconds * (given[t] / float(target[t])) ** 2 for t in target}
     record_s = max(need.values())
     n = max(int(math.ceil(record_s / period)), 1000)
     longer = np.resize(f, (n, 2))  # repeats the perturbation (or cuts it)

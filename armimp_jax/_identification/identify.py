@@ -40,7 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.stats
 
-from .._checks import as_float64, check_choice, check_int, require_x64
+from .._checks import as_float64, check_int, require_x64
 from .._estimation.fit import ImpedanceFit, fit_impedance
 from .._estimation.welch import check_finite, estimate
 from .._simulate import Trial
@@ -50,8 +50,8 @@ from . import layout as lay
 from .auxiliary import statistic_labels, statistics
 from .bound import has_friction, is_near_linear
 from .diagnosis import motion_diagnosis
-from .indirect import IDENTIFY_NUMERICS, predict
-from .predict import STATISTICS
+from .indirect import predict
+from .predict import check_sampling
 
 # An entry whose SE exceeds this multiple of its parameter's scale is reported as barely identifiable.
 WEAK_RELATIVE_SE = 1.0
@@ -197,15 +197,8 @@ def _check(model, f, x, fh, free, symmetric, statistic, numerics, draws, jacobia
         raise ValueError(f"identify: model must be a Trial (from make_trial), got {type(model).__name__}")
     layout = lay.make_layout(free, symmetric)
     f, x, fh = check_recording(f, x, fh, "identify")
-    check_choice("statistic", statistic, STATISTICS)
-    draws = check_int("draws", draws, minimum=8)
-    jacobian_draws = check_int("jacobian_draws", jacobian_draws, minimum=1)
-    if jacobian_draws > draws:  # the Jacobian's draws are the first of the statistics' draws
-        raise ValueError(f"identify: jacobian_draws {jacobian_draws} must be at most draws {draws}")
+    numerics, draws, jacobian_draws = check_sampling("identify", statistic, numerics, draws, jacobian_draws)
     max_steps = check_int("max_steps", max_steps, minimum=1)
-    numerics = IDENTIFY_NUMERICS if numerics is None else numerics
-    if not isinstance(numerics, Numerics):
-        raise ValueError(f"identify: numerics must be a Numerics, got {type(numerics).__name__}")
     for name, arr in (("x", x), ("fh", fh)):
         flat = [f"{name}[:, {i}]" for i in range(2) if not float(jnp.std(arr[:, i])) > 0]
         if flat:
@@ -294,6 +287,20 @@ def identify(
     checked = _check(model, f, x, fh, free, symmetric, statistic, numerics, draws, jacobian_draws, max_steps)
     layout, f, x, fh, numerics, draws, jacobian_draws, max_steps = checked
     key = jax.random.key(0) if key is None else key
+    p, forward_s = _checked_start(layout, model, f, numerics)
+    n_draws, n_jac = indirect.draw_counts(model, draws, jacobian_draws)
+    keys = jax.random.split(key, n_draws)
+    arm_stat, start, statistic = _arm_statistic(layout, model, p, f, x, fh, statistic, numerics, keys)
+    problem = _problem(layout, model, f, x, fh, numerics, keys, n_jac, arm_stat)
+    state = _init(problem, start, p)
+    while not state.done:
+        state = search.step(problem, state, max_steps)
+    return _assemble(problem, state, f, x, fh, statistic, t_start, forward_s)
+
+
+def _checked_start(layout, model, f, numerics):
+    """The packed start ``p``, and the wall time [s] of one noise-free simulation there; a
+    one-line error if the model diverges at the start."""
     p = np.asarray(lay.pack(layout, model))
     _, diverged = _predict(layout, model, jnp.asarray(p), f, numerics)
     if bool(diverged):
@@ -301,12 +308,12 @@ def identify(
         raise ValueError(f"identify: the model diverges at the starting values {start}; choose another start")
     t0 = time.perf_counter()
     jax.block_until_ready(_predict(layout, model, jnp.asarray(p), f, numerics))
-    forward_s = time.perf_counter() - t0
+    return p, time.perf_counter() - t0
 
-    n_draws, n_jac = indirect.draw_counts(model, draws, jacobian_draws)
-    keys = jax.random.split(key, n_draws)
-    given = p
-    arm_stat, p, statistic = _arm_statistic(layout, model, p, f, x, fh, statistic, numerics, keys)
+
+def _problem(layout, model, f, x, fh, numerics, keys, n_jac, arm_stat) -> search.Problem:
+    """What the search holds fixed: the recording's statistics, the nuisance prior and the
+    slack; a one-line error for statistics the recording leaves undefined."""
     b = np.asarray(_statistics(layout, model, f, x, fh, arm_stat))
     if not np.all(np.isfinite(b)):
         bad = [lab for lab, v in zip(statistic_labels(layout), b, strict=True) if not np.isfinite(v)]
@@ -314,36 +321,26 @@ def identify(
             f"identify: the recording's statistics {', '.join(bad)} are not finite (a joint that never moves "
             "leaves its friction unmeasured); free fewer friction parameters or record with more motion"
         )
-    noisy = model.noisy
+    noisy, packed = model.noisy, np.asarray(lay.pack(layout, model))
     # the nuisance prior: friction parameters of a noisy model (without noise there is no spread to weigh it by)
-    prior_index = np.setdiff1d(np.arange(p.size), indirect.arm_index(layout)) if noisy else np.zeros(0, dtype=int)
-    prior_mean = np.asarray(lay.pack(layout, model))[prior_index]
-    slack = b.size / n_draws if noisy else 1e-24 * (1.0 + float(b @ b))  # the binding's own MC jitter of the cost
-    problem = search.Problem(
-        layout,
-        model,
-        f,
-        numerics,
-        keys,
-        n_jac,
-        noisy,
-        np.concatenate([b, prior_mean]),
-        arm_stat,
-        prior_index,
-        prior_mean,
-        slack,
+    prior_index = np.setdiff1d(np.arange(packed.size), indirect.arm_index(layout)) if noisy else np.zeros(0, dtype=int)
+    prior_mean = packed[prior_index]
+    slack = b.size / keys.shape[0] if noisy else 1e-24 * (1.0 + float(b @ b))  # the binding's own MC jitter
+    statistics_and_prior = np.concatenate([b, prior_mean])
+    return search.Problem(
+        layout, model, f, numerics, keys, n_jac, noisy, statistics_and_prior, arm_stat, prior_index, prior_mean, slack
     )
+
+
+def _init(problem: search.Problem, start, given) -> search.Search:
+    """The search's first state at ``start``; if the model's noisy simulations diverge there
+    (the linear fit's start, which no noise-free run checked), at the user's ``given`` start."""
     try:
-        state = search.init(problem, p)
+        return search.init(problem, start)
     except ValueError:
-        if p is given:
+        if start is given:
             raise
-        # the linear fit's start can sit where the model's noisy simulations diverge (its
-        # noise-free run did not): the user's start, which the checks above passed, instead
-        state = search.init(problem, given)
-    while not state.done:
-        state = search.step(problem, state, max_steps)
-    return _assemble(problem, state, f, x, fh, statistic, t_start, forward_s)
+        return search.init(problem, given)
 
 
 def _warnings(problem: search.Problem, p, labels, values, se, cov_p) -> tuple[list, dict]:

@@ -13,6 +13,7 @@ import numpy as np
 
 from .._checks import require_x64
 from .._model.sensors import IDEAL
+from .._model.timing import CONTROL_PERIOD
 from .._pytree import replace_unchecked
 from .._simulate import Trial, simulate
 from .indirect import IDENTIFY_NUMERICS
@@ -94,7 +95,7 @@ def _limited_signal(family, key, n, limits: Limits, period: float, gain=1.0):
     return s * gain
 
 
-def limited_signal(family, limits: Limits, *, key, period: float = 1e-3, trials=None) -> np.ndarray:
+def limited_signal(family, limits: Limits, *, key, period: float = CONTROL_PERIOD, trials=None) -> np.ndarray:
     """The ``(N, 2)`` force [N] a family gives within ``limits``, as ``design`` makes it: at
     ``rms_force``, peaks clipped to ``peak_force`` (the rest re-scaled to keep the RMS), and,
     with ``trials`` and a ``peak_displacement``, scaled down until the hand's peak

@@ -28,6 +28,20 @@ from .indirect import IDENTIFY_NUMERICS
 STATISTICS = ("auto", "efficient", "welch")
 
 
+def check_sampling(where: str, statistic, numerics, draws, jacobian_draws):
+    """``(numerics, draws, jacobian_draws)`` checked, the numerics defaulted to
+    ``IDENTIFY_NUMERICS``: the options ``identify`` and ``predict_se`` share, with one-line errors."""
+    check_choice("statistic", statistic, STATISTICS)
+    draws = check_int("draws", draws, minimum=8)
+    jacobian_draws = check_int("jacobian_draws", jacobian_draws, minimum=1)
+    if jacobian_draws > draws:  # the Jacobian's draws are the first of the statistics' draws
+        raise ValueError(f"{where}: jacobian_draws {jacobian_draws} must be at most draws {draws}")
+    numerics = IDENTIFY_NUMERICS if numerics is None else numerics
+    if not isinstance(numerics, Numerics):
+        raise ValueError(f"{where}: numerics must be a Numerics, got {type(numerics).__name__}")
+    return numerics, draws, jacobian_draws
+
+
 class PredictedSE(NamedTuple):
     """``predict_se``'s answer (a pytree of arrays): ``se`` ``{name: array}`` in each parameter's
     units and shape; ``covariance`` ``(n, n)`` of every entry (order of ``labels``); ``labels``;
@@ -78,10 +92,7 @@ def predict_se(
     if f.ndim != 2 or f.shape[1] != 2:
         raise ValueError(f"predict_se: f must have shape (N, 2), got {f.shape}")
     check_finite("f", f, where="predict_se")
-    draws = check_int("draws", draws, minimum=8)
-    jacobian_draws = check_int("jacobian_draws", jacobian_draws, minimum=1)
-    numerics = IDENTIFY_NUMERICS if numerics is None else numerics
-    check_choice("statistic", statistic, STATISTICS)
+    numerics, draws, jacobian_draws = check_sampling("predict_se", statistic, numerics, draws, jacobian_draws)
     if statistic == "auto":
         if not is_concrete(f):
             raise ValueError(

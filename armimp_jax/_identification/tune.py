@@ -324,6 +324,38 @@ def tune(
             f"tune: the state has {np.shape(state.theta)[0]} parameters; parameterisation "
             f"{config.parameterisation!r} has {n_theta}"
         )
+    trainer = _trainer(params, f_delta, welch, config, mesh, log)
+    opt = optax.adam(config.learning_rate)
+    if state is None:
+        state = _start(trainer, opt, theta0, log)
+        log(state.history.record(-1))
+        if on_iteration is not None:
+            on_iteration(state)
+    while state.iteration < config.iterations:
+        if state.step_scale < config.min_step_scale:
+            log(dict(event="stopping: step scale below minimum"))
+            break
+        state = _step(trainer, opt, state, evaluate, eval_every)
+        log(state.history.record(-1))
+        if on_iteration is not None:
+            on_iteration(state)
+    return state
+
+
+class _Trainer(NamedTuple):
+    """What a tuning run holds fixed: the jitted loss value and gradient ``vg``, the placed
+    training batch, the sharding ``theta`` is replicated with (None: unsharded), the batch
+    size and the configuration."""
+
+    vg: Callable
+    params: Trial
+    f_delta: jax.Array
+    replicated: NamedSharding | None
+    n_trials: int
+    config: TuneConfig
+
+
+def _trainer(params, f_delta, welch, config: TuneConfig, mesh, log) -> _Trainer:
     params, f_delta, placed = place_batch(params, f_delta, mesh=mesh)
     n_trials = int(params.q0.shape[0])
     log(dict(event="training batch", trials=n_trials, devices=1 if placed is None else placed.size))
@@ -337,80 +369,80 @@ def tune(
         mode=config.mode,
         numerics=config.numerics,
     )
-    opt = optax.adam(config.learning_rate)
+    return _Trainer(vg, params, f_delta, replicated, n_trials, config)
 
-    def evaluate_at(theta):
-        t0 = time.perf_counter()
-        if replicated is not None:
-            theta = jax.device_put(theta, replicated)
-        (value, aux), grad = vg(theta, params, f_delta)
-        aux = to_host(aux)  # per trial, so sharded like the batch (across hosts too)
-        ok = _finite(value, grad) and not bool(np.any(np.asarray(aux.diverged)))
-        return ok, float(value), grad, aux, time.perf_counter() - t0
 
-    def mhat_of(theta):
-        return np.asarray(mhat_from_theta(theta, config.parameterisation))
+def _evaluate(trainer: _Trainer, theta):
+    """``(sound, loss, grad, aux, seconds)`` of the training batch at ``theta``; sound: finite
+    and no trial diverged."""
+    t0 = time.perf_counter()
+    if trainer.replicated is not None:
+        theta = jax.device_put(theta, trainer.replicated)
+    (value, aux), grad = trainer.vg(theta, trainer.params, trainer.f_delta)
+    aux = to_host(aux)  # per trial, so sharded like the batch (across hosts too)
+    ok = _finite(value, grad) and not bool(np.any(np.asarray(aux.diverged)))
+    return ok, float(value), grad, aux, time.perf_counter() - t0
 
-    def accepted_row(iteration, theta, value, grad, aux, scale, dt, ev=None):
-        return dict(
-            iteration=iteration,
-            accepted=True,
-            loss=value,
-            grad_norm=float(jnp.linalg.norm(grad)),
-            mhat=mhat_of(theta),
-            step_scale=scale,
-            time_s=dt,
-            phi_T=np.asarray(aux.phi_T),
-            **({} if ev is None else dict(eval_phi_T=ev["mean_phi_T"], eval_diverged=ev["diverged"])),
+
+def _mhat(trainer: _Trainer, theta) -> np.ndarray:
+    return np.asarray(mhat_from_theta(theta, trainer.config.parameterisation))
+
+
+def _accepted_row(trainer: _Trainer, iteration, theta, value, grad, aux, scale, dt, ev=None) -> dict:
+    """The ``History`` row of an accepted point (``ev``: its held-out evaluation, if run)."""
+    return dict(
+        iteration=iteration,
+        accepted=True,
+        loss=value,
+        grad_norm=float(jnp.linalg.norm(grad)),
+        mhat=_mhat(trainer, theta),
+        step_scale=scale,
+        time_s=dt,
+        phi_T=np.asarray(aux.phi_T),
+        **({} if ev is None else dict(eval_phi_T=ev["mean_phi_T"], eval_diverged=ev["diverged"])),
+    )
+
+
+def _start(trainer: _Trainer, opt, theta0, log) -> TuneState:
+    """The run's first state at ``theta0``, shrunk towards small ``Mhat`` (stable for TDE)
+    while its training trials diverge."""
+    theta = jnp.asarray(theta0, dtype=jnp.float64)
+    ok, value, grad, aux, dt = _evaluate(trainer, theta)
+    shrinks = 0
+    while not ok:
+        shrinks += 1
+        if shrinks > MAX_START_SHRINKS:
+            raise RuntimeError(
+                f"no stable starting Mhat after halving it {MAX_START_SHRINKS} times (down to "
+                f"{_mhat(trainer, theta).tolist()} kg): the training trials diverge for another reason, e.g. too "
+                "few RK4 substeps for the LuGre bristles"
+            )
+        log(dict(event="start diverged", mhat=_mhat(trainer, theta).tolist()))
+        theta = _shrink(theta, trainer.config.parameterisation)
+        ok, value, grad, aux, dt = _evaluate(trainer, theta)
+    history = History.empty(trainer.n_trials).append(**_accepted_row(trainer, 0, theta, value, grad, aux, 1.0, dt))
+    return TuneState(theta, opt.init(theta), grad, value, 0, 1.0, 0, history)
+
+
+def _step(trainer: _Trainer, opt, state: TuneState, evaluate, eval_every: int) -> TuneState:
+    """One Adam step, scaled by the guard's step scale: accepted (the scale grows by 1.5, to
+    at most 1) or, if the training trials diverge or give non-finite values, rejected (the
+    scale halves)."""
+    updates, new_opt = opt.update(state.grad, state.opt_state, state.theta)
+    proposal = state.theta + state.step_scale * updates
+    ok, value, grad, aux, dt = _evaluate(trainer, proposal)
+    iteration = state.iteration + 1
+    if not ok:
+        scale = state.step_scale * 0.5
+        history = state.history.append(
+            iteration=iteration, accepted=False, mhat=_mhat(trainer, proposal), step_scale=scale, time_s=dt
         )
-
-    if state is None:
-        theta = jnp.asarray(theta0, dtype=jnp.float64)
-        ok, value, grad, aux, dt = evaluate_at(theta)
-        shrinks = 0
-        while not ok:  # an unstable start: shrink Mhat (small gains are stable for TDE)
-            shrinks += 1
-            if shrinks > MAX_START_SHRINKS:
-                raise RuntimeError(
-                    f"no stable starting Mhat after halving it {MAX_START_SHRINKS} times (now "
-                    f"{mhat_of(theta).tolist()} kg): the training trials diverge for another reason, e.g. too few RK4 "
-                    "substeps for the LuGre bristles"
-                )
-            log(dict(event="start diverged", mhat=mhat_of(theta).tolist()))
-            theta = _shrink(theta, config.parameterisation)
-            ok, value, grad, aux, dt = evaluate_at(theta)
-        history = History.empty(n_trials).append(**accepted_row(0, theta, value, grad, aux, 1.0, dt))
-        state = TuneState(theta, opt.init(theta), grad, value, 0, 1.0, 0, history)
-        log(history.record(-1))
-        if on_iteration is not None:
-            on_iteration(state)
-    while state.iteration < config.iterations:
-        if state.step_scale < config.min_step_scale:
-            log(dict(event="stopping: step scale below minimum"))
-            break
-        updates, new_opt = opt.update(state.grad, state.opt_state, state.theta)
-        proposal = state.theta + state.step_scale * updates
-        ok, value, new_grad, aux, dt = evaluate_at(proposal)
-        iteration = state.iteration + 1
-        if not ok:
-            scale = state.step_scale * 0.5
-            history = state.history.append(
-                iteration=iteration, accepted=False, mhat=mhat_of(proposal), step_scale=scale, time_s=dt
-            )
-            state = state._replace(iteration=iteration, step_scale=scale, rejected=state.rejected + 1, history=history)
-        else:
-            scale = min(1.0, state.step_scale * 1.5)
-            ev = (
-                evaluate(iteration, proposal)
-                if evaluate is not None and eval_every and iteration % eval_every == 0
-                else None
-            )
-            history = state.history.append(**accepted_row(iteration, proposal, value, new_grad, aux, scale, dt, ev))
-            state = TuneState(proposal, new_opt, new_grad, value, iteration, scale, state.rejected, history)
-        log(state.history.record(-1))
-        if on_iteration is not None:
-            on_iteration(state)
-    return state
+        return state._replace(iteration=iteration, step_scale=scale, rejected=state.rejected + 1, history=history)
+    scale = min(1.0, state.step_scale * 1.5)
+    run_eval = evaluate is not None and eval_every and iteration % eval_every == 0
+    ev = evaluate(iteration, proposal) if run_eval else None
+    history = state.history.append(**_accepted_row(trainer, iteration, proposal, value, grad, aux, scale, dt, ev))
+    return TuneState(proposal, new_opt, grad, value, iteration, scale, state.rejected, history)
 
 
 def _shrink(theta, parameterisation):

@@ -33,7 +33,8 @@ import numpy as np
 
 from .._checks import as_float64, as_param, check_int, is_concrete
 from .._pytree import params
-from .perturbation import PERTURBATION_CUTOFF, SAMPLE_RATE, perturbation
+from .perturbation import PERTURBATION_CUTOFF, perturbation
+from .timing import SAMPLE_RATE
 
 NYQUIST = SAMPLE_RATE / 2.0
 

@@ -16,8 +16,8 @@ import numpy as np
 import scipy.signal
 
 from .._checks import as_float64, check_int, check_key, is_concrete, require_x64
+from .timing import SAMPLE_RATE
 
-SAMPLE_RATE = 1000.0  # [Hz], one sample per 1 ms control period
 PERTURBATION_CUTOFF = 15.0  # Butterworth cut-off f_max [Hz]
 PERTURBATION_ORDER = 8
 PERTURBATION_WARMUP = 2000  # samples of filter output discarded (2 s at 1 kHz)

@@ -35,6 +35,7 @@ import scipy.linalg
 from .._checks import as_param, check_range
 from .._pytree import params
 from .perturbation import butterworth_sos, sos_step
+from .timing import CONTROL_PERIOD
 
 VOLUNTARY_ORDER = 2  # second-order Butterworth (one section)
 # fold_in data of the voluntary stream: sample indices are int32, so never this value.
@@ -123,7 +124,7 @@ def voluntary_step(vol: VoluntaryForce, state: VoluntaryState, stream, k, period
     return voluntary_update(vol, state, voluntary_normals(stream, k), k, period)
 
 
-def voluntary_force(vol: VoluntaryForce, key, n_samples: int, *, period: float = 1e-3):
+def voluntary_force(vol: VoluntaryForce, key, n_samples: int, *, period: float = CONTROL_PERIOD):
     """The ``F_v`` ``(n_samples, 2)`` [N] that ``simulate`` applies to a trial with ``vol``
     under ``key`` (the same numbers, from the same stream), for plots and checks."""
     stream = voluntary_key(key)

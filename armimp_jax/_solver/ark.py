@@ -170,17 +170,37 @@ def _solve_bristles(fr: _Frame, p, r, hg, z, lam, model: PlantModel, bristled):
     b1, b2 = bristled
     # qd(z) = u - C z with C = A^-1 Sigma1, so for frozen lambda: (I + hg (C + Lambda)) z = r + hg u.
     c11, c12, c21, c22 = i11 * f1.sigma1, i12 * f2.sigma1, i21 * f1.sigma1, i22 * f2.sigma1
-    m12, m21 = jnp.where(b1, hg * c12, 0.0), jnp.where(b2, hg * c21, 0.0)
-    z = _solve2(
+    c = (c11, c22, jnp.where(b1, hg * c12, 0.0), jnp.where(b2, hg * c21, 0.0))
+    z = _frozen_solve(r, hg, (u1, u2), lam, c, bristled)
+    v1, v2 = u1 - c11 * z[0] - c12 * z[1], u2 - c21 * z[0] - c22 * z[1]
+    relax = _relaxation(v1, f1, b1), _relaxation(v2, f2, b2)
+    return _newton_step(z, r, hg, (v1, v2), relax, c, bristled)
+
+
+def _frozen_solve(r, hg, u, lam, c, bristled):
+    """``z`` of ``(I + hg (C + Lambda)) z = r + hg u``, ``lambda`` frozen at ``lam``, where ``u``
+    is the velocity at ``z = 0`` and ``c`` holds ``C``'s diagonal and ``hg`` times its
+    off-diagonal (0 for a joint without bristles, which keeps ``z = r``)."""
+    c11, c22, m12, m21 = c
+    b1, b2 = bristled
+    return _solve2(
         jnp.where(b1, 1.0 + hg * (c11 + lam[0]), 1.0),
         m12,
         m21,
         jnp.where(b2, 1.0 + hg * (c22 + lam[1]), 1.0),
-        jnp.where(b1, r[0] + hg * u1, r[0]),
-        jnp.where(b2, r[1] + hg * u2, r[1]),
+        jnp.where(b1, r[0] + hg * u[0], r[0]),
+        jnp.where(b2, r[1] + hg * u[1], r[1]),
     )
-    v1, v2 = u1 - c11 * z[0] - c12 * z[1], u2 - c21 * z[0] - c22 * z[1]
-    (lam1, dlam1), (lam2, dlam2) = _relaxation(v1, f1, b1), _relaxation(v2, f2, b2)
+
+
+def _newton_step(z, r, hg, v, relax, c, bristled):
+    """One Newton step on ``F(z) = z - r - hg (qd - lambda(qd) z)`` from ``z``, where the
+    velocities are ``v`` and the relaxation rates and slopes ``relax``; ``c`` as for
+    ``_frozen_solve``. Returns the
+    stage's ``z`` and the rates there (ARK and GradedARK4 alike)."""
+    (lam1, dlam1), (lam2, dlam2) = relax
+    c11, c22, m12, m21 = c
+    b1, b2 = bristled
     # dF/dz = I + hg ((I - diag(z lambda')) C + Lambda)
     w1, w2 = 1.0 - z[0] * dlam1, 1.0 - z[1] * dlam2
     d1, d2 = _solve2(
@@ -188,8 +208,8 @@ def _solve_bristles(fr: _Frame, p, r, hg, z, lam, model: PlantModel, bristled):
         w1 * m12,
         w2 * m21,
         jnp.where(b2, 1.0 + hg * (w2 * c22 + lam2), 1.0),
-        jnp.where(b1, z[0] - r[0] - hg * (v1 - lam1 * z[0]), 0.0),
-        jnp.where(b2, z[1] - r[1] - hg * (v2 - lam2 * z[1]), 0.0),
+        jnp.where(b1, z[0] - r[0] - hg * (v[0] - lam1 * z[0]), 0.0),
+        jnp.where(b2, z[1] - r[1] - hg * (v[1] - lam2 * z[1]), 0.0),
     )
     return (z[0] - d1, z[1] - d2), (lam1, lam2)
 

@@ -45,9 +45,10 @@ from .ark import (
     Tableau,
     _bristled,
     _frame,
+    _frozen_solve,
     _mv,
+    _newton_step,
     _relaxation,
-    _solve2,
     from_momentum,
     to_momentum,
 )
@@ -137,29 +138,11 @@ def _solve_bristles(fr: _Frozen, p, r, hg, lam, model: PlantModel, bristled, sha
     u1, u2 = _mv(fr.ainv, p[0], p[1])
     b1, b2 = bristled
     c11, c12, c21, c22 = fr.c
-    m12, m21 = jnp.where(b1, hg * c12, 0.0), jnp.where(b2, hg * c21, 0.0)
-    z = share(
-        _solve2(
-            jnp.where(b1, 1.0 + hg * (c11 + lam[0]), 1.0),
-            m12,
-            m21,
-            jnp.where(b2, 1.0 + hg * (c22 + lam[1]), 1.0),
-            jnp.where(b1, r[0] + hg * u1, r[0]),
-            jnp.where(b2, r[1] + hg * u2, r[1]),
-        )
-    )
+    c = (c11, c22, jnp.where(b1, hg * c12, 0.0), jnp.where(b2, hg * c21, 0.0))
+    z = share(_frozen_solve(r, hg, (u1, u2), lam, c, bristled))
     v1, v2 = share((u1 - c11 * z[0] - c12 * z[1], u2 - c21 * z[0] - c22 * z[1]))
-    (lam1, dlam1), (lam2, dlam2) = share((_relaxation(v1, f1, b1), _relaxation(v2, f2, b2)))
-    w1, w2 = 1.0 - z[0] * dlam1, 1.0 - z[1] * dlam2
-    d1, d2 = _solve2(
-        jnp.where(b1, 1.0 + hg * (w1 * c11 + lam1), 1.0),
-        w1 * m12,
-        w2 * m21,
-        jnp.where(b2, 1.0 + hg * (w2 * c22 + lam2), 1.0),
-        jnp.where(b1, z[0] - r[0] - hg * (v1 - lam1 * z[0]), 0.0),
-        jnp.where(b2, z[1] - r[1] - hg * (v2 - lam2 * z[1]), 0.0),
-    )
-    return (z[0] - d1, z[1] - d2), (lam1, lam2)
+    relax = share((_relaxation(v1, f1, b1), _relaxation(v2, f2, b2)))
+    return _newton_step(z, r, hg, (v1, v2), relax, c, bristled)
 
 
 def _rates(fr: _Frozen, e, p, z, model: PlantModel, bristled, share):

@@ -6,7 +6,6 @@ compiled program, and two trials with different numerics cannot share a batch.
 
 from __future__ import annotations
 
-import warnings
 from typing import ClassVar
 
 from .._checks import check_choice, check_int
@@ -23,6 +22,18 @@ PAPER_SUBSTEPS = DEFAULT_SUBSTEPS["rk4"]  # the paper's 0.01 ms at a 1 ms period
 
 SOLVERS = {"rk4": RK4, "ark3": ARK3, "ark4": ARK4, "gark4": GradedARK4}
 METHODS = tuple(SOLVERS)  # the solvers' names, as saved run settings spell them
+
+
+def _refusal(unknown: dict) -> str:
+    """The one-line refusal of options ``Numerics`` does not take; a solver named by a string
+    (``method=``, ``kernel=``) is told which solver object to pass."""
+    if not unknown.keys() <= {"method", "kernel"}:
+        return f"Numerics got unexpected option(s) {', '.join(sorted(unknown))}; it takes solver, substeps, checkpoint"
+    try:
+        solver = repr(named_solver(unknown.get("method", "rk4"), kernel=unknown.get("kernel", "fast")))
+    except ValueError:
+        solver = "RK4(), ARK3(), ARK4() or GradedARK4()"
+    return f"Numerics takes the solver as an object, not method=/kernel=: write Numerics(solver={solver})"
 
 
 def named_solver(method: str, *, kernel: str = "fast"):
@@ -58,20 +69,16 @@ class Numerics:
             - ``ARK4``: 10, converged at every Coulomb torque (5 is not, at small ones);
             - ``GradedARK4``: 4 (6 steps per period), converged at every Coulomb torque
               (3 is not), and the cheapest converged setting of all.
-
-            The deprecated ``method``/``kernel`` spelling keeps its former default, 100.
         checkpoint: what reverse mode keeps for the backward pass (forward runs are
             unaffected, gradients agree to round-off): ``"period"`` (default) one carry per
             control period, the substeps recomputed; ``"substep"`` one carry per
             substep (96 bytes each for RK4: memory grows with the record and the batch).
-        method, kernel: deprecated spelling of ``solver`` (``method="ark3", kernel="fast"``
-            is ``solver=ARK3(kernel="fast")``; no ``method`` is RK4); a
-            ``DeprecationWarning`` says so.
 
     The substeps are resolved when the value is built, so ``substeps`` is always an int and
     equal settings compare and hash equal however they were spelled. ``method`` and
-    ``kernel`` remain readable (the solver's), and ``settings()`` gives the dictionary that
-    saved run settings record.
+    ``kernel`` read the solver's, and ``settings()`` gives the dictionary that saved run
+    settings record. A solver named by a string (``method=``, ``kernel=``) is refused with a
+    one-line ``TypeError`` that names the solver object to pass.
     """
 
     solver: RK4 | ARK3 | ARK4 | GradedARK4
@@ -80,25 +87,9 @@ class Numerics:
 
     CHECKPOINTS: ClassVar[tuple[str, ...]] = CHECKPOINTS
 
-    def __init__(
-        self,
-        *,
-        solver=None,
-        substeps: int | None = None,
-        checkpoint: str = "period",
-        method: str | None = None,
-        kernel: str | None = None,
-    ):
-        if method is not None or kernel is not None:
-            if solver is not None:
-                raise ValueError(f"Numerics: pass solver={solver!r} or the deprecated method/kernel, not both")
-            solver = named_solver("rk4" if method is None else method, kernel="fast" if kernel is None else kernel)
-            warnings.warn(
-                f"Numerics(method=..., kernel=...) is deprecated; write Numerics(solver={solver!r})",
-                DeprecationWarning,
-                stacklevel=2,
-            )
-            substeps = PAPER_SUBSTEPS if substeps is None else substeps  # that spelling's former default
+    def __init__(self, *, solver=None, substeps: int | None = None, checkpoint: str = "period", **unknown):
+        if unknown:
+            raise TypeError(_refusal(unknown))
         solver = GradedARK4() if solver is None else solver
         if not isinstance(solver, tuple(SOLVERS.values())):
             raise ValueError(
@@ -121,8 +112,9 @@ class Numerics:
         return self.solver.kernel
 
     def settings(self) -> dict:
-        """The settings as saved run settings record them (the keys and order of the former
-        string fields, so that existing records still match)."""
+        """The settings as saved run settings record them: ``substeps``, ``kernel``,
+        ``checkpoint``, ``method``, in that order (saved settings are compared as JSON text,
+        so the order is part of a record's key)."""
         return dict(substeps=self.substeps, kernel=self.kernel, checkpoint=self.checkpoint, method=self.method)
 
     def __eq__(self, other):
@@ -140,12 +132,11 @@ class Numerics:
 # below, docs/performance.md) it diverges or is far off; use Numerics() there.
 PAPER_NUMERICS = Numerics(solver=RK4(), substeps=PAPER_SUBSTEPS)
 
-# The setting of sweeps over arbitrary friction (sweep.py, friction_threshold.py), of
-# explain_claims.py and of identify / predict_se: stable for every tau_c >= 0 and within
-# 1e-4 of a refined phi_T from 0 to 4 N m, PD and IMBIC, the four paper arms
-# (sweeps/bench_convergence.py; docs/performance.md). It stays ARK3 at 20 substeps although
+# The setting of sweeps over arbitrary friction (study.sweep's default; sweeps/sweep.py,
+# friction_threshold.py, explain_claims.py, bench_fit_coverage.py): stable for every tau_c >= 0
+# and within 1e-4 of a refined phi_T from 0 to 4 N m, PD and IMBIC, the four paper arms
+# (sweeps/bench_convergence.py; docs/performance.md). It is ARK3 at 20 substeps although
 # Numerics() is as converged and about 4x cheaper: the published sweep, claims and coverage
-# results were computed with it and a new default would move them (within 1e-4), and a sweep
-# run with the default options would no longer match its own earlier folders (saved
-# settings name the method and substeps, so those still resume with --resume).
+# results were computed with it, another setting would move them (within 1e-4), and saved
+# run settings name the method and substeps, so a sweep resumes its folders only with it.
 SWEEP_NUMERICS = Numerics(solver=ARK3(), substeps=20)

@@ -1,5 +1,5 @@
-"""The paper's two experiments as data, per-trial summary metrics, seed statistics, and the
-claims (a)-(f).
+"""The paper's two experiments as data, seed statistics, the fitted ``M, B, K``, and the
+claims (a)-(f) judged over the seeds.
 
 Spec section 12. A *condition* fixes controller, location, friction level, perturbation
 level and acquisition; a *trial* is a condition plus a seed. The claims are judged from
@@ -13,10 +13,13 @@ deviation and the 95% t-interval of the mean); a diverged trial is counted and l
 ``evaluate_claims`` judges each claim on those means, then again on every seed alone,
 and gives each threshold comparison the 95% t-interval of its quantity over the seeds:
 a verdict is *robust* when every seed gives it and every relevant interval lies on the
-side of its threshold that the verdict says.
+side of its threshold that the verdict says. The rules themselves (``CLAIM_RULES``,
+``JUDGES``) and the text of what each claim measured live in ``_judges``; this module
+holds the conditions, the statistics and the judging over seeds.
 
-``fit_metrics`` fits ``M, B, K`` to each trial's estimate (``fit_impedance``, uniform
-weights) and scores them against the arm's (``true_matrices``); the report tables them.
+Each trial's scores are ``study.metrics.trial_metrics``'s. ``fit_metrics`` fits ``M, B, K``
+to each trial's estimate (``fit_impedance``, uniform weights) and scores them against the
+arm's (``true_matrices``); the report tables them.
 """
 
 from __future__ import annotations
@@ -29,12 +32,16 @@ import jax
 import numpy as np
 
 from .._estimation.fit import fit_impedance
-from .._estimation.metrics import largest_singular_value
 from ..presets import arm
 from ..study.stats import CI_LEVEL as CI_LEVEL
 from ..study.stats import mean_ci
-
-LOW_BAND_HZ = 2.0  # the paper's "below 1-2 Hz"
+from ._judges import CLAIM_RULES as CLAIM_RULES
+from ._judges import CLAIM_TEXT as CLAIM_TEXT
+from ._judges import JUDGES as JUDGES
+from ._judges import Judgement as Judgement
+from ._judges import Part as Part
+from ._judges import compare
+from ._text import interval
 
 
 @dataclass(frozen=True, order=True)
@@ -72,33 +79,6 @@ def trial_id(cond: Condition, seed: int) -> str:
     return f"{cond.label}-S{seed}"
 
 
-def trial_metrics(f, Z, est_arrays: dict, location: int) -> dict:
-    """Scalar summaries of one estimate: accuracy, phase error, coherence minima per band.
-
-    ``est_arrays`` holds the ``Estimate`` coherence arrays as NumPy (``coh_multiple_x``...).
-    """
-    f = np.asarray(f)
-    zt = np.asarray(arm(location).impedance(f))
-    err = zt - Z
-    phi_t = float(np.mean(np.asarray(largest_singular_value(err))))
-    scale = float(np.mean(np.asarray(largest_singular_value(zt))))
-    phase = np.degrees(np.abs(np.angle(Z / zt)))
-    low, high = f < LOW_BAND_HZ, f >= LOW_BAND_HZ
-    m = dict(
-        phi_T=phi_t,
-        phi_ij=np.mean(np.abs(err), axis=0).tolist(),
-        rel_error=phi_t / scale,
-        phase_error_deg=float(np.mean(phase)),
-    )
-    for name in ("coh_multiple_x", "coh_partial_x", "coh_multiple_fh", "coh_partial_fh"):
-        c = np.asarray(est_arrays[name])
-        m[f"{name}_min_low"] = float(c[low].min()) if low.any() else float("nan")
-        m[f"{name}_min_high"] = float(c[high].min()) if high.any() else float("nan")
-        m[f"{name}_median"] = float(np.median(c))
-    m["input_coherence_max"] = float(np.max(est_arrays["coh_inputs"]))
-    return m
-
-
 # --- Fitted M, B, K ----------------------------------------------------------------------
 FIT_MATRICES = (("M", "mass"), ("B", "damping"), ("K", "stiffness"))  # symbol, ImpedanceFit field
 
@@ -122,7 +102,9 @@ def fit_metrics(f, Z, locations, *, acquisition: str = "instant") -> list[dict]:
     if Z.shape[0] == 0:
         return []
     finite = np.isfinite(Z).all(axis=(1, 2, 3))
-    fit = functools.partial(fit_impedance, acquisition=acquisition)
+    # every option named: the reproduction's numbers must not move with the library's defaults
+    # (its SEs are not used here; "residual" needs no error model, which a bare Z lacks)
+    fit = functools.partial(fit_impedance, weights=None, acquisition=acquisition, se="residual")
     fits = jax.vmap(fit, in_axes=(0, None))(np.where(finite[:, None, None, None], Z, 1.0), np.asarray(f))
     out = []
     for i, loc in enumerate(locations):
@@ -153,7 +135,7 @@ def condition_summary(metas: list[dict]) -> dict:
     """``Condition -> stats`` over the trials of each condition that did not diverge.
 
     ``metas`` are trial records (``condition``, ``seed``, ``diverged``, ``metrics``). For
-    every metric ``m`` of ``trial_metrics``: ``m`` (mean), ``m_sd`` (sample standard
+    every metric ``m`` of ``study.metrics.trial_metrics``: ``m`` (mean), ``m_sd`` (sample standard
     deviation), ``m_ci`` (half-width of the 95% t-interval of the mean; ``None`` with fewer
     than two trials); and ``n`` (trials averaged), ``trials``, ``diverged`` (count),
     ``seeds`` and ``diverged_seeds``. A condition whose every trial diverged has ``n = 0``
@@ -190,31 +172,6 @@ def seed_summaries(metas: list[dict]) -> dict[int, dict[Condition, dict]]:
 
 
 # --- Claims -----------------------------------------------------------------------------
-# Each rule reads condition means of the instant-acquisition trials. "Reproduced" needs
-# every part of a claim, "partly" some, "not" none; for (d) and (f) "partly" is a looser
-# second threshold.
-CLAIM_RULES = {
-    "a": "PD, friction 0: median multiple coherence (x and F_h) >= 0.95, and phi_T <= 10% of mean ‖Z_h‖",
-    "b": "PD, friction 1-2: min multiple coherence of x below 2 Hz <= 0.5; phi_T >= 5x the frictionless value; "
-    "mean phase error >= 20 deg",
-    "c": "PD, friction 1 and 2 each: phi_T at perturbation level 3 >= 2/3 of its value at level 1 "
-    "(partly: at one friction level)",
-    "d": "IMBIC: min multiple coherence of x over 0-15 Hz > 0.9 at every friction level and location "
-    "(partly: median > 0.9)",
-    "e": "IMBIC, friction 1-2: phi_T <= 2x the frictionless IMBIC value; and <= 20% of PD's at the same friction "
-    "(location 1, perturbation 1)",
-    "f": "IMBIC: for each friction level, max/min of phi_T over the four locations <= 2 (partly: <= 4)",
-}
-
-CLAIM_TEXT = {
-    "a": "PD without friction: coherences ~1, estimate nearly indistinguishable from Z_h",
-    "b": "PD with friction: low coherence below 1-2 Hz, estimate far off in magnitude and especially phase",
-    "c": "PD with friction: larger perturbations do not noticeably help",
-    "d": "IMBIC: multiple coherence > 0.9 over 0-15 Hz at every friction level",
-    "e": "IMBIC: phi only slightly above frictionless, far below PD with friction",
-    "f": "IMBIC: no noticeable change across the four arm locations",
-}
-
 # The conditions each claim reads (to say which all-diverged ones it had to leave out).
 CLAIM_READS: dict[str, Callable[[Condition], bool]] = {
     "a": lambda c: c.experiment == "pd" and c.friction == 0,
@@ -224,148 +181,6 @@ CLAIM_READS: dict[str, Callable[[Condition], bool]] = {
     "e": lambda c: c.experiment == "imbic" or (c.experiment == "pd" and c.perturbation == 1 and c.friction > 0),
     "f": lambda c: c.experiment == "imbic",
 }
-
-_OPS = {">=": np.greater_equal, "<=": np.less_equal, ">": np.greater, "<": np.less}
-
-
-def _compare(value, op: str, threshold: float) -> bool:
-    return bool(np.isfinite(value) and _OPS[op](value, threshold))
-
-
-@dataclass(frozen=True)
-class Part:
-    """One threshold comparison of a claim: ``value op threshold``."""
-
-    label: str
-    value: float
-    op: str
-    threshold: float
-
-    @property
-    def holds(self) -> bool:
-        return _compare(self.value, self.op, self.threshold)
-
-
-@dataclass(frozen=True)
-class Judgement:
-    """A claim's quantities on one summary: the text and the threshold comparisons.
-    ``tiered``: reproduced when ``parts[0]`` holds, partly when ``parts[1]`` does."""
-
-    ours: str
-    parts: tuple[Part, ...]
-    tiered: bool = False
-
-    @property
-    def verdict(self) -> str:
-        ok = [p.holds for p in self.parts]
-        if self.tiered:
-            return "reproduced" if ok[0] else ("partly" if ok[1] else "not")
-        return "reproduced" if all(ok) else ("partly" if any(ok) else "not")
-
-    @property
-    def deciding(self) -> tuple[int, ...]:
-        """Indices of the parts whose outcome fixes the verdict."""
-        if self.tiered and self.parts[0].holds:
-            return (0,)
-        return tuple(range(len(self.parts)))
-
-
-Get = Callable[[str, int, int, int], "dict | None"]
-
-
-def _judge_a(get: Get) -> Judgement | None:
-    pd0 = [m for m in (get("pd", 1, 0, p) for p in (1, 2, 3)) if m]
-    if not pd0:
-        return None
-    coh = min(min(m["coh_multiple_x_median"], m["coh_multiple_fh_median"]) for m in pd0)
-    rel = max(m["rel_error"] for m in pd0)
-    return Judgement(
-        f"median multiple coherence >= {coh:.3f}; phi_T = {100 * rel:.1f}% of mean ‖Z_h‖ (worst level)",
-        (Part("lowest median multiple coherence", coh, ">=", 0.95), Part("phi_T / mean ‖Z_h‖", rel, "<=", 0.10)),
-    )
-
-
-def _judge_b(get: Get) -> Judgement | None:
-    pdf = [(p, m) for fr in (1, 2) for p in (1, 2, 3) if (m := get("pd", 1, fr, p))]
-    base = {p: m for p in (1, 2, 3) if (m := get("pd", 1, 0, p))}
-    if not pdf or not base:
-        return None
-    coh_low = max(m["coh_multiple_x_min_low"] for _, m in pdf)
-    ratios = [m["phi_T"] / base[p]["phi_T"] for p, m in pdf if p in base]
-    phase = min(m["phase_error_deg"] for _, m in pdf)
-    parts = [Part("highest min coherence below 2 Hz", coh_low, "<=", 0.5)]
-    text = f"min coherence below 2 Hz <= {coh_low:.2f}; "
-    if ratios:
-        parts.append(Part("smallest phi_T / frictionless", min(ratios), ">=", 5.0))
-        text += f"phi_T {min(ratios):.1f}-{max(ratios):.1f}x frictionless; "
-    parts.append(Part("smallest phase error [deg]", phase, ">=", 20.0))
-    return Judgement(text + f"phase error >= {phase:.0f} deg", tuple(parts))
-
-
-def _judge_c(get: Get) -> Judgement | None:
-    ratios = {fr: b["phi_T"] / a["phi_T"] for fr in (1, 2) if (a := get("pd", 1, fr, 1)) and (b := get("pd", 1, fr, 3))}
-    if not ratios:
-        return None
-    return Judgement(
-        "phi_T(level 3) / phi_T(level 1): " + ", ".join(f"{r:.2f} at friction {fr}" for fr, r in ratios.items()),
-        tuple(Part(f"phi_T(3) / phi_T(1) at friction {fr}", r, ">=", 2 / 3) for fr, r in ratios.items()),
-    )
-
-
-def _imbic(get: Get) -> dict:
-    return {(loc, fr): m for loc in (1, 2, 3, 4) for fr in (0, 1, 2) if (m := get("imbic", loc, fr, 1))}
-
-
-def _judge_d(get: Get) -> Judgement | None:
-    im = _imbic(get)
-    if not im:
-        return None
-    worst_min = min(min(m["coh_multiple_x_min_low"], m["coh_multiple_x_min_high"]) for m in im.values())
-    worst_med = min(m["coh_multiple_x_median"] for m in im.values())
-    return Judgement(
-        f"min multiple coherence {worst_min:.3f}, lowest median {worst_med:.3f}",
-        (Part("lowest min multiple coherence", worst_min, ">", 0.9), Part("lowest median", worst_med, ">", 0.9)),
-        tiered=True,
-    )
-
-
-def _judge_e(get: Get) -> Judgement | None:
-    im = _imbic(get)
-    parts, text = [], []
-    ratios = [im[(loc, fr)]["phi_T"] / im[(loc, 0)]["phi_T"] for (loc, fr) in im if fr > 0 and (loc, 0) in im]
-    if ratios:
-        parts.append(Part("largest IMBIC phi_T / frictionless", max(ratios), "<=", 2.0))
-        text.append(f"IMBIC phi_T {min(ratios):.2f}-{max(ratios):.2f}x frictionless")
-    vs_pd = [im[(1, fr)]["phi_T"] / pd["phi_T"] for fr in (1, 2) if (1, fr) in im and (pd := get("pd", 1, fr, 1))]
-    if vs_pd:
-        parts.append(Part("largest IMBIC / PD phi_T", max(vs_pd), "<=", 0.2))
-        text.append(f"{100 * max(vs_pd):.1f}% of PD's at most")
-    return Judgement("; ".join(text), tuple(parts)) if parts else None
-
-
-def _judge_f(get: Get) -> Judgement | None:
-    im = _imbic(get)
-    spreads = []
-    for fr in (0, 1, 2):
-        vals = [im[(loc, fr)]["phi_T"] for loc in (1, 2, 3, 4) if (loc, fr) in im]
-        if len(vals) == 4:
-            spreads.append(max(vals) / min(vals))
-    if not spreads:
-        return None
-    worst = max(spreads)
-    return Judgement(
-        f"max/min phi_T over locations <= {worst:.2f}",
-        (
-            Part("max/min phi_T over locations", worst, "<=", 2.0),
-            Part("max/min phi_T over locations", worst, "<=", 4.0),
-        ),
-        tiered=True,
-    )
-
-
-JUDGES: dict[str, Callable[[Get], Judgement | None]] = dict(
-    a=_judge_a, b=_judge_b, c=_judge_c, d=_judge_d, e=_judge_e, f=_judge_f
-)
 
 
 @dataclass
@@ -393,47 +208,155 @@ class Claim:
     left_out: list = field(default_factory=list)
 
 
+# --- judging: on the means, on each seed, and the intervals between ------------------------
+
+
+def _instant(summary: Mapping) -> tuple[dict, list[Condition]]:
+    """The instant-acquisition conditions of ``summary`` with numbers, and (sorted) those
+    whose every trial diverged (``n == 0``)."""
+    instant = {c: m for c, m in summary.items() if c.acquisition == "instant"}
+    dead = sorted(c for c, m in instant.items() if m.get("n", 1) == 0)
+    return {c: m for c, m in instant.items() if m.get("n", 1) != 0}, dead
+
+
+def _judge_means(judge, means: Mapping) -> tuple[Judgement | None, set[Condition]]:
+    """``judge`` on the condition means, and the conditions it read."""
+    reads: set[Condition] = set()
+
+    def get(exp, loc, fr, pert):
+        cond = Condition(exp, exp, loc, fr, pert)
+        m = means.get(cond)
+        if m is not None:
+            reads.add(cond)
+        return m
+
+    return judge(get), reads
+
+
+def _judge_seeds(judge, judged: Judgement, reads: set, seeds: Mapping) -> tuple[list[str], list[list[float]]]:
+    """Each seed judged alone: its verdict and its parts' values, for the seeds that hold
+    every condition the means read and give the same comparisons."""
+    verdicts, values = [], []
+    for ms in seeds.values():
+        if not reads <= ms.keys():
+            continue  # a trial this claim needs diverged on this seed
+        one = judge(lambda exp, loc, fr, pert, ms=ms: ms.get(Condition(exp, exp, loc, fr, pert)))
+        if one is None or [p.label for p in one.parts] != [p.label for p in judged.parts]:
+            continue
+        verdicts.append(one.verdict)
+        values.append([p.value for p in one.parts])
+    return verdicts, values
+
+
 def _interval_says(lo: float, hi: float, op: str, threshold: float) -> str:
-    a, b = _compare(lo, op, threshold), _compare(hi, op, threshold)
+    a, b = compare(lo, op, threshold), compare(hi, op, threshold)
     return "holds" if a and b else ("fails" if not (a or b) and np.isfinite(lo) and np.isfinite(hi) else "straddles")
+
+
+def _part_records(judged: Judgement, values: list[list[float]]) -> list[dict]:
+    """Each comparison as a record: its value on the means, the seeds' values (finite ones),
+    their 95% t-interval (``None`` under two) and what that interval says."""
+    parts = []
+    for i, p in enumerate(judged.parts):
+        col = np.array([v[i] for v in values], dtype=float)
+        col = col[np.isfinite(col)]
+        st = mean_ci(col)
+        ci = None if st.half is None else [float(st.mean - st.half), float(st.mean + st.half)]
+        parts.append(
+            dict(
+                label=p.label,
+                op=p.op,
+                threshold=p.threshold,
+                value=float(p.value),
+                holds=p.holds,
+                seed_values=col.tolist(),
+                ci=ci,
+                ci_says=None if ci is None else _interval_says(*ci, p.op, p.threshold),
+            )
+        )
+    return parts
+
+
+# --- robustness: what the seeds and the intervals say ---------------------------------------
+
+
+def _agreement(verdict: str, seed_verdicts: list[str]) -> str:
+    """``"partly on 2/3 seeds (not on 1)"``: how many seeds alone give the verdict."""
+    n, agree = len(seed_verdicts), seed_verdicts.count(verdict)
+    others = {v: seed_verdicts.count(v) for v in ("reproduced", "partly", "not") if v != verdict and v in seed_verdicts}
+    return f"{verdict} on {agree}/{n} seeds" + (
+        " (" + ", ".join(f"{v} on {k}" for v, k in others.items()) + ")" if others else ""
+    )
+
+
+def _contradicting(judged: Judgement, parts: list[dict]) -> list[str]:
+    """The deciding comparisons whose interval does not lie on the side its mean gives."""
+    bad = []
+    for i in judged.deciding:
+        p = parts[i]
+        if p["ci_says"] != ("holds" if p["holds"] else "fails"):
+            says = f"{p['ci_says']} {p['op']} {p['threshold']:.3g}"
+            bad.append(f"95% CI of {p['label']} {interval(*p['ci'])} {says}")
+    return bad
+
+
+def _confirmed(judged: Judgement, parts: list[dict]) -> str:
+    """What the intervals confirm when they all agree with the means: that the deciding
+    rules hold, or fail, not merely that they are decisive."""
+    outcomes = [parts[i]["holds"] for i in judged.deciding]
+    if all(outcomes):
+        return "every deciding rule also holds on its 95% CI over the seeds"
+    if not any(outcomes):
+        return "every deciding rule also fails on its 95% CI over the seeds"
+    n_fail = outcomes.count(False)
+    n_hold = len(outcomes) - n_fail
+    fails, holds = ("fails" if n_fail == 1 else "fail"), ("holds" if n_hold == 1 else "hold")
+    return f"the 95% CIs over the seeds confirm every deciding rule's outcome: {n_fail} {fails}, {n_hold} {holds}"
 
 
 def _robustness(
     judged: Judgement, parts: list[dict], seed_verdicts: list[str], n_total: int
 ) -> tuple[str, bool | None]:
+    """The robustness text and flag: robust when every seed gives the verdict and every
+    deciding interval lies on its mean's side of the threshold; ``None`` under two seeds."""
     n = len(seed_verdicts)
     skipped = f"; {n_total - n} seed(s) left out (a trial the claim needs diverged)" if n < n_total else ""
     if n < 2:
         return f"{n} seed{'s' if n != 1 else ''}: no interval{skipped}", None
-    verdict = judged.verdict
-    agree = seed_verdicts.count(verdict)
-    others = {v: seed_verdicts.count(v) for v in ("reproduced", "partly", "not") if v != verdict and v in seed_verdicts}
-    text = f"{verdict} on {agree}/{n} seeds" + (
-        " (" + ", ".join(f"{v} on {k}" for v, k in others.items()) + ")" if others else ""
+    bad = _contradicting(judged, parts)
+    text = _agreement(judged.verdict, seed_verdicts) + "; " + ("; ".join(bad) if bad else _confirmed(judged, parts))
+    return text + skipped, seed_verdicts.count(judged.verdict) == n and not bad
+
+
+# --- assembly -------------------------------------------------------------------------------
+
+
+def _left_out_note(left_out: list[str]) -> str:
+    return f"; left out (every trial diverged): {', '.join(left_out)}" if left_out else ""
+
+
+def _unjudged(key: str, left_out: list[str]) -> Claim:
+    """A claim none of whose conditions has numbers."""
+    ours = "conditions missing" + _left_out_note(left_out)
+    return Claim(key, CLAIM_TEXT[key], CLAIM_RULES[key], ours, "n/a", robustness="n/a", left_out=left_out)
+
+
+def _judged(key: str, judged: Judgement, parts: list[dict], verdicts: list[str], robustness, left_out) -> Claim:
+    """A claim judged on the means, with its per-seed record and robustness."""
+    text, robust = robustness
+    return Claim(
+        key,
+        CLAIM_TEXT[key],
+        CLAIM_RULES[key],
+        judged.ours + _left_out_note(left_out),
+        judged.verdict,
+        robustness=text,
+        robust=robust,
+        seeds=len(verdicts),
+        seed_verdicts={v: verdicts.count(v) for v in dict.fromkeys(verdicts)},
+        parts=parts,
+        left_out=left_out,
     )
-    bad = []
-    for i in judged.deciding:
-        p = parts[i]
-        want = "holds" if p["holds"] else "fails"
-        if p["ci_says"] != want:
-            lo, hi = p["ci"]
-            bad.append(f"95% CI of {p['label']} [{lo:.3g}, {hi:.3g}] {p['ci_says']} {p['op']} {p['threshold']:.3g}")
-    # say what the intervals confirm: that a rule holds, or fails, not merely that they are decisive
-    outcomes = {parts[i]["holds"] for i in judged.deciding}
-    if bad:
-        text += "; " + "; ".join(bad)
-    elif outcomes == {True}:
-        text += "; every deciding rule also holds on its 95% CI over the seeds"
-    elif outcomes == {False}:
-        text += "; every deciding rule also fails on its 95% CI over the seeds"
-    else:
-        n_fail = sum(not parts[i]["holds"] for i in judged.deciding)
-        n_hold = len(judged.deciding) - n_fail
-        fails, holds = ("fails" if n_fail == 1 else "fail"), ("holds" if n_hold == 1 else "hold")
-        text += (
-            f"; the 95% CIs over the seeds confirm every deciding rule's outcome: {n_fail} {fails}, {n_hold} {holds}"
-        )
-    return text + skipped, agree == n and not bad
 
 
 def evaluate_claims(summary: Mapping, per_seed: Mapping | None = None) -> list[Claim]:
@@ -441,93 +364,30 @@ def evaluate_claims(summary: Mapping, per_seed: Mapping | None = None) -> list[C
 
     Args:
         summary: ``Condition`` -> mean metrics (``condition_summary``; the keys of
-            ``trial_metrics``). Conditions with ``n == 0`` (every trial diverged) are left
+            ``study.metrics.trial_metrics``). Conditions with ``n == 0`` (every trial diverged) are left
             out, and the claims that read them say so.
         per_seed: ``seed -> {Condition: metrics}`` (``seed_summaries``): each seed is judged
             alone, and each comparison gets a t-interval over the seeds. ``None``: no
-            per-seed judgement (robustness ``"no interval"``).
+            per-seed judgement (robustness ``"no per-seed data: no interval"``).
 
     Only instant-acquisition conditions are read. A claim whose conditions are missing
     gets verdict ``"n/a"``.
     """
-    instant = {c: m for c, m in summary.items() if c.acquisition == "instant"}
-    dead = sorted(c for c, m in instant.items() if m.get("n", 1) == 0)
-    s = {c: m for c, m in instant.items() if m.get("n", 1) != 0}
+    means, dead = _instant(summary)
     seeds = {sd: {c: m for c, m in ms.items() if c.acquisition == "instant"} for sd, ms in (per_seed or {}).items()}
     claims = []
     for key, judge in JUDGES.items():
-        reads: set[Condition] = set()
-
-        def get(exp, loc, fr, pert, reads=reads):
-            m = s.get(Condition(exp, exp, loc, fr, pert))
-            if m is not None:
-                reads.add(Condition(exp, exp, loc, fr, pert))
-            return m
-
-        judged = judge(get)
         left_out = [c.label for c in dead if CLAIM_READS[key](c)]
-        note = f"; left out (every trial diverged): {', '.join(left_out)}" if left_out else ""
+        judged, reads = _judge_means(judge, means)
         if judged is None:
-            claims.append(
-                Claim(
-                    key,
-                    CLAIM_TEXT[key],
-                    CLAIM_RULES[key],
-                    "conditions missing" + note,
-                    "n/a",
-                    robustness="n/a",
-                    left_out=left_out,
-                )
-            )
+            claims.append(_unjudged(key, left_out))
             continue
-        verdicts, values = [], []
-        for ms in seeds.values():
-            if not reads <= ms.keys():
-                continue  # a trial this claim needs diverged on this seed
-            one = judge(lambda exp, loc, fr, pert, ms=ms: ms.get(Condition(exp, exp, loc, fr, pert)))
-            if one is None or [p.label for p in one.parts] != [p.label for p in judged.parts]:
-                continue
-            verdicts.append(one.verdict)
-            values.append([p.value for p in one.parts])
-        parts = []
-        for i, p in enumerate(judged.parts):
-            col = np.array([v[i] for v in values], dtype=float)
-            col = col[np.isfinite(col)]
-            st = mean_ci(col)
-            ci = None if st.half is None else [float(st.mean - st.half), float(st.mean + st.half)]
-            parts.append(
-                dict(
-                    label=p.label,
-                    op=p.op,
-                    threshold=p.threshold,
-                    value=float(p.value),
-                    holds=p.holds,
-                    seed_values=col.tolist(),
-                    ci=ci,
-                    ci_says=None if ci is None else _interval_says(*ci, p.op, p.threshold),
-                )
-            )
-        robustness, robust = (
+        verdicts, values = _judge_seeds(judge, judged, reads, seeds)
+        parts = _part_records(judged, values)
+        robustness = (
             _robustness(judged, parts, verdicts, len(seeds))
             if per_seed is not None
-            else (
-                "no per-seed data: no interval",
-                None,
-            )
+            else ("no per-seed data: no interval", None)
         )
-        claims.append(
-            Claim(
-                key,
-                CLAIM_TEXT[key],
-                CLAIM_RULES[key],
-                judged.ours + note,
-                judged.verdict,
-                robustness=robustness,
-                robust=robust,
-                seeds=len(verdicts),
-                seed_verdicts={v: verdicts.count(v) for v in dict.fromkeys(verdicts)},
-                parts=parts,
-                left_out=left_out,
-            )
-        )
+        claims.append(_judged(key, judged, parts, verdicts, robustness, left_out))
     return claims

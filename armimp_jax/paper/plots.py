@@ -28,6 +28,7 @@ from matplotlib.patches import Patch  # noqa: E402
 from ..presets._paper import arm  # noqa: E402
 from ..study.figures import save_figure  # noqa: E402
 from ..study.stats import mean_ci  # noqa: E402
+from ._text import short  # noqa: E402
 
 FRICTION_COLORS = {0: "tab:blue", 1: "tab:orange", 2: "tab:red"}
 ELEMENTS = ((0, 0), (0, 1), (1, 0), (1, 1))
@@ -259,9 +260,8 @@ def coherence_figure(results, arrays, path: pathlib.Path, *, experiment: str, lo
     _legend_outside(axes[0, -1], *axes[0, 0].get_legend_handles_labels())
     where = f"location {location}, perturbation {perturbation}"
     if chosen and np.isfinite(w_value):
-        where += (
-            f"\nthe run's lowest minimum multiple coherence (friction {w_fr}: {w_value:.2f}, mean of the seeds' minima)"
-        )
+        lowest = short(w_value, ".2f")  # a coherence of 0.996 is not "1.00"
+        where += f"\nthe run's lowest minimum multiple coherence (friction {w_fr}: {lowest}, mean of the seeds' minima)"
     fig.suptitle(f"{NAMES[experiment]}: coherence of the position estimate at {where}\n({_spread_note(ns)})")
     return _save(fig, path)
 
@@ -346,7 +346,7 @@ def phi_bars(results, path: pathlib.Path, *, experiment: str):
         locs = sorted({k[1] for k in table if k[0] == experiment})
         groups = [(f"location {loc}", (experiment, loc, 1)) for loc in locs]
         if any(k[0] == "pd" and k[1] == 1 and k[3] == 1 for k in table):
-            groups = [("PD\n(reference)", ("pd", 1, 1))] + groups
+            groups = [("PD at\nlocation 1\n(reference)", ("pd", 1, 1))] + groups
     cells = [(e, loc, fr, p) for _, (e, loc, p) in groups for fr in frictions]
     if not any(table.get(k, {}).get("phi_T") is not None for k in cells if k[0] == experiment):
         return None  # no condition of the experiment has numbers (all diverged or absent)

@@ -1,25 +1,23 @@
-"""Run the paper reproduction: batched trials, checked per-trial records, resume, aggregation.
+"""Run the paper reproduction: a specification of the study engine, and its aggregation.
 
-A run folder holds one run (``study.runfolder``, ``docs/results.md``):
+A run folder holds one run (``study.engine``, ``study.runfolder``, ``docs/results.md``):
 
 - ``run.json``: the run's settings (``ReproSettings``, the condition set included, and the
-  package version), their key, the library versions and the accumulated wall time.
+  package version), their key, the library versions and the accumulated wall time
+  (``wall_s``: simulation, aggregation and figures of every session; ``record_wall_time``).
 - ``trials/<id>.npz``: one checked record per finished trial (``armimp_jax.study.results``): the
-  estimate's arrays, the trial's metrics, and the settings that fix its numbers
-  (``trial_settings``: record length, substeps, Welch, base seed, condition, seed, and
-  ``mhat`` for IMBIC) with their key.
+  estimate's arrays, the trial's metrics (``study.metrics.trial_metrics``), and the settings
+  that fix its numbers (``trial_settings``: record length, substeps, Welch, base seed,
+  condition, seed, and ``mhat`` for IMBIC) with their key.
 - ``results.json`` / ``results.npz``: the aggregate, from which the report and figures are
   drawn (``load_results`` checks that the two belong together).
 - ``conditions.csv``, ``claims.csv``, ``fits.csv`` (and ``.parquet``): the aggregate's tidy
-  tables, also as pandas DataFrames from ``load_tables`` (``conditions_frame``,
-  ``claims_frame``, ``fits_frame``).
+  tables (``paper.tables``), also as pandas DataFrames from ``load_tables``.
 
-``run_reproduction`` refuses a folder that holds a run with other settings, takes the
-folder's lock (``RunLock``) for as long as it runs, and simulates every trial whose record
-is missing or fails its check (truncated, altered, or made with other settings: named in
-a warning and recomputed), in vmapped, sharded batches grouped by the static settings
-(controller, acquisition). It writes each trial as soon as its batch finishes, atomically,
-so an interrupted run keeps every finished batch and a later call computes only the rest.
+``run_reproduction`` runs every trial whose record is missing or fails its check on the
+study engine (``study.engine.open_study`` and ``run_trials``: the folder's lock, a run with
+other settings refused, batches grouped by controller and acquisition, every record
+written as soon as its batch finishes, so an interrupted run keeps every finished batch).
 
 Seeds (``study.seeds``): trial seed ``s`` draws its perturbation from
 ``fold_in(PRNGKey(base_seed), s)`` (attempt ``a > 0``, if input coherence is capped, from
@@ -30,9 +28,9 @@ Diverged trials are saved and counted, and left out of every mean and claim.
 Fits: ``aggregate`` adds each trial's fitted ``M, B, K`` (``claims.fit_metrics``, from its
 stored ``f`` and ``Z``) to its metrics, so the records stay as written.
 
-Many processes (``armimp_jax.study.distributed``, ``docs/cluster.md``): ``open_run`` lets process 0
-hold the lock and read the folder and sends its list of trials to run to every process;
-every process computes its shards of every batch, and only process 0 writes.
+Many processes (``armimp_jax.study.distributed``, ``docs/cluster.md``): process 0 holds the
+lock and reads the folder and sends its list of trials to run to every process; every
+process computes its shards of every batch, and only process 0 writes.
 """
 
 from __future__ import annotations
@@ -40,22 +38,23 @@ from __future__ import annotations
 import dataclasses
 import pathlib
 import platform
-import time
 from collections.abc import Callable
 
 import jax
 import numpy as np
 import pandas as pd
 
-from .._batch import assess_batch, make_mesh, simulate_batch
+from .._batch import assess_batch, simulate_batch
 from .._estimation.welch import Welch, input_coherence
 from .._simulate import stack_trials
 from .._solver.numerics import PAPER_NUMERICS, Numerics
-from ..presets import perturbation_peak, trial
-from ..study import distributed
+from ..presets import arm, perturbation_peak, trial
+from ..study import engine
+from ..study.metrics import ESTIMATE_FIELDS, estimate_arrays, trial_metrics
 from ..study.results import (
     ResultsError,
     atomic_write_json,
+    describe_difference,
     load_record,
     package_version,
     read_json,
@@ -64,11 +63,9 @@ from ..study.results import (
     stamped,
     to_jsonable,
 )
-from ..study.runfolder import RunFolder, warn_stderr
-from ..study.runfolder import open_run as _open_run
-from ..study.runfolder import trial_status as _record_status
+from ..study.runfolder import warn_stderr
 from ..study.seeds import seed_perturbation
-from ..study.tables import INTEGER, STRING, table, write_table
+from ..study.tables import write_table
 from .claims import (
     Condition,
     condition_summary,
@@ -77,14 +74,11 @@ from .claims import (
     paper_conditions,
     seed_summaries,
     trial_id,
-    trial_metrics,
     true_matrices,
 )
+from .tables import result_tables
 
-ESTIMATE_FIELDS = ("f", "Z", "coh_multiple_x", "coh_partial_x", "coh_multiple_fh", "coh_partial_fh", "coh_inputs")
 DEFAULT_SEEDS = 3  # seeds per condition: the README's main command within ~3 minutes on 2 cores
-RUN_KIND = "reproduction"
-RUN_FORMAT = 2  # run.json layout (1: settings without a key, trials as .json/.npz pairs)
 LEVELS = dict(location=(1, 2, 3, 4), friction=(0, 1, 2), perturbation=(1, 2, 3))
 
 
@@ -97,8 +91,13 @@ class ReproSettings:
     interval-mean ``ablation``, ``max_input_coherence`` (redraw a seed's perturbation until
     below it; ``None``: never), IMBIC's ``mhat`` [kg] (times the identity), and the
     experiments' ``locations``, ``frictions`` and ``perturbations`` levels (stored sorted,
-    without repeats).
+    without repeats). A specification of the study engine (``study.engine.Spec``): a trial
+    is ``(Condition, seed)``.
     """
+
+    KIND = "reproduction"
+    FORMAT = 2  # run.json layout (1: settings without a key, trials as .json/.npz pairs)
+    NOUN = "run"
 
     seconds: float = 50.0
     substeps: int = 100
@@ -193,6 +192,29 @@ class ReproSettings:
             out["mhat"] = self.mhat
         return stamped(out)
 
+    # --- the engine's specification ---
+
+    describe = staticmethod(describe_difference)
+
+    def run_extra(self) -> dict:
+        """What ``run.json`` adds: the library versions and the wall time so far [s]."""
+        return dict(versions=versions(), wall_s=0.0)
+
+    def trials(self) -> list[tuple[Condition, int]]:
+        return [(c, s) for c in self.conditions for s in range(self.seeds)]
+
+    def trial_record(self, t: tuple[Condition, int]) -> tuple[str, dict]:
+        return trial_id(*t), self.trial_settings(*t)
+
+    def group(self, t: tuple[Condition, int]) -> tuple:
+        return t[0].controller, t[0].acquisition
+
+    def samples(self, t: tuple[Condition, int]) -> int:
+        return self.n_samples
+
+    def batch_runner(self) -> Callable:
+        return _BatchRunner(self)
+
 
 QUICK = ReproSettings(seconds=6.0, substeps=10, nperseg=1024, noverlap=768)
 
@@ -233,77 +255,54 @@ def versions() -> dict:
     )
 
 
-def trial_path(out, cond: Condition, seed: int):
-    return out / "trials" / f"{trial_id(cond, seed)}.npz"
+def trial_path(out, cond: Condition, seed: int) -> pathlib.Path:
+    """Where the record of trial ``(cond, seed)`` lives in run folder ``out``."""
+    return engine.record_path(out, trial_id(cond, seed))
 
 
-def run_folder(out) -> RunFolder:
-    """The run folder ``out`` of a reproduction (``study.runfolder``)."""
-    return RunFolder(out, kind=RUN_KIND, format=RUN_FORMAT, noun="run")
+class _BatchRunner:
+    """Runs batches of ``(Condition, seed)`` for the engine; draws each seed's perturbations
+    once per run."""
 
+    def __init__(self, settings: ReproSettings):
+        self.settings = settings
+        self.levels = sorted({c.perturbation for c in settings.conditions})  # IMBIC runs at level 1 whatever PD's
+        self.cache: dict[int, tuple] = {}
 
-def read_run(out) -> dict:
-    """``run.json`` of the run in ``out``, checked (``ResultsError`` naming what is wrong)."""
-    return run_folder(out).read()
+    def signals(self, seed: int) -> tuple:
+        if seed not in self.cache:
+            self.cache[seed] = draw_perturbations(self.settings, seed, self.levels)
+        return self.cache[seed]
 
-
-def saved_settings(out) -> ReproSettings:
-    """The ``ReproSettings`` of the run in ``out`` (for resuming it)."""
-    return ReproSettings.from_saved(read_run(out)["settings"], where=str(out / "run.json"))
-
-
-def check_resume(out, saved: ReproSettings, wanted: ReproSettings) -> None:
-    """Refuse (one line) options given with ``--resume out`` that change the run there."""
-    run_folder(out).check_resume(saved.run_settings(), wanted.run_settings())
-
-
-def prepare_output(out, settings: ReproSettings, *, resume: bool) -> None:
-    """Make ``out`` ready for a run with ``settings``: create it, check it is writable, and
-    write ``run.json`` (with the library versions and ``wall_s``) unless it is there.
-
-    A folder that holds a run with other settings is refused with one line naming the
-    differences (its trials would not match); so is ``resume`` on a folder with no run.
-    """
-    run_folder(out).prepare(settings.run_settings(), resume=resume, extra=dict(versions=versions(), wall_s=0.0))
-
-
-def add_wall_time(out, seconds: float) -> None:
-    """Add ``seconds`` of computing to the run's ``wall_s`` in ``run.json``."""
-    folder = run_folder(out)
-    folder.update(wall_s=(folder.read().get("wall_s") or 0.0) + seconds)
-
-
-def _trials(settings: ReproSettings, out) -> list:
-    """``((Condition, seed), record path, trial settings)`` of every trial, in run order."""
-    return [
-        ((c, s), trial_path(out, c, s), settings.trial_settings(c, s))
-        for c in settings.conditions
-        for s in range(settings.seeds)
-    ]
-
-
-def trial_status(settings: ReproSettings, out, *, warn: Callable[[str], None] = warn_stderr) -> tuple[list, list]:
-    """``(done, todo)`` lists of ``(Condition, seed)``: a trial is done when its record
-    passes its check under ``settings``; any other existing record is named in a warning."""
-    records, todo = _record_status(_trials(settings, out), warn=warn)
-    return list(records), todo
-
-
-def open_run(settings: ReproSettings, out, *, resume: bool = False, warn: Callable[[str], None] = warn_stderr):
-    """Context manager that starts (or resumes) the run of ``settings`` in ``out`` and yields
-    ``(done, todo)`` lists of ``(Condition, seed)`` (``study.runfolder.open_run``).
-
-    The writing process (``distributed.is_writer()``: process 0, or the only one) holds
-    ``out``'s ``RunLock`` until the block ends and calls ``prepare_output`` (a folder holding
-    another run is refused; so is ``resume`` on a folder with no run). In a
-    ``jax.distributed`` job every process gets process 0's lists, so all run the same
-    batches in the same order, and a refusal is raised in every process.
-    """
-    settings.validate()
-    extra = dict(versions=versions(), wall_s=0.0)
-    return _open_run(
-        run_folder(out), settings.run_settings(), _trials(settings, out), resume=resume, extra=extra, warn=warn
-    )
+    def __call__(self, batch, *, mesh, chunk_samples: int, progress=None) -> list[tuple[dict, dict]]:
+        st = self.settings
+        mhat = st.mhat * np.eye(2)
+        params = stack_trials(
+            [trial(c.controller, c.friction, c.location, mhat=mhat, acquisition=c.acquisition) for c, _ in batch]
+        )
+        f_delta = np.stack([self.signals(s)[0][c.perturbation] for c, s in batch])
+        sim = simulate_batch(
+            params, f_delta, numerics=st.numerics, mesh=mesh, chunk_samples=chunk_samples, progress=progress
+        )
+        outcome = assess_batch(params, f_delta, sim, st.welch, mesh=mesh)
+        out = []
+        for i, (c, s) in enumerate(batch):
+            est = estimate_arrays(outcome.estimate, i)
+            _, coh, attempt = self.signals(s)
+            meta = dict(
+                id=trial_id(c, s),
+                condition=dataclasses.asdict(c),
+                seed=s,
+                perturbation_attempt=attempt,
+                input_coherence_max=coh,
+                diverged=bool(sim.diverged[i]),
+                diverged_at=int(sim.diverged_at[i]),
+                batch_wall_s=None,  # the engine's (placed here: the records' field order)
+                batch_size=None,
+                metrics=trial_metrics(est["f"], est["Z"], est, arm(c.location)),
+            )
+            out.append((est, meta))
+        return out
 
 
 def run_reproduction(
@@ -319,98 +318,27 @@ def run_reproduction(
     """Simulate, estimate and score every trial of ``settings`` that has no valid record in
     ``out``; returns the ids computed now.
 
-    Runs inside ``open_run`` (the writer holds ``out``'s ``RunLock`` throughout; a folder
-    holding another run is refused). ``progress`` receives a dict (``done``/``total``
-    substep counts, ``trials_done``, ``trials_total``, ``elapsed_s``, ``eta_s``) after
-    every chunk. ``stop_after_batches`` stops early (used to test resuming). ``warn``
-    receives one line per trial record that failed its check.
+    Runs on the study engine (``study.engine.open_study``: the writer holds ``out``'s
+    ``RunLock`` throughout, a folder holding another run is refused; ``run_trials``).
+    ``progress`` receives the engine's dict (``done``/``total`` trial samples,
+    ``trials_done``, ``trials_total``, ``elapsed_s``, ``eta_s``) after every chunk.
+    ``stop_after_batches`` stops early (used to test resuming). ``warn`` receives one line
+    per trial record that failed its check.
 
     In a ``jax.distributed`` job (``armimp_jax.study.distributed``) call it in every process with
     the same arguments: each process computes its shards of every batch, and only process
     0 writes the trial records.
     """
-    with open_run(settings, out, warn=warn) as (_, todo):
-        return _compute(settings, out, todo, batch_size, chunk_seconds, progress, stop_after_batches)
-
-
-def _compute(settings, out, todo, batch_size, chunk_seconds, progress, stop_after_batches) -> list[str]:
-    levels = sorted({c.perturbation for c in settings.conditions})  # IMBIC runs at level 1 whatever PD's
-    mesh = make_mesh()
-    per_trial = settings.n_samples * settings.substeps
-    total, done_substeps, computed = len(todo) * per_trial, 0, []
-    start = time.perf_counter()
-    cache: dict[int, tuple] = {}
-    write = distributed.is_writer()  # every process gets every result (to_host); one writes
-
-    def signals(seed):
-        if seed not in cache:
-            cache[seed] = draw_perturbations(settings, seed, levels)
-        return cache[seed]
-
-    groups: dict[tuple, list] = {}
-    for c, s in todo:
-        groups.setdefault((c.controller, c.acquisition), []).append((c, s))
-    batches = [g[i : i + batch_size] for g in groups.values() for i in range(0, len(g), batch_size)]
-    for b_index, batch in enumerate(batches):
-        if stop_after_batches is not None and b_index >= stop_after_batches:
-            break
-        t_batch = time.perf_counter()
-        params = stack_trials(
-            [
-                trial(c.controller, c.friction, c.location, mhat=settings.mhat * np.eye(2), acquisition=c.acquisition)
-                for c, _ in batch
-            ]
+    with engine.open_study(settings, out, warn=warn) as (_, todo):
+        return engine.run_trials(
+            settings,
+            out,
+            todo,
+            batch_size=batch_size,
+            chunk_seconds=chunk_seconds,
+            progress=progress,
+            stop_after_batches=stop_after_batches,
         )
-        f_delta = np.stack([signals(s)[0][c.perturbation] for c, s in batch])
-        base_done = done_substeps
-
-        def on_chunk(trial_samples, _total, _elapsed, base_done=base_done):
-            now = base_done + trial_samples * settings.substeps
-            elapsed = time.perf_counter() - start
-            rate = now / elapsed if elapsed > 0 else 0.0
-            if progress is not None:
-                progress(
-                    dict(
-                        done=now,
-                        total=total,
-                        trials_done=len(computed),
-                        trials_total=len(todo),
-                        elapsed_s=elapsed,
-                        eta_s=(total - now) / rate if rate > 0 else float("nan"),
-                    )
-                )
-
-        sim = simulate_batch(
-            params,
-            f_delta,
-            numerics=settings.numerics,
-            mesh=mesh,
-            chunk_samples=int(chunk_seconds * 1000),
-            progress=on_chunk,
-        )
-        outcome = assess_batch(params, f_delta, sim, settings.welch, mesh=mesh)
-        done_substeps += len(batch) * per_trial
-        wall = time.perf_counter() - t_batch
-        for i, (c, s) in enumerate(batch):
-            est = {name: np.asarray(getattr(outcome.estimate, name)[i]) for name in ESTIMATE_FIELDS}
-            _, coh, attempt = signals(s)
-            tid = trial_id(c, s)
-            meta = dict(
-                id=tid,
-                condition=dataclasses.asdict(c),
-                seed=s,
-                perturbation_attempt=attempt,
-                input_coherence_max=coh,
-                diverged=bool(sim.diverged[i]),
-                diverged_at=int(sim.diverged_at[i]),
-                batch_wall_s=wall,
-                batch_size=len(batch),
-                metrics=trial_metrics(est["f"], est["Z"], est, c.location),
-            )
-            if write:
-                save_record(trial_path(out, c, s), settings=settings.trial_settings(c, s), arrays=est, meta=meta)
-            computed.append(tid)
-    return computed
 
 
 def load_trials(
@@ -418,7 +346,7 @@ def load_trials(
 ) -> tuple[list[dict], dict, list[str]]:
     """The run's trials that pass their check: metadata list, ``{id: arrays}``, and the ids
     of the trials that are missing or failed (the latter named in a warning)."""
-    records, missing = _record_status(_trials(settings, out), warn=warn, note="left out")
+    records, missing = engine.trial_status(settings, out, warn=warn, note="left out")
     metas = [rec.meta for rec in records.values()]
     arrays = {rec.meta["id"]: rec.arrays for rec in records.values()}
     return metas, arrays, [trial_id(c, s) for c, s in missing]
@@ -447,16 +375,17 @@ def aggregate(out, *, warn: Callable[[str], None] = warn_stderr) -> tuple[dict, 
     ``complete`` is true when every trial of the run's condition set and seeds is there;
     ``diverged`` lists the trials left out of the means and claims.
     """
-    with run_folder(out).lock():
-        run = read_run(out)
-        settings = ReproSettings.from_saved(run["settings"], where=str(out / "run.json"))
+    folder = engine.run_folder(ReproSettings, out)
+    with folder.lock():
+        run = folder.read()
+        settings = ReproSettings.from_saved(run["settings"], where=str(folder.run_file))
         metas, arrays, missing = load_trials(out, settings, warn=warn)
         add_fits(metas, arrays)
         summary = condition_summary(metas)
         claims = [dataclasses.asdict(c) for c in evaluate_claims(summary, seed_summaries(metas))]
         results = to_jsonable(  # as load_results reads it back: NaN -> None
             dict(
-                format=RUN_FORMAT,
+                format=ReproSettings.FORMAT,
                 complete=not missing,
                 settings=run["settings"],
                 key=run["key"],
@@ -490,7 +419,7 @@ def load_results(out) -> tuple[dict, dict]:
     if not out.is_dir():
         raise ResultsError(f"{out}: no such folder")
     results = read_json(out / "results.json")
-    if not isinstance(results, dict) or results.get("format") != RUN_FORMAT:
+    if not isinstance(results, dict) or results.get("format") != ReproSettings.FORMAT:
         raise ResultsError(f"{out / 'results.json'}: written by an older armimp_jax: rerun the reproduction")
     if settings_key(results["settings"]) != results["key"]:
         raise ResultsError(f"{out / 'results.json'}: its settings were edited (key mismatch)")
@@ -502,99 +431,19 @@ def load_results(out) -> tuple[dict, dict]:
     return results, arrays
 
 
-# --- tables -------------------------------------------------------------------------------
-
-CONDITION_DTYPES = (
-    dict(label=STRING, experiment=STRING, controller=STRING)
-    | dict.fromkeys(("location", "friction", "perturbation", "n", "trials", "diverged"), INTEGER)
-    | dict(acquisition=STRING)
-)
-FIT_DTYPES = CONDITION_DTYPES | dict(matrix=STRING, element=STRING, unit=STRING)
-CLAIM_DTYPES = dict(key=STRING, verdict=STRING, robust="boolean", seeds=INTEGER)
-CLAIM_DTYPES |= dict.fromkeys(("robustness", "ours", "claim", "rule", "left_out"), STRING)
-_ELEMENTS = ("11", "12", "21", "22")  # (2, 2) matrices as rows or columns, [output, input], row-major
-_FIT_UNITS = dict(M="kg", B="N s/m", K="N/m")
-
-
-def _stats(prefix: str, mean, sd, half) -> dict:
-    """``<prefix>_mean``, ``_sd``, ``_ci_lo``, ``_ci_hi`` of one number (``None``: undefined)."""
-    nan = float("nan")
-    mean, sd = (nan if v is None else v for v in (mean, sd))
-    lo, hi = (nan, nan) if half is None else (mean - half, mean + half)
-    return {f"{prefix}_mean": mean, f"{prefix}_sd": sd, f"{prefix}_ci_lo": lo, f"{prefix}_ci_hi": hi}
-
-
-def _cells(value) -> list:
-    """A (2, 2) list of a condition's means (``None`` where undefined) as four numbers."""
-    return [None] * 4 if value is None else np.asarray(value, dtype=float).reshape(-1).tolist()
-
-
-def _condition(entry: dict) -> dict:
-    c = entry["condition"]
-    return dict(label=Condition(**c).label, **c, n=entry["n"], trials=entry["trials"], diverged=entry["diverged"])
-
-
-def conditions_frame(results: dict) -> pd.DataFrame:
-    """One row per condition of ``results`` (``aggregate``'s): its fields and label, ``n``
-    (trials that did not diverge), ``trials``, ``diverged``, and for every scalar metric
-    (``phi_ij`` as ``phi_11`` .. ``phi_22``) ``<m>_mean``, ``<m>_sd`` and the 95% t-interval
-    ``<m>_ci_lo``, ``<m>_ci_hi`` over the seeds (NaN where undefined). The fitted matrices
-    are in ``fits_frame``."""
-    rows = []
-    for entry in results["conditions"]:
-        row = _condition(entry)
-        for m in (k for k in entry if k + "_sd" in entry and k + "_ci" in entry):
-            if m == "phi_ij":
-                cells = zip(_ELEMENTS, *(_cells(entry[m + s]) for s in ("", "_sd", "_ci")), strict=True)
-                for e, mean, sd, half in cells:
-                    row |= _stats(f"phi_{e}", mean, sd, half)
-            elif not isinstance(entry[m], list):
-                row |= _stats(m, entry[m], entry[m + "_sd"], entry[m + "_ci"])
-        rows.append(row)
-    return table(rows, CONDITION_DTYPES)
-
-
-def fits_frame(results: dict) -> pd.DataFrame:
-    """The fitted ``M``, ``B``, ``K`` of ``results`` (``aggregate``'s) in long form: one row
-    per condition, matrix and element (``11``: [output x, input x]), with the arm's true
-    value, the mean fit over the seeds with its standard deviation and 95% t-interval, the
-    matrix's mean relative error ``||fit - true||_F / ||true||_F`` and the fit's mean overall
-    VAF [%]. Results written before the fit existed give no rows."""
-    rows = []
-    for entry in results["conditions"]:
-        if "truth" not in entry or "fit_M" not in entry:
-            continue
-        for sym, unit in _FIT_UNITS.items():
-            key = f"fit_{sym}"
-            cells = zip(_ELEMENTS, _cells(entry["truth"][sym]), *(_cells(entry[key + s]) for s in ("", "_sd", "_ci")))
-            for e, true, mean, sd, half in cells:
-                row = _condition(entry) | dict(matrix=sym, element=e, unit=unit, true=true)
-                row |= {k.replace("fit_", "", 1): v for k, v in _stats("fit", mean, sd, half).items()}
-                row |= dict(rel_error=entry[key + "_rel_error"], vaf=entry.get("fit_vaf"))
-                rows.append(row)
-    return table(rows, FIT_DTYPES, columns=None if rows else list(FIT_DTYPES))
-
-
-def claims_frame(results: dict) -> pd.DataFrame:
-    """The claims (a)-(f) of ``results`` (``aggregate``'s), one row each: ``verdict`` (from the
-    condition means), ``robust`` (``<NA>`` under two seeds), ``seeds`` judged alone, the
-    ``robustness`` and ``ours`` texts, the paper's ``claim``, the ``rule``, and the conditions
-    ``left_out`` (every trial diverged; joined by "; "; ``<NA>``: none)."""
-    rows = [
-        {k: c[k] for k in ("key", "verdict", "robust", "seeds", "robustness", "ours", "claim", "rule")}
-        | dict(left_out="; ".join(c["left_out"]) or None)
-        for c in results["claims"]
-    ]
-    return table(rows, CLAIM_DTYPES, columns=list(CLAIM_DTYPES))
-
-
-def result_tables(results: dict) -> dict[str, pd.DataFrame]:
-    """``{"conditions": conditions_frame, "claims": claims_frame, "fits": fits_frame}`` of
-    ``results``: the reproduction's tidy tables."""
-    return dict(conditions=conditions_frame(results), claims=claims_frame(results), fits=fits_frame(results))
+def record_wall_time(out, results: dict, seconds: float) -> dict:
+    """Add ``seconds`` (a session's whole work: simulation, aggregation, figures) to the run's
+    ``wall_s`` in ``run.json`` and put the total into ``results`` and ``results.json`` (what
+    the report prints); returns ``results``."""
+    out = pathlib.Path(out)
+    folder = engine.run_folder(ReproSettings, out)
+    with folder.lock():
+        results["wall_s"] = engine.add_wall_time(ReproSettings, out, seconds)
+        atomic_write_json(out / "results.json", results)
+    return results
 
 
 def load_tables(out) -> dict[str, pd.DataFrame]:
-    """The tidy tables (``result_tables``) of the aggregated run in folder ``out``, from its
-    checked ``results.json`` and ``results.npz`` (``load_results``)."""
+    """The tidy tables (``paper.tables.result_tables``) of the aggregated run in folder ``out``,
+    from its checked ``results.json`` and ``results.npz`` (``load_results``)."""
     return result_tables(load_results(pathlib.Path(out))[0])

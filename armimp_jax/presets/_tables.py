@@ -91,4 +91,3 @@ PERTURBATION_PEAKS: dict[int, np.ndarray] = {  # per-axis peak |F_Delta| [N] (Ta
     2: np.array([3.75, 3.75]),
     3: np.array([4.50, 4.50]),
 }
-INPUT_COHERENCE_LIMIT = 0.4  # the paper's bound on the coherence between the two inputs

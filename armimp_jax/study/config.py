@@ -5,8 +5,10 @@ design): sections of typed keys, read and checked into plain values, then the ``
   Every unknown section or key, missing section or key, wrong type or shape and unknown
   name is a ``ConfigError`` (a ``ValueError``) with one line naming the file, the section,
   the key and what is allowed.
-- ``build_trial(config, where=...)``: the ``Trial`` of the sections in ``TRIAL_SECTIONS``
-  (the constructors' own range checks come back as ``ConfigError`` naming the section).
+- ``trial_parts(config, where=...)``: the parameter values of the sections in
+  ``TRIAL_SECTIONS``, built by their constructors, the only validators (their range
+  checks come back as ``ConfigError`` naming the section); ``build_trial`` the ``Trial``.
+  A sweep's point (``study.points.point_config``) is read into the same sections.
 
 A section's spec maps each key to ``(kind, unit or allowed values or minimum, default)``;
 a default of ``None`` is the library's own (the constructor's default), ``REQUIRED`` means
@@ -194,15 +196,18 @@ def _given(table: dict, keys) -> dict:
     return {k: table[k] for k in keys if table.get(k) is not None}
 
 
-def build_trial(config: dict, *, where: str = "config", arm=None):
-    """The ``Trial`` of ``config``'s trial sections (``make_trial``); ``arm`` (an ``Arm``) in
-    place of the ``[arm]`` section when given. Needs float64."""
+def trial_parts(config: dict, *, where: str | None = "config", arm=None) -> dict:
+    """The parameter values of ``config``'s trial sections, built by their constructors (the
+    only validators): ``controller``, ``robot``, ``sensors``, ``voluntary``, ``arm``,
+    ``friction`` (``make_trial``'s keywords). ``arm`` (an ``Arm``) stands in for the ``[arm]``
+    section when given. A constructor's one-line error comes back as ``ConfigError``,
+    prefixed with ``where`` and the section (``where=None``: the constructor's line alone)."""
 
     def make(section, build):
         try:
             return build(config.get(section, {}))
         except ValueError as err:
-            raise ConfigError(f"{where}: [{section}] {err}") from None
+            raise ConfigError(str(err) if where is None else f"{where}: [{section}] {err}") from None
 
     def robot(t):
         overrides = _given(t, ("shoulder_link", "elbow_link", "inertia", "base"))
@@ -215,7 +220,7 @@ def build_trial(config: dict, *, where: str = "config", arm=None):
     def sensors(t):
         return Sensors(t["force_noise"], t["encoder_counts"], t["velocity_noise"]) if t else Sensors()
 
-    parts = dict(
+    return dict(
         robot=make("robot", robot),
         controller=make("controller", controller),
         sensors=make("sensors", sensors),
@@ -225,7 +230,16 @@ def build_trial(config: dict, *, where: str = "config", arm=None):
         else make("arm", lambda t: Arm(t["mass"], t["damping"], t["stiffness"], t["endpoint"])),
         friction=make("friction", lambda t: LuGre(**_given(t, TRIAL_SECTIONS["friction"]))),
     )
+
+
+def build_trial(config: dict, *, where: str | None = "config", arm=None):
+    """The ``Trial`` of ``config``'s trial sections (``trial_parts``, then ``make_trial`` with
+    the ``[acquisition]`` mode); ``arm`` (an ``Arm``) in place of the ``[arm]`` section when
+    given. Needs float64."""
+    parts = trial_parts(config, where=where, arm=arm)
     acquisition = config.get("acquisition", {}).get("mode", "instant")
     ctrl = parts.pop("controller")
-    model = make("arm", lambda _: make_trial(ctrl, acquisition=acquisition, **parts))
-    return model
+    try:
+        return make_trial(ctrl, acquisition=acquisition, **parts)
+    except ValueError as err:
+        raise ConfigError(str(err) if where is None else f"{where}: [arm] {err}") from None

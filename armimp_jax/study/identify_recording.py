@@ -10,8 +10,10 @@
   (the constructors' own range checks come back as ``IdentifyConfigError`` naming the section).
 - ``check_rate(fs, model)``: a recording not sampled at the trial's control rate is refused.
 - ``run(rec, model, options)``: ``identify`` on a loaded recording (``study.recording``).
-- ``trust_warnings``, ``report_lines``: where the fit cannot be trusted, and what a script prints.
-- ``write_results``: ``identification.json`` (strict), ``identification.csv`` and four figures.
+- ``trust_warnings``, ``entries``: where the fit cannot be trusted; every estimated number
+  beside the classical answer (the Welch route at its defaults, ``estimate_recording.analyse``).
+- ``write_results``: ``identification.json`` (strict), ``identification.csv`` and four figures
+  (drawn by ``study.recording_figures``; the printed text is ``study.recording_report``'s).
 
 The keys, units and defaults are in docs/identify_recording.md.
 """
@@ -26,11 +28,7 @@ from typing import NamedTuple
 
 import jax
 import numpy as np
-import scipy.signal
-from matplotlib.figure import Figure  # no pyplot: no global figure state
-from matplotlib.ticker import NullFormatter
 
-from .._estimation.welch import estimate
 from .._identification.identify import identify
 from .._identification.indirect import IDENTIFY_NUMERICS
 from .._identification.layout import ARM_PARAMETERS, PARAMETERS
@@ -38,8 +36,10 @@ from .._model.sensors import Sensors
 from .._simulate import simulate
 from .._solver.numerics import METHODS, Numerics, named_solver
 from .config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
+from .estimate_recording import analyse, route_settings, settings_record
 from .figures import save_figure
-from .recording import ELEMENTS, RecordingError
+from .recording import RecordingError
+from .recording_figures import ellipse_figure, frf_figure, position_figure, residual_figure, stiffness_draws
 from .results import atomic_write_json, package_version, to_jsonable
 from .tables import table, write_table
 
@@ -61,7 +61,6 @@ CHANNELS = ("x", "y", "fh_x", "fh_y")  # identify's whiteness_p order: x1, x2, f
 WHITENESS_P = 1e-3  # a Ljung-Box p-value below this: coloured residuals
 VAF_MIN = 90.0  # [%] a channel the model explains less of: a poor fit
 START_OFFSET = 1e-3  # [m] the recording's first position this far from [arm] endpoint: warn
-ELLIPSE_DRAWS = 200
 
 
 IdentifyConfigError = ConfigError  # the name this module's callers know
@@ -119,11 +118,6 @@ def run(rec: dict, model, options: dict):
     return identify(model, rec["f_delta"], rec["x"], rec["fh"], **options)
 
 
-def _arm_matrices(res) -> dict:
-    arm = res.trial.arm
-    return {n: np.asarray(getattr(arm, n.split(".")[1])) for n in ARM_PARAMETERS}
-
-
 def trust_warnings(res, rec: dict) -> list[str]:
     """Where the fit of ``res`` (an ``Identification``) cannot be trusted, one line each."""
     out = []
@@ -170,48 +164,45 @@ class Entry(NamedTuple):
     classical_se: float | None
 
 
-def entries(res) -> list[Entry]:
-    """Every entry of an ``Identification``, in the order of ``res.labels``."""
+def entries(res, classical=None) -> list[Entry]:
+    """Every entry of an ``Identification``, in the order of ``res.labels``, with the arm's beside
+    the ``classical`` fit's (an ``ImpedanceFit``; ``None``: no classical column)."""
     out = []
     for name, value in res.values.items():
         value, se = np.asarray(value), np.asarray(res.se[name])
         low, high = (np.asarray(a) for a in res.interval(name))
-        field, cls = name.split(".")[1], res.classical if name in ARM_PARAMETERS else None
+        field, cls = name.split(".")[1], classical if name in ARM_PARAMETERS else None
         cval = None if cls is None else np.asarray(getattr(cls, field))
         cse = None if cls is None else np.asarray(getattr(cls, field + "_se"))
         for idx in np.ndindex(value.shape):
             index = ",".join(map(str, idx))
             numbers = [float(a[idx]) for a in (value, se, low, high)]
-            classical = [None if a is None else float(a[idx]) for a in (cval, cse)]
-            out.append(Entry(name, index, f"{name}[{index}]", PARAMETERS[name], *numbers, *classical))
+            beside = [None if a is None else float(a[idx]) for a in (cval, cse)]
+            out.append(Entry(name, index, f"{name}[{index}]", PARAMETERS[name], *numbers, *beside))
     return out
 
 
-def report_lines(res, warnings: list[str]) -> list[str]:
-    """What the script prints: convergence, each entry as value +- SE (with the classical
-    answer beside the arm's), VAF, whiteness, and every warning."""
-    lines = ["converged" if res.converged else f"NOT CONVERGED: {res.message}"]
-    lines.append(
-        f"cost {res.cost:.6g} after {res.iterations} iterations, {res.time_s:.1f} s; estimates "
-        "(value +- SE; 95% interval value +- 1.96 SE; arm matrices indexed [force axis, displacement axis]):"
-    )
-    for e in entries(res):
-        beside = "" if e.classical is None else f"   (classical {e.classical:.4g})"
-        lines.append(f"  {e.label} [{e.unit}]: {e.value:10.4g} +- {e.se:.3g}{beside}")
-    vaf = np.concatenate([res.vaf_position, res.vaf_force])
-    lines.append("VAF [%]: " + ", ".join(f"{c} {v:.2f}" for c, v in zip(CHANNELS, vaf, strict=True)))
-    p = np.asarray(res.whiteness_p)
-    lines.append(
-        "residual whiteness (Ljung-Box p): " + ", ".join(f"{c} {v:.2g}" for c, v in zip(CHANNELS, p, strict=True))
-    )
-    return lines + ([f"WARNING: {w}" for w in warnings] or ["no warnings: the fit looks sound"])
-
-
-def _classical_dict(fit) -> dict | None:
-    if fit is None:
+def classical_fit(rec: dict, fs: float):
+    """The Welch route's answer for a loaded recording sampled at ``fs`` [Hz], at that route's
+    defaults (``estimate_recording.analyse``: segments that follow the record, a fitted force-channel
+    delay, spectral SEs): ``(Estimate, ImpedanceFit)``, or ``None`` for a record Welch cannot
+    use. The model route prints and saves it beside its own answer."""
+    try:
+        return analyse(rec, fs=fs)
+    except ValueError:
         return None
-    names = ("mass", "damping", "stiffness", "mass_se", "damping_se", "stiffness_se", "vaf_overall", "dof")
-    return {k: np.asarray(getattr(fit, k)) for k in names}
+
+
+def _classical_dict(classical, n_samples: int, fs: float) -> dict | None:
+    if classical is None:
+        return None
+    fit = classical[1]
+    welch, fit_settings, _ = route_settings(n_samples, fs=fs)
+    names = ("mass", "damping", "stiffness", "mass_se", "damping_se", "stiffness_se", "delay", "delay_se")
+    return {
+        "settings": settings_record(welch, fit_settings),
+        **{k: np.asarray(getattr(fit, k)) for k in (*names, "vaf_overall", "dof")},
+    }
 
 
 @functools.cache
@@ -227,130 +218,24 @@ def model_outputs(res, f, numerics) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(sim.x), np.asarray(sim.fh)
 
 
-def welch_estimate(rec: dict, fs: float):
-    """The Welch estimate of ``Z`` that ``identify``'s classical answer was fitted to (segments of
-    the largest power of two up to 8192 that gives two, 75% overlap, up to 15 Hz)."""
-    n = rec["x"].shape[0]
-    nperseg = min(8192, 2 ** int(math.floor(math.log2(n / 2))))
-    run_ = functools.partial(estimate, fs=fs, nperseg=nperseg, noverlap=3 * nperseg // 4)
-    return jax.jit(run_)(rec["f_delta"], rec["x"], rec["fh"])
-
-
-def position_figure(t, x, x_model, x0, vaf):
-    """(a) The recorded hand displacement and the fitted model's noise-free one, per axis."""
-    fig = Figure(figsize=(12, 5.5), layout="constrained")
-    axes = fig.subplots(2, 1, sharex=True)
-    for k, ax in enumerate(axes):
-        ax.plot(t, 1e3 * (x[:, k] - x0[k]), lw=0.8, label="recorded")
-        ax.plot(t, 1e3 * (x_model[:, k] - x0[k]), "k--", lw=0.8, label="model (noise-free)")
-        ax.set_ylabel(f"{'xy'[k]} - {'xy'[k]}0 [mm]")
-        ax.set_title(f"hand position {'xy'[k]}: VAF {vaf[k]:.2f} %", fontsize=10)
-    axes[0].legend(fontsize=8)
-    axes[-1].set_xlabel("time [s]")
-    return fig
-
-
-def residual_figure(fs, x, fh, x_model, fh_model):
-    """(b) Welch PSDs of the position and force residuals, with the recorded signals' for scale."""
-    n = x.shape[0]
-    nperseg = min(4096, 2 ** int(math.floor(math.log2(max(n / 4, 16)))))
-    fig = Figure(figsize=(12, 4.5), layout="constrained")
-    axes = fig.subplots(1, 2)
-    for ax, (rec_, mod, what, unit) in zip(axes, ((x, x_model, "position", "m"), (fh, fh_model, "force", "N"))):
-        for k in range(2):
-            f, p_res = scipy.signal.welch(rec_[:, k] - mod[:, k], fs=fs, nperseg=nperseg)
-            _, p_rec = scipy.signal.welch(rec_[:, k], fs=fs, nperseg=nperseg)
-            (line,) = ax.loglog(f[1:], p_res[1:], lw=0.9, label=f"residual {'xy'[k]}")
-            ax.loglog(f[1:], p_rec[1:], ":", color=line.get_color(), lw=0.8, label=f"recorded {'xy'[k]}")
-        ax.set_title(f"{what}: recorded minus model", fontsize=10)
-        ax.set_xlabel("frequency [Hz]")
-        ax.set_ylabel(f"PSD [{unit}^2/Hz]")
-        ax.legend(fontsize=8)
-    return fig
-
-
-def frf_figure(f, z_measured, f_model, z_model, z_classical=None):
-    """(c) ``|Z_ij|`` [N/m] of the identified arm's ``-M w^2 + j w B + K`` (and of the classical
-    fit) at ``f_model`` [Hz] over the Welch estimate at ``f``."""
-    fig = Figure(figsize=(15, 4), layout="constrained")
-    axes = fig.subplots(1, 4, sharex=True)
-    for ax, (i, j) in zip(axes, ELEMENTS):
-        ax.loglog(f, np.abs(z_measured[:, i, j]), ".-", ms=3, lw=0.8, label="Welch estimate")
-        ax.loglog(f_model, np.abs(z_model[:, i, j]), "k-", lw=1.2, label="identified model")
-        if z_classical is not None:
-            ax.loglog(f_model, np.abs(z_classical[:, i, j]), "--", lw=1, label="classical fit")
-        ax.set_title(f"$|Z_{{{'xy'[i]}{'xy'[j]}}}|$", fontsize=10)
-        ax.set_xlabel("frequency [Hz]")
-        ax.xaxis.set_minor_formatter(NullFormatter())  # no crowded minor labels on short bands
-        ax.yaxis.set_minor_formatter(NullFormatter())
-    axes[0].set_ylabel("magnitude [N/m]")
-    axes[0].legend(fontsize=8)
-    return fig
-
-
-def ellipse_radius(k, phi) -> np.ndarray:
-    """Radius [N/m] at angles ``phi`` of the stiffness ellipse of ``k`` ``(..., 2, 2)``: the curve
-    of ``K_s d`` for unit displacements ``d``, ``K_s`` the symmetric part; ``(..., len(phi))``."""
-    k = np.asarray(k, dtype=float)
-    a, b, d = k[..., 0, 0, None], 0.5 * (k[..., 0, 1, None] + k[..., 1, 0, None]), k[..., 1, 1, None]
-    c, s = np.cos(phi), np.sin(phi)  # |K_s^-1 u| = |adj(K_s) u| / |det K_s|
-    return np.abs(a * d - b * b) / np.hypot(d * c - b * s, a * s - b * c)
-
-
-def stiffness_draws(res, n: int = ELLIPSE_DRAWS, seed: int = 0) -> np.ndarray | None:
-    """``n`` draws of ``K`` ``(n, 2, 2)`` from the normal approximation (the estimate and the
-    covariance of its entries); ``None`` when ``arm.stiffness`` is not free."""
-    labels = [f"arm.stiffness[{i},{j}]" for i, j in ELEMENTS]
-    if not all(lab in res.labels for lab in labels):
-        return None
-    idx = [res.labels.index(lab) for lab in labels]
-    w, v = np.linalg.eigh(np.asarray(res.covariance)[np.ix_(idx, idx)])
-    z = np.random.default_rng(seed).standard_normal((n, 4))
-    k = np.asarray(res.values["arm.stiffness"]).reshape(4) + (z * np.sqrt(np.clip(w, 0.0, None))) @ v.T
-    return k.reshape(n, 2, 2)
-
-
-def ellipse_figure(k, draws=None, k_classical=None):
-    """(d) The stiffness ellipse of ``k`` with the 95% band of ``draws`` over angle, and the
-    classical fit's ellipse."""
-    phi = np.linspace(0.0, 2.0 * np.pi, 361)
-    fig = Figure(figsize=(7.5, 6), layout="constrained")
-    ax = fig.subplots()
-    if draws is not None:
-        lo, hi = np.nanpercentile(ellipse_radius(draws, phi), [2.5, 97.5], axis=0)
-        ring = np.r_[hi, lo[::-1]], np.r_[phi, phi[::-1]]
-        ax.fill(ring[0] * np.cos(ring[1]), ring[0] * np.sin(ring[1]), alpha=0.3, lw=0, label="95% band")
-    r = ellipse_radius(k, phi)
-    ax.plot(r * np.cos(phi), r * np.sin(phi), "k-", label="identified K")
-    if k_classical is not None:
-        rc = ellipse_radius(k_classical, phi)
-        ax.plot(rc * np.cos(phi), rc * np.sin(phi), "--", label="classical fit")
-    ax.set_aspect("equal", adjustable="datalim")  # a square box whatever the ellipse's shape
-    ax.set_xlabel("force x per unit displacement [N/m]")
-    ax.set_ylabel("force y per unit displacement [N/m]")
-    held = "" if draws is not None else " (K held: no band)"
-    ax.set_title(f"stiffness ellipse (symmetric part of K){held}", fontsize=10)
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
-    ax.grid(alpha=0.3)
-    return fig
-
-
 def model_settings(trial) -> dict:
     """Every value of a ``Trial`` as plain JSON values, with the controller's type."""
     return {"controller_type": type(trial.controller).__name__, **to_jsonable(trial)}
 
 
-def result_dict(res, *, model, settings: dict, n_samples: int, warnings: list[str]) -> dict:
-    """What ``identification.json`` holds (before strict JSON conversion)."""
+def result_dict(res, *, model, settings: dict, n_samples: int, warnings: list[str], classical=None) -> dict:
+    """What ``identification.json`` holds (before strict JSON conversion); ``classical``: what
+    ``classical_fit`` gave, or ``None``."""
+    fs = float(settings["fs_hz"])
     parameters = {}
-    for e in entries(res):
+    for e in entries(res, None if classical is None else classical[1]):
         entry = parameters.setdefault(e.parameter, dict(unit=e.unit, entries={}))
         entry["entries"][e.index] = {k: getattr(e, k) for k in Entry._fields[4:]}
     for name, entry in parameters.items():
         entry.update(value=res.values[name], se=res.se[name])
     return {
         "settings": {**settings, "armimp_jax": package_version()},
-        "record": {"n_samples": n_samples, "duration_s": n_samples / float(settings["fs_hz"])},
+        "record": {"n_samples": n_samples, "duration_s": n_samples / fs},
         "convention": (
             "arm matrices indexed [output, input] (row: force axis, column: displacement axis) in the "
             "recording's frame; friction per joint; a 95% interval is value +- 1.96 se (normal); se and "
@@ -372,7 +257,7 @@ def result_dict(res, *, model, settings: dict, n_samples: int, warnings: list[st
         "covariance": np.asarray(res.covariance),
         "vaf": {"position": np.asarray(res.vaf_position), "force": np.asarray(res.vaf_force)},
         "whiteness_p": dict(zip(CHANNELS, np.asarray(res.whiteness_p).tolist(), strict=True)),
-        "classical": _classical_dict(res.classical),
+        "classical": _classical_dict(classical, n_samples, fs),
         "start_model": model_settings(model),
         "fitted_model": model_settings(res.trial),
         "warnings": list(warnings),
@@ -380,45 +265,53 @@ def result_dict(res, *, model, settings: dict, n_samples: int, warnings: list[st
 
 
 def write_results(
-    out_dir, res, rec: dict, *, model, settings: dict, numerics, warnings: list[str]
+    out_dir, res, rec: dict, *, model, settings: dict, numerics, warnings: list[str], classical=None
 ) -> list[pathlib.Path]:
     """Write ``identification.json`` (strict JSON: ``settings`` with the package version, the
-    estimates, SEs, 95% intervals, covariance, fit quality, the classical answer, the start
-    and fitted models, ``warnings``), ``identification.csv`` (one row per entry) and
-    ``position.png``, ``residual_spectrum.png``, ``frf.png``, ``stiffness_ellipse.png`` under
-    ``out_dir``, each atomically; returns their paths. ``settings`` must hold ``fs_hz``."""
+    estimates, SEs, 95% intervals, covariance, fit quality, the ``classical`` answer (what
+    ``classical_fit`` gave, or ``None``), the start and fitted models, ``warnings``),
+    ``identification.csv`` (one row per entry) and ``position.png``, ``residual_spectrum.png``,
+    ``frf.png``, ``stiffness_ellipse.png`` under ``out_dir``, each atomically; returns their
+    paths. ``settings`` must hold ``fs_hz``."""
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    fs = float(settings["fs_hz"])
-    x, fh = np.asarray(rec["x"]), np.asarray(rec["fh"])
-    x_model, fh_model = model_outputs(res, rec["f_delta"], numerics)
-    est = welch_estimate(rec, fs)
-    arm = _arm_matrices(res)
-    f_grid = np.geomspace(float(est.f[0]), float(est.f[-1]), 200)  # the models on a fine grid
-    s = 2j * np.pi * f_grid[:, None, None]
-    z_model = arm["arm.mass"] * s**2 + arm["arm.damping"] * s + arm["arm.stiffness"]
-    c = res.classical
+    n_samples = np.asarray(rec["x"]).shape[0]
     json_path = out_dir / "identification.json"
     atomic_write_json(
-        json_path, result_dict(res, model=model, settings=settings, n_samples=x.shape[0], warnings=warnings)
+        json_path,
+        result_dict(res, model=model, settings=settings, n_samples=n_samples, warnings=warnings, classical=classical),
     )
     columns = Entry._fields
-    frame = table([e._asdict() for e in entries(res)], {k: "string" for k in columns[:4]}, columns=columns)
+    rows = [e._asdict() for e in entries(res, None if classical is None else classical[1])]
+    frame = table(rows, {k: "string" for k in columns[:4]}, columns=columns)
     paths = [json_path, *write_table(frame, out_dir / "identification.csv")]
-    figures = {
+    figures = _figures(res, rec, float(settings["fs_hz"]), numerics, classical)
+    return paths + [save_figure(fig, out_dir / name) for name, fig in figures.items()]
+
+
+def _figures(res, rec: dict, fs: float, numerics, classical) -> dict:
+    """The four figures by file name: the recording beside the fitted model's noise-free
+    simulation, and the identified arm beside the classical fit."""
+    x, fh = np.asarray(rec["x"]), np.asarray(rec["fh"])
+    x_model, fh_model = model_outputs(res, rec["f_delta"], numerics)
+    est, fit = (None, None) if classical is None else classical
+    band = (0.1, 15.0) if est is None else (float(est.f[0]), float(est.f[-1]))
+    f_grid = np.geomspace(*band, 200)  # the models on a fine grid
+    measured = None if est is None else (np.asarray(est.f), np.asarray(est.Z))
+    return {
         "position.png": position_figure(
             np.arange(x.shape[0]) / fs, x, x_model, np.asarray(res.trial.x0), res.vaf_position
         ),
         "residual_spectrum.png": residual_figure(fs, x, fh, x_model, fh_model),
         "frf.png": frf_figure(
-            np.asarray(est.f),
-            np.asarray(est.Z),
             f_grid,
-            z_model,
-            None if c is None else np.asarray(c.impedance(f_grid)),
+            np.asarray(res.trial.arm.impedance(f_grid)),
+            measured,
+            None if fit is None else np.asarray(fit.impedance(f_grid)),
         ),
         "stiffness_ellipse.png": ellipse_figure(
-            arm["arm.stiffness"], stiffness_draws(res), None if c is None else np.asarray(c.stiffness)
+            np.asarray(res.trial.arm.stiffness),
+            stiffness_draws(res),
+            None if fit is None else np.asarray(fit.stiffness),
         ),
     }
-    return paths + [save_figure(fig, out_dir / name) for name, fig in figures.items()]

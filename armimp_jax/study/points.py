@@ -24,14 +24,13 @@ from typing import Any
 
 import numpy as np
 
+from .._checks import check_choice
 from .._estimation.welch import Welch
 from .._model.arm import Arm
-from .._model.control import IMBIC, PD
-from .._model.friction import LuGre
-from .._model.sensors import Sensors
-from .._simulate import Trial, make_trial
+from .._simulate import ACQUISITIONS, Trial
 from ..presets import LOCATIONS, LUGRE_DEFAULTS, PERTURBATION_LEVELS, perturbation_peak
 from ..presets import arm as paper_arm
+from . import config
 from .results import settings_key
 
 # Every setting of a point, its default and its unit. ``None`` defaults are resolved by
@@ -90,25 +89,13 @@ def _number(name: str, value, *, minimum: float | None = None, exclusive: bool =
     return int(value) if integer else float(value)
 
 
-def _matrix(name: str, value, shape) -> list:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"arm {name} must be numbers of shape {shape}, got {value!r}") from None
-    if arr.shape != shape or not np.all(np.isfinite(arr)):
-        raise ValueError(f"arm {name} must be finite numbers of shape {shape}, got {value!r}")
-    return arr.tolist()
-
-
 def _arm_setting(value):
     if isinstance(value, Mapping):
         need = {"mass", "damping", "stiffness", "endpoint"}
         if set(value) != need:
             raise ValueError(f"a user arm needs exactly the keys {', '.join(sorted(need))}; got {', '.join(value)}")
-        shapes = dict(mass=(2, 2), damping=(2, 2), stiffness=(2, 2), endpoint=(2,))
-        arm = {k: _matrix(k, value[k], shapes[k]) for k in sorted(need)}
-        Arm(**arm)  # refuses a mass matrix that is not positive definite, with a one-line message
-        return arm
+        arm = Arm(**{k: value[k] for k in need})  # the constructor checks shapes and values (one line)
+        return {k: np.asarray(getattr(arm, k), dtype=float).tolist() for k in sorted(need)}
     if isinstance(value, bool) or value not in LOCATIONS:
         raise ValueError(
             f"arm must be a paper location ({', '.join(map(str, LOCATIONS))}) or a user arm, got {value!r}"
@@ -119,65 +106,73 @@ def _arm_setting(value):
 def normalize_point(raw: Mapping) -> dict:
     """The canonical form of a point: every setting of ``POINT_DEFAULTS``, in that order,
     resolved to plain JSON values (defaults filled in, numbers as floats, the peak from the
-    perturbation level, the overlap from the segment, ``mhat`` ``None`` for PD). Raises
-    ``ValueError`` (one line) for an unknown setting or a value that cannot run."""
+    perturbation level, the overlap from the segment, ``mhat`` ``None`` for PD).
+
+    Raises ``ValueError`` (one line) for an unknown setting, a value of the wrong type, or
+    a value that cannot run: the parameter constructors (``LuGre``, ``Sensors``, ``PD``,
+    ``IMBIC``, ``Arm``; ``trial_parts``) and ``Welch``'s check are the validators, and their
+    messages name the value and the allowed range."""
     unknown = [k for k in raw if k not in POINT_DEFAULTS]
     if unknown:
         raise ValueError(f"unknown setting(s) {', '.join(map(repr, unknown))}; known: {', '.join(POINT_DEFAULTS)}")
     p = dict(POINT_DEFAULTS) | dict(raw)
-    out: dict[str, Any] = {}
     if p["controller"] not in ("pd", "imbic"):
         raise ValueError(f"controller must be 'pd' or 'imbic', got {p['controller']!r}")
-    out["controller"] = p["controller"]
-    out["tau_c"] = _number("tau_c [N m]", p["tau_c"], minimum=0.0)
-    out["stiction_ratio"] = _number("stiction_ratio (tau_s / tau_c)", p["stiction_ratio"], minimum=1.0)
-    for name in ("sigma0", "sigma1", "sigma2"):
-        out[name] = _number(f"{name} [{POINT_UNITS[name]}]", p[name], minimum=0.0)
-    out["v_s"] = _number("v_s [rad/s]", p["v_s"], minimum=0.0, exclusive=True)
+    out: dict[str, Any] = dict(controller=p["controller"])
+    for name in ("tau_c", "stiction_ratio", "sigma0", "sigma1", "sigma2", "v_s"):
+        out[name] = _number(name, p[name])
     out["arm"] = _arm_setting(p["arm"])
-    if raw.get("peak") is not None:
-        peak = p["peak"]
-        peak = [peak, peak] if isinstance(peak, (int, float)) and not isinstance(peak, bool) else peak
-        if not isinstance(peak, (list, tuple)) or len(peak) != 2:
-            raise ValueError(f"peak must be a number or two numbers [N], got {p['peak']!r}")
-        out["peak"] = [_number("peak [N]", v, minimum=0.0, exclusive=True) for v in peak]
-        level = raw.get("perturbation_level")
-        # a normalized point names both (level and its peak): accept that, refuse a mismatch
-        if level is not None and (level not in PERTURBATION_LEVELS or perturbation_peak(level).tolist() != out["peak"]):
-            raise ValueError(f"give perturbation_level or peak, not both (got level {level!r} and peak {peak!r})")
-        out["perturbation_level"] = level
-        out["peak"] = out.pop("peak")
-    else:
+    out |= _perturbation(raw, p)
+    out["seconds"] = _number("seconds", p["seconds"], minimum=0.0, exclusive=True)
+    out["force_noise"] = _number("force_noise", p["force_noise"])
+    out["encoder_counts"] = None if p["encoder_counts"] is None else _number("encoder_counts", p["encoder_counts"])
+    out["velocity_noise"] = _number("velocity_noise", p["velocity_noise"])
+    check_choice("acquisition", p["acquisition"], ACQUISITIONS)
+    out["acquisition"] = p["acquisition"]
+    out["mhat"] = None if out["controller"] == "pd" else _number("mhat", p["mhat"])
+    out |= _welch_settings(p)
+    config.trial_parts(point_config(out), where=None, arm=point_arm(out))  # the constructors check the values
+    try:
+        point_welch(out).check(n_samples(out))
+    except ValueError as err:
+        raise ValueError(f"seconds={out['seconds']:g}, nperseg={out['nperseg']}: {err}") from None
+    return out
+
+
+def _perturbation(raw: Mapping, p: Mapping) -> dict:
+    """``perturbation_level`` and ``peak`` of a point: a given peak (with a level only if it
+    is that level's), or the level's peak."""
+    if raw.get("peak") is None:
         level = p["perturbation_level"]
         if isinstance(level, bool) or level not in PERTURBATION_LEVELS:
             raise ValueError(
                 f"perturbation_level must be one of {', '.join(map(str, PERTURBATION_LEVELS))}, got {level!r}"
             )
-        out["perturbation_level"] = int(level)
-        out["peak"] = perturbation_peak(int(level)).tolist()
-    out["seconds"] = _number("seconds", p["seconds"], minimum=0.0, exclusive=True)
-    out["force_noise"] = _number("force_noise [N]", p["force_noise"], minimum=0.0)
-    out["encoder_counts"] = (
-        None if p["encoder_counts"] is None else _number("encoder_counts", p["encoder_counts"], minimum=1.0)
-    )
-    out["velocity_noise"] = _number("velocity_noise [rad/s]", p["velocity_noise"], minimum=0.0)
-    if p["acquisition"] not in ("instant", "interval_mean"):
-        raise ValueError(f"acquisition must be 'instant' or 'interval_mean', got {p['acquisition']!r}")
-    out["acquisition"] = p["acquisition"]
-    out["mhat"] = None if out["controller"] == "pd" else _number("mhat [kg]", p["mhat"], minimum=0.0, exclusive=True)
-    out["nperseg"] = _number("nperseg", p["nperseg"], minimum=2, integer=True)
+        return dict(perturbation_level=int(level), peak=perturbation_peak(int(level)).tolist())
+    peak = p["peak"]
+    peak = [peak, peak] if isinstance(peak, (int, float)) and not isinstance(peak, bool) else peak
+    if not isinstance(peak, (list, tuple)) or len(peak) != 2:
+        raise ValueError(f"peak must be a number or two numbers [N], got {p['peak']!r}")
+    # perturbation() checks the peak too, but only once float64 is on: refuse it here already
+    peak = [_number("peak [N]", v, minimum=0.0, exclusive=True) for v in peak]
+    level = raw.get("perturbation_level")
+    # a normalized point names both (level and its peak): accept that, refuse a mismatch
+    if level is not None and (level not in PERTURBATION_LEVELS or perturbation_peak(level).tolist() != peak):
+        raise ValueError(f"give perturbation_level or peak, not both (got level {level!r} and peak {p['peak']!r})")
+    return dict(perturbation_level=level, peak=peak)
+
+
+def _welch_settings(p: Mapping) -> dict:
+    """The Welch settings of a point, typed (``Welch``'s check judges their values)."""
+    out = dict(nperseg=_number("nperseg", p["nperseg"], integer=True))
     noverlap = 3 * out["nperseg"] // 4 if p["noverlap"] is None else p["noverlap"]
-    out["noverlap"] = _number("noverlap", noverlap, minimum=0, integer=True)
-    out["fmax"] = _number("fmax [Hz]", p["fmax"], minimum=0.0, exclusive=True)
+    out["noverlap"] = _number("noverlap", noverlap, integer=True)
+    out["fmax"] = _number("fmax [Hz]", p["fmax"])
     window = p["window"]
     if not (isinstance(window, str) or (isinstance(window, (list, tuple)) and window and isinstance(window[0], str))):
         raise ValueError(f"window must be a name or [name, parameter, ...], got {window!r}")
     out["window"] = window if isinstance(window, str) else list(window)
-    out["nfft"] = None if p["nfft"] is None else _number("nfft", p["nfft"], minimum=2, integer=True)
-    try:
-        point_welch(out).check(n_samples(out))
-    except ValueError as err:
-        raise ValueError(f"seconds={out['seconds']:g}, nperseg={out['nperseg']}: {err}") from None
+    out["nfft"] = None if p["nfft"] is None else _number("nfft", p["nfft"], integer=True)
     return out
 
 
@@ -197,20 +192,26 @@ def point_arm(point: Mapping) -> Arm:
     return paper_arm(point["arm"]) if isinstance(point["arm"], int) else Arm(**point["arm"])
 
 
-def build_trial(point: Mapping) -> Trial:
-    """The ``Trial`` of a normalized point (``make_trial`` on MIT-MANUS)."""
-    ctrl = PD() if point["controller"] == "pd" else IMBIC(point["mhat"] * np.eye(2))
-    arm = point_arm(point)
-    friction = LuGre(
-        point["tau_c"],
-        point["tau_c"] * point["stiction_ratio"],
-        sigma0=point["sigma0"],
-        sigma1=point["sigma1"],
-        sigma2=point["sigma2"],
-        v_s=point["v_s"],
+def point_config(point: Mapping) -> dict:
+    """A normalized point as the trial sections of a TOML config (``study.config``): one
+    schema, built by the same constructors (the arm is ``point_arm``'s)."""
+    controller = dict(type=point["controller"])
+    if point["controller"] == "imbic":
+        controller["mhat"] = (point["mhat"] * np.eye(2)).tolist()
+    keys = ("sigma0", "sigma1", "sigma2", "v_s")
+    return dict(
+        controller=controller,
+        acquisition=dict(mode=point["acquisition"]),
+        sensors={k: point[k] for k in ("force_noise", "encoder_counts", "velocity_noise")},
+        friction=dict(tau_c=point["tau_c"], tau_s=point["tau_c"] * point["stiction_ratio"])
+        | {k: point[k] for k in keys},
     )
-    sensors = Sensors(point["force_noise"], point["encoder_counts"], point["velocity_noise"])
-    return make_trial(ctrl, arm=arm, friction=friction, sensors=sensors, acquisition=point["acquisition"])
+
+
+def build_trial(point: Mapping) -> Trial:
+    """The ``Trial`` of a normalized point (``config.build_trial`` of ``point_config``, on
+    MIT-MANUS). Needs float64."""
+    return config.build_trial(point_config(point), where=None, arm=point_arm(point))
 
 
 def static_group(point: Mapping) -> tuple:

@@ -9,9 +9,9 @@ its key equals the key of the settings asked for now. The pieces:
   ``null``, NumPy scalars and arrays become numbers and lists).
 - ``settings_key`` / ``describe_difference``: the key of a settings dict, and a one-line
   account of how two settings dicts differ (for refusals).
-- ``atomic_write_bytes`` / ``atomic_write_text`` / ``atomic_write_json``: a reader sees the
-  old file or the new one, never a torn one (temporary file in the same folder, fsync,
-  ``os.replace``).
+- ``atomic_write_bytes`` / ``atomic_write_text`` / ``atomic_write_json`` /
+  ``atomic_write_npz``: a reader sees the old file or the new one, never a torn one (a
+  uniquely named temporary file in the same folder, fsync, ``os.replace``).
 - ``save_record`` / ``load_record``: one ``.npz`` file holding named arrays, the settings,
   their key, free metadata, and a SHA-256 digest of all of it; ``load_record`` names the
   file and says what is wrong when it is truncated, altered, or made with other settings.
@@ -214,6 +214,15 @@ def atomic_write_json(path: pathlib.Path | str, obj: Any, *, indent: int | None 
     atomic_write_text(path, strict_json_dumps(obj, indent=indent) + "\n")
 
 
+def atomic_write_npz(path: pathlib.Path | str, **arrays) -> pathlib.Path:
+    """``atomic_write_bytes`` of ``np.savez`` of NumPy copies of ``arrays`` (uncompressed, no
+    pickles): the one writer of every ``.npz`` file the study layer saves. Returns the path."""
+    buf = io.BytesIO()
+    np.savez(buf, **{k: np.asarray(v) for k, v in arrays.items()})
+    atomic_write_bytes(path, buf.getvalue())
+    return pathlib.Path(path)
+
+
 def read_json(path: pathlib.Path | str) -> Any:
     """Parse a JSON file, refusing ``NaN``/``Infinity``; a missing or unreadable file is a
     ``ResultsError`` naming it."""
@@ -271,9 +280,7 @@ def save_record(
     stamp = stamped(settings)
     header = dict(format=RECORD_FORMAT, settings=stamp, key=settings_key(stamp), meta=to_jsonable(dict(meta or {})))
     header["digest"] = _digest(header, arrays)
-    buf = io.BytesIO()
-    np.savez(buf, **arrays, **{RECORD_ENTRY: np.array(strict_json_dumps(header, indent=None))})
-    atomic_write_bytes(path, buf.getvalue())
+    atomic_write_npz(path, **arrays, **{RECORD_ENTRY: np.array(strict_json_dumps(header, indent=None))})
     return header["key"]
 
 

@@ -86,6 +86,15 @@ def first_crossing(x, y, level: float, *, above: bool = True) -> float:
     return float(x0 + t * (x1 - x0))
 
 
+def bootstrap(values, statistic: Callable[[np.ndarray], np.ndarray], *, n_boot: int = 2000, seed: int = 0):
+    """``statistic`` of ``n_boot`` resamples of ``values``' rows (axis 0: seeds, resampled whole
+    with ``default_rng(seed)``), stacked: ``(n_boot, ...)``. The one bootstrap of the studies."""
+    v = np.asarray(values)
+    rng = np.random.default_rng(seed)
+    s = v.shape[0]
+    return np.array([statistic(v[rng.integers(0, s, s)]) for _ in range(n_boot)])
+
+
 def bootstrap_crossing(
     x, values, level_fn: Callable[[np.ndarray], float], *, above: bool = True, n_boot: int = 2000, seed: int = 0
 ) -> dict:
@@ -110,9 +119,8 @@ def bootstrap_crossing(
         return first_crossing(x, mean, level_fn(mean), above=above)
 
     value = crossing(v)
-    rng = np.random.default_rng(seed)
     s = v.shape[0]
-    boots = np.array([crossing(v[rng.integers(0, s, s)]) for _ in range(n_boot)]) if s > 1 else np.array([value])
+    boots = bootstrap(v, crossing, n_boot=n_boot, seed=seed) if s > 1 else np.array([value])
     boots = np.where(np.isnan(boots), np.inf, boots)
     q = [(1 - CI_LEVEL) / 2, 1 - (1 - CI_LEVEL) / 2]
     lo, hi = np.quantile(boots, q, method="inverted_cdf") if s > 1 else (math.nan, math.nan)

@@ -1,16 +1,16 @@
 """General sweeps: a grid (or a list of points) over any settings of a trial, times seeds.
 
 The points (``study.points``: ``POINT_DEFAULTS``, ``normalize_point``, ``expand``,
-``read_toml``, ``parse_set``) and ``SweepSettings`` fix a run. ``run_sweep`` runs every
+``read_toml``, ``parse_set``) and ``SweepSettings`` fix a run. ``SweepSettings`` is a
+specification of the run-trials engine (``study.engine``): ``run_sweep`` runs every
 ``(point, seed)`` that has no valid record in the output folder (batched by static
 structure, sharded over the devices, in chunks for progress), saves one checked record
 per trial (``study.results``), then writes the tidy table ``trials.csv`` (one row per
-trial), ``summary.csv``/``summary.json`` (per point over seeds: mean, standard
-deviation, 95% t-interval, count of diverged trials, which are left out of every
-statistic; ``study.stats``) and a figure of ``phi_T`` against the swept quantity
-(``study.figures``). The folder follows the run-folder protocol (``study.runfolder``);
-``docs/sweeps.md`` describes the files. ``load_sweep`` and ``load_summary`` give the
-tables as pandas DataFrames from the checked records.
+trial, ``trial_row``), ``summary.csv``/``summary.json`` (per point over seeds: mean,
+standard deviation, 95% t-interval, count of diverged trials, which are left out of
+every statistic; ``study.stats``) and a figure of ``phi_T`` against the swept quantity
+(``study.figures``). ``docs/sweeps.md`` describes the files. ``load_sweep`` and
+``load_summary`` give the tables as pandas DataFrames from the checked records.
 
 Seeds (``study.seeds``): trial seed ``s`` draws its perturbation from
 ``fold_in(PRNGKey(base_seed), s)`` (every point sees the same signal shape for the same
@@ -24,19 +24,19 @@ import dataclasses
 import functools
 import math
 import pathlib
-import time
 from collections.abc import Callable, Mapping
 
 import jax
 import numpy as np
 import pandas as pd
 
-from .._batch import assess_batch, check_numerics, make_mesh, simulate_batch
+from .._batch import assess_batch, check_numerics, simulate_batch
 from .._estimation.fit import fit_impedance
 from .._simulate import stack_trials
-from .._solver.numerics import METHODS, SWEEP_NUMERICS, Numerics, named_solver
-from . import distributed
-from .figures import plot_summary as plot_summary
+from .._solver.numerics import SWEEP_NUMERICS, Numerics, named_solver
+from . import distributed, engine
+from .figures import plot_summary
+from .metrics import estimate_arrays
 from .points import (
     POINT_DEFAULTS,
     build_trial,
@@ -49,34 +49,12 @@ from .points import (
     static_group,
     swept_settings,
 )
-from .points import POINT_UNITS as POINT_UNITS
-from .points import expand as expand
-from .points import parse_set as parse_set
-from .points import read_toml as read_toml
-from .results import ResultsError, describe_difference, read_json, save_record, settings_key, stamped, to_jsonable
-from .results import atomic_write_json as atomic_write_json
-from .runfolder import RunFolder, open_run, warn_stderr
-from .runfolder import trial_status as _record_status
+from .points import expand as expand  # sweeps/friction_threshold.py builds its points here
+from .results import ResultsError, atomic_write_json, describe_difference, read_json, settings_key, stamped, to_jsonable
+from .runfolder import warn_stderr
 from .seeds import seed_perturbation, sensor_noise_key
-from .stats import CI_LEVEL as CI_LEVEL
-from .stats import bootstrap_crossing as bootstrap_crossing
-from .stats import first_crossing as first_crossing
-from .stats import mean_ci as mean_ci
 from .stats import seed_stats
-from .tables import COH_COLUMNS as COH_COLUMNS
-from .tables import ELEMENTS, METRIC_COLUMNS, summary_frame, summary_rows, trial_columns, trials_frame, write_table
-from .tables import FIT_COLUMNS as FIT_COLUMNS
-from .tables import SUMMARY_DTYPES as SUMMARY_DTYPES
-from .tables import TRIAL_DTYPES as TRIAL_DTYPES
-from .tables import write_csv as write_csv
-
-RUN_KIND = "sweep"
-RUN_FORMAT = 1  # layout of a sweep's run.json
-ESTIMATE_FIELDS = ("f", "Z", "coh_multiple_x", "coh_partial_x", "coh_multiple_fh", "coh_partial_fh", "coh_inputs")
-
-
-summary_table = summary_rows  # its name before study.tables
-
+from .tables import ELEMENTS, METRIC_COLUMNS, summary_frame, trial_columns, trials_frame, write_table
 
 # --- run settings ---------------------------------------------------------------------------
 
@@ -85,7 +63,12 @@ summary_table = summary_rows  # its name before study.tables
 class SweepSettings:
     """Everything that fixes a sweep's numbers: its normalized ``points`` (``expand``), the
     number of ``seeds`` per point from ``base_seed``, and the integration ``method`` and
-    ``substeps`` per 1 ms period (default ``SWEEP_NUMERICS``)."""
+    ``substeps`` per 1 ms period (default ``SWEEP_NUMERICS``). A specification of the
+    run-trials engine (``study.engine.Spec``): a trial is ``(point index, seed)``."""
+
+    KIND = "sweep"
+    FORMAT = 1  # layout of a sweep's run.json
+    NOUN = "sweep"
 
     points: tuple
     seeds: int = 3
@@ -101,23 +84,24 @@ class SweepSettings:
         return Numerics(solver=named_solver(self.method), substeps=self.substeps)
 
     def validate(self) -> None:
-        """Raise ``ValueError`` (one line) for settings that cannot run."""
+        """Raise ``ValueError`` (one line) for settings that cannot run (the method and
+        substeps are ``Numerics``'s to check)."""
         if not self.points:
             raise ValueError("a sweep needs at least one point")
-        if isinstance(self.seeds, bool) or not isinstance(self.seeds, int) or self.seeds < 1:
-            raise ValueError(f"seeds must be an integer >= 1, got {self.seeds!r}")
-        if isinstance(self.base_seed, bool) or not isinstance(self.base_seed, int) or self.base_seed < 0:
-            raise ValueError(f"base_seed must be an integer >= 0, got {self.base_seed!r}")
-        if self.method not in METHODS:
-            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
-        if isinstance(self.substeps, bool) or not isinstance(self.substeps, int) or self.substeps < 1:
-            raise ValueError(f"substeps must be an integer >= 1, got {self.substeps!r}")
+        for name, minimum in (("seeds", 1), ("base_seed", 0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+                raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+        _ = self.numerics  # Numerics checks the method and substeps
 
     def run_settings(self) -> dict:
         """As saved in ``run.json`` (package version included)."""
         return stamped(
             dict(points=list(self.points), seeds=self.seeds, base_seed=self.base_seed, numerics=self._numerics_dict())
         )
+
+    def run_extra(self) -> dict:
+        return {}
 
     def _numerics_dict(self) -> dict:
         return dict(method=self.method, substeps=self.substeps, kernel="fast")
@@ -137,73 +121,52 @@ class SweepSettings:
         except (KeyError, TypeError, ValueError) as err:
             raise ResultsError(f"{where}: not the settings of a sweep ({err})") from None
 
+    # --- the engine's specification ---
 
-def _describe(saved: Mapping, wanted: Mapping) -> str:
-    """One line saying how two sweeps' run settings differ (the points compared one by one)."""
-    a, b = dict(saved), dict(wanted)
-    pa, pb = a.pop("points"), b.pop("points")
-    parts = [] if a == b else [describe_difference(a, b)]
-    if len(pa) != len(pb):
-        parts.append(f"{len(pa)} points (you asked {len(pb)})")
-    for i, (x, y) in enumerate(zip(pa, pb, strict=False)):
-        if x != y:
-            parts.append(f"point {i}: {describe_difference(x, y, limit=3)}")
-            break
-    return ", ".join(parts) or "no difference"
+    @staticmethod
+    def describe(saved: Mapping, wanted: Mapping) -> str:
+        """One line saying how two sweeps' run settings differ (the points compared one by one)."""
+        a, b = dict(saved), dict(wanted)
+        pa, pb = a.pop("points"), b.pop("points")
+        parts = [] if a == b else [describe_difference(a, b)]
+        if len(pa) != len(pb):
+            parts.append(f"{len(pa)} points (you asked {len(pb)})")
+        for i, (x, y) in enumerate(zip(pa, pb, strict=False)):
+            if x != y:
+                parts.append(f"point {i}: {describe_difference(x, y, limit=3)}")
+                break
+        return ", ".join(parts) or "no difference"
+
+    def trials(self) -> list[tuple[int, int]]:
+        return [(i, s) for i in range(len(self.points)) for s in range(self.seeds)]
+
+    def trial_record(self, trial: tuple[int, int]) -> tuple[str, dict]:
+        i, s = trial
+        return trial_id(self.points[i], s), self.trial_settings(self.points[i], s)
+
+    def group(self, trial: tuple[int, int]) -> tuple:
+        return static_group(self.points[trial[0]])
+
+    def samples(self, trial: tuple[int, int]) -> int:
+        return n_samples(self.points[trial[0]])
+
+    def compile_key(self, batch: list) -> tuple:
+        """A batch's compiled shape: its group, size and whether it draws sensor noise."""
+        return self.group(batch[0]), len(batch), any(_noisy(self.points[i]) for i, _ in batch)
+
+    def batch_runner(self) -> Callable:
+        signals = _Perturbations(self.base_seed)
+        return functools.partial(run_batch, self, signals=signals)
 
 
-def describe_run_difference(saved: SweepSettings, wanted: SweepSettings) -> str:
-    """One line saying how two sweeps differ (the points compared one by one)."""
-    return _describe(saved.run_settings(), wanted.run_settings())
-
-
-def trial_id(settings: SweepSettings, point: Mapping, seed: int) -> str:
+def trial_id(point: Mapping, seed: int) -> str:
     """File name stem of a trial: a short hash of its point (stable across runs) and the seed."""
     return f"p{settings_key(dict(point=dict(point)))[:12]}-s{seed}"
 
 
-def run_folder(out) -> RunFolder:
-    """The run folder ``out`` of a sweep (``study.runfolder``)."""
-    return RunFolder(out, kind=RUN_KIND, format=RUN_FORMAT, noun="sweep")
-
-
-def read_run(out) -> dict:
-    """``run.json`` of the sweep in ``out``, checked (``ResultsError`` naming what is wrong)."""
-    return run_folder(out).read()
-
-
 def saved_settings(out) -> SweepSettings:
     """The settings of the sweep in ``out`` (to resume it)."""
-    folder = run_folder(out)
-    return SweepSettings.from_saved(folder.saved_settings(), where=str(folder.run_file))
-
-
-def check_resume(out, saved: SweepSettings, wanted: SweepSettings) -> None:
-    """Refuse (one line) options given with ``--resume out`` that change the sweep there."""
-    run_folder(out).check_resume(saved.run_settings(), wanted.run_settings(), describe=_describe)
-
-
-def prepare_output(out, settings: SweepSettings) -> None:
-    """Create ``out`` and write ``run.json``, or check that the run there has ``settings``
-    (a folder holding another sweep is refused in one line naming the differences)."""
-    run_folder(out).prepare(settings.run_settings(), describe=_describe)
-
-
-def _trials(settings: SweepSettings, out) -> list:
-    """``((point index, seed), record path, trial settings)`` of every trial, in run order."""
-    out = pathlib.Path(out)
-    return [
-        ((i, s), out / "trials" / f"{trial_id(settings, point, s)}.npz", settings.trial_settings(point, s))
-        for i, point in enumerate(settings.points)
-        for s in range(settings.seeds)
-    ]
-
-
-def trial_status(settings: SweepSettings, out, *, warn: Callable[[str], None] = warn_stderr):
-    """``(records, todo)``: ``{(point index, seed): Record}`` of the trials whose record passes
-    its check, and the ``(point index, seed)`` pairs still to run; every other existing
-    record is named in a warning (it will be recomputed)."""
-    return _record_status(_trials(settings, out), warn=warn)
+    return engine.saved_settings(SweepSettings, out)
 
 
 # --- per-trial metrics ------------------------------------------------------------------------
@@ -214,8 +177,8 @@ def _cells(prefix: str, a) -> dict:
     return {f"{prefix}_{e}": float(v) for e, v in zip(ELEMENTS, a, strict=True)}
 
 
-def trial_metrics(point: Mapping, outcome_i: Mapping, fit_i: Mapping) -> dict:
-    """The scalar columns of one trial (``METRIC_COLUMNS`` plus ``diverged``, ``diverged_at``).
+def trial_row(point: Mapping, outcome_i: Mapping, fit_i: Mapping) -> dict:
+    """The scalar columns of one trial's table row (``METRIC_COLUMNS`` plus ``diverged``, ``diverged_at``).
 
     ``coh_min`` is the minimum over ``0 < f <= fmax`` of the four multiple coherences (both
     position outputs and both force outputs): the weakest of the spectra ``Z = T R^-1``
@@ -276,20 +239,10 @@ def _noisy(point) -> bool:
     return point["force_noise"] > 0 or point["velocity_noise"] > 0
 
 
-def _batches(settings: SweepSettings, todo, batch_size: int) -> list[list]:
-    groups: dict[tuple, list] = {}
-    for i, s in todo:
-        groups.setdefault(static_group(settings.points[i]), []).append((i, s))
-    out = []
-    for g in groups.values():  # equal batches: one compiled shape per group
-        per = math.ceil(len(g) / math.ceil(len(g) / batch_size))
-        out += [g[j : j + per] for j in range(0, len(g), per)]
-    return out
-
-
-def run_batch(settings: SweepSettings, batch, signals, *, mesh=None, chunk_seconds: float = 5.0, progress=None):
+def run_batch(settings: SweepSettings, batch, *, signals: _Perturbations, mesh, chunk_samples: int, progress=None):
     """Simulate and assess one batch of ``(point index, seed)`` sharing a ``static_group``;
-    returns ``(rows, arrays)``, per trial the metrics dict and the estimate's arrays."""
+    returns per trial ``(arrays, meta)``: the estimate's arrays with the fit, and the
+    record's meta (id, point index, seed, the ``trial_row`` metrics)."""
     points = [settings.points[i] for i, _ in batch]
     n = n_samples(points[0])
     params = stack_trials([build_trial(p) for p in points])
@@ -301,14 +254,14 @@ def run_batch(settings: SweepSettings, batch, signals, *, mesh=None, chunk_secon
         keys=keys,
         numerics=settings.numerics,
         mesh=mesh,
-        chunk_samples=max(1, int(chunk_seconds * 1000)),
+        chunk_samples=chunk_samples,
         progress=progress,
     )
     outcome = assess_batch(params, f_delta, sim, point_welch(points[0]), mesh=mesh)
     fits = jax.tree.map(np.asarray, _vfit(outcome.estimate, acquisition=points[0]["acquisition"]))
-    rows, arrays = [], []
-    for j, point in enumerate(points):
-        est = {name: np.asarray(getattr(outcome.estimate, name)[j]) for name in ESTIMATE_FIELDS}
+    out = []
+    for j, ((i, s), point) in enumerate(zip(batch, points, strict=True)):
+        est = estimate_arrays(outcome.estimate, j)
         out_j = dict(
             est,
             phi_T=outcome.phi_T[j],
@@ -317,87 +270,11 @@ def run_batch(settings: SweepSettings, batch, signals, *, mesh=None, chunk_secon
             diverged=sim.diverged[j],
             diverged_at=sim.diverged_at[j],
         )
-        fit_j = {k: v[j] for k, v in fits._asdict().items()}
-        rows.append(trial_metrics(point, out_j, fit_j))
-        arrays.append(est | {f"fit_{k}": v for k, v in fit_j.items()})
-    return rows, arrays
-
-
-def compute(
-    settings: SweepSettings,
-    out,
-    todo,
-    *,
-    batch_size: int = 64,
-    chunk_seconds: float = 5.0,
-    progress: Callable[[dict], None] | None = None,
-    stop_after_batches: int | None = None,
-) -> list[str]:
-    """Run the ``todo`` trials in batches and save each as a checked record as soon as its
-    batch finishes; returns the ids computed.
-
-    ``progress`` receives a dict after every chunk: ``done``/``total`` (trial samples),
-    ``trials_done``, ``trials_total``, ``elapsed_s`` and ``eta_s``, the latter from the
-    rate of the chunks that compiled nothing (the first chunk of each new batch shape
-    pays for compilation; NaN until a chunk has run without compiling)."""
-    out = pathlib.Path(out)
-    mesh = make_mesh()
-    signals = _Perturbations(settings.base_seed)
-    total = sum(n_samples(settings.points[i]) for i, _ in todo)
-    start = time.perf_counter()
-    # "last": when the previous chunk reported, so that estimating and saving a batch count
-    # towards the rate (they are part of every trial's cost)
-    state = dict(done=0, trials=0, t_fresh=0.0, n_fresh=0, last=start)
-    shapes_seen: set = set()
-    computed = []
-    for b_index, batch in enumerate(_batches(settings, todo, batch_size)):
-        if stop_after_batches is not None and b_index >= stop_after_batches:
-            break
-        shape = (
-            static_group(settings.points[batch[0][0]]),
-            len(batch),
-            any(_noisy(settings.points[i]) for i, _ in batch),
-        )
-        compiling = [shape not in shapes_seen]
-        shapes_seen.add(shape)
-        base = state["done"]
-
-        def on_chunk(done, _total, _elapsed, base=base, compiling=compiling):
-            now = time.perf_counter()
-            step = base + done - state["done"]
-            if not compiling[0]:  # chunks that compiled nothing set the rate of the ETA
-                state["t_fresh"] += now - state["last"]
-                state["n_fresh"] += step
-            compiling[0] = False
-            state["last"] = now
-            state["done"] = base + done
-            if progress is not None:
-                rate = state["n_fresh"] / state["t_fresh"] if state["t_fresh"] > 0 else float("nan")
-                progress(
-                    dict(
-                        done=state["done"],
-                        total=total,
-                        trials_done=state["trials"],
-                        trials_total=len(todo),
-                        elapsed_s=now - start,
-                        eta_s=(total - state["done"]) / rate if rate > 0 else float("nan"),
-                    )
-                )
-
-        t0 = time.perf_counter()
-        rows, arrays = run_batch(settings, batch, signals, mesh=mesh, chunk_seconds=chunk_seconds, progress=on_chunk)
-        wall = time.perf_counter() - t0
-        for (i, s), row, arr in zip(batch, rows, arrays, strict=True):
-            point = settings.points[i]
-            tid = trial_id(settings, point, s)
-            meta = dict(id=tid, point_index=i, seed=s, metrics=row, batch_wall_s=wall, batch_size=len(batch))
-            if distributed.is_writer():  # every process holds every row (gathered); one writes
-                save_record(
-                    out / "trials" / f"{tid}.npz", settings=settings.trial_settings(point, s), arrays=arr, meta=meta
-                )
-            computed.append(tid)
-        state["trials"] += len(batch)
-    return computed
+        # the fit's numbers; its diagnostics restate the estimate's fields, which are saved already
+        fit_j = {k: v[j] for k, v in fits._asdict().items() if k != "diagnostics"}
+        meta = dict(id=trial_id(point, s), point_index=i, seed=s, metrics=trial_row(point, out_j, fit_j))
+        out.append((est | {f"fit_{k}": v for k, v in fit_j.items()}, meta))
+    return out
 
 
 # --- tables and statistics -------------------------------------------------------------------
@@ -430,7 +307,7 @@ def summarize(settings: SweepSettings, rows: list[dict]) -> list[dict]:
 def collect(settings: SweepSettings, out, *, warn: Callable[[str], None] = warn_stderr) -> tuple[list[dict], list]:
     """The rows of every trial with a valid record (``point_index``, ``seed``, point columns,
     numerics, metrics), and the ``(point index, seed)`` pairs missing."""
-    records, missing = trial_status(settings, out, warn=warn)
+    records, missing = engine.trial_status(settings, out, warn=warn)
     rows = []
     num = dict(method=settings.method, substeps=settings.substeps)
     for (i, s), rec in sorted(records.items()):
@@ -510,7 +387,7 @@ def write_outputs(
     write_table(summary_frame(summary, numerics), out / "summary.csv")
     x = x or default_x(list(settings.points))
     figure = plot_summary(summary, out / f"{x or 'conditions'}.png", x=x) if rows else None
-    run = read_run(out)
+    run = engine.run_folder(settings, out).read()
     if check is None:  # keep the check of an earlier call on this run, if any
         try:
             previous = read_json(out / "summary.json")
@@ -521,7 +398,7 @@ def write_outputs(
     result = to_jsonable(
         dict(
             kind="sweep",
-            format=RUN_FORMAT,
+            format=settings.FORMAT,
             settings=run["settings"],
             key=run["key"],
             complete=not missing,
@@ -573,11 +450,10 @@ def run_sweep(
         raise ValueError("check re-runs trials on one process: run it without the distributed options")
     # In a jax.distributed job only process 0 touches the folder; every process gets its
     # list of trials to run, so all run the same batches in the same order.
-    trials = _trials(settings, out)
-    with open_run(run_folder(out), settings.run_settings(), trials, describe=_describe, warn=warn) as (done, todo):
+    with engine.open_study(settings, out, warn=warn) as (done, todo):
         if on_start is not None and distributed.is_writer():
             on_start(len(done), len(todo))
-        computed = compute(
+        computed = engine.run_trials(
             settings,
             out,
             todo,

@@ -1,0 +1,92 @@
+"""What ``sweeps/estimate_recording.py`` prints, for both routes: one item a line.
+
+- ``welch_report``: the Welch route (``study.estimate_recording``): the fit's 95% intervals,
+  the delay, VAF and lack of fit with their ``estimate_recording.verdict`` (the sentence that also titles
+  ``bode.png``), the coherence summary and the warnings.
+- ``model_report``: the model route (``study.identify_recording``): convergence, each entry
+  as value +- SE beside the classical answer, VAF, whiteness and the warnings.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .estimate_recording import PARAMETERS, coherence_summary, intervals, verdict
+from .identify_recording import CHANNELS, entries
+from .recording_figures import AXES, ELEMENTS, OUTPUTS
+
+
+def _interval_lines(fit, acquisition: str) -> list[str]:
+    ci = intervals(fit)
+    lines = ["95% intervals [low, high] (t quantile of each element's dof), indexed [force axis, displacement axis]:"]
+    for name, unit in PARAMETERS:
+        value = np.asarray(getattr(fit, name))
+        lo, hi = ci[name]["low"], ci[name]["high"]
+        for i, j in ELEMENTS:
+            lines.append(
+                f"  {name} {AXES[i]}{AXES[j]} [{unit}]: {value[i, j]:10.4g}   95% [{lo[i, j]:.4g}, {hi[i, j]:.4g}]"
+            )
+    if acquisition == "delay":
+        d, lo, hi = (1e3 * float(np.asarray(v)) for v in (fit.delay, ci["delay"]["low"], ci["delay"]["high"]))
+        lines.append(f"  force-channel delay [ms]: {d:.4g}   95% [{lo:.4g}, {hi:.4g}]")
+    return lines
+
+
+def _coherence_lines(est) -> list[str]:
+    summary = coherence_summary(est)
+    lines = []
+    for field, names in OUTPUTS.items():
+        for name in names:
+            c = summary[f"multiple_{field}"][name]
+            lines.append(
+                f"coherence {name}: min {c['min']:.3f} at {c['f_at_min_hz']:.3g} Hz, median {c['median']:.3f}, "
+                f"{100 * c['fraction_above_0_9']:.0f}% of bins above 0.9"
+            )
+    lines.append(
+        f"input coherence: max {summary['inputs_max']:.3f} at {summary['inputs_f_at_max_hz']:.3g} Hz (paper's guide "
+        f"0.4; independent inputs reach it by chance with p = {summary['inputs_chance_p']:.2g})"
+    )
+    return lines
+
+
+def welch_report(est, fit, *, acquisition: str, warnings: list[str], friction_given: bool = True) -> list[str]:
+    """What the Welch route prints: the acquisition (and, for instant or delayed force samples
+    without ``--friction``, that the robot's friction was taken as none), the 95% intervals per
+    element, the fitted delay, VAF and the lack-of-fit test with their ``verdict``, the
+    coherence summary and the warnings."""
+    assumed = acquisition in ("instant", "delay") and not friction_given
+    header = f"fit: acquisition {acquisition!r}" + (
+        " (robot friction taken as none; --friction N_M if yours has some)" if assumed else ""
+    )
+    lof, p = float(np.asarray(fit.lack_of_fit_overall)), float(np.asarray(fit.lack_of_fit_p_overall))
+    lines = [header, *_interval_lines(fit, acquisition)]
+    lines.append(f"VAF {float(np.asarray(fit.vaf_overall)):.2f} % (the share of Z's variance the model accounts for)")
+    lines.append(
+        f"lack of fit: residuals / the estimate's predicted noise {lof:.3g} (about 1 when the residuals are "
+        f"noise alone), p = {p:.3g}"
+    )
+    lines.append("verdict: {}: {}".format(*verdict(fit)))
+    lines += _coherence_lines(est)
+    return lines + ([f"WARNING: {w}" for w in warnings] or ["no warnings"])
+
+
+def model_report(res, classical, warnings: list[str]) -> list[str]:
+    """What the model route prints: convergence, each entry of ``res`` (an ``Identification``)
+    as value +- SE (with the ``classical`` fit's answer beside the arm's: the Welch route at
+    its defaults, ``None`` for none), VAF, whiteness, and every warning."""
+    lines = ["converged" if res.converged else f"NOT CONVERGED: {res.message}"]
+    lines.append(
+        f"cost {res.cost:.6g} after {res.iterations} iterations, {res.time_s:.1f} s; estimates "
+        "(value +- SE; 95% interval value +- 1.96 SE; arm matrices indexed [force axis, displacement axis]; "
+        "classical: the Welch route's fit at its defaults):"
+    )
+    for e in entries(res, classical):
+        beside = "" if e.classical is None else f"   (classical {e.classical:.4g})"
+        lines.append(f"  {e.label} [{e.unit}]: {e.value:10.4g} +- {e.se:.3g}{beside}")
+    vaf = np.concatenate([res.vaf_position, res.vaf_force])
+    lines.append("VAF [%]: " + ", ".join(f"{c} {v:.2f}" for c, v in zip(CHANNELS, vaf, strict=True)))
+    p = np.asarray(res.whiteness_p)
+    lines.append(
+        "residual whiteness (Ljung-Box p): " + ", ".join(f"{c} {v:.2g}" for c, v in zip(CHANNELS, p, strict=True))
+    )
+    return lines + ([f"WARNING: {w}" for w in warnings] or ["no warnings: the fit looks sound"])

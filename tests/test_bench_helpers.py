@@ -1,0 +1,54 @@
+"""The helpers the benchmark and study scripts share (sweeps/_cli.py, sweeps/_bench_run.py):
+solver names held to the library's, ``--cases`` parsing, round-robin timing, Markdown tables."""
+
+import pathlib
+import sys
+
+import jax.numpy as jnp
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "sweeps"))
+
+import _bench_run  # noqa: E402
+import _cli  # noqa: E402
+
+from armimp_jax._solver.numerics import METHODS, named_solver  # noqa: E402
+
+
+def test_the_scripts_solver_names_are_the_library_s():
+    assert _cli.METHODS == METHODS
+    for method in METHODS:
+        assert _cli.solver(method) == named_solver(method)
+    assert _cli.solver("rk4", kernel="reference") == named_solver("rk4", kernel="reference")
+
+
+def test_cases_parse_or_fail_in_one_line(capsys):
+    assert _cli.parse_cases("pd:0.3,imbic:1", "prog", "pd:0.3") == [("pd", 0.3), ("imbic", 1.0)]
+    with pytest.raises(SystemExit) as exit_:
+        _cli.parse_cases("pd,imbic:1", "prog", "pd:0.3,imbic:1")
+    assert exit_.value.code == 2
+    assert capsys.readouterr().err == "prog: error: --cases must look like pd:0.3,imbic:1; got 'pd,imbic:1'\n"
+
+
+def test_alternate_times_the_runs_round_robin():
+    calls = []
+
+    def run(name):
+        def call():
+            calls.append(name)
+            return jnp.zeros(2)
+
+        return call
+
+    times = _bench_run.alternate([run("a"), run("b")], 3)
+    assert calls == ["a", "b"] * 3
+    assert [len(t) for t in times] == [3, 3] and all(s >= 0 for t in times for s in t)
+
+
+def test_markdown_table_and_save(tmp_path):
+    text = _bench_run.markdown_table("Caption:", ("a", "b c"), [(1, "x"), ("2.50", "y")])
+    assert text == "Caption:\n\n| a | b c |\n|---|---|\n| 1 | x |\n| 2.50 | y |"
+    _bench_run.save_table(tmp_path / "out", "t", text, [dict(a=1)])
+    assert (tmp_path / "out" / "t.md").read_text() == text + "\n"
+    assert (tmp_path / "out" / "t.json").read_text() == '[\n {\n  "a": 1\n }\n]'
