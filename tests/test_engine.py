@@ -142,3 +142,23 @@ def test_progress_counts_samples_and_trials_and_leaves_compilation_out(tmp_path)
     # the first chunk of each new shape (30 x 2, then 50 x 2) compiles: no rate from it alone
     assert math.isnan(reports[0]["eta_s"]) and all(r["eta_s"] >= 0 for r in reports[1:])
     assert reports[-1]["eta_s"] == 0.0
+
+
+def test_a_run_made_by_another_version_is_refused_in_one_line_naming_both(tmp_path):
+    """Saved results are stamped with the version that made them: a folder of 0.4 is not
+    resumed by this version (its numbers might differ), and the refusal says so."""
+    import json
+
+    from armimp_jax.study.results import settings_key
+
+    run(Toy(), tmp_path, batch_size=8)
+    path = tmp_path / "run.json"
+    saved = json.loads(path.read_text())
+    saved["settings"]["armimp_jax"] = "0.4.0"
+    saved["key"] = settings_key(saved["settings"])  # as 0.4 wrote it: not an edited file
+    path.write_text(json.dumps(saved))
+    with pytest.raises(
+        ResultsError, match=r"made by armimp_jax 0\.4\.0, and this is \S+: results of two versions"
+    ) as e:
+        run(Toy(), tmp_path)
+    assert "\n" not in str(e.value)

@@ -133,6 +133,13 @@ class RunFolder:
         wanted = stamped(settings)
         if self.has_run():
             run = self.read()
+            made_by, this = run["settings"].get("armimp_jax"), wanted.get("armimp_jax")
+            if made_by != this:  # the same settings under another version may give other numbers
+                raise ResultsError(
+                    f"{self.path} holds a {self.noun} made by armimp_jax {made_by}, and this is {this}: results of "
+                    "two versions are never mixed; start it again in another folder (--out), or finish it with "
+                    f"armimp_jax {made_by} (reading it, e.g. --replot, works)"
+                )
             if run["key"] != settings_key(wanted):
                 raise ResultsError(
                     f"{self.path} holds a {self.noun} with {describe(run['settings'], wanted)}: use another output "
