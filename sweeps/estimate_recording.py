@@ -179,7 +179,7 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     est, fit = estimate_recording.analyse(rec, **welch, **fit_settings)
     acquisition = fit_settings["acquisition"]
-    # friction not given: taken as none, as the report's first line says (a warning that always fired was noise)
+    # friction not given: taken as none, as the report's first line says; a warning with no cause is noise
     friction = 0.0 if args.friction is None else args.friction
     warnings = aj.fit_warnings(fit, est, acquisition=acquisition, friction=friction)
     settings = dict(

@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._model.timing import CONTROL_PERIOD
+from .parametric import ELEMENTS
 from .welch import Estimate
 
 LACK_OF_FIT_ALPHA = 1e-3  # p-value below which the model is said not to fit
@@ -23,7 +24,6 @@ INPUT_COHERENCE_GUIDE = 0.4  # the paper's bound on the perturbation axes' ordin
 FEW_AVERAGES = 4.0  # effective Welch averages below which the error model is rough
 TIMING_SHIFT = 0.5  # standard errors: a delay that could be a mass lag moves M or B this far
 CHANNELS = ("fh_x", "fh_y", "x", "y")  # the multiple coherences' outputs, in FitDiagnostics' order
-_ELEMENTS = ((0, 0), (0, 1), (1, 0), (1, 1))
 
 
 class FitDiagnostics(NamedTuple):
@@ -162,7 +162,7 @@ def _lack_of_fit_warning(fit) -> list[str]:
     p_el, ratio_el = np.asarray(fit.lack_of_fit_p), np.asarray(fit.lack_of_fit)
     if not (p_all < LACK_OF_FIT_ALPHA or np.any(p_el < LACK_OF_FIT_ALPHA)):
         return []
-    worst = max(_ELEMENTS, key=lambda e: ratio_el[e])
+    worst = max(ELEMENTS, key=lambda e: ratio_el[e])
     return [
         f"lack of fit: the residuals are {float(np.asarray(fit.lack_of_fit_overall)):.3g} times their predicted "
         f"variance (p = {p_all:.2g}; worst Z{'xy'[worst[0]]}{'xy'[worst[1]]}: {ratio_el[worst]:.3g}, "

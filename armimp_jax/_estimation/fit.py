@@ -48,7 +48,7 @@ def coherence_weights(est: Estimate):
     """Coherence weights ``(F, 2, 2)`` for ``Z = T R^-1`` from an ``Estimate``.
 
     An H1 row estimated with multiple coherence ``g`` has relative variance proportional to
-    ``e = (1 - g) / g`` (the inverse of the first specification's ``g / (1 - g)`` weighting). ``Z_ij``
+    ``e = (1 - g) / g`` (the inverse of the common ``g / (1 - g)`` weighting). ``Z_ij``
     inherits errors from row ``i`` of ``T`` (output ``F_h,i``) and from both rows of ``R``
     (outputs ``x``), and first-order relative errors add, so
     ``w_ij = 1 / (e(g_fh,i) + e(g_x,1) + e(g_x,2))``. Zero where a coherence is zero; a
@@ -207,7 +207,7 @@ def fit_impedance(
     form (``"delay"``: Gauss-Newton on ``tau`` with ``M, B, K`` eliminated, from ``tau = 0``, a
     fixed number of steps), on regressors scaled by the highest frequency.
 
-    Returns an ``ImpedanceFit``; ``fit.summary()`` prints its intervals and warnings. Single
+    Returns an ``ImpedanceFit``; ``fit.summary()`` gives its intervals and warnings as text. Single
     fit; ``jax.vmap`` batches it (shape checks are static; value checks, e.g. NaN in ``Z``,
     run only on concrete inputs). Differentiable in ``Z``, ``f``, ``weights`` and ``error``;
     standard errors have no finite gradient on noise-free data (``sqrt`` at 0).

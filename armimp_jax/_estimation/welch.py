@@ -6,7 +6,7 @@ average of ``conj(X_a) X_b`` (the ``scipy.signal.csd(a, b)`` convention, one-sid
 scaling). The window is the periodic Hann by default, or any window ``scipy.signal.get_window``
 knows, or an explicit array. Only the bins the caller needs are kept after the FFT, so a
 trial costs ``S x C x nperseg`` reals of segments plus ``S x C x F`` complex spectra (about
-8 + 0.3 MB for a 50 s record). With ``errors=True`` the estimate also carries ``ZError``, the
+8 + 0.3 MB for a 50 s record). The estimate also carries ``ZError`` (unless ``errors=False``), the
 covariance of ``Z`` that the Welch average implies (docs/estimation.md, section 3).
 
 Single-trial functions; batch with ``jax.vmap``. Differentiable end to end.
@@ -294,8 +294,8 @@ class Estimate(NamedTuple):
     ``Z = T R^-1`` [N/m], each ``(F, 2, 2)`` complex indexed ``[output, input]``;
     ``coh_multiple_x`` ``(F, 2)`` per output; ``coh_partial_x`` ``(F, 2, 2)``
     ``[output, input]``; the same two for ``fh``; ``coh_inputs`` ``(F,)`` the ordinary
-    coherence between the two perturbation axes; ``error``: the ``ZError`` of ``Z`` when
-    ``estimate(..., errors=True)``, else ``None``.
+    coherence between the two perturbation axes; ``error``: the ``ZError`` of ``Z`` (``None``
+    from ``estimate(..., errors=False)``).
     """
 
     f: jnp.ndarray
@@ -399,7 +399,7 @@ def estimate(
         fh: recorded hand force ``(N, 2)`` [N].
         fs: sample rate [Hz].
         nperseg, noverlap: Welch segment length and overlap [samples]; by default they follow
-            the record (``welch_segments``: Table 4's 8192 and 6144 from 16384 samples on,
+            the record (``welch_segments``: Table 4's 8192 and 6144 from 24576 samples on,
             shorter segments on a shorter record); a given ``nperseg`` alone gets 75% overlap.
         fmax: highest frequency of interest [Hz], between ``fs / nfft`` and Nyquist.
         window: ``"hann"`` (periodic, default), any name or tuple ``scipy.signal.get_window``

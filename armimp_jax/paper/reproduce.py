@@ -354,8 +354,8 @@ def load_trials(
 
 def add_fits(metas: list[dict], arrays: dict) -> None:
     """Add the fitted ``M, B, K`` of each trial (``claims.fit_metrics``, from its stored ``f``
-    and ``Z``) to its ``metrics``, in place. Done when aggregating, so that every record,
-    older ones included, gets the same fit, and the records stay as they were written."""
+    and ``Z``) to its ``metrics``, in place. Done when aggregating, so that every record gets
+    the same fit, and the records stay as they were written."""
     groups: dict[tuple, list] = {}
     for m in metas:
         groups.setdefault((np.asarray(arrays[m["id"]]["f"]).tobytes(), m["condition"]["acquisition"]), []).append(m)

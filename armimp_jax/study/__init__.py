@@ -4,13 +4,17 @@ Files live here and above; nothing below this layer reads or writes one.
 
 The modules, one job each: ``points`` (a sweep's settings, grids, TOML and ``--set``),
 ``runfolder`` (one run per folder: ``run.json``, refusals, the lock, trial status),
-``results`` (keys, checked records, atomic strict-JSON writes), ``stats`` (``mean_ci`` and
-bootstrap thresholds), ``seeds`` (common random numbers), ``tables`` (pandas tables, CSV
-and Parquet), ``figures`` (``save_figure``), ``sweep`` (batches, metrics, ``run_sweep``),
-``distributed`` (many processes), ``recording`` (measured data), ``config`` (TOML configs
-that build a trial), ``identify_recording`` (the model route for measured data: its config,
-``identify``, its results on disk), ``design_experiment`` (experiment design's config, its
-Monte Carlo check and its files) and ``tune``.
+``engine`` (the one run-trials engine: run folder, batches, progress, resume), ``metrics``
+(the saved estimate fields, ``trial_metrics``), ``results`` (keys, checked records, atomic
+strict-JSON and npz writes), ``stats`` (``mean_ci``, the bootstrap and bootstrap
+thresholds), ``seeds`` (common random numbers), ``tables`` (pandas tables, CSV and
+Parquet), ``figures`` (``save_figure``), ``sweep`` (the sweep's specification and
+``run_sweep``), ``distributed`` (many processes), ``recording`` (measured data in),
+``estimate_recording`` (the Welch route for measured data), ``recording_figures`` and
+``recording_report`` (both routes' figures and text), ``config`` (the one trial schema:
+TOML configs and sweep points), ``identify_recording`` (the model route for measured data:
+its config, ``identify``, its results on disk), ``design_experiment`` (experiment design's
+config, its Monte Carlo check and its files) and ``tune``.
 
 The names below are imported on first use (so ``armimp_jax.study.distributed``'s option
 helpers stay importable without JAX).
