@@ -69,21 +69,17 @@ def diagnostics_of(est: Estimate) -> FitDiagnostics:
     ci = jnp.where(jnp.isfinite(est.coh_inputs), est.coh_inputs, -jnp.inf)
     k = jnp.argmax(ci)
     if est.error is None:
-        n_eff, chance = jnp.full((), jnp.nan), jnp.full((), jnp.nan)
+        n_eff, chance = jnp.nan, jnp.full((), jnp.nan)
     else:
         n_eff = est.error.n_eff
         chance = _chance(ci[k], n_eff, est.error.bin_corr, ci.shape[0])
-    return FitDiagnostics(
-        n_eff=n_eff,
+    return unknown_diagnostics(n_eff)._replace(
         coherence_min=jnp.min(coh, axis=0),
         coherence_min_f=est.f[at],
         coherence_median=jnp.nanmedian(jnp.where(jnp.isinf(coh), jnp.nan, coh), axis=0),
         input_coherence=ci[k],
         input_coherence_f=est.f[k],
         input_coherence_p=chance,
-        friction=jnp.full((), jnp.nan),
-        instant_samples=jnp.full((), jnp.nan),
-        period=jnp.full((), jnp.nan),
     )
 
 

@@ -225,8 +225,7 @@ def fit_impedance(
         instant_samples=jnp.asarray({"instant": 1.0, "delay": jnp.nan}.get(acquisition, 0.0)),
         period=jnp.asarray(period, dtype=jnp.float64),
     )
-    fit = _general_fit(z, f, w, acquisition, period, se, error)
-    return fit._replace(diagnostics=diagnostics)
+    return _general_fit(z, f, w, acquisition, period, se, error, diagnostics)
 
 
 def _inputs(Z, f, weights, error, se):
@@ -277,7 +276,7 @@ def _check_period(period) -> float:
     return period
 
 
-def _general_fit(z, f, w, acquisition, period, se, error) -> ImpedanceFit:
+def _general_fit(z, f, w, acquisition, period, se, error, diagnostics) -> ImpedanceFit:
     """The weighted least-squares fit of the recorded model, its covariance and lack of fit."""
     n_freq = z.shape[0]
     omega = 2.0 * jnp.pi * f
@@ -313,7 +312,7 @@ def _general_fit(z, f, w, acquisition, period, se, error) -> ImpedanceFit:
         vaf_overall=100.0 * (1.0 - jnp.sum(jnp.abs(r) ** 2) / jnp.sum(jnp.abs(y) ** 2)),
         dof=dof,
         **_no_delay_no_test(),
-        diagnostics=unknown_diagnostics(),
+        diagnostics=diagnostics,
     )
     if delay:
         fit = fit._replace(delay=tau / w0, delay_se=sd[12] / w0, delay_dof=par_dof[12])
