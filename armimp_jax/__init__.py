@@ -44,11 +44,11 @@ _EXPORTS = {
     "FitDiagnostics": "._estimation.diagnose",
     "fit_impedance": "._estimation.fit",
     "accuracy": "._estimation.metrics",
-    "Estimate": "._estimation.welch",
+    "Estimate": "._estimation.estimate",
     "ZError": "._estimation.welch",
     "cross_spectral_matrix": "._estimation.welch",
-    "estimate": "._estimation.welch",
-    "input_coherence": "._estimation.welch",
+    "estimate": "._estimation.estimate",
+    "input_coherence": "._estimation.estimate",
     "welch_segments": "._estimation.welch",
     "Arm": "._model.arm",
     "IMBIC": "._model.control",
@@ -131,15 +131,15 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._batch import simulate_batch as simulate_batch
     from ._estimation.diagnose import FitDiagnostics as FitDiagnostics
     from ._estimation.diagnose import fit_warnings as fit_warnings
+    from ._estimation.estimate import Estimate as Estimate
+    from ._estimation.estimate import estimate as estimate
+    from ._estimation.estimate import input_coherence as input_coherence
     from ._estimation.fit import fit_impedance as fit_impedance
     from ._estimation.impedance_fit import ImpedanceFit as ImpedanceFit
     from ._estimation.metrics import accuracy as accuracy
-    from ._estimation.welch import Estimate as Estimate
     from ._estimation.welch import Welch as Welch
     from ._estimation.welch import ZError as ZError
     from ._estimation.welch import cross_spectral_matrix as cross_spectral_matrix
-    from ._estimation.welch import estimate as estimate
-    from ._estimation.welch import input_coherence as input_coherence
     from ._estimation.welch import welch_segments as welch_segments
     from ._identification.bound import Bound as Bound
     from ._identification.bound import crlb as crlb

@@ -27,8 +27,9 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from ._checks import check_int
+from ._estimation.estimate import Estimate, estimate
 from ._estimation.metrics import impedance_error
-from ._estimation.welch import Estimate, Welch, estimate
+from ._estimation.welch import Welch
 from ._model.arm import impedance_response
 from ._simulate import SimResult, Trial, simulate_chunk, simulate_init
 from ._solver.numerics import Numerics

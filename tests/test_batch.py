@@ -170,4 +170,9 @@ def test_grouped_chunked_batches_give_the_numbers_of_one_vmapped_batch():
     assert seen[-1] == (5 * 300, 5 * 300)
     welch = aj.Welch(nperseg=128, noverlap=64, fmax=15.0)
     one = _batch.assess_batch(params, fd, grouped, welch, max_per_device=None)
-    assert tree_equal(_batch.assess_batch(params, fd, grouped, welch, max_per_device=2), one)
+    two = _batch.assess_batch(params, fd, grouped, welch, max_per_device=2)
+    # the force's broadband excess reduces spectra over ~50 bins, which XLA vectorises by batch
+    # size: the same to round-off; every other number bitwise
+    np.testing.assert_allclose(two.estimate.force_excess, one.estimate.force_excess, rtol=1e-12)
+    drop = {"estimate": one.estimate._replace(force_excess=None)}
+    assert tree_equal(two._replace(estimate=two.estimate._replace(force_excess=None)), one._replace(**drop))

@@ -10,8 +10,8 @@ import scipy.stats
 
 import armimp_jax as aj
 from armimp_jax import paper
+from armimp_jax._estimation.estimate import Estimate
 from armimp_jax._estimation.fit import coherence_weights
-from armimp_jax._estimation.welch import Estimate
 
 # Non-symmetric on purpose (docs/model.md section 3: use the matrices as given).
 M = np.array([[1.54, -0.57], [-0.65, 0.94]])
@@ -430,3 +430,46 @@ def test_friction_warning_fires_with_cause_only(noise_free_records):
     assert said(own.warnings) and not said(aj.fit_warnings(own, friction=0.0))
     box = aj.fit_impedance(noise_free_records["interval_mean"], acquisition="interval_mean", friction=0.5)
     assert not said(box.warnings)
+
+
+def test_force_excess_is_the_noise_floor_of_a_linear_loop_and_rises_with_stick_slip():
+    """A record whose force is the band-limited input's (below 20 Hz) plus white sensor noise
+    leaves above 30 Hz only the noise: the excess is the noise's share, computed by hand; jerks of a friction
+    force (a Coulomb force switching with the velocity's sign) spread force over every
+    frequency and lift it past the warning's threshold."""
+    from armimp_jax._estimation.diagnose import STICK_SLIP_EXCESS
+
+    k1, k2 = jax.random.split(jax.random.PRNGKey(3))
+    w = 2 * jnp.pi * jnp.fft.rfftfreq(MC_N, 1e-3)
+    u = jnp.fft.irfft(
+        jnp.fft.rfft(jax.random.normal(k1, (MC_N, 2)), axis=0) / (1.0 + 1j * w / (2 * jnp.pi * 20.0))[:, None],
+        n=MC_N,
+        axis=0,
+    )
+    fh_lin = u - jnp.mean(u, axis=0, keepdims=True)  # any in-band force: the excess needs only its power
+    noise = 0.02 * jax.random.normal(k2, (MC_N, 2))
+    quiet = aj.estimate(u, u, fh_lin + noise, **MC_WELCH)
+    band = jnp.sum(jnp.abs(jnp.fft.rfft(fh_lin + noise, axis=0)[(w > 0) & (w <= 2 * np.pi * 15)]) ** 2, axis=0)
+    high = jnp.sum(jnp.abs(jnp.fft.rfft(noise, axis=0)[(w >= 2 * np.pi * 30) & (w <= 2 * np.pi * 400)]) ** 2, axis=0)
+    np.testing.assert_allclose(quiet.force_excess, high / band, rtol=0.2)  # Welch against one periodogram
+    assert np.all(np.asarray(quiet.force_excess) < 0.05)
+    coulomb = 0.5 * jnp.sign(
+        jnp.gradient(jnp.cumsum(u, axis=0), axis=0) + 0.3 * jnp.sin(jnp.arange(MC_N) / 7.0)[:, None]
+    )
+    jerky = aj.estimate(u, u, fh_lin + noise + coulomb, **MC_WELCH)
+    assert np.all(np.asarray(jerky.force_excess) > 2 * STICK_SLIP_EXCESS), jerky.force_excess
+
+
+def test_stick_slip_seen_in_the_record_warns_like_friction_told(noise_free_records):
+    """With the friction unknown, a force excess above the threshold is the friction warning's
+    cause where the force is read at an instant; a friction told 0 is believed; interval means
+    and a quiet record say nothing."""
+    said = lambda ws: any(w.startswith("stick-slip in the record") for w in ws)  # noqa: E731
+    for data, instant in (("instant", True), ("interval_mean", False)):
+        fit = aj.fit_impedance(noise_free_records[data])
+        jerky = fit._replace(diagnostics=fit.diagnostics._replace(force_excess=jnp.array([0.05, 0.3])))
+        quiet = fit._replace(diagnostics=fit.diagnostics._replace(force_excess=jnp.array([0.05, 0.1])))
+        assert said(jerky.warnings) == instant and not said(quiet.warnings), data
+        assert not said(aj.fit_warnings(jerky, friction=0.0))
+        told = aj.fit_warnings(jerky, friction=1.0)
+        assert not said(told) and any(w.startswith("instant force samples") for w in told) == instant

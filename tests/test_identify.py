@@ -205,11 +205,13 @@ def test_predict_se_is_differentiable_in_the_perturbation():
     np.testing.assert_allclose(slope, fd, rtol=1e-3)
 
 
+@pytest.mark.xdist_group("identify_linear_pd")
 def test_the_efficient_statistic_is_exact_on_its_own_loop_and_finds_the_arm():
     """On the linear loop's own noise-free response the statistic returns its reference to
-    round-off; from a generic start the linear fit of a noisy IMBIC recording lands within a
-    few bounds of the truth."""
-    truth = _trial(friction=aj.NO_FRICTION, controller=aj.IMBIC(), **NOISE)
+    round-off; from a generic start the linear fit of a noisy PD recording lands within a few
+    bounds of the truth. The loop and record of the test below: one set of compiled programs
+    serves both."""
+    truth = _trial(friction=aj.NO_FRICTION, **NOISE)
     f = aj.perturbation(jax.random.key(2024), 2000, paper.perturbation_peak(1))
     layout = lay.make_layout(ARM)
     p = lay.pack(layout, truth)
@@ -218,7 +220,7 @@ def test_the_efficient_statistic_is_exact_on_its_own_loop_and_finds_the_arm():
     np.testing.assert_allclose(efficient.apply(stat, truth, x, fh), p, rtol=0, atol=1e-8 * float(jnp.abs(p).max()))
     rec = aj.simulate(truth, f, key=jax.random.key(3), numerics=LINEAR_NUM)
     generic = aj.Arm(np.eye(2), 5.0 * np.eye(2), 150.0 * np.eye(2), truth.arm.endpoint)
-    start = aj.make_trial(aj.IMBIC(), arm=generic, friction=aj.NO_FRICTION, **NOISE)
+    start = aj.make_trial(aj.PD(), arm=generic, friction=aj.NO_FRICTION, **NOISE)
     ref, converged = efficient.fit_linear(
         layout, start, lay.pack(layout, start), f, efficient.recorded(start, rec.x, rec.fh)
     )
@@ -226,6 +228,7 @@ def test_the_efficient_statistic_is_exact_on_its_own_loop_and_finds_the_arm():
     assert converged and np.all(np.abs(ref - np.asarray(p)) < 5 * bound), (ref - np.asarray(p)) / bound
 
 
+@pytest.mark.xdist_group("identify_linear_pd")
 def test_identify_is_near_the_bound_and_holds_the_truth_on_a_linear_loop():
     """PD without friction, 2 s: the efficient statistic, every estimate within 4 SE, and SEs near
     the Cramér-Rao bound (16 draws: the SEs themselves scatter by about 18%; the spread over 50

@@ -15,14 +15,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._model.timing import CONTROL_PERIOD
+from .estimate import Estimate
 from .parametric import ELEMENTS
-from .welch import Estimate
 
 LACK_OF_FIT_ALPHA = 1e-3  # p-value below which the model is said not to fit
 LOW_COHERENCE = 0.5  # a multiple coherence below this somewhere in the band
 INPUT_COHERENCE_GUIDE = 0.4  # the paper's bound on the perturbation axes' ordinary coherence
 FEW_AVERAGES = 4.0  # effective Welch averages below which the error model is rough
 TIMING_SHIFT = 0.5  # standard errors: a delay that could be a mass lag moves M or B this far
+STICK_SLIP_EXCESS = 0.15  # force_excess that shows joint stick-slip (docs/estimation.md section 3)
 CHANNELS = ("fh_x", "fh_y", "x", "y")  # the multiple coherences' outputs, in FitDiagnostics' order
 
 
@@ -39,7 +40,9 @@ class FitDiagnostics(NamedTuple):
     the fit's model reads the force at an instant (``"instant"``), 0 where it does not
     (``"plain"``, ``"interval_mean"``), NaN where the fit asks the record (``"delay"``: instant
     when the delay's 95% interval reaches a quarter of ``period``); ``period`` [s]: the hold
-    period the fit was given. Under ``jax.vmap`` every field gains the batch axis.
+    period the fit was given; ``force_excess`` ``(2,)``: ``Estimate.force_excess``, the hand
+    force's broadband power the perturbation does not explain over its in-band power (NaN:
+    unknown). Under ``jax.vmap`` every field gains the batch axis.
     """
 
     n_eff: jnp.ndarray
@@ -52,12 +55,14 @@ class FitDiagnostics(NamedTuple):
     friction: jnp.ndarray
     instant_samples: jnp.ndarray
     period: jnp.ndarray
+    force_excess: jnp.ndarray
 
 
 def unknown_diagnostics(n_eff=jnp.nan) -> FitDiagnostics:
     """Diagnostics of a fit to a bare ``Z`` array: nothing known but, at most, ``n_eff``."""
     nan, nan4 = jnp.full((), jnp.nan), jnp.full((4,), jnp.nan)
-    return FitDiagnostics(jnp.asarray(n_eff, dtype=jnp.float64), nan4, nan4, nan4, nan, nan, nan, nan, nan, nan)
+    n_eff = jnp.asarray(n_eff, dtype=jnp.float64)
+    return FitDiagnostics(n_eff, nan4, nan4, nan4, nan, nan, nan, nan, nan, nan, jnp.full((2,), jnp.nan))
 
 
 def diagnostics_of(est: Estimate) -> FitDiagnostics:
@@ -80,6 +85,7 @@ def diagnostics_of(est: Estimate) -> FitDiagnostics:
         input_coherence=ci[k],
         input_coherence_f=est.f[k],
         input_coherence_p=chance,
+        force_excess=jnp.full((2,), jnp.nan) if est.force_excess is None else jnp.asarray(est.force_excess),
     )
 
 
@@ -128,14 +134,27 @@ def fit_warnings(fit, est: Estimate | None = None, *, acquisition: str | None = 
     friction = float(own.friction) if friction is None else float(friction)
     instant = _instant_samples(fit, own, acquisition)
     out = [*_lack_of_fit_warning(fit), *_se_warning(fit), *_estimate_warnings(diag), *_timing_warning(fit)]
-    if friction > 0 and instant:
-        out.append(
-            "instant force samples through a robot with joint friction: the sampled-data model assumes the hand "
-            "accelerates as the linear arm alone would within each hold period; friction changes that and biases M "
-            "(low) and B without a trace in coherence or lack of fit, so the intervals may miss; interval-mean "
-            "(integrating) acquisition has no such bias"
-        )
-    return out
+    return out + (_friction_warning(friction, diag.force_excess) if instant else [])
+
+
+def _friction_warning(friction: float, excess) -> list[str]:
+    """Instant samples through friction: told (``friction > 0``), or, with the friction unknown
+    (NaN), seen as stick-slip's broadband force in the record; a friction told 0 is believed."""
+    consequence = (
+        "the sampled-data model assumes the hand accelerates as the linear arm alone would within each hold "
+        "period; friction changes that and biases M (low) and B without a trace in coherence or lack of fit, so "
+        "the intervals may miss; interval-mean (integrating) acquisition has no such bias"
+    )
+    if friction > 0:
+        return [f"instant force samples through a robot with joint friction: {consequence}"]
+    seen = np.nanmax(excess) if np.any(np.isfinite(excess)) else np.nan
+    if not (np.isnan(friction) and seen > STICK_SLIP_EXCESS):
+        return []
+    return [
+        f"stick-slip in the record: {100 * seen:.0f}% of the hand force's in-band power again above the band, "
+        f"unexplained by the perturbation (over {100 * STICK_SLIP_EXCESS:.0f}%: joint friction's jerks, or a noisy "
+        f"force sensor), with instant force samples: {consequence}; pass friction=0 if the robot has none"
+    ]
 
 
 def _instant_samples(fit, own: FitDiagnostics, acquisition: str | None) -> bool:

@@ -37,9 +37,10 @@ import numpy as np
 
 from .._checks import as_float64, check_choice, is_concrete, require_x64
 from .diagnose import diagnostics_of, unknown_diagnostics
+from .estimate import Estimate
 from .impedance_fit import ImpedanceFit
 from .parametric import ACQUISITIONS, DEFAULT_PERIOD, SE_METHODS, regressors
-from .welch import Estimate, ZError, check_finite
+from .welch import ZError, check_finite
 
 DELAY_ITERATIONS = 8  # Gauss-Newton steps from tau = 0: w tau is small, so 3-4 already converge
 
@@ -225,7 +226,7 @@ def fit_impedance(
         instant_samples=jnp.asarray({"instant": 1.0, "delay": jnp.nan}.get(acquisition, 0.0)),
         period=jnp.asarray(period, dtype=jnp.float64),
     )
-    return _general_fit(z, f, w, acquisition, period, se, error, diagnostics)
+    return _general_fit_compiled(z, f, w, acquisition, period, se, error, diagnostics)
 
 
 def _inputs(Z, f, weights, error, se):
@@ -334,6 +335,10 @@ def _no_delay_no_test() -> dict:
         lack_of_fit_overall=nan,
         lack_of_fit_p_overall=nan,
     )
+
+
+# one compiled program per shape and model, not a few hundred op-by-op ones (the banded sums)
+_general_fit_compiled = jax.jit(_general_fit, static_argnums=(3, 4, 5))
 
 
 def _delay_search(x, v, y, wts):

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.signal
 
-from .._checks import as_float64, check_int, is_concrete, require_x64
+from .._checks import as_float64, check_int, is_concrete
 from .._model.timing import SAMPLE_RATE
 
 # Table 4 of the paper (docs/model.md section 11): 21 segments in a 50 s record.
@@ -287,29 +287,6 @@ class ZError(NamedTuple):
     n_eff: jnp.ndarray
 
 
-class Estimate(NamedTuple):
-    """Estimator output on the bins ``0 < f <= fmax``.
-
-    ``f`` ``(F,)`` [Hz]; ``R`` (F_Delta -> x) [m/N], ``T`` (F_Delta -> F_h) [N/N] and
-    ``Z = T R^-1`` [N/m], each ``(F, 2, 2)`` complex indexed ``[output, input]``;
-    ``coh_multiple_x`` ``(F, 2)`` per output; ``coh_partial_x`` ``(F, 2, 2)``
-    ``[output, input]``; the same two for ``fh``; ``coh_inputs`` ``(F,)`` the ordinary
-    coherence between the two perturbation axes; ``error``: the ``ZError`` of ``Z`` (``None``
-    from ``estimate(..., errors=False)``).
-    """
-
-    f: jnp.ndarray
-    R: jnp.ndarray
-    T: jnp.ndarray
-    Z: jnp.ndarray
-    coh_multiple_x: jnp.ndarray
-    coh_partial_x: jnp.ndarray
-    coh_multiple_fh: jnp.ndarray
-    coh_partial_fh: jnp.ndarray
-    coh_inputs: jnp.ndarray
-    error: ZError | None = None
-
-
 def bin_correlation(n_seg: int, *, nperseg: int, noverlap: int, window="hann", nfft: int | None = None):
     """``r(d)``, ``d = 0 .. D`` bins: how much the Welch average correlates errors ``d`` bins apart.
 
@@ -376,98 +353,3 @@ def n_bins(fmax: float, *, fs: float, nperseg: int, nfft: int | None = None) -> 
     """Number of bins with ``0 < f <= fmax`` (122 for the paper's settings); bins are
     ``fs / nfft`` apart (``nfft`` defaults to ``nperseg``)."""
     return int(fmax * (nperseg if nfft is None else nfft) / fs + 1e-9)
-
-
-def estimate(
-    f_delta,
-    x,
-    fh,
-    *,
-    fs: float = SAMPLE_RATE,
-    nperseg: int | None = None,
-    noverlap: int | None = None,
-    fmax: float = ESTIMATION_FMAX,
-    window="hann",
-    nfft: int | None = None,
-    errors: bool = True,
-) -> Estimate:
-    """Estimate the arm impedance from a record (docs/model.md section 11, paper eq. 9).
-
-    Args:
-        f_delta: perturbation ``(N, 2)`` [N] (the inputs).
-        x: recorded hand position ``(N, 2)`` [m] (any constant offset is removed per segment).
-        fh: recorded hand force ``(N, 2)`` [N].
-        fs: sample rate [Hz].
-        nperseg, noverlap: Welch segment length and overlap [samples]; by default they follow
-            the record (``welch_segments``: Table 4's 8192 and 6144 from 24576 samples on,
-            shorter segments on a shorter record); a given ``nperseg`` alone gets 75% overlap.
-        fmax: highest frequency of interest [Hz], between ``fs / nfft`` and Nyquist.
-        window: ``"hann"`` (periodic, default), any name or tuple ``scipy.signal.get_window``
-            knows (periodic), or an array ``(nperseg,)``.
-        nfft: FFT length ``>= nperseg`` (zero padding; default ``nperseg``); bins are
-            ``fs / nfft`` apart.
-        errors: also return ``Estimate.error``, the ``ZError`` of ``Z`` (what
-            ``fit_impedance``'s spectral standard errors and its lack-of-fit test need). On by
-            default; ``False`` saves its memory (about 0.1 MB a trial) where only ``Z`` and the
-            coherences are wanted. The other fields are the same either way.
-
-    Single-trial; ``jax.vmap`` batches it (the settings are static). Raises ``ValueError``
-    for mismatched lengths, NaN or inf in a concrete record (naming the first bad sample),
-    a record that gives fewer than two segments, ``noverlap >= nperseg``, ``nfft <
-    nperseg``, an unknown window or ``fmax`` out of range.
-    """
-    require_x64("estimate")
-    arrays = [as_float64(name, a, where="estimate") for name, a in (("f_delta", f_delta), ("x", x), ("fh", fh))]
-    shapes = [a.shape for a in arrays]
-    if any(len(s) != 2 or s[1] != 2 for s in shapes) or len(set(shapes)) != 1:
-        raise ValueError(f"f_delta, x and fh must all have the same shape (N, 2); got {shapes}")
-    for name, a in zip(("f_delta", "x", "fh"), arrays, strict=True):
-        check_finite(name, a, where="estimate")
-    nperseg, noverlap = _segments(shapes[0][0], nperseg, noverlap)
-    freqs, g = band_spectra(
-        jnp.concatenate(arrays, axis=1), fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax, window=window, nfft=nfft
-    )
-    n_seg = check_welch(shapes[0][0], fs=fs, nperseg=nperseg, noverlap=noverlap, nfft=nfft, window=window)
-    u, xs, fs_ = (0, 1), (2, 3), (4, 5)
-    r, t = h1(g, u, xs), h1(g, u, fs_)
-    z = t @ _inv2(r)
-    cx = [coherences(g, u, c) for c in xs]
-    cf = [coherences(g, u, c) for c in fs_]
-    coh_inputs = ordinary_coherence(g, 0, 1)
-    return Estimate(
-        f=freqs,
-        R=r,
-        T=t,
-        Z=z,
-        coh_multiple_x=jnp.stack([m for m, _ in cx], -1),
-        coh_partial_x=jnp.stack([p for _, p in cx], 1),
-        coh_multiple_fh=jnp.stack([m for m, _ in cf], -1),
-        coh_partial_fh=jnp.stack([p for _, p in cf], 1),
-        coh_inputs=coh_inputs,
-        error=z_error(g, z, n_seg, nperseg=nperseg, noverlap=noverlap, window=window, nfft=nfft) if errors else None,
-    )
-
-
-def input_coherence(
-    f_delta,
-    *,
-    fs: float = SAMPLE_RATE,
-    nperseg: int | None = None,
-    noverlap: int | None = None,
-    fmax: float = ESTIMATION_FMAX,
-    window="hann",
-    nfft: int | None = None,
-):
-    """Maximum ordinary coherence between the two perturbation axes over ``0 < f <= fmax``.
-
-    The paper kept it below 0.4; report it with every trial. Scalar; vmappable. Welch
-    settings as in ``estimate``.
-    """
-    require_x64("input_coherence")
-    f_delta = as_float64("f_delta", f_delta, where="input_coherence")
-    if f_delta.ndim != 2 or f_delta.shape[1] != 2:
-        raise ValueError(f"f_delta must have shape (N, 2), got {f_delta.shape}")
-    check_finite("f_delta", f_delta, where="input_coherence")
-    nperseg, noverlap = _segments(f_delta.shape[0], nperseg, noverlap)
-    _, g = band_spectra(f_delta, fs=fs, nperseg=nperseg, noverlap=noverlap, fmax=fmax, window=window, nfft=nfft)
-    return jnp.max(ordinary_coherence(g, 0, 1))

@@ -35,8 +35,8 @@ import math
 import jax
 import jax.numpy as jnp
 
+from .._estimation.estimate import estimate
 from .._estimation.fit import fit_impedance
-from .._estimation.welch import estimate
 from .._model.robot import ik, jacobian
 from . import efficient
 from .layout import ARM_PARAMETERS, Layout

@@ -41,8 +41,9 @@ import numpy as np
 import scipy.stats
 
 from .._checks import as_float64, check_int, require_x64
+from .._estimation.estimate import estimate
 from .._estimation.fit import ImpedanceFit, fit_impedance
-from .._estimation.welch import check_finite, estimate
+from .._estimation.welch import check_finite
 from .._simulate import Trial
 from .._solver.numerics import Numerics
 from . import efficient, indirect, search

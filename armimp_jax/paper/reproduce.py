@@ -45,7 +45,8 @@ import numpy as np
 import pandas as pd
 
 from .._batch import assess_batch, simulate_batch
-from .._estimation.welch import Welch, input_coherence
+from .._estimation.estimate import input_coherence
+from .._estimation.welch import Welch
 from .._simulate import stack_trials
 from .._solver.numerics import PAPER_NUMERICS, Numerics
 from ..presets import arm, perturbation_peak, trial

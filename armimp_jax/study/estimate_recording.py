@@ -21,7 +21,8 @@ import pathlib
 import numpy as np
 
 from .._estimation.diagnose import LACK_OF_FIT_ALPHA, input_coherence_chance
-from .._estimation.welch import ESTIMATION_FMAX, check_welch, estimate, welch_segments
+from .._estimation.estimate import estimate
+from .._estimation.welch import ESTIMATION_FMAX, check_welch, welch_segments
 from .figures import save_figure
 from .recording_figures import OUTPUTS, bode_figure, coherence_figure
 from .results import atomic_write_json, atomic_write_npz
