@@ -15,3 +15,26 @@ os.environ.setdefault("ARMIMP_JAX_CACHE_DIR", str(pathlib.Path(__file__).resolve
 from armimp_jax import runtime  # noqa: E402  (after the cache folder is chosen)
 
 runtime.use_compilation_cache(runtime.compilation_cache_dir())
+
+# The suite runs file by file on two workers (``--dist loadfile``: a module's fixtures and
+# compiled programs are made once). Its heaviest files go first, so the last file a worker
+# takes is a short one; measured worker seconds on a cold cache (docs/performance.md).
+HEAVY_FIRST = (
+    "test_identify.py",
+    "test_bound.py",
+    "test_reproduce.py",
+    "test_fit.py",
+    "test_recording.py",
+    "test_bound_design.py",
+    "test_graded.py",
+    "test_estimate.py",
+    "test_identify_recording.py",
+    "test_tune.py",
+    "test_readme.py",
+    "test_simulate.py",
+)
+
+
+def pytest_collection_modifyitems(items):
+    rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(HEAVY_FIRST)))  # stable: file order kept otherwise

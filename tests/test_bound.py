@@ -118,6 +118,7 @@ def test_the_bound_falls_at_least_as_one_over_the_square_root_of_the_record():
     assert short.record_for(0.1) == pytest.approx(short.seconds * (1.959963984540054 * rel / 0.1) ** 2)
 
 
+@pytest.mark.slow  # ~20 s cold; test_bound_design checks the design objective's gradient through it, fast
 def test_the_information_differentiates_in_the_perturbation_and_the_gains():
     """Forward mode in ``f`` and in IMBIC's desired stiffness against central differences
     (reverse mode is the same program transposed; it compiles three times slower)."""

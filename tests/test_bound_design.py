@@ -49,7 +49,6 @@ def test_the_projection_meets_the_drift_limit_and_the_minimum_gains():
     assert np.sqrt(np.mean(np.sum(x**2, axis=1))) == pytest.approx(float(aj.drift(t)), rel=0.2)
 
 
-@pytest.mark.xdist_group("bound_design_objective")
 def test_the_criterion_differentiates_in_the_spectrum_and_the_gains():
     """The design's objective (worst log relative SE bound, the signal scaled to the displacement
     limit) against central differences in a knot and in the stiffness."""
@@ -77,7 +76,6 @@ def test_the_criterion_differentiates_in_the_spectrum_and_the_gains():
         assert float(grad[part][where]) == pytest.approx(fd, rel=1e-4, abs=1e-8), (part, where)
 
 
-@pytest.mark.xdist_group("bound_design_objective")
 def test_a_designed_experiment_meets_every_limit_exactly():
     """Two steps on a 2 s record: the returned signal at (or within) the RMS and peak limits, the
     full simulation's displacement within its limit, the drift within its limit, gains at least

@@ -13,9 +13,6 @@ from armimp_jax import paper
 from armimp_jax._estimation.estimate import Estimate
 from armimp_jax._estimation.fit import coherence_weights
 
-# the module's fixtures are computed once per worker: keep its tests on one worker
-pytestmark = pytest.mark.xdist_group("fit")
-
 # Non-symmetric on purpose (docs/model.md section 3: use the matrices as given).
 M = np.array([[1.54, -0.57], [-0.65, 0.94]])
 B = np.array([[7.17, -6.14], [-6.19, 12.08]])

@@ -205,7 +205,6 @@ def test_predict_se_is_differentiable_in_the_perturbation():
     np.testing.assert_allclose(slope, fd, rtol=1e-3)
 
 
-@pytest.mark.xdist_group("identify_linear_pd")
 def test_the_efficient_statistic_is_exact_on_its_own_loop_and_finds_the_arm():
     """On the linear loop's own noise-free response the statistic returns its reference to
     round-off; from a generic start the linear fit of a noisy PD recording lands within a few
@@ -228,7 +227,6 @@ def test_the_efficient_statistic_is_exact_on_its_own_loop_and_finds_the_arm():
     assert converged and np.all(np.abs(ref - np.asarray(p)) < 5 * bound), (ref - np.asarray(p)) / bound
 
 
-@pytest.mark.xdist_group("identify_linear_pd")
 def test_identify_is_near_the_bound_and_holds_the_truth_on_a_linear_loop():
     """PD without friction, 2 s: the efficient statistic, every estimate within 4 SE, and SEs near
     the Cramér-Rao bound (16 draws: the SEs themselves scatter by about 18%; the spread over 50

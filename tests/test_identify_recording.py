@@ -21,9 +21,6 @@ from armimp_jax import presets
 from armimp_jax.study import estimate_recording, recording, recording_figures
 from armimp_jax.study import identify_recording as idr
 
-# the module's fixtures are computed once per worker: keep its tests on one worker
-pytestmark = pytest.mark.xdist_group("identify_recording")
-
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "estimate_recording.py"
 EXAMPLE = ROOT / "sweeps" / "configs" / "identify_example.toml"

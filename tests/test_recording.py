@@ -17,9 +17,6 @@ import armimp_jax as aj
 from armimp_jax import paper
 from armimp_jax.study import estimate_recording, recording
 
-# the module's fixtures are computed once per worker: keep its tests on one worker
-pytestmark = pytest.mark.xdist_group("recording")
-
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "estimate_recording.py"
 _spec = importlib.util.spec_from_file_location("estimate_recording", SCRIPT)

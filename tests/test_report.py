@@ -19,9 +19,6 @@ from armimp_jax.paper.claims import (
     trial_id,
 )
 
-# the module's fixtures are computed once per worker: keep its tests on one worker
-pytestmark = pytest.mark.xdist_group("report")
-
 
 @pytest.mark.parametrize(
     "x, spec, text",

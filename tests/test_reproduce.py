@@ -32,9 +32,6 @@ from armimp_jax.presets._paper import arm
 from armimp_jax.study import engine
 from armimp_jax.study import results as res
 
-# the module's fixtures are computed once per worker: keep its tests on one worker
-pytestmark = pytest.mark.xdist_group("reproduce")
-
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "reproduce_paper.py"
 FIGURES = [

@@ -15,9 +15,6 @@ from armimp_jax import paper
 from armimp_jax._model.plant import measure, plant_model, rest_state
 from armimp_jax._solver.rk4 import rk4_step
 
-# the module's fixtures are computed once per worker: keep its tests on one worker
-pytestmark = pytest.mark.xdist_group("simulate")
-
 CONTROLLERS = ["pd", "imbic"]
 
 

@@ -18,9 +18,6 @@ from armimp_jax.study import points as sp
 from armimp_jax.study import stats as study_stats
 from armimp_jax.study import sweep
 
-# the module's fixtures are computed once per worker: keep its tests on one worker
-pytestmark = pytest.mark.xdist_group("sweep")
-
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "sweep.py"
 # 2 s records, 512-sample segments, 5 ARK3 substeps: 6 points (PD ignores mhat) x 2 seeds.

@@ -24,9 +24,6 @@ from armimp_jax.paper import tune as paper_tune
 from armimp_jax.study import results as res
 from armimp_jax.study import tune
 
-# the module's fixtures are computed once per worker: keep its tests on one worker
-pytestmark = pytest.mark.xdist_group("tune")
-
 WELCH = Welch(512, 384)
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "tune_mhat.py"
