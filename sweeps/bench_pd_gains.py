@@ -23,7 +23,7 @@ from __future__ import annotations
 import sys
 import time
 
-from _cli import Parser, Z95, bench_noise, fail
+from _cli import Z95, Parser, bench_noise, fail
 
 TARGETS = [f"arm.{n}[{i},{i}]" for n in ("mass", "damping", "stiffness") for i in (0, 1)]
 FREE = ("arm.mass", "arm.damping", "arm.stiffness")
@@ -77,7 +77,8 @@ def one_pair(aj, np, jax, kp: float, kv: float, a) -> dict:
         record=a.record,
         peak_displacement=a.displacement,
     )
-    family = aj.ShapedNoise(np.geomspace(a.low, a.high, a.knots), np.ones((2, a.knots)), 1.0, duty=a.duty, burst=a.burst)
+    knots = np.geomspace(a.low, a.high, a.knots)
+    family = aj.ShapedNoise(knots, np.ones((2, a.knots)), 1.0, duty=a.duty, burst=a.burst)
     signal = np.asarray(aj.limited_signal(family, limits, key=jax.random.key(0), trials=trials))
     worst = []
     for t in trials:

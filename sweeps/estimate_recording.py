@@ -28,9 +28,10 @@ with M, B, K; 'instant' (samples at the control instants, force read just before
 command's zero-order-hold update, as the simulator does by default), 'interval_mean'
 (box-car means over each sample period) and 'plain' (M s^2 + B s + K as it stands, no
 model of the sampling) are the others. Instant or delayed force samples through a robot
-with joint friction bias M and B in a way the record cannot show: give --friction, your
-robot's friction torque, and a warning says so when it is above 0 (not given, the robot is
-taken as frictionless, and the report's first line says so). Standard errors (--se) come
+with joint friction bias M and B in a way the fit cannot show: give --friction, your
+robot's friction torque, and a warning says so when it is above 0; not given, the warning
+fires when the record shows stick-slip (the force's broadband excess), and the report's
+first line says so. Standard errors (--se) come
 from the Welch estimate's own error model ('spectral', default) or from the fit's
 residuals ('residual', too small: the Welch bins are correlated). Welch segments follow
 the record's length unless --nperseg is given (armimp_jax.welch_segments).
@@ -121,9 +122,9 @@ def parse(argv):
         "--friction",
         type=float,
         metavar="N_M",
-        help="your robot's largest joint Coulomb friction torque [N m] (default: taken as none, as the report "
-        "says); with instant or delay timing a robot with friction biases M and B in ways the record cannot "
-        "show, and a warning says so",
+        help="your robot's largest joint Coulomb friction torque [N m] (default: unknown, read from the record's "
+        "stick-slip, as the report says); with instant or delay timing a robot with friction biases M and B in "
+        "ways the fit cannot show, and a warning says so",
     )
     args = ap.parse_args(argv)
     given = [f"--{k}" for k in WELCH_OPTIONS if getattr(args, k) is not None]
@@ -179,9 +180,8 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     est, fit = estimate_recording.analyse(rec, **welch, **fit_settings)
     acquisition = fit_settings["acquisition"]
-    # friction not given: taken as none, as the report's first line says; a warning with no cause is noise
-    friction = 0.0 if args.friction is None else args.friction
-    warnings = aj.fit_warnings(fit, est, acquisition=acquisition, friction=friction)
+    # friction not given: unknown, so the record's stick-slip decides (the report's first line says so)
+    warnings = aj.fit_warnings(fit, est, acquisition=acquisition, friction=args.friction)
     settings = dict(
         recording=str(args.recording), columns=columns, **estimate_recording.settings_record(welch, fit_settings)
     )

@@ -99,13 +99,13 @@ def test_csv_round_trip_gives_the_library_numbers(trial, reference, tmp_path, ca
     np.testing.assert_allclose(result["interval_95"]["damping"]["low"], low, rtol=1e-9)
     np.testing.assert_allclose(result["delay"]["value"], fit.delay, rtol=1e-9)
     np.testing.assert_allclose(result["lack_of_fit"]["p"], fit.lack_of_fit_p_overall, rtol=1e-9)
-    # no --friction: the robot is taken as frictionless (the report's first line says so) and no
-    # warning blames friction that nobody said is there
-    assert result["warnings"] == aj.fit_warnings(fit, est, acquisition="delay", friction=0.0)
+    # no --friction: unknown (the report's first line says so): only the record's stick-slip
+    # could blame friction, and no warning blames friction that nobody said is there
+    assert result["warnings"] == aj.fit_warnings(fit, est, acquisition="delay")
     assert not [w for w in result["warnings"] if w.startswith("instant force samples")]
     assert (
-        printed.splitlines()[1]
-        == "fit: acquisition 'delay' (robot friction taken as none; --friction N_M if yours has some)"
+        printed.splitlines()[1] == "fit: acquisition 'delay' (robot friction unknown: stick-slip read from the record; "
+        "--friction N_M if you know it)"
     )
     assert result["settings"]["friction_n_m"] is None
     assert f"verdict: {': '.join(estimate_recording.verdict(fit))}" in printed

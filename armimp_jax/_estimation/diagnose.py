@@ -115,15 +115,16 @@ def fit_warnings(fit, est: Estimate | None = None, *, acquisition: str | None = 
     ``fit``: one concrete ``ImpedanceFit``. Its own ``diagnostics`` are used, or those of
     ``est`` when given. ``acquisition`` (the fit's) and ``friction`` (the robot's largest
     Coulomb torque [N m]) override what the fit recorded (``fit_impedance(..., friction=)``):
-    with ``friction > 0`` and instant force samples (``"instant"`` or ``"delay"``) it adds
-    what no statistic of the record shows (docs/estimation.md section 3); with friction
-    unknown it says nothing of it.
+    with instant force samples (``"instant"``, or a ``"delay"`` fit at the hold's lag) it warns
+    of friction's bias when ``friction > 0``, or, with the friction unknown, when the record
+    shows stick-slip (``force_excess`` above ``STICK_SLIP_EXCESS``; docs/estimation.md section
+    3); a friction told 0 is believed.
 
     Each warning is one line saying what was seen and what it means: a significant lack of
     fit, standard errors that could not be computed, few effective averages, a low multiple
     coherence, correlated inputs beyond chance, a fitted delay whose reading as the hold's
     lag on the mass would move M or B by more than ``TIMING_SHIFT`` standard errors, and
-    instant samples through friction.
+    instant samples through friction (told, or seen as stick-slip).
     """
     if np.ndim(np.asarray(fit.lack_of_fit_p)) != 2:
         raise ValueError(

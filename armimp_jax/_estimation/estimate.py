@@ -67,8 +67,9 @@ def force_excess(f_delta, fh, *, fs: float, nperseg: int, noverlap: int, fmax: f
 
     A linear loop driven in the band answers in the band: above it the force holds the sensor's
     noise, when the perturbation is band-limited (the paper's, and the designed families; a
-    broadband one whose force rises far above the band leaves its estimate's leakage there). Stick-slip in the robot's joints jerks the hand and spreads force over every
-    frequency (measured values in docs/estimation.md section 3)."""
+    broadband one whose force rises far above the band leaves its estimate's leakage there).
+    Stick-slip in the robot's joints jerks the hand and spreads force over every frequency
+    (measured values in docs/estimation.md section 3)."""
     nfft = nperseg if nfft is None else nfft
     freqs = np.arange(nfft // 2 + 1) * (fs / nfft)
     band = np.flatnonzero((freqs > 0) & (freqs <= fmax))

@@ -199,10 +199,11 @@ def fit_impedance(
             correlated). docs/estimation.md section 3.
         error: a ``ZError`` for a ``Z`` array (with an ``Estimate``, its own ``error``).
         friction: the robot's largest Coulomb joint torque [N m], when known (``None``:
-            unknown). It changes no number; with ``friction > 0`` and force samples taken at
-            an instant (``"instant"``, or a fitted delay that is consistent with the hold's
-            lag) the result warns that friction biases M and B there without a trace in the
-            record (docs/estimation.md section 3).
+            unknown). It changes no number; with force samples taken at an instant
+            (``"instant"``, or a fitted delay that is consistent with the hold's lag) the
+            result warns that friction biases M and B there when ``friction > 0``, or, with
+            the friction unknown, when the estimate shows stick-slip (``force_excess``); a
+            friction of 0 silences that (docs/estimation.md section 3).
 
     The lack-of-fit fields need an error model (else NaN), whatever ``se``. Solved in closed
     form (``"delay"``: Gauss-Newton on ``tau`` with ``M, B, K`` eliminated, from ``tau = 0``, a

@@ -51,12 +51,12 @@ def _coherence_lines(est) -> list[str]:
 
 def welch_report(est, fit, *, acquisition: str, warnings: list[str], friction_given: bool = True) -> list[str]:
     """What the Welch route prints: the acquisition (and, for instant or delayed force samples
-    without ``--friction``, that the robot's friction was taken as none), the 95% intervals per
+    without ``--friction``, that the robot's friction is read from the record), the 95% intervals per
     element, the fitted delay, VAF and the lack-of-fit test with their ``verdict``, the
     coherence summary and the warnings."""
     assumed = acquisition in ("instant", "delay") and not friction_given
     header = f"fit: acquisition {acquisition!r}" + (
-        " (robot friction taken as none; --friction N_M if yours has some)" if assumed else ""
+        " (robot friction unknown: stick-slip read from the record; --friction N_M if you know it)" if assumed else ""
     )
     lof, p = float(np.asarray(fit.lack_of_fit_overall)), float(np.asarray(fit.lack_of_fit_p_overall))
     lines = [header, *_interval_lines(fit, acquisition)]
