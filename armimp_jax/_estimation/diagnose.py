@@ -152,9 +152,9 @@ def _friction_warning(friction: float, excess) -> list[str]:
     if not (np.isnan(friction) and seen > STICK_SLIP_EXCESS):
         return []
     return [
-        f"stick-slip in the record: {100 * seen:.0f}% of the hand force's in-band power again above the band, "
-        f"unexplained by the perturbation (over {100 * STICK_SLIP_EXCESS:.0f}%: joint friction's jerks, or a noisy "
-        f"force sensor), with instant force samples: {consequence}; pass friction=0 if the robot has none"
+        f"stick-slip in the record: above the band the hand force carries power the perturbation does not explain, "
+        f"{100 * seen:.0f}% of its in-band power (over {100 * STICK_SLIP_EXCESS:.0f}%: the jerks of joint friction, "
+        f"or a noisy force sensor); with instant force samples {consequence}; pass friction=0 if the robot has none"
     ]
 
 
