@@ -18,7 +18,7 @@ runtime.use_compilation_cache(runtime.compilation_cache_dir())
 
 # The suite runs file by file on two workers (``--dist loadfile``: a module's fixtures and
 # compiled programs are made once). Its heaviest files go first, so the last file a worker
-# takes is a short one; measured worker seconds on a cold cache (docs/performance.md).
+# takes is a short one: by worker seconds on a cold cache (docs/performance.md, version 1.1).
 HEAVY_FIRST = (
     "test_identify.py",
     "test_bound.py",
