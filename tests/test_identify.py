@@ -145,6 +145,11 @@ def test_bad_input_is_a_one_line_error_before_long_work():
         aj.identify(truth, f, x, fh, free=ARM, draws=8, jacobian_draws=16)
     with pytest.raises(ValueError, match="at least 1000 samples"):
         aj.identify(truth, f[:500], x[:500], fh[:500], free=ARM)
+    # 1000 samples pass that floor, but the Welch statistic's segments would leave one bin to fit
+    with pytest.raises(ValueError, match="128-sample segments 1 frequency bin.s. up to 15 Hz; it needs 3"):
+        aj.identify(truth, f[:1000], x[:1000], fh[:1000], free=ARM)
+    with pytest.raises(ValueError, match="predict_se: a record of 1000 samples"):
+        aj.predict_se(_trial(**NOISE), f[:1000], free=ARM)
 
 
 @pytest.mark.slow  # ~50 s; the noisy route with friction free is also run by test_identify_recording.py

@@ -50,8 +50,8 @@ def _config() -> dict:
         "friction": {"tau_c": 0.6, "tau_s": 1.2},
         "identify": {
             "free": ["arm.mass", "arm.damping", "arm.stiffness", "friction.tau_c"],
-            "draws": 16,
-            "jacobian_draws": 4,
+            "draws": 8,
+            "jacobian_draws": 2,
             "substeps": SUBSTEPS,
         },
     }

@@ -66,9 +66,7 @@ def write_csv(path, rec, *, header=HEADER, rename=None, edit=None):
 def reference(trial):
     """What the library gives for the trial: ``estimate`` (with its error model) then
     ``fit_impedance`` with the script's defaults (a fitted delay, spectral errors)."""
-    est = jax.jit(lambda a, b, c: aj.estimate(a, b, c, fs=1000.0, errors=True, **WELCH))(
-        trial["f_delta"], trial["x"], trial["fh"]
-    )
+    est = aj.estimate(trial["f_delta"], trial["x"], trial["fh"], fs=1000.0, errors=True, **WELCH)
     return est, aj.fit_impedance(est, acquisition="delay", se="spectral")
 
 

@@ -37,6 +37,7 @@ import jax.numpy as jnp
 
 from .._estimation.estimate import estimate
 from .._estimation.fit import fit_impedance
+from .._estimation.welch import ESTIMATION_FMAX
 from .._model.robot import ik, jacobian
 from . import efficient
 from .layout import ARM_PARAMETERS, Layout
@@ -54,6 +55,23 @@ def welch_nperseg(n: int) -> int:
     """Welch segment length for an ``n``-sample record: ``WELCH_NPERSEG``, shorter (a power of two,
     at least 4 segments) for short records."""
     return int(min(WELCH_NPERSEG, 2 ** math.floor(math.log2(max(n // 4, 64)))))
+
+
+# Welch bins up to ESTIMATION_FMAX that the Welch statistic fits each entry's M, B, K on
+MIN_BINS = 3
+
+
+def check_statistic_record(n: int, period: float, where: str) -> None:
+    """One line when an ``n``-sample record at ``1 / period`` [Hz] leaves the Welch statistic's
+    segments (``welch_nperseg``) fewer than ``MIN_BINS`` bins in ``0 < f <= ESTIMATION_FMAX``."""
+    nperseg = welch_nperseg(n)
+    bins = math.floor(ESTIMATION_FMAX * nperseg * period + 1e-9)
+    if bins < MIN_BINS:
+        raise ValueError(
+            f"{where}: a record of {n} samples at {1.0 / period:g} Hz leaves the Welch statistic's "
+            f"{nperseg}-sample segments {bins} frequency bin(s) up to {ESTIMATION_FMAX:g} Hz; it needs "
+            f"{MIN_BINS}: record for longer"
+        )
 
 
 def arm_statistics(trial, f, x, fh):

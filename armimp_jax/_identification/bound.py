@@ -101,7 +101,8 @@ class Bound:
         se, values, relative_se: ``{name: (2, 2) array}``: the bound on each entry's standard
             error (in its units), the trial's values, and their ratio (NaN where a value is 0).
         covariance: ``(n, n)`` the bound on the covariance of every entry (order of ``labels``);
-            information: ``(m, m)`` the Fisher information of the internal parameters.
+            information: ``(m, m)`` the Fisher information of the internal parameters. Both NaN
+            where no bound holds (``near_linear`` False: not computed).
         labels: entry names, e.g. ``"arm.stiffness[0,0]"``.
         seconds: the record length [s] the bound is for.
         reference: what the bound is of: the trial's loop, or that loop without its joint
@@ -158,11 +159,35 @@ class Bound:
         return "\n".join(lines)
 
 
-@functools.partial(jax.jit, static_argnames="layout")
-def _information(layout, trial, p, f):
-    y, dy = response_derivative(layout, trial, p, f)
-    loop = linear.linearise(trial)
-    return kalman.information(kalman.innovations_filter(loop), dy), y, loop
+@jax.jit
+def _loop(trial):
+    return linear.linearise(trial)
+
+
+def _no_bound(trial: Trial, f, check: bool, numerics, friction: bool) -> tuple[str, np.ndarray]:
+    """``(why no bound holds, or "", the (4,) departure from the linear loop: NaN if unchecked)``:
+    a recorded channel without reading noise, or (with ``check``) a hand motion that leaves the
+    linear loop's by more than ``NEAR_LINEAR``."""
+    departure = np.full(4, np.nan)
+    silent = silent_readings(trial)
+    if silent:
+        return (
+            f"the recorded {', '.join(silent)} carry no reading noise in this model (acquisition "
+            f"{trial.acquisition!r} and these sensors): a bound would rest on the {kalman.READING_FLOOR[0]:g} m / "
+            f"{kalman.READING_FLOOR[2]:g} N reading floor, not on the experiment; predict_se measures it instead"
+        ), departure
+    if not check:
+        return "", departure
+    departure = nonlinearity(trial, f, _linear_response(trial, f), IDENTIFY_NUMERICS if numerics is None else numerics)
+    worst = float(np.max(departure[:2]))
+    if worst <= NEAR_LINEAR:
+        return "", departure
+    cause = "joint friction (stick-slip)" if friction else "the amplitude (the robot's nonlinear kinematics)"
+    return (
+        f"the hand's motion departs from the linear loop's by {worst:.0%} RMS (more than {NEAR_LINEAR:.0%}): "
+        f"the loop is not near-linear, through {cause}, and no Cramér-Rao bound holds; predict_se (Monte "
+        "Carlo identification through the model) measures this experiment instead"
+    ), departure
 
 
 @functools.partial(jax.jit, static_argnames="numerics")
@@ -236,38 +261,23 @@ def crlb(trial: Trial, f, *, free=ARM, symmetric=(), check: bool = True, numeric
     if not trial.noisy or not np.any(np.asarray(f) != 0):
         raise ValueError("crlb: the trial has no noise, or f is zero: the bound is 0 or undefined")
     p = lay.pack(layout, trial)
-    info, y_lin, loop = _information(layout, trial, p, f)
-    radius = linear.spectral_radius(loop)
+    radius = linear.spectral_radius(_loop(trial))
     if not radius < 1.0:
         raise ValueError(f"crlb: the loop is unstable (spectral radius {radius:.6f} per period, >= 1)")
-    info = np.asarray(info)
-    cov_p = np.linalg.inv(info)
-    g = np.asarray(lay.natural_jacobian(layout, p, trial))
-    cov = g @ cov_p @ g.T
-    values = np.asarray(lay.natural(layout, p, trial))
-    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     friction = has_friction(trial)
     reference = "the trial's loop without its Coulomb friction" if friction else "the trial's loop"
-    departure, message = np.full(4, np.nan), ""
-    silent = silent_readings(trial)
-    if silent:
-        message = (
-            f"the recorded {', '.join(silent)} carry no reading noise in this model (acquisition "
-            f"{trial.acquisition!r} and these sensors): a bound would rest on the {kalman.READING_FLOOR[0]:g} m / "
-            f"{kalman.READING_FLOOR[2]:g} N reading floor, not on the experiment; predict_se measures it instead"
-        )
-        se = np.full_like(se, np.nan)
-    elif check:
-        departure = nonlinearity(trial, f, y_lin, IDENTIFY_NUMERICS if numerics is None else numerics)
-        worst = float(np.max(departure[:2]))
-        if not worst <= NEAR_LINEAR:
-            cause = "joint friction (stick-slip)" if friction else "the amplitude (the robot's nonlinear kinematics)"
-            message = (
-                f"the hand's motion departs from the linear loop's by {worst:.0%} RMS (more than {NEAR_LINEAR:.0%}): "
-                f"the loop is not near-linear, through {cause}, and no Cramér-Rao bound holds; predict_se (Monte "
-                "Carlo identification through the model) measures this experiment instead"
-            )
-            se = np.full_like(se, np.nan)
+    # The reasons for no bound come first: they cost a forward run, the information a compile
+    # several times longer, which a bound that will not be given should not pay.
+    message, departure = _no_bound(trial, f, check, numerics, friction)
+    values = np.asarray(lay.natural(layout, p, trial))
+    if message:
+        info = np.full((p.size, p.size), np.nan)
+        cov = np.full((values.size, values.size), np.nan)
+    else:
+        info = np.asarray(_fisher(layout, trial, f))  # one program with fisher_information's
+        g = np.asarray(lay.natural_jacobian(layout, p, trial))
+        cov = g @ np.linalg.inv(info) @ g.T
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = np.where(values != 0, se / np.abs(values), np.nan)
     return Bound(

@@ -48,7 +48,7 @@ from .._simulate import Trial
 from .._solver.numerics import Numerics
 from . import efficient, indirect, search
 from . import layout as lay
-from .auxiliary import statistic_labels, statistics
+from .auxiliary import check_statistic_record, statistic_labels, statistics
 from .bound import has_friction, is_near_linear
 from .diagnosis import motion_diagnosis
 from .indirect import predict
@@ -198,6 +198,7 @@ def _check(model, f, x, fh, free, symmetric, statistic, numerics, draws, jacobia
         raise ValueError(f"identify: model must be a Trial (from make_trial), got {type(model).__name__}")
     layout = lay.make_layout(free, symmetric)
     f, x, fh = check_recording(f, x, fh, "identify")
+    check_statistic_record(f.shape[0], model.period, "identify")
     numerics, draws, jacobian_draws = check_sampling("identify", statistic, numerics, draws, jacobian_draws)
     max_steps = check_int("max_steps", max_steps, minimum=1)
     for name, arr in (("x", x), ("fh", fh)):

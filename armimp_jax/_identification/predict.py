@@ -22,6 +22,7 @@ from .._simulate import Trial
 from .._solver.numerics import Numerics
 from . import indirect
 from . import layout as lay
+from .auxiliary import check_statistic_record
 from .bound import has_friction, is_near_linear
 from .indirect import IDENTIFY_NUMERICS
 
@@ -92,6 +93,7 @@ def predict_se(
     if f.ndim != 2 or f.shape[1] != 2:
         raise ValueError(f"predict_se: f must have shape (N, 2), got {f.shape}")
     check_finite("f", f, where="predict_se")
+    check_statistic_record(f.shape[0], trial.period, "predict_se")
     numerics, draws, jacobian_draws = check_sampling("predict_se", statistic, numerics, draws, jacobian_draws)
     if statistic == "auto":
         if not is_concrete(f):

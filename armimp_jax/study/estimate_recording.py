@@ -117,18 +117,13 @@ def analyse(rec: dict, *, fs: float, **options):
     ``options`` (``route_settings``; the defaults: segments that follow the record, a fitted
     delay, spectral SEs); returns ``(Estimate, ImpedanceFit)``. Needs float64 switched on;
     ``window`` must be a name or tuple."""
-    import jax
-
     from .._estimation.fit import fit_impedance
 
     welch, fit, _ = route_settings(rec["x"].shape[0], fs=fs, **options)
-
-    def run(f_delta, x, fh):
-        est = estimate(f_delta, x, fh, **welch, errors=True)
-        return est, fit_impedance(est, **fit)
-
-    # One compiled program: op by op, the first call would compile every small op (~10x slower).
-    return jax.jit(run)(rec["f_delta"], rec["x"], rec["fh"])
+    # Each is one compiled program per record shape and settings, shared with any other caller
+    # of the same shapes (a wrapping jit would compile the pair again for every call).
+    est = estimate(rec["f_delta"], rec["x"], rec["fh"], **welch, errors=True)
+    return est, fit_impedance(est, **fit)
 
 
 PARAMETERS = (("mass", "kg"), ("damping", "N s/m"), ("stiffness", "N/m"))
