@@ -67,10 +67,13 @@ def check_statistic_record(n: int, period: float, where: str) -> None:
     nperseg = welch_nperseg(n)
     bins = math.floor(ESTIMATION_FMAX * nperseg * period + 1e-9)
     if bins < MIN_BINS:
+        # the shortest segment with MIN_BINS bins, and the record welch_nperseg gives it to
+        need = 2 ** math.ceil(math.log2(MIN_BINS / (ESTIMATION_FMAX * period) - 1e-9))
+        fix = f"record at least {4 * need} samples" if need <= WELCH_NPERSEG else "no record length suffices"
         raise ValueError(
             f"{where}: a record of {n} samples at {1.0 / period:g} Hz leaves the Welch statistic's "
             f"{nperseg}-sample segments {bins} frequency bin(s) up to {ESTIMATION_FMAX:g} Hz; it needs "
-            f"{MIN_BINS}: record for longer"
+            f"{MIN_BINS}: {fix}"
         )
 
 
