@@ -294,6 +294,7 @@ def test_a_bound_design_writes_the_controller_and_the_minutes(tmp_path, capsys):
     assert doc["achieved"]["drift"] <= 0.003 * (1 + 1e-9) and doc["achieved"]["peak_displacement"] <= 0.010
     assert doc["minutes"] == max(r["minutes_after"] for r in doc["trials"]) > 0
     assert (out / "minutes.png").stat().st_size > 0 and "minutes for +-10% at 95%" in captured.out
+    assert "leave out the joints' Coulomb friction, 1 N m here" in captured.out  # the config's LuGre 1 / 1.5
 
 
 @pytest.mark.slow  # ~1 min: two predictions
