@@ -33,8 +33,9 @@ def test_the_linearised_loop_follows_the_simulation(controller, acquisition):
     """Its response to the perturbation against the nonlinear simulation's (no noise): the
     robot's kinematics are all that differ at the paper's level 1 (0.2% under PD)."""
     trial = _trial(controller, acquisition=acquisition)
-    y_lin = np.asarray(jax.jit(linear.respond)(linear.linearise(trial), F))
-    y = _recorded(trial, aj.simulate(trial, F))
+    # compiled whole: op by op, linearise alone dispatches some hundred small programs
+    y_lin = np.asarray(jax.jit(lambda t: linear.respond(linear.linearise(t), F))(trial))
+    y = _recorded(trial, jax.jit(aj.simulate)(trial, F))
     err = np.sqrt(np.sum((y - y_lin) ** 2, axis=0) / np.sum(y**2, axis=0))
     assert np.all(err < 5e-3), err
 
@@ -43,7 +44,7 @@ def test_the_kalman_filter_whitens_the_loops_own_noise():
     """Innovations of noise-only recordings of the real loop (the person's force, force noise
     and encoder steps fed back through IMBIC): white, with the filter's covariance."""
     trial = _trial(aj.IMBIC(), **NOISE)
-    filt = kalman.innovations_filter(linear.linearise(trial))
+    filt = jax.jit(lambda t: kalman.innovations_filter(linear.linearise(t)))(trial)
     zero = jnp.zeros((3000, 2))
     keys = jax.random.split(jax.random.key(3), 8)
 
@@ -63,9 +64,14 @@ def test_the_kalman_filter_whitens_the_loops_own_noise():
 def test_the_riccati_solution_is_a_fixed_point():
     """The doubling algorithm's covariance is the steady state: one more predictor step returns it,
     and the filter's own loop is stable."""
-    loop = linear.linearise(_trial(aj.PD(), **NOISE))
-    filt = kalman.innovations_filter(loop)
-    q = np.asarray(kalman.noise_covariances(loop)[0])
+
+    @jax.jit
+    def solved(trial):
+        loop = linear.linearise(trial)
+        return loop, kalman.innovations_filter(loop), kalman.noise_covariances(loop)[0]
+
+    loop, filt, q = solved(_trial(aj.PD(), **NOISE))
+    q = np.asarray(q)
     p, a, k, lam = (np.asarray(v) for v in (filt.state_cov, loop.a, filt.gain, filt.cov))
     step = a @ p @ a.T + q - k @ lam @ k.T
     assert np.max(np.abs(step - p)) < 1e-9 * np.max(np.abs(p))
