@@ -27,6 +27,7 @@ from .welch import (
     cross_spectral_matrix,
     h1,
     ordinary_coherence,
+    welch_window,
     z_error,
 )
 
@@ -143,7 +144,10 @@ def estimate(
     if isinstance(window, (str, tuple)):
         # one compiled program per record shape and settings, not a few hundred op-by-op ones
         return _estimate_compiled(*arrays, **settings)
-    return _estimate_numbers(*arrays, **settings)
+    # an array window: checked here on its values (under jit they could not be), then an argument
+    check_welch(shapes[0][0], fs=fs, nperseg=nperseg, noverlap=noverlap, nfft=nfft, window=window)
+    settings["window"] = welch_window(window, nperseg)
+    return _estimate_compiled_window(*arrays, **settings)
 
 
 def _estimate_numbers(f_delta, x, fh, *, fs, nperseg, noverlap, fmax, window, nfft, errors) -> Estimate:
@@ -182,6 +186,9 @@ def _estimate_numbers(f_delta, x, fh, *, fs, nperseg, noverlap, fmax, window, nf
 
 _estimate_compiled = jax.jit(
     _estimate_numbers, static_argnames=("fs", "nperseg", "noverlap", "fmax", "window", "nfft", "errors")
+)
+_estimate_compiled_window = jax.jit(
+    _estimate_numbers, static_argnames=("fs", "nperseg", "noverlap", "fmax", "nfft", "errors")
 )
 
 
