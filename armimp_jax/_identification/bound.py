@@ -178,7 +178,7 @@ def _no_bound(trial: Trial, f, check: bool, numerics, friction: bool) -> tuple[s
         ), departure
     if not check:
         return "", departure
-    departure = nonlinearity(trial, f, _linear_response(trial, f), IDENTIFY_NUMERICS if numerics is None else numerics)
+    departure = nonlinearity(trial, f, numerics)
     worst = float(np.max(departure[:2]))
     if worst <= NEAR_LINEAR:
         return "", departure
@@ -196,13 +196,14 @@ def _noise_free(trial, f, numerics):
     return jnp.concatenate([sim.x - trial.x0[None, :], sim.fh], axis=1), sim.diverged
 
 
-def nonlinearity(trial: Trial, f, y_linear, numerics) -> np.ndarray:
-    """``(4,)`` relative RMS departure of the trial's noise-free recording (its friction included)
-    from the frictionless linear response ``y_linear`` ``(N, 4)``; inf where it diverges."""
-    y, diverged = _noise_free(trial, f, numerics)
+def nonlinearity(trial: Trial, f, numerics=None) -> np.ndarray:
+    """``(4,)`` relative RMS departure of the trial's noise-free recording (its friction included;
+    ``numerics`` default ``IDENTIFY_NUMERICS``) from its frictionless linearised loop's response;
+    inf where it diverges."""
+    y, diverged = _noise_free(trial, f, IDENTIFY_NUMERICS if numerics is None else numerics)
     if bool(diverged):
         return np.full(4, np.inf)
-    y, y_linear = np.asarray(y), np.asarray(y_linear)
+    y, y_linear = np.asarray(y), np.asarray(_linear_response(trial, f))
     return np.sqrt(np.sum((y - y_linear) ** 2, axis=0) / np.maximum(np.sum(y_linear**2, axis=0), 1e-300))
 
 
@@ -214,9 +215,7 @@ def _linear_response(trial, f):
 def is_near_linear(trial: Trial, f, numerics=None) -> bool:
     """Whether the trial's noise-free hand motion under ``f`` stays within ``NEAR_LINEAR`` of its
     frictionless linearised loop's (one forward simulation; concrete values)."""
-    numerics = IDENTIFY_NUMERICS if numerics is None else numerics
-    departure = nonlinearity(trial, f, _linear_response(trial, f), numerics)
-    return bool(np.max(departure[:2]) <= NEAR_LINEAR)
+    return bool(np.max(nonlinearity(trial, f, numerics)[:2]) <= NEAR_LINEAR)
 
 
 @jax.jit
