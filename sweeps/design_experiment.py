@@ -109,12 +109,11 @@ def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:
             f"{np.round(result.start_minutes, 2).tolist()}, designed {np.round(result.minutes, 2).tolist()}; "
             f"drift {1e3 * result.achieved['drift']:.3f} mm"
         )
-        tau_c = float(np.max(config["friction"]["tau_c"]))
-        if tau_c > 0:  # the bound is of the loop without it (crlb's reference): say so where it prints
-            print(
-                f"  (the bound's minutes leave out the joints' Coulomb friction, {tau_c:g} N m here, which adds to "
-                "them; [validate] seeds = 30 measures them by identification, docs/experiment_design.md)"
-            )
+        from armimp_jax.study.design_experiment import friction_note
+
+        note = friction_note(result)
+        if note:
+            print(note)
     worst_paper = max(max(row["relative_se_paper"].values()) for row in doc["trials"])
     print(f"the paper's perturbation at the same peak: {worst_paper:.4g}")
     print(

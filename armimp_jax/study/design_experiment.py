@@ -21,6 +21,7 @@ import jax
 import numpy as np
 from matplotlib.figure import Figure  # no pyplot: no global figure state
 
+from .._identification.bound import has_friction
 from .._identification.bound_design import BoundDesign
 from .._identification.criterion import default_targets, relative_se
 from .._identification.design import AGGREGATES, CRITERIA, METHODS
@@ -208,6 +209,19 @@ def _validation_row(v, se) -> dict:
         spread=v["spread"],
         spread_over_predicted=v["spread"] / se,
         mean_error=v["mean_error"],
+    )
+
+
+def friction_note(result: BoundDesign) -> str:
+    """The line under a bound design's minutes when its trials have joint friction, which the
+    bound leaves out (``crlb``'s reference: the loop without it); ``""`` otherwise."""
+    rough = [t for t in result.trials if has_friction(t)]
+    if not rough:
+        return ""
+    tau_c = max(float(np.max(np.asarray(t.friction.tau_c))) for t in rough)
+    return (
+        f"  (the bound's minutes leave out the joints' Coulomb friction, {tau_c:g} N m here, which adds to "
+        "them; [validate] seeds = 30 measures them by identification, docs/experiment_design.md)"
     )
 
 
