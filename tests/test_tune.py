@@ -55,9 +55,14 @@ def _per_trial_losses(theta, params, f_delta):
 def test_gradient_matches_finite_differences_at_friction_0_and_2(short_batch):
     params, f_delta = short_batch
     theta = tune.theta_from_mhat(0.4 * np.eye(2), "diagonal")
-    jac = jax.jit(jax.jacfwd(_per_trial_losses))(theta, params, f_delta)  # rows: friction 0, friction 2
+    # the losses and their Jacobian (rows: friction 0, friction 2) from one program
+    both = jax.jit(lambda *a: (_per_trial_losses(*a), jax.jacfwd(_per_trial_losses)(*a)))
+    jac = both(theta, params, f_delta)[1]
     assert np.all(np.isfinite(jac)) and np.all(jac != 0)
-    f = jax.jit(_per_trial_losses)
+
+    def f(*a):
+        return both(*a)[0]
+
     eps = 1e-3
     fd = np.stack(
         [(f(theta + eps * e, params, f_delta) - f(theta - eps * e, params, f_delta)) / (2 * eps) for e in jnp.eye(2)],

@@ -203,13 +203,13 @@ def nonlinearity(trial: Trial, f, numerics=None) -> np.ndarray:
     y, diverged = _noise_free(trial, f, IDENTIFY_NUMERICS if numerics is None else numerics)
     if bool(diverged):
         return np.full(4, np.inf)
-    y, y_linear = np.asarray(y), np.asarray(_linear_response(trial, f))
+    y, y_linear = np.asarray(y), np.asarray(_respond(_loop(trial), f))
     return np.sqrt(np.sum((y - y_linear) ** 2, axis=0) / np.maximum(np.sum(y_linear**2, axis=0), 1e-300))
 
 
-@jax.jit
-def _linear_response(trial, f):
-    return linear.respond(linear.linearise(trial), f)
+# The response from the loop ``_loop`` already compiled: a second program holding the linearisation
+# would cost its compile again (about 2 s) for a scan over the record.
+_respond = jax.jit(linear.respond)
 
 
 def is_near_linear(trial: Trial, f, numerics=None) -> bool:
@@ -218,16 +218,12 @@ def is_near_linear(trial: Trial, f, numerics=None) -> bool:
     return bool(np.max(nonlinearity(trial, f, numerics)[:2]) <= NEAR_LINEAR)
 
 
-@jax.jit
-def _reading_noise(trial):
-    return jnp.diag(kalman.noise_covariances(linear.linearise(trial))[1])
-
-
 def silent_readings(trial: Trial) -> list[str]:
     """The recorded outputs (of ``linear.OUTPUTS``) whose reading carries no noise of its own in
     the model (within 10x ``kalman.READING_FLOOR``): there a bound would rest on that floor, an
     artefact (e.g. ``acquisition="interval_mean"`` records the exact mean position)."""
-    r = np.asarray(_reading_noise(trial))
+    loop = jax.tree.map(np.asarray, _loop(trial))
+    r = np.diag(kalman.noise_covariances(loop)[1])  # (4,) on the host, from the compiled loop
     floor = np.asarray(kalman.READING_FLOOR)
     return [name for name, v, f in zip(linear.OUTPUTS, r, floor, strict=True) if not v > (10 * f) ** 2]
 
@@ -268,13 +264,12 @@ def crlb(trial: Trial, f, *, free=ARM, symmetric=(), check: bool = True, numeric
     # The reasons for no bound come first: they cost a forward run, the information a compile
     # several times longer, which a bound that will not be given should not pay.
     message, departure = _no_bound(trial, f, check, numerics, friction)
-    values = np.asarray(lay.natural(layout, p, trial))
+    values, g = (np.asarray(v) for v in lay.natural_with_jacobian(layout, p, trial))
     if message:
         info = np.full((p.size, p.size), np.nan)
         cov = np.full((values.size, values.size), np.nan)
     else:
         info = np.asarray(_fisher(layout, trial, f))  # one program with fisher_information's
-        g = np.asarray(lay.natural_jacobian(layout, p, trial))
         cov = g @ np.linalg.inv(info) @ g.T
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     with np.errstate(divide="ignore", invalid="ignore"):

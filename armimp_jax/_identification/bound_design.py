@@ -187,7 +187,7 @@ def _assemble(
     f, after, minutes = finish(designed, looped)
     if _worst(after, entries) > _worst(before, entries):  # a design never promises less than its start
         designed, looped, f, after, minutes = family, start_trials, f0, before, start_minutes
-    drift = max(float(cd.drift_of(t)) for t in looped)
+    drift = max(float(linear.drift(t)) for t in looped)
     achieved = dict(
         rms_force=np.sqrt(np.mean(f**2, axis=0)).tolist(),
         peak_force=np.max(np.abs(f), axis=0).tolist(),

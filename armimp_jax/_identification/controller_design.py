@@ -63,12 +63,6 @@ def controller_record(trial: Trial) -> dict:
 
 
 @jax.jit
-def drift_of(trial):
-    """The hand's RMS drift [m] under the person's own force (``linear.drift``), jitted."""
-    return linear.drift(trial)
-
-
-@jax.jit
 def _drift_and_loops(trial, log_gains):
     loops = [linear.linearise(with_gains(trial, log_gains + s)) for s in (0.0, jnp.log(STABILITY_MARGIN))]
     drift = jnp.sqrt(jnp.trace(linear.stationary_cov(loops[0], ("voluntary",))[:2, :2]))

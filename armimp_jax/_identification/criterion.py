@@ -47,7 +47,7 @@ def relative_se(pred, trial: Trial, *, free, targets) -> dict:
     ``trial`` for the parameters ``free``), the values being ``trial``'s own."""
     layout = lay.make_layout(free)
     labels = layout.labels()
-    values = np.asarray(lay.natural(layout, lay.pack(layout, trial), trial))
+    values = np.asarray(lay.natural_with_jacobian(layout, lay.pack(layout, trial), trial)[0])
     se = np.sqrt(np.diag(np.asarray(pred.covariance)))
     return {t: float(se[labels.index(t)] / abs(values[labels.index(t)])) for t in targets}
 

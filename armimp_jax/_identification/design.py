@@ -30,9 +30,9 @@ from .._checks import require_x64
 from .._model.families import Multisine, PaperNoise, ShapedNoise
 from .._simulate import Trial
 from . import layout as lay
+from . import linear
 from .bound import is_near_linear, silent_readings
 from .bound_design import BoundDesign, design_on_bound
-from .controller_design import drift_of
 from .criterion import DesignPlan, _targets, relative_se
 from .limits import Limits, _limited_signal
 from .monte_carlo_design import Design, design_monte_carlo
@@ -100,7 +100,7 @@ def _check_design(
 
 def _check_fixed_drift(trials, limit):
     """A fixed controller must meet the drift limit itself (no design changes it): one line if not."""
-    drifts = [float(drift_of(t)) for t in trials]
+    drifts = [float(linear.drift(t)) for t in trials]
     worst = int(np.argmax(drifts))
     if not drifts[worst] <= limit:
         raise ValueError(

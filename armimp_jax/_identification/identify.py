@@ -363,7 +363,7 @@ def _warnings(problem: search.Problem, p, labels, values, se, cov_p) -> tuple[li
             for end in (-1.96, 1.96):  # the prior's 95% range, through the parameter's own map
                 q = np.array(p, dtype=float)
                 q[k] = mean + end * search.PRIOR_SD
-                ends.append(np.asarray(lay.natural(layout, jnp.asarray(q), problem.model)))
+                ends.append(np.asarray(lay.natural_with_jacobian(layout, jnp.asarray(q), problem.model)[0]))
             for j in nat_index[k]:
                 low, high = sorted((float(ends[0][j]), float(ends[1][j])))
                 not_told[labels[j]] = (low, high)
@@ -412,10 +412,9 @@ def _assemble(problem: search.Problem, state: search.Search, f, x, fh, statistic
     y_fit, diverged_fit = _predict(layout, model, jnp.asarray(p), f, problem.numerics)
     if bool(diverged_fit):
         problems = problems + ("the fitted model diverges",)
-    g = np.asarray(lay.natural_jacobian(layout, jnp.asarray(p), model))
+    values, g = (np.asarray(v) for v in lay.natural_with_jacobian(layout, jnp.asarray(p), model))
     cov = g @ cov_p @ g.T
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    values = np.asarray(lay.natural(layout, jnp.asarray(p), model))
     labels = layout.labels()
     warnings, not_told = _warnings(problem, p, labels, values, se, cov_p)
     stuck = motion_diagnosis(model, x)

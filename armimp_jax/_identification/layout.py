@@ -14,6 +14,7 @@ The *natural* vector lists every entry in the parameter's own units and shape, r
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -172,6 +173,13 @@ def natural(layout: Layout, p, trial: Trial):
 def natural_jacobian(layout: Layout, p, trial: Trial):
     """``d natural / d p`` ``(n_natural, n_p)``: maps a covariance of ``p`` to natural units."""
     return jax.jacfwd(lambda q: natural(layout, q, trial))(p)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def natural_with_jacobian(layout: Layout, p, trial: Trial):
+    """``(natural(p), natural_jacobian(p))`` as one compiled program, for host code: op by op the
+    pair dispatches some forty small programs."""
+    return natural(layout, p, trial), natural_jacobian(layout, p, trial)
 
 
 def with_values(layout: Layout, trial: Trial, p) -> Trial:

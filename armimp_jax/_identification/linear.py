@@ -203,9 +203,11 @@ def stationary_cov(loop: LinearLoop, inputs=None, *, doublings: int = 40):
     return loop.c @ s @ loop.c.T + dw @ dw.T
 
 
+@jax.jit  # op by op, the linearisation alone dispatches some two hundred small programs
 def drift(trial: Trial):
     """The hand's RMS drift [m] under the person's own force alone: the RMS length of ``x - x0``
     in the trial's loop without its Coulomb friction, with its ``VoluntaryForce`` and no
-    perturbation (0 without one). Pure JAX: differentiable in the controller's gains."""
+    perturbation (0 without one). One compiled program per trial structure; differentiable in
+    the controller's gains, and ``jax.vmap`` batches trials."""
     cov = stationary_cov(linearise(trial), ("voluntary",))
     return jnp.sqrt(cov[0, 0] + cov[1, 1])

@@ -90,7 +90,7 @@ def _monte_carlo(plan: DesignPlan, draws: int, predict_draws: int) -> _MonteCarl
     family_key, draw_key = jax.random.split(plan.key)
     n_draws, n_jac = indirect.draw_counts(trials[0], draws, 2)
     points = [lay.pack(layout, t) for t in trials]
-    values = [lay.natural(layout, p, t) for t, p in zip(trials, points)]
+    values = [lay.natural_with_jacobian(layout, p, t)[0] for t, p in zip(trials, points)]
     n = plan.limits.n_samples(period)
     return _MonteCarlo(plan, points, values, n, period, family_key, draw_key, n_draws, n_jac, predict_draws)
 
@@ -141,7 +141,7 @@ def _objective(mc: _MonteCarlo, family, f0):
         jax.block_until_ready(indirect.binding_jacobian(mc.plan.layout, t, p, f0, jac_keys, IDENTIFY_NUMERICS)[0])
         for t, p in zip(mc.plan.trials, mc.points)
     ]
-    naturals = [lay.natural_jacobian(mc.plan.layout, p, t) for t, p in zip(mc.plan.trials, mc.points)]
+    naturals = [lay.natural_with_jacobian(mc.plan.layout, p, t)[1] for t, p in zip(mc.plan.trials, mc.points)]
 
     def objective(log_shape, keys, gain, smooth=True):
         fam = replace_unchecked(family, shape=jnp.exp(log_shape))

@@ -25,6 +25,7 @@ Single-record functions; ``jax.grad`` flows through ``shape`` and ``rms``.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -157,12 +158,7 @@ class ShapedNoise:
                     f"{1 / (n_samples * period):g} Hz) lies in the band {k[0]:g}-{k[-1]:g} Hz; "
                     "widen it or record longer"
                 )
-        white = jax.random.normal(key, (n_samples, 2), dtype=jnp.float64)
-        freq = jnp.fft.rfftfreq(n_samples, period)
-        shaped = jnp.fft.irfft(jnp.fft.rfft(white, axis=0) * self.amplitude(freq), n=n_samples, axis=0)
-        if self.duty < 1:
-            shaped = shaped * self.gate(jax.random.fold_in(key, 1), n_samples, period)[:, None]
-        return _scale_to_rms(shaped, self.rms)
+        return _shaped_signal(self, key, n_samples=n_samples, period=float(period))
 
     def gate(self, key, n_samples: int, period: float = 1.0 / SAMPLE_RATE):
         """The burst gate ``(N,)`` in ``[0, 1]``: 1 for ``duty`` of each ``burst`` period, with
@@ -174,6 +170,18 @@ class ShapedNoise:
         outside = jnp.maximum(self.duty - u, u - 1.0)
         d = jnp.where(u < self.duty, inside, outside) * self.burst
         return jnp.clip(d / GATE_RAMP + 0.5, 0.0, 1.0)
+
+
+@functools.partial(jax.jit, static_argnames=("n_samples", "period"))
+def _shaped_signal(family: ShapedNoise, key, *, n_samples: int, period: float):
+    """``ShapedNoise.signal`` after its checks: one compiled program per record (op by op, some
+    thirty small ones)."""
+    white = jax.random.normal(key, (n_samples, 2), dtype=jnp.float64)
+    freq = jnp.fft.rfftfreq(n_samples, period)
+    shaped = jnp.fft.irfft(jnp.fft.rfft(white, axis=0) * family.amplitude(freq), n=n_samples, axis=0)
+    if family.duty < 1:
+        shaped = shaped * family.gate(jax.random.fold_in(key, 1), n_samples, period)[:, None]
+    return _scale_to_rms(shaped, family.rms)
 
 
 @params

@@ -88,7 +88,15 @@ def perturbation(
     order = check_int("order", order, minimum=2)
     if order % 2:
         raise ValueError(f"order must be even (second-order sections), got {order}")
+    sos = jnp.asarray(butterworth_sos(order=order, cutoff=float(cutoff)), dtype=jnp.float64)
+    return _scaled_filtered_noise(key, sos, peak, n_samples=n_samples, warmup=warmup)
+
+
+@functools.partial(jax.jit, static_argnames=("n_samples", "warmup"))
+def _scaled_filtered_noise(key, sos, peak, *, n_samples: int, warmup: int):
+    """``perturbation``'s signal as one compiled program per record length (op by op, some ten
+    small programs and the filter's scan)."""
     noise = jax.random.uniform(key, (warmup + n_samples, 2), dtype=jnp.float64, minval=-1.0, maxval=1.0)
-    filtered = sosfilt(butterworth_sos(order=order, cutoff=float(cutoff)), noise)[warmup:]
+    filtered = sosfilt(sos, noise)[warmup:]
     scale = jnp.broadcast_to(peak, (2,)) / jnp.max(jnp.abs(filtered), axis=0)
     return filtered * scale[None, :]
