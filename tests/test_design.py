@@ -95,6 +95,8 @@ def test_bad_families_and_limits_are_one_line_errors():
         aj.ShapedNoise(knots=[1.1, 1.2], shape=np.ones((2, 2)), rms=1.0).signal(jax.random.key(0), 3000)
     with pytest.raises(ValueError, match="record_for: target must map entry labels to relative SEs"):
         aj.record_for(_trial(), np.zeros((3000, 2)), free=ARM, target={})
+    with pytest.raises(ValueError, match="unknown statistic 'whittle'; allowed: 'auto', 'efficient', 'welch'"):
+        aj.record_for(_trial(), np.zeros((3000, 2)), free=ARM, target={"arm.mass[0,0]": 0.1}, statistic="whittle")
 
 
 def test_limits_hold_exactly_on_the_limited_signal():
@@ -303,6 +305,7 @@ def test_record_for_reaches_its_target_where_it_says():
     f = aj.perturbation(jax.random.key(5), 4000, 10.0)
     target = {"arm.stiffness[1,1]": 0.05, "arm.mass[0,0]": 0.01}
     out = aj.record_for(trial, f, free=ARM, target=target, draws=32)
+    assert out["statistic"] == "welch"  # identify's choice through stick-slip (PD, 0.3 N m)
     assert out["record_s"] == pytest.approx(max(out[t] for t in target), abs=1e-3)
     # the check at that length: each target met, within the predictions' own Monte Carlo error
     for t, goal in target.items():

@@ -26,7 +26,7 @@ import math
 import jax
 import numpy as np
 
-from .._checks import require_x64
+from .._checks import check_choice, require_x64
 from .._model.families import Multisine, PaperNoise, ShapedNoise
 from .._simulate import Trial
 from . import layout as lay
@@ -36,11 +36,12 @@ from .bound_design import BoundDesign, design_on_bound
 from .criterion import DesignPlan, _targets, relative_se
 from .limits import Limits, _limited_signal
 from .monte_carlo_design import Design, design_monte_carlo
-from .predict import predict_se
+from .predict import STATISTICS, predict_se
 
 CRITERIA = ("max_relative_se", "d_optimal")
 METHODS = ("auto", "bound", "monte_carlo")
 AGGREGATES = ("worst", "mean")
+CHECK_LIMIT_S = 3600.0  # [s] record_for predicts again at its answer only up to an hour
 
 
 def _designable(family):
@@ -222,6 +223,7 @@ def record_for(
     *,
     free,
     target: dict,
+    statistic: str = "auto",
     draws: int = 64,
     key=None,
 ) -> dict:
@@ -229,12 +231,17 @@ def record_for(
     reaches its goal, for the perturbation ``f`` ``(N, 2)`` (repeated or cut to length).
 
     ``target`` maps entry labels to relative SEs (``{"arm.stiffness[1,1]": 0.05}``: +-5% at
-    one SE, about +-10% at 95%). From ``predict_se`` at the given length, SEs fall as one over
-    the square root of the length (``tests/test_identify.py`` checks that law); the answer is
-    then predicted again at that length (a second ``predict_se``, reported, not enforced: the
-    law holds to the draws' noise). Returns ``{label: seconds}`` and ``"record_s"``, the
-    longest of them, with the relative SEs predicted there (``"check"``)."""
+    one SE, about +-10% at 95%). ``statistic`` as ``identify``'s: ``"auto"`` (its default) takes
+    the efficient statistic where the trial's loop is near-linear under ``f``, else Welch's;
+    both predictions use the one chosen. From ``predict_se`` at the given length, SEs fall as
+    one over the square root of the length (``tests/test_identify.py`` checks that law); the
+    answer is then predicted again at that length (a second ``predict_se``, reported, not
+    enforced: the law holds to the draws' noise). Returns ``{label: seconds}`` and
+    ``"record_s"``, the longest of them, with the relative SEs predicted there (``"check"``;
+    ``None`` past ``CHECK_LIMIT_S``, an hour: a record no session holds, which the check would
+    simulate ``draws`` times) and the statistic used (``"statistic"``)."""
     require_x64("record_for")
+    check_choice("statistic", statistic, STATISTICS)
     layout = lay.make_layout(free)
     labels = layout.labels()
     if not isinstance(target, dict) or not target:
@@ -250,11 +257,15 @@ def record_for(
     def relative(pred):
         return relative_se(pred, trial, free=free, targets=target)
 
-    given = relative(predict_se(trial, f, free=free, statistic="welch", draws=draws, key=key))
+    if statistic == "auto":  # decided once, on the record given: the repeated one is the same signal
+        statistic = "efficient" if is_near_linear(trial, f) else "welch"
+    given = relative(predict_se(trial, f, free=free, statistic=statistic, draws=draws, key=key))
     seconds = f.shape[0] * period
     need = {t: seconds * (given[t] / float(target[t])) ** 2 for t in target}
     record_s = max(need.values())
     n = max(int(math.ceil(record_s / period)), 1000)
+    if n * period > CHECK_LIMIT_S:  # the check would simulate every draw over that record
+        return {**need, "record_s": n * period, "check": None, "statistic": statistic}
     longer = np.resize(f, (n, 2))  # repeats the perturbation (or cuts it)
-    check = relative(predict_se(trial, longer, free=free, statistic="welch", draws=draws, key=key))
-    return {**need, "record_s": n * period, "check": check}
+    check = relative(predict_se(trial, longer, free=free, statistic=statistic, draws=draws, key=key))
+    return {**need, "record_s": n * period, "check": check, "statistic": statistic}
