@@ -13,7 +13,9 @@ import pytest
 
 import armimp_jax as aj
 from armimp_jax import paper
+from armimp_jax._identification import layout as lay
 from armimp_jax._identification import limits as des
+from armimp_jax._identification.design import _record_statistic as record_statistic
 from armimp_jax.study import design_experiment as dx
 
 NOISE = dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(0.3, 2.0))
@@ -97,6 +99,11 @@ def test_bad_families_and_limits_are_one_line_errors():
         aj.record_for(_trial(), np.zeros((3000, 2)), free=ARM, target={})
     with pytest.raises(ValueError, match="unknown statistic 'whittle'; allowed: 'auto', 'efficient', 'welch'"):
         aj.record_for(_trial(), np.zeros((3000, 2)), free=ARM, target={"arm.mass[0,0]": 0.1}, statistic="whittle")
+    with pytest.raises(ValueError, match=r"record_for: f must have shape \(N, 2\) \[N\], got \(3000, 3\)"):
+        aj.record_for(_trial(), np.zeros((3000, 3)), free=ARM, target={"arm.mass[0,0]": 0.1})
+    # identify's rule, decided before any simulation: no free arm matrix, no efficient statistic
+    tau_c = lay.make_layout(("friction.tau_c",))
+    assert record_statistic(_trial(), np.ones((3000, 2)), tau_c, "efficient") == "welch"
 
 
 def test_limits_hold_exactly_on_the_limited_signal():
@@ -310,5 +317,8 @@ def test_record_for_reaches_its_target_where_it_says():
     # the check at that length: each target met, within the predictions' own Monte Carlo error
     for t, goal in target.items():
         assert out["check"][t] <= 1.2 * goal * np.sqrt(out[t] / out["record_s"]), (t, out)
+    # a record past an hour is answered without the check, which would simulate it
+    far = aj.record_for(trial, f, free=ARM, target={"arm.mass[0,0]": 1e-4}, draws=32)
+    assert far["record_s"] > 3600 and far["check"] is None
     with pytest.raises(ValueError, match=r"record_for: unknown target 'arm.mass\[3,3\]'"):
         aj.record_for(trial, f, free=ARM, target={"arm.mass[3,3]": 0.1})

@@ -27,10 +27,12 @@ import jax
 import numpy as np
 
 from .._checks import check_choice, require_x64
+from .._estimation.welch import check_finite
 from .._model.families import Multisine, PaperNoise, ShapedNoise
 from .._simulate import Trial
+from . import indirect, linear
 from . import layout as lay
-from . import linear
+from .auxiliary import check_statistic_record
 from .bound import is_near_linear, silent_readings
 from .bound_design import BoundDesign, design_on_bound
 from .criterion import DesignPlan, _targets, relative_se
@@ -239,7 +241,8 @@ def record_for(
     enforced: the law holds to the draws' noise). Returns ``{label: seconds}`` and
     ``"record_s"``, the longest of them, with the relative SEs predicted there (``"check"``;
     ``None`` past ``CHECK_LIMIT_S``, an hour: a record no session holds, which the check would
-    simulate ``draws`` times) and the statistic used (``"statistic"``)."""
+    simulate ``draws`` times) and the statistic used (``"statistic"``; Welch's where no arm
+    matrix is free, as ``identify``)."""
     require_x64("record_for")
     check_choice("statistic", statistic, STATISTICS)
     layout = lay.make_layout(free)
@@ -253,12 +256,11 @@ def record_for(
         raise ValueError(f"record_for: target relative SEs must lie in (0, 1), got {target}")
     f = np.asarray(f, dtype=float)
     period = trial.period
+    statistic = _record_statistic(trial, f, layout, statistic)
 
     def relative(pred):
         return relative_se(pred, trial, free=free, targets=target)
 
-    if statistic == "auto":  # decided once, on the record given: the repeated one is the same signal
-        statistic = "efficient" if is_near_linear(trial, f) else "welch"
     given = relative(predict_se(trial, f, free=free, statistic=statistic, draws=draws, key=key))
     seconds = f.shape[0] * period
     need = {t: seconds * (given[t] / float(target[t])) ** 2 for t in target}
@@ -269,3 +271,19 @@ def record_for(
     longer = np.resize(f, (n, 2))  # repeats the perturbation (or cuts it)
     check = relative(predict_se(trial, longer, free=free, statistic=statistic, draws=draws, key=key))
     return {**need, "record_s": n * period, "check": check, "statistic": statistic}
+
+
+def _record_statistic(trial: Trial, f, layout, statistic: str) -> str:
+    """The statistic both of ``record_for``'s predictions use, decided once on the record given
+    (the repeated one is the same signal) as ``identify`` decides it: Welch's where no arm
+    matrix is free or the loop is not near-linear. ``f``'s own checks come first, one line
+    each, before the simulation that decides."""
+    if f.ndim != 2 or f.shape[1] != 2:
+        raise ValueError(f"record_for: f must have shape (N, 2) [N], got {f.shape}")
+    check_finite("f", f, where="record_for")
+    check_statistic_record(f.shape[0], trial.period, "record_for")
+    if indirect.arm_layout(layout) is None:
+        return "welch"
+    if statistic == "auto":
+        return "efficient" if is_near_linear(trial, f) else "welch"
+    return statistic
