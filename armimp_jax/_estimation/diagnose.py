@@ -66,7 +66,7 @@ def unknown_diagnostics(n_eff=jnp.nan) -> FitDiagnostics:
     return FitDiagnostics(n_eff, nan4, nan4, nan4, nan, nan, nan, nan, nan, nan, jnp.full((2,), jnp.nan))
 
 
-@jax.jit  # one program: op by op, a first fit dispatched some twenty small ones
+@jax.jit  # one program: op by op, each operation would compile on its own on a first fit
 def diagnostics_of(est: Estimate) -> FitDiagnostics:
     """``FitDiagnostics`` of one ``Estimate`` (pure JAX; vmappable, differentiable where it
     matters to nobody: minima and medians)."""

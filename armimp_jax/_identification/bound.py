@@ -208,7 +208,7 @@ def nonlinearity(trial: Trial, f, numerics=None) -> np.ndarray:
 
 
 # The response from the loop ``_loop`` already compiled: a second program holding the linearisation
-# would cost its compile again (about 2 s) for a scan over the record.
+# would compile it again for a scan over the record.
 _respond = jax.jit(linear.respond)
 
 

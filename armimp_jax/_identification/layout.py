@@ -177,8 +177,8 @@ def natural_jacobian(layout: Layout, p, trial: Trial):
 
 @functools.partial(jax.jit, static_argnums=0)
 def natural_with_jacobian(layout: Layout, p, trial: Trial):
-    """``(natural(p), natural_jacobian(p))`` as one compiled program, for host code: op by op the
-    pair dispatches some forty small programs."""
+    """``(natural(p), natural_jacobian(p))`` as one compiled program, for host code (op by op,
+    each operation of the pair would compile on its own)."""
     return natural(layout, p, trial), natural_jacobian(layout, p, trial)
 
 

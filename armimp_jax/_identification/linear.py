@@ -203,7 +203,7 @@ def stationary_cov(loop: LinearLoop, inputs=None, *, doublings: int = 40):
     return loop.c @ s @ loop.c.T + dw @ dw.T
 
 
-@jax.jit  # op by op, the linearisation alone dispatches some two hundred small programs
+@jax.jit  # op by op, each operation of the linearisation would compile on its own
 def drift(trial: Trial):
     """The hand's RMS drift [m] under the person's own force alone: the RMS length of ``x - x0``
     in the trial's loop without its Coulomb friction, with its ``VoluntaryForce`` and no

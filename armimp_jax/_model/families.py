@@ -174,8 +174,8 @@ class ShapedNoise:
 
 @functools.partial(jax.jit, static_argnames=("n_samples", "period"))
 def _shaped_signal(family: ShapedNoise, key, *, n_samples: int, period: float):
-    """``ShapedNoise.signal`` after its checks: one compiled program per record (op by op, some
-    thirty small ones)."""
+    """``ShapedNoise.signal`` after its checks: one compiled program per record (op by op, each
+    operation would compile on its own)."""
     white = jax.random.normal(key, (n_samples, 2), dtype=jnp.float64)
     freq = jnp.fft.rfftfreq(n_samples, period)
     shaped = jnp.fft.irfft(jnp.fft.rfft(white, axis=0) * family.amplitude(freq), n=n_samples, axis=0)

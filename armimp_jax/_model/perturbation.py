@@ -94,8 +94,8 @@ def perturbation(
 
 @functools.partial(jax.jit, static_argnames=("n_samples", "warmup"))
 def _scaled_filtered_noise(key, sos, peak, *, n_samples: int, warmup: int):
-    """``perturbation``'s signal as one compiled program per record length (op by op, some ten
-    small programs and the filter's scan)."""
+    """``perturbation``'s signal as one compiled program per record length (op by op, each
+    operation and the filter's scan would compile on its own)."""
     noise = jax.random.uniform(key, (warmup + n_samples, 2), dtype=jnp.float64, minval=-1.0, maxval=1.0)
     filtered = sosfilt(sos, noise)[warmup:]
     scale = jnp.broadcast_to(peak, (2,)) / jnp.max(jnp.abs(filtered), axis=0)
