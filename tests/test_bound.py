@@ -27,8 +27,17 @@ def _recorded(trial, sim):
     return np.concatenate([np.asarray(sim.x) - np.asarray(trial.x0), np.asarray(sim.fh)], axis=1)
 
 
-@pytest.mark.parametrize("acquisition", ["instant", "interval_mean"])
-@pytest.mark.parametrize("controller", [aj.PD(), aj.IMBIC()], ids=["pd", "imbic"])
+# Each controller and each acquisition once in the fast suite; the other two pairs on demand
+# (the suite is compile-bound: each pair compiles its own loop and simulation).
+@pytest.mark.parametrize(
+    "controller, acquisition",
+    [
+        pytest.param(aj.PD(), "instant", id="pd-instant"),
+        pytest.param(aj.IMBIC(), "interval_mean", id="imbic-interval_mean"),
+        pytest.param(aj.PD(), "interval_mean", id="pd-interval_mean", marks=pytest.mark.slow),
+        pytest.param(aj.IMBIC(), "instant", id="imbic-instant", marks=pytest.mark.slow),
+    ],
+)
 def test_the_linearised_loop_follows_the_simulation(controller, acquisition):
     """Its response to the perturbation against the nonlinear simulation's (no noise): the
     robot's kinematics are all that differ at the paper's level 1 (0.2% under PD)."""
