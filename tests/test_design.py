@@ -99,7 +99,7 @@ def test_bad_families_and_limits_are_one_line_errors():
         aj.record_for(_trial(), np.zeros((3000, 2)), free=ARM, target={})
     with pytest.raises(ValueError, match="unknown statistic 'whittle'; allowed: 'auto', 'efficient', 'welch'"):
         aj.record_for(_trial(), np.zeros((3000, 2)), free=ARM, target={"arm.mass[0,0]": 0.1}, statistic="whittle")
-    with pytest.raises(ValueError, match=r"record_for: f must have shape \(N, 2\) \[N\], got \(3000, 3\)"):
+    with pytest.raises(ValueError, match=r"record_for: f must have shape \(N, 2\), got \(3000, 3\)"):
         aj.record_for(_trial(), np.zeros((3000, 3)), free=ARM, target={"arm.mass[0,0]": 0.1})
     # identify's rule, decided before any simulation: no free arm matrix, no efficient statistic
     tau_c = lay.make_layout(("friction.tau_c",))

@@ -27,18 +27,16 @@ import jax
 import numpy as np
 
 from .._checks import check_choice, require_x64
-from .._estimation.welch import check_finite
 from .._model.families import Multisine, PaperNoise, ShapedNoise
 from .._simulate import Trial
 from . import indirect, linear
 from . import layout as lay
-from .auxiliary import check_statistic_record
 from .bound import is_near_linear, silent_readings
 from .bound_design import BoundDesign, design_on_bound
 from .criterion import DesignPlan, _targets, relative_se
 from .limits import Limits, _limited_signal
 from .monte_carlo_design import Design, design_monte_carlo
-from .predict import STATISTICS, predict_se
+from .predict import STATISTICS, check_signal, predict_se
 
 CRITERIA = ("max_relative_se", "d_optimal")
 METHODS = ("auto", "bound", "monte_carlo")
@@ -278,10 +276,7 @@ def _record_statistic(trial: Trial, f, layout, statistic: str) -> str:
     (the repeated one is the same signal) as ``identify`` decides it: Welch's where no arm
     matrix is free or the loop is not near-linear. ``f``'s own checks come first, one line
     each, before the simulation that decides."""
-    if f.ndim != 2 or f.shape[1] != 2:
-        raise ValueError(f"record_for: f must have shape (N, 2) [N], got {f.shape}")
-    check_finite("f", f, where="record_for")
-    check_statistic_record(f.shape[0], trial.period, "record_for")
+    check_signal(trial, f, "record_for")
     if indirect.arm_layout(layout) is None:
         return "welch"
     if statistic == "auto":

@@ -29,6 +29,17 @@ from .indirect import IDENTIFY_NUMERICS
 STATISTICS = ("auto", "efficient", "welch")
 
 
+def check_signal(trial: Trial, f, where: str):
+    """``f`` as float64 ``(N, 2)`` [N], finite, and long enough for the Welch statistic
+    (``check_statistic_record``): one-line errors naming ``where``."""
+    f = as_float64("f", f, where=where)
+    if f.ndim != 2 or f.shape[1] != 2:
+        raise ValueError(f"{where}: f must have shape (N, 2), got {f.shape}")
+    check_finite("f", f, where=where)
+    check_statistic_record(f.shape[0], trial.period, where)
+    return f
+
+
 def check_sampling(where: str, statistic, numerics, draws, jacobian_draws):
     """``(numerics, draws, jacobian_draws)`` checked, the numerics defaulted to
     ``IDENTIFY_NUMERICS``: the options ``identify`` and ``predict_se`` share, with one-line errors."""
@@ -89,11 +100,7 @@ def predict_se(
     if not trial.noisy:
         raise ValueError("predict_se: the trial has no noise (ideal sensors, no voluntary force): nothing to predict")
     layout = lay.make_layout(free, symmetric)
-    f = as_float64("f", f, where="predict_se")
-    if f.ndim != 2 or f.shape[1] != 2:
-        raise ValueError(f"predict_se: f must have shape (N, 2), got {f.shape}")
-    check_finite("f", f, where="predict_se")
-    check_statistic_record(f.shape[0], trial.period, "predict_se")
+    f = check_signal(trial, f, "predict_se")
     numerics, draws, jacobian_draws = check_sampling("predict_se", statistic, numerics, draws, jacobian_draws)
     if statistic == "auto":
         if not is_concrete(f):
