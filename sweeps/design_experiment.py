@@ -57,8 +57,11 @@ def describe(trials, family, limits, options) -> str:
         "auto": f"on the bound where the loops are near-linear, else of {options['draws']} noise draws per arm",
     }[options["method"]]
     gains = " and the controller's gains" if options["controller"] else ""
+    rounds = options.get("calibrate", 0)
+    calibrated = f", then {rounds} round(s) of {options['steps']} calibrated through the friction" if rounds else ""
     return (
         f"designing {what}{gains} for {len(trials)} arm(s), {limits.record:g} s records, {options['steps']} steps {how}"
+        f"{calibrated}"
     )
 
 
@@ -122,7 +125,15 @@ def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:
         f"{1e3 * result.achieved['peak_displacement']:.3f} mm"
     )
     for k, row in enumerate(doc["trials"]):
-        if "validation" in row:
+        if "relative_spread" in row.get("validation", {}):
+            spread, predicted = row["validation"]["relative_spread"], row["relative_se_predicted"]
+            worst = max(spread, key=spread.get)
+            print(
+                f"arm {k + 1}: largest relative spread {spread[worst]:.4g} ({worst}) / largest predicted "
+                f"{max(predicted.values()):.4g} = {spread[worst] / max(predicted.values()):.2f} "
+                f"({row['validation']['converged']} of {row['validation']['recordings']} recordings converged)"
+            )
+        elif "validation" in row:
             ratio = np.asarray(row["validation"]["spread_over_predicted"])
             print(
                 f"arm {k + 1}: spread / predicted SE {np.round(ratio, 2).tolist()} "

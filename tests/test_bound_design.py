@@ -14,6 +14,7 @@ from armimp_jax import paper
 from armimp_jax._identification import bound_design as bd
 from armimp_jax._identification import controller_design as cd
 from armimp_jax._identification import layout as lay
+from armimp_jax._pytree import replace_unchecked
 
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
 NOISE = dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(0.3, 2.0))
@@ -61,19 +62,34 @@ def test_the_criterion_differentiates_in_the_spectrum_and_the_gains():
     key = jax.random.split(jax.random.key(1))[0]
     limits = dataclasses.replace(LIMITS, record=2.0)
 
-    def fun(z):
-        return bd._objective(z, family, [trial], layout, idx, limits, "worst", key, n, 1e-3, True)
+    def fun(z, offsets):
+        return bd._objective(z, offsets, family, [trial], layout, idx, limits, "worst", key, n, 1e-3, True)
 
     z = {"shape": np.zeros((2, 4)), "gains": cd.initial_log_gains(trial)}
     value_and_grad = jax.jit(jax.value_and_grad(fun, has_aux=True))  # values and gradient in one program
-    grad = value_and_grad(z)[1]
+    zero = jnp.zeros((1, idx.size))
+    (value, _), grad = value_and_grad(z, zero)
     h = 1e-4
     for part, where in (("shape", (0, 1)), ("gains", (0,)), ("gains", (2,))):
         step = np.zeros_like(z[part])
         step[where] = h
         up, down = {**z, part: z[part] + step}, {**z, part: z[part] - step}
-        fd = (float(value_and_grad(up)[0][0]) - float(value_and_grad(down)[0][0])) / (2 * h)
+        fd = (float(value_and_grad(up, zero)[0][0]) - float(value_and_grad(down, zero)[0][0])) / (2 * h)
         assert float(grad[part][where]) == pytest.approx(fd, rel=1e-4, abs=1e-8), (part, where)
+    # a calibration's ratios shift the log criterion: a common ratio r by exactly log r (the smooth
+    # maximum commutes with a shift) and leave the gradient alone; a ratio on one target moves it
+    # towards that target's own log bound plus its log ratio
+    (shifted, _), moved = value_and_grad(z, zero + np.log(1.7))
+    assert float(shifted) == pytest.approx(float(value) + np.log(1.7), abs=1e-12)
+    for part in z:
+        np.testing.assert_allclose(moved[part], grad[part], rtol=1e-9, atol=1e-12)
+    one = zero.at[0, 5].set(np.log(50.0))  # K[1,1] weighed 50 times: it dominates the smooth maximum
+    (weighted, scale), _ = value_and_grad(z, one)
+    f = bd._limited_signal(replace_unchecked(family, shape=jnp.exp(z["shape"])), key, n, limits, 1e-3) * scale
+    looped = cd.with_gains(trial, z["gains"])
+    variance = jnp.linalg.inv(bd._fisher(layout, looped, f))[11, 11]
+    k11 = 0.5 * np.log(float(variance / lay.pack_arm(layout, looped)[11] ** 2))
+    assert k11 + np.log(50.0) - 1e-9 <= float(weighted) <= k11 + np.log(50.0) + 0.05 * np.log(idx.size) + 1e-9
 
 
 def test_a_designed_experiment_meets_every_limit_exactly():
@@ -129,3 +145,31 @@ def test_bad_controllers_and_limits_are_one_line_errors():
         aj.design(trial, _family(), free=ARM, limits=LIMITS, method="monte_carlo", controller=True, steps=1)
     with pytest.raises(ValueError, match="method='bound' covers the arm's matrices"):
         aj.design(trial, _family(), free=(*ARM, "friction.tau_c"), limits=LIMITS, method="bound", steps=1)
+    with pytest.raises(ValueError, match="calibrate must be >= 0, got -1"):
+        aj.design(trial, _family(), free=ARM, limits=LIMITS, method="bound", calibrate=-1, steps=1)
+    with pytest.raises(ValueError, match="calibrate .* weighs the bound; the Monte Carlo criterion has none"):
+        aj.design(trial, _family(), free=ARM, limits=LIMITS, method="monte_carlo", calibrate=1, steps=1)
+
+
+@pytest.mark.slow  # about 3 min: predict_se through the friction at the design, twice
+def test_a_calibrated_design_weighs_the_bound_by_the_friction_and_predicts_its_minutes():
+    """One calibrated round on a 2 s record with 1 N m of friction: the limits still hold, the
+    trace runs over both rounds, the start is the first round's, and the predicted minutes are
+    ``predict_se``'s (the bound times the ratios) by the bound's square-root law."""
+    trial = aj.make_trial(aj.IMBIC(), arm=paper.arm(2), friction=aj.LuGre(1.0, 1.5), **NOISE)
+    limits = dataclasses.replace(LIMITS, record=2.0)
+    kw = dict(free=ARM, limits=limits, method="bound", controller=True, steps=2, key=jax.random.key(1))
+    plain = aj.design(trial, _family(), **kw)
+    res = aj.design(trial, _family(), calibrate=1, predict_draws=16, **kw)
+    assert plain.predicted_minutes is None and plain.friction_ratio is None
+    assert len(res.trace) == 4 and res.trace[:2] == plain.trace
+    assert res.criterion_before == plain.criterion_before and res.start_minutes == plain.start_minutes
+    np.testing.assert_array_equal(res.start_signal, plain.start_signal)
+    a = res.achieved
+    assert np.all(np.asarray(a["rms_force"]) <= 0.66 + 1e-9) and a["peak_displacement"] <= 0.006
+    assert a["drift"] <= 0.003 * (1 + 1e-9) and np.all(np.diag(res.controller["k_rd"]) >= 50.0)
+    ratio = res.friction_ratio
+    assert ratio.shape == (1, 6) and np.all(np.isfinite(ratio)) and np.all(ratio > 0)
+    bound = np.asarray(list(res.bounds[0].relative().values()))
+    want = 2.0 * (1.959963984540054 * np.max(ratio[0] * bound) / 0.1) ** 2 / 60
+    assert res.predicted_minutes[0] == pytest.approx(want, rel=1e-9)

@@ -15,6 +15,13 @@ after each step the gains are projected onto what the clinician allows:
 
 The answer in minutes is the bound's record length for the precision asked, worst over the
 arms (``Bound.record_for``: the bound falls as one over the square root of the record).
+
+The bound leaves out the joints' Coulomb friction, which costs ``identify`` information that
+differs by arm and entry. ``calibrate`` rounds measure it: ``predict_se`` (``identify``'s
+statistic, simulated through the friction) over the bound gives each arm's and target's ratio
+at the design, and the next round designs on the bound times those ratios, held fixed, from
+there (``design_calibrated``). Its answer adds the minutes ``predict_se`` gives on the
+returned design, on draws of their own (the rounds' draws chose the design).
 """
 
 from __future__ import annotations
@@ -26,14 +33,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+import scipy.stats
 
 from .._pytree import replace_unchecked
 from . import controller_design as cd
 from . import layout as lay
 from . import linear
 from .bound import _fisher, crlb
-from .criterion import DesignPlan, _aggregate
+from .criterion import DesignPlan, _aggregate, relative_se
 from .limits import _displacement_gain, _limited_signal, _peak_displacement
+from .predict import predict_se
 
 BACKTRACKS = 6  # halvings of a step whose gains leave the loop unstable before it is skipped
 
@@ -49,7 +58,10 @@ class BoundDesign(NamedTuple):
     for ``precision`` at 95% on the targets; ``criterion_before`` / ``criterion_after``: the
     largest relative SE bound of the targets over the trials on ``limits.record``; ``trace``:
     the smoothed criterion per step; ``achieved``: RMS and peak force per axis [N], the largest
-    peak hand displacement [m] (full simulation) and drift [m] over the trials; ``time_s``."""
+    peak hand displacement [m] (full simulation) and drift [m] over the trials; ``time_s``.
+    With ``calibrate`` rounds (else ``None``): ``predicted_minutes``, per trial the minutes of
+    ``predict_se`` (through the friction) on the returned design; ``friction_ratio`` ``(T, k)``:
+    its relative SEs of the targets over the bound's there."""
 
     family: object
     signal: np.ndarray
@@ -65,6 +77,8 @@ class BoundDesign(NamedTuple):
     trace: list
     achieved: dict
     time_s: float
+    predicted_minutes: list | None = None
+    friction_ratio: np.ndarray | None = None
 
 
 def _linear_peak(trial, f):
@@ -72,9 +86,10 @@ def _linear_peak(trial, f):
     return jnp.sqrt(jnp.max(y[:, 0] ** 2 + y[:, 1] ** 2))  # sqrt after max: its derivative at 0 is infinite
 
 
-def _objective(z, family, trials, layout, idx, limits, aggregate, key, n, period, design_gains, smooth=True):
-    """The smoothed worst (or mean) log relative SE bound of the targets, with the signal scaled to
-    the displacement limit on every arm's linear loop; aux: that scale."""
+def _objective(z, offsets, family, trials, layout, idx, limits, aggregate, key, n, period, design_gains, smooth=True):
+    """The smoothed worst (or mean) log relative SE bound of the targets, each trial's shifted by
+    its row of ``offsets`` ``(T, k)`` (a calibration's log ratios; zeros: the bound alone), with
+    the signal scaled to the displacement limit on every arm's linear loop; aux: that scale."""
     fam = replace_unchecked(family, shape=jnp.exp(z["shape"]))
     f = _limited_signal(fam, key, n, limits, period)
     looped = [cd.with_gains(t, z["gains"]) if design_gains else t for t in trials]
@@ -83,12 +98,12 @@ def _objective(z, family, trials, layout, idx, limits, aggregate, key, n, period
         peak = jnp.max(jnp.stack([_linear_peak(t, f) for t in looped]))
         scale = jnp.minimum(1.0, limits.peak_displacement / peak)
     per_trial = []
-    for t in looped:
+    for k, t in enumerate(looped):
         info = _fisher(layout, t, f * scale)
         cov = jnp.linalg.inv(info)
         values = lay.pack_arm(layout, t)
         sub = jnp.diag(cov)[idx] / values[idx] ** 2
-        per_trial.append(0.5 * jnp.log(sub))
+        per_trial.append(0.5 * jnp.log(sub) + offsets[k])
     return jnp.log(_aggregate(per_trial, "max_relative_se", aggregate, smooth)), scale
 
 
@@ -98,8 +113,11 @@ def _bounds(trials, f, free, precision, entries):
     return bounds, minutes
 
 
-def _worst(bounds, entries):
-    return max(max(b.relative(entries).values()) for b in bounds)
+def _worst(bounds, entries, ratios=None):
+    """The largest relative SE bound of ``entries`` over the trials, each times its ``ratios``
+    ``(T, k)`` (a calibration's; default 1)."""
+    ratios = np.ones((len(bounds), len(entries))) if ratios is None else ratios
+    return max(float(np.max(np.asarray(list(b.relative(entries).values())) * r)) for b, r in zip(bounds, ratios))
 
 
 def _step(z, state, opt, value_and_grad, trials, limits, design_gains):
@@ -122,8 +140,9 @@ def _step(z, state, opt, value_and_grad, trials, limits, design_gains):
     return {**new, "gains": np.asarray(z["gains"])}, new_state, float(value)
 
 
-def design_on_bound(plan: DesignPlan, family, *, design_gains: bool, precision: float) -> BoundDesign:
-    """The design loop (``design`` checks the inputs first)."""
+def design_on_bound(plan: DesignPlan, family, *, design_gains: bool, precision: float, ratios=None) -> BoundDesign:
+    """The design loop (``design`` checks the inputs first), from ``plan.trials``' gains and
+    ``family``'s shape; ``ratios`` ``(T, k)``: a calibration's (default: the bound alone)."""
     t_start = time.perf_counter()
     trials, layout, limits, aggregate = plan.trials, plan.layout, plan.limits, plan.aggregate
     period = trials[0].period
@@ -134,13 +153,20 @@ def design_on_bound(plan: DesignPlan, family, *, design_gains: bool, precision: 
         gains0 = cd.check_start(trials, gains0, limits)
     start_trials = [cd.with_gains(t, gains0) if design_gains else t for t in trials]
     idx = np.asarray(plan.idx)
+    ratios = np.ones((len(trials), len(idx))) if ratios is None else np.asarray(ratios)
 
-    def fun(z, smooth=True):
+    def fun(z, offsets, smooth=True):
         return _objective(
-            z, family, trials, layout, idx, limits, aggregate, family_key, n, period, design_gains, smooth
+            z, offsets, family, trials, layout, idx, limits, aggregate, family_key, n, period, design_gains, smooth
         )
 
-    value_and_grad = jax.jit(jax.value_and_grad(fun, has_aux=True))
+    # the offsets are an argument, not constants folded into the program (they change by round)
+    compiled = jax.jit(jax.value_and_grad(fun, has_aux=True))
+    offsets = jnp.asarray(np.log(ratios))
+
+    def value_and_grad(z):
+        return compiled(z, offsets)
+
     shape0 = np.asarray(family.shape)
     z = {"shape": np.log(np.maximum(shape0, 1e-6 * shape0.max())), "gains": np.asarray(gains0)}
     opt = optax.adam(plan.learning_rate)
@@ -152,8 +178,9 @@ def design_on_bound(plan: DesignPlan, family, *, design_gains: bool, precision: 
         if plan.progress is not None:
             plan.progress(step + 1, plan.steps, trace[-1])
     entries = [layout.labels()[i] for i in plan.idx]
+    designed = _Designed(z, trace, ratios)
     return _assemble(
-        z,
+        designed,
         family,
         trials,
         start_trials,
@@ -165,13 +192,88 @@ def design_on_bound(plan: DesignPlan, family, *, design_gains: bool, precision: 
         design_gains,
         precision,
         entries,
-        trace,
         t_start,
     )
 
 
+class _Designed(NamedTuple):
+    """What the loop hands to ``_assemble``: the last point ``z``, the criterion per step, and the
+    calibration ratios the loop weighed the bound by."""
+
+    z: dict
+    trace: list
+    ratios: np.ndarray
+
+
+def friction_ratios(trials, f, free, entries, *, draws: int, key):
+    """``(bound, predicted)``, each ``(T, k)``: per trial the relative SEs of ``entries`` that the
+    Cramér-Rao bound gives and that ``predict_se`` gives (``identify``'s statistic, simulated
+    through the trial's friction, ``draws`` draws from ``key``) under ``f`` ``(N, 2)`` [N]."""
+    bound, predicted = [], []
+    for t in trials:
+        b = crlb(t, f, free=free)
+        if not b.near_linear:
+            raise ValueError(f"design: calibrate needs a bound at every arm; {b.message}")
+        bound.append([b.relative(entries)[e] for e in entries])
+        rel = relative_se(predict_se(t, f, free=free, draws=draws, key=key), t, free=free, targets=entries)
+        predicted.append([rel[e] for e in entries])
+    return np.asarray(bound), np.asarray(predicted)
+
+
+def design_calibrated(
+    plan: DesignPlan, family, *, design_gains: bool, precision: float, rounds: int, draws: int
+) -> BoundDesign:
+    """The bound's design, then ``rounds`` rounds calibrated through the friction (module
+    docstring); the start, its bounds and minutes are the first round's, the trace runs on.
+    ``rounds == 0``: the bound's design alone."""
+    if rounds == 0:
+        return design_on_bound(plan, family, design_gains=design_gains, precision=precision)
+    t_start = time.perf_counter()
+    entries = [plan.layout.labels()[i] for i in plan.idx]
+    round_key, final_key = jax.random.split(jax.random.split(plan.key, 3)[2])
+    first = design_on_bound(
+        plan._replace(progress=_counted(plan.progress, 0, rounds + 1)),
+        family,
+        design_gains=design_gains,
+        precision=precision,
+    )
+    result, trace = first, list(first.trace)
+    for r in range(1, rounds + 1):
+        # the rounds' draws are common to all of them; the final prediction's are its own
+        bound, predicted = friction_ratios(result.trials, result.signal, plan.free, entries, draws=draws, key=round_key)
+        step_plan = plan._replace(trials=result.trials, progress=_counted(plan.progress, r, rounds + 1))
+        result = design_on_bound(
+            step_plan, result.family, design_gains=design_gains, precision=precision, ratios=predicted / bound
+        )
+        trace += result.trace
+    bound, predicted = friction_ratios(result.trials, result.signal, plan.free, entries, draws=draws, key=final_key)
+    seconds = result.signal.shape[0] * plan.trials[0].period
+    z = scipy.stats.norm.ppf(0.975)
+    return result._replace(
+        start_signal=first.start_signal,
+        start_bounds=first.start_bounds,
+        start_minutes=first.start_minutes,
+        criterion_before=first.criterion_before,
+        trace=trace,
+        predicted_minutes=[seconds * (z * float(np.max(p)) / precision) ** 2 / 60 for p in predicted],
+        friction_ratio=predicted / bound,
+        time_s=time.perf_counter() - t_start,
+    )
+
+
+def _counted(progress, done: int, rounds: int):
+    """``progress`` called with the steps counted over all ``rounds`` rounds (``done`` before)."""
+    if progress is None:
+        return None
+
+    def report(step, steps, value):
+        progress(done * steps + step, rounds * steps, value)
+
+    return report
+
+
 def _assemble(
-    z, family, trials, start_trials, free, limits, key, n, period, design_gains, precision, entries, trace, t_start
+    designed, family, trials, start_trials, free, limits, key, n, period, design_gains, precision, entries, t_start
 ):
     """The returned design: the signal re-scaled to the displacement limit on the full simulation
     of every arm, the bounds before and after, and what was achieved."""
@@ -181,11 +283,12 @@ def _assemble(
         f = np.asarray(_limited_signal(fam, key, n, limits, period, gain))
         return f, *_bounds(looped, f, free, precision, entries)
 
+    z, trace, ratios = designed
     designed = replace_unchecked(family, shape=np.exp(z["shape"]))
     looped = [cd.with_gains(t, z["gains"]) for t in trials] if design_gains else list(trials)
     f0, before, start_minutes = finish(family, start_trials)
     f, after, minutes = finish(designed, looped)
-    if _worst(after, entries) > _worst(before, entries):  # a design never promises less than its start
+    if _worst(after, entries, ratios) > _worst(before, entries, ratios):  # never worse than its start
         designed, looped, f, after, minutes = family, start_trials, f0, before, start_minutes
     drift = max(float(linear.drift(t)) for t in looped)
     achieved = dict(

@@ -26,13 +26,13 @@ import math
 import jax
 import numpy as np
 
-from .._checks import check_choice, require_x64
+from .._checks import check_choice, check_int, require_x64
 from .._model.families import Multisine, PaperNoise, ShapedNoise
 from .._simulate import Trial
 from . import indirect, linear
 from . import layout as lay
 from .bound import is_near_linear, silent_readings
-from .bound_design import BoundDesign, design_on_bound
+from .bound_design import BoundDesign, design_calibrated
 from .criterion import DesignPlan, _targets, relative_se
 from .limits import Limits, _limited_signal
 from .monte_carlo_design import Design, design_monte_carlo
@@ -157,6 +157,7 @@ def design(
     aggregate: str = "worst",
     method: str = "auto",
     controller: bool = False,
+    calibrate: int = 0,
     precision: float = 0.1,
     steps: int = 40,
     learning_rate: float = 0.15,
@@ -191,10 +192,14 @@ def design(
             bound where it covers the free parameters and every arm's loop is near-linear.
         controller: also design the controller's diagonal stiffness and damping (IMBIC's
             ``k_rd``, ``b_rd``; PD's ``kp``, ``kv``) within ``limits`` (bound method only).
+        calibrate: rounds through the friction (bound method; 0: the bound alone): ``predict_se``
+            over the bound per arm and target weighs the bound in a further round; the answer
+            adds ``predicted_minutes`` (``predict_se``'s, ``predict_draws`` draws).
         precision: the relative half-width at 95% the minutes are reported for (bound method).
         steps, learning_rate: Adam steps on the log of ``shape`` (and of the gains).
         draws: noise draws per trial per step (new ones every step; Monte Carlo method).
-        predict_draws: draws of the final ``predict_se`` before and after (Monte Carlo method).
+        predict_draws: draws of the final ``predict_se`` before and after (Monte Carlo method), or
+            of each calibration's (bound method).
         key: ``jax.random`` key (default ``key(0)``): the family's own noise and every draw.
         progress: ``None`` or a callable ``progress(step, steps, value)`` called after each step.
 
@@ -205,6 +210,7 @@ def design(
     """
     require_x64("design")
     counts = {"steps": (steps, 1), "draws": (draws, 8), "predict_draws": (predict_draws, 8)}
+    calibrate = _check_calibrate(calibrate, method)
     candidates, layout, idx, trials = _check_design(
         trial, family, free, limits, targets, criterion, robust_over, aggregate, counts, learning_rate, precision
     )
@@ -212,9 +218,25 @@ def design(
     if limits.drift is not None and not controller:
         _check_fixed_drift(trials, limits.drift)
     plan = DesignPlan(trials, free, layout, idx, limits, criterion, aggregate, steps, learning_rate, key, progress)
-    if _choose_method(method, controller, trials, candidates, layout, criterion, limits, key) == "bound":
-        return design_on_bound(plan, candidates[0], design_gains=controller, precision=precision)
+    chosen = _choose_method(method, controller, trials, candidates, layout, criterion, limits, key)
+    if chosen == "bound":
+        return design_calibrated(
+            plan, candidates[0], design_gains=controller, precision=precision, rounds=calibrate, draws=predict_draws
+        )
+    _check_calibrate(calibrate, chosen)
     return design_monte_carlo(plan, candidates, draws=draws, predict_draws=predict_draws)
+
+
+def _check_calibrate(calibrate, method: str) -> int:
+    """``calibrate`` as a count of rounds, refused in one line where the criterion has no bound to
+    weigh (the Monte Carlo one: asked for, or chosen by ``"auto"`` through stick-slip)."""
+    calibrate = check_int("calibrate", calibrate, minimum=0)
+    if calibrate and method == "monte_carlo":
+        raise ValueError(
+            f"design: calibrate ({calibrate} rounds) weighs the bound; the Monte Carlo criterion has none "
+            "(method 'monte_carlo', or 'auto' through stick-slip)"
+        )
+    return calibrate
 
 
 def record_for(

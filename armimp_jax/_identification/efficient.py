@@ -181,7 +181,7 @@ def excess_weight(filt, ys):
     averaged over segments and draws), each bin given its nearest Welch bin's value. Pure JAX."""
     n = ys.shape[1]
     nperseg = int(min(SPECTRUM_NPERSEG, 2 ** int(np.floor(np.log2(max(n // 4, 64))))))
-    residuals = jax.vmap(lambda y: kalman.whiten(filt, y))(ys - jnp.mean(ys, axis=0))
+    residuals = jax.vmap(lambda y: kalman.whiten(filt, y))(ys - jnp.mean(ys, axis=0, keepdims=True))
     _, spec = jax.scipy.signal.csd(
         residuals[..., :, None], residuals[..., None, :], nperseg=nperseg, axis=-3, detrend=False
     )

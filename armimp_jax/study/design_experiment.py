@@ -64,6 +64,7 @@ SECTIONS = {
         "aggregate": ("text", AGGREGATES, "worst"),
         "method": ("text", METHODS, "auto"),
         "controller": ("text", ("fixed", "design"), "fixed"),
+        "calibrate": ("int", 0, 0),
         "precision": ("scalar", "", 0.1),
         "robust": ("choices", (1, 2, 3, 4), []),
         "steps": ("int", 1, 40),
@@ -147,6 +148,7 @@ def build_design(config: dict, *, where: str = "config") -> tuple:
         aggregate=d["aggregate"],
         method=d["method"],
         controller=d["controller"] == "design",
+        calibrate=d["calibrate"],
         precision=float(d["precision"]),
         robust_over=trials,
         steps=d["steps"],
@@ -219,6 +221,11 @@ def friction_note(result: BoundDesign) -> str:
     if not rough:
         return ""
     tau_c = max(float(np.max(np.asarray(t.friction.tau_c))) for t in rough)
+    if result.predicted_minutes is not None:
+        return (
+            f"  through the joints' Coulomb friction ({tau_c:g} N m), predict_se's minutes per arm: "
+            f"{np.round(result.predicted_minutes, 2).tolist()} (the bound's leave the friction out)"
+        )
     return (
         f"  (the bound's minutes leave out the joints' Coulomb friction, {tau_c:g} N m here, which adds to "
         "them; [validate] seeds = 30 measures them by identification, docs/experiment_design.md)"
@@ -245,6 +252,11 @@ def _bound_rows(result, targets, paper):
             near_linear=b1.near_linear,
             nonlinearity=b1.nonlinearity,
         )
+        if result.predicted_minutes is not None:  # calibrated through the friction
+            ratio = dict(zip(targets, result.friction_ratio[k].tolist(), strict=True))
+            row["friction_ratio"] = ratio
+            row["relative_se_predicted"] = {t: row["relative_se_after"][t] * ratio[t] for t in targets}
+            row["predicted_minutes"] = result.predicted_minutes[k]
         if paper is not None:
             row["relative_se_paper"] = paper[k].relative(targets)
         rows.append(row)
@@ -277,6 +289,12 @@ def result_dict(result, trials, *, settings: dict, free, targets, validation=Non
     for k, row in enumerate(rows):
         if validation is not None:
             row["validation"] = _validation_row(validation[k], row["se_after"])
+            if "relative_se_predicted" in row:  # against predict_se's through the friction, per target
+                value = np.abs(truth(trials[k], free))
+                spread = validation[k]["spread"]
+                row["validation"]["relative_spread"] = {
+                    t: spread[labels.index(t)] / value[labels.index(t)] for t in targets
+                }
     doc = {
         "settings": {**settings, "armimp_jax": package_version()},
         "method": "bound" if on_bound else "monte_carlo",
@@ -292,6 +310,8 @@ def result_dict(result, trials, *, settings: dict, free, targets, validation=Non
     }
     if on_bound:
         doc.update(controller=result.controller, minutes=max(result.minutes), start_minutes=max(result.start_minutes))
+        if result.predicted_minutes is not None:
+            doc.update(predicted_minutes=max(result.predicted_minutes))
     else:
         doc.update(improved=result.improved, skipped_steps=result.skipped, start_criteria=result.start_criteria)
     return doc
@@ -372,16 +392,21 @@ def trace_figure(fs, signal, limits: Limits, trace):
 
 def minutes_figure(doc: dict, precision: float):
     """Bars per arm: the bound's minutes of recording for +-``precision`` at 95% on every target,
-    at the start and with the design."""
+    at the start and with the design (and, calibrated, ``predict_se``'s through the friction)."""
     rows = doc["trials"]
     fig = Figure(figsize=(6.5, 3.6), layout="constrained")
     ax = fig.subplots()
     x = np.arange(len(rows))
-    for j, (key, label) in enumerate((("minutes_before", "start"), ("minutes_after", "designed"))):
-        ax.bar(x + (j - 0.5) * 0.4, [r[key] for r in rows], 0.4, label=label)
+    bars = [("minutes_before", "start (bound)"), ("minutes_after", "designed (bound)")]
+    if "predicted_minutes" in rows[0]:
+        bars.append(("predicted_minutes", "designed, through the friction (predict_se)"))
+    width = 0.8 / len(bars)
+    for j, (key, label) in enumerate(bars):
+        drawn = ax.bar(x + (j - (len(bars) - 1) / 2) * width, [r[key] for r in rows], width, label=label)
+        ax.bar_label(drawn, fmt="%.2g", fontsize=7)  # the short bars' values, which the axis squashes
     ax.set_xticks(x, [f"arm {k + 1}" for k in x])
     ax.set_ylabel("minutes of recording")
-    ax.set_title(f"Cramér-Rao minutes for +-{precision:.0%} at 95% on every target", fontsize=10)
+    ax.set_title(f"minutes for +-{precision:.0%} at 95% on every target", fontsize=10)
     ax.set_ylim(bottom=0.0)
     ax.legend(fontsize=8)
     return fig
