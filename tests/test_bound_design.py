@@ -145,7 +145,7 @@ def test_bad_controllers_and_limits_are_one_line_errors():
         aj.design(trial, _family(), free=ARM, limits=LIMITS, method="monte_carlo", controller=True, steps=1)
     with pytest.raises(ValueError, match="method='bound' covers the arm's matrices"):
         aj.design(trial, _family(), free=(*ARM, "friction.tau_c"), limits=LIMITS, method="bound", steps=1)
-    with pytest.raises(ValueError, match="calibrate must be >= 0, got -1"):
+    with pytest.raises(ValueError, match="design: calibrate must be an integer >= 0 \\(rounds\\), got -1"):
         aj.design(trial, _family(), free=ARM, limits=LIMITS, method="bound", calibrate=-1, steps=1)
     with pytest.raises(ValueError, match="calibrate .* weighs the bound; the Monte Carlo criterion has none"):
         aj.design(trial, _family(), free=ARM, limits=LIMITS, method="monte_carlo", calibrate=1, steps=1)
@@ -162,6 +162,7 @@ def test_a_calibrated_design_weighs_the_bound_by_the_friction_and_predicts_its_m
     plain = aj.design(trial, _family(), **kw)
     res = aj.design(trial, _family(), calibrate=1, predict_draws=16, **kw)
     assert plain.predicted_minutes is None and plain.friction_ratio is None
+    assert max(plain.minutes) < max(plain.start_minutes)  # the first round moved: the start fields are its
     assert len(res.trace) == 4 and res.trace[:2] == plain.trace
     assert res.criterion_before == plain.criterion_before and res.start_minutes == plain.start_minutes
     np.testing.assert_array_equal(res.start_signal, plain.start_signal)

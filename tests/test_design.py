@@ -287,7 +287,7 @@ def test_the_shipped_design_configs_build_the_must_shows_limits():
     assert (imbic.drift, imbic.min_stiffness) == (0.003, 50.0)
 
 
-@pytest.mark.slow  # ~2 min: a one-step design on the bound with the controller, through the script
+@pytest.mark.slow  # ~2 min: a two-step design on the bound with the controller and a calibrated round
 def test_a_bound_design_writes_the_controller_and_the_minutes(tmp_path, capsys):
     text = IMBIC_CONFIG.read_text().replace("robust = [1, 2, 3, 4]", "robust = [2]")
     text = text.replace("record = 20.0 ", "record = 3.0 ").replace("steps = 40", "steps = 2")
@@ -303,7 +303,13 @@ def test_a_bound_design_writes_the_controller_and_the_minutes(tmp_path, capsys):
     assert doc["achieved"]["drift"] <= 0.003 * (1 + 1e-9) and doc["achieved"]["peak_displacement"] <= 0.010
     assert doc["minutes"] == max(r["minutes_after"] for r in doc["trials"]) > 0
     assert (out / "minutes.png").stat().st_size > 0 and "minutes for +-10% at 95%" in captured.out
-    assert "leave out the joints' Coulomb friction, 1 N m here" in captured.out  # the config's LuGre 1 / 1.5
+    # the config's calibrated round through its LuGre 1 / 1.5 N m: predict_se's minutes, per arm and overall
+    assert "through the joints' Coulomb friction (1 N m), predict_se's minutes per arm" in captured.out
+    row = doc["trials"][0]
+    assert doc["predicted_minutes"] == row["predicted_minutes"] > 0
+    assert set(row["friction_ratio"]) == set(doc["targets"]) == set(row["relative_se_predicted"])
+    for t in doc["targets"]:
+        assert row["relative_se_predicted"][t] == pytest.approx(row["relative_se_after"][t] * row["friction_ratio"][t])
 
 
 @pytest.mark.slow  # ~1 min: two predictions

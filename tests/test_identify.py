@@ -10,7 +10,7 @@ import pytest
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._identification import auxiliary, efficient, indirect
+from armimp_jax._identification import auxiliary, efficient, indirect, kalman
 from armimp_jax._identification import layout as lay
 from armimp_jax._model.sensors import quantise
 
@@ -289,3 +289,23 @@ def test_a_recording_whose_joints_stuck_is_diagnosed_in_a_labs_terms():
     assert np.all(held.fraction > 0.8) and "stood still for" in held.advice[0] and "burst" in held.advice[0]
     free = motion_diagnosis(_trial(), moving.x)
     assert np.all(free.fraction < 0.1) and not free.advice
+
+
+def test_the_excess_weight_is_blind_to_what_every_draw_shares():
+    """The efficient statistic's weight under friction comes from the draws' departures from
+    their mean: a signal common to every draw leaves it unchanged (to round-off), and it is
+    the inverse of a Hermitian spectral matrix at every bin of the record."""
+    filt = kalman.InnovationsFilter(
+        a=0.5 * jnp.eye(2),
+        c=jnp.ones((4, 2)),
+        gain=0.1 * jnp.ones((2, 4)),
+        cov=jnp.eye(4),
+        scale=jnp.ones(4),
+        state_cov=jnp.eye(2),
+    )
+    ys = jax.random.normal(jax.random.key(0), (3, 512, 4))
+    common = jnp.sin(jnp.arange(512) / 7.0)[None, :, None] * jnp.ones((1, 1, 4))
+    w = efficient.excess_weight(filt, ys)
+    assert w.shape == (255, 4, 4) and bool(jnp.all(jnp.isfinite(w)))
+    np.testing.assert_allclose(efficient.excess_weight(filt, ys + 10.0 * common), w, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(w, jnp.conj(jnp.swapaxes(w, -1, -2)), rtol=1e-12, atol=1e-12)

@@ -57,7 +57,8 @@ class BoundDesign(NamedTuple):
     design; ``start_bounds``: of the start; ``minutes`` / ``start_minutes``: per trial the record
     for ``precision`` at 95% on the targets; ``criterion_before`` / ``criterion_after``: the
     largest relative SE bound of the targets over the trials on ``limits.record``; ``trace``:
-    the smoothed criterion per step; ``achieved``: RMS and peak force per axis [N], the largest
+    the smoothed criterion per step (in a calibrated round, the bound times that round's
+    ratios: the rounds' values are not on one scale); ``achieved``: RMS and peak force per axis [N], the largest
     peak hand displacement [m] (full simulation) and drift [m] over the trials; ``time_s``.
     With ``calibrate`` rounds (else ``None``): ``predicted_minutes``, per trial the minutes of
     ``predict_se`` (through the friction) on the returned design; ``friction_ratio`` ``(T, k)``:
@@ -160,7 +161,8 @@ def design_on_bound(plan: DesignPlan, family, *, design_gains: bool, precision: 
             z, offsets, family, trials, layout, idx, limits, aggregate, family_key, n, period, design_gains, smooth
         )
 
-    # the offsets are an argument, not constants folded into the program (they change by round)
+    # the ratios enter as an argument, not as constants folded into the program: the gradient
+    # test varies them on one compiled program (each round's closure still compiles its own)
     compiled = jax.jit(jax.value_and_grad(fun, has_aux=True))
     offsets = jnp.asarray(np.log(ratios))
 
@@ -210,12 +212,15 @@ def friction_ratios(trials, f, free, entries, *, draws: int, key):
     Cramér-Rao bound gives and that ``predict_se`` gives (``identify``'s statistic, simulated
     through the trial's friction, ``draws`` draws from ``key``) under ``f`` ``(N, 2)`` [N]."""
     bound, predicted = [], []
-    for t in trials:
+    for k, t in enumerate(trials):
         b = crlb(t, f, free=free)
         if not b.near_linear:
-            raise ValueError(f"design: calibrate needs a bound at every arm; {b.message}")
+            raise ValueError(f"design: calibrate needs a bound at every arm; robust_over[{k}]: {b.message}")
+        pred = predict_se(t, f, free=free, draws=draws, key=key)
+        rel = relative_se(pred, t, free=free, targets=entries)
+        if bool(pred.diverged) or not np.all(np.isfinite(list(rel.values()))):
+            raise ValueError(f"design: calibrate's predict_se diverged or is not finite at robust_over[{k}]")
         bound.append([b.relative(entries)[e] for e in entries])
-        rel = relative_se(predict_se(t, f, free=free, draws=draws, key=key), t, free=free, targets=entries)
         predicted.append([rel[e] for e in entries])
     return np.asarray(bound), np.asarray(predicted)
 
@@ -248,26 +253,26 @@ def design_calibrated(
         trace += result.trace
     bound, predicted = friction_ratios(result.trials, result.signal, plan.free, entries, draws=draws, key=final_key)
     seconds = result.signal.shape[0] * plan.trials[0].period
-    z = scipy.stats.norm.ppf(0.975)
+    z95 = scipy.stats.norm.ppf(0.975)  # as Bound.record_for's minutes: +-precision at 95%
     return result._replace(
         start_signal=first.start_signal,
         start_bounds=first.start_bounds,
         start_minutes=first.start_minutes,
         criterion_before=first.criterion_before,
         trace=trace,
-        predicted_minutes=[seconds * (z * float(np.max(p)) / precision) ** 2 / 60 for p in predicted],
+        predicted_minutes=[seconds * (z95 * float(np.max(p)) / precision) ** 2 / 60 for p in predicted],
         friction_ratio=predicted / bound,
         time_s=time.perf_counter() - t_start,
     )
 
 
-def _counted(progress, done: int, rounds: int):
-    """``progress`` called with the steps counted over all ``rounds`` rounds (``done`` before)."""
+def _counted(progress, done: int, total: int):
+    """``progress`` called with the steps counted over ``total`` design rounds (``done`` before)."""
     if progress is None:
         return None
 
     def report(step, steps, value):
-        progress(done * steps + step, rounds * steps, value)
+        progress(done * steps + step, total * steps, value)
 
     return report
 

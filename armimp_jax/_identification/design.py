@@ -26,7 +26,7 @@ import math
 import jax
 import numpy as np
 
-from .._checks import check_choice, check_int, require_x64
+from .._checks import check_choice, require_x64
 from .._model.families import Multisine, PaperNoise, ShapedNoise
 from .._simulate import Trial
 from . import indirect, linear
@@ -230,7 +230,8 @@ def design(
 def _check_calibrate(calibrate, method: str) -> int:
     """``calibrate`` as a count of rounds, refused in one line where the criterion has no bound to
     weigh (the Monte Carlo one: asked for, or chosen by ``"auto"`` through stick-slip)."""
-    calibrate = check_int("calibrate", calibrate, minimum=0)
+    if isinstance(calibrate, bool) or not isinstance(calibrate, (int, np.integer)) or calibrate < 0:
+        raise ValueError(f"design: calibrate must be an integer >= 0 (rounds), got {calibrate!r}")
     if calibrate and method == "monte_carlo":
         raise ValueError(
             f"design: calibrate ({calibrate} rounds) weighs the bound; the Monte Carlo criterion has none "
