@@ -259,6 +259,13 @@ BAD_BOUND_CONFIGS = {
         r"\[design\] controller = 'design' needs method 'bound' or 'auto'",
     ),
     "negative drift": (("drift = 0.003 ", "drift = -0.003 "), r"\[limits\] Limits: drift must be > 0 m"),
+    "calibration without the bound": (
+        (
+            'method = "bound"             # "bound", "monte_carlo" or "auto"\ncontroller = "design"',
+            'method = "monte_carlo"\ncontroller = "fixed"',
+        ),
+        r"\[design\] calibrate = 1 weighs the bound: method 'bound' or 'auto'",
+    ),
 }
 
 

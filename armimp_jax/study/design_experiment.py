@@ -110,6 +110,8 @@ def read_design_config(path) -> dict:
     d = config["design"]
     if d["controller"] == "design" and d["method"] == "monte_carlo":
         raise ConfigError(f"{path}: [design] controller = 'design' needs method 'bound' or 'auto', not 'monte_carlo'")
+    if d["calibrate"] and d["method"] == "monte_carlo":
+        raise ConfigError(f"{path}: [design] calibrate = {d['calibrate']} weighs the bound: method 'bound' or 'auto'")
     return config
 
 
