@@ -207,13 +207,13 @@ class _Designed(NamedTuple):
     ratios: np.ndarray
 
 
-def friction_ratios(trials, f, free, entries, *, draws: int, key):
-    """``(bound, predicted)``, each ``(T, k)``: per trial the relative SEs of ``entries`` that the
-    Cramér-Rao bound gives and that ``predict_se`` gives (``identify``'s statistic, simulated
-    through the trial's friction, ``draws`` draws from ``key``) under ``f`` ``(N, 2)`` [N]."""
+def friction_ratios(bounds, trials, f, free, entries, *, draws: int, key):
+    """``(bound, predicted)``, each ``(T, k)``: per trial the relative SEs of ``entries`` that its
+    Cramér-Rao bound in ``bounds`` gives (``crlb`` under ``f``, as a ``BoundDesign`` holds them)
+    and that ``predict_se`` gives (``identify``'s statistic, simulated through the trial's
+    friction, ``draws`` draws from ``key``) under ``f`` ``(N, 2)`` [N]."""
     bound, predicted = [], []
-    for k, t in enumerate(trials):
-        b = crlb(t, f, free=free)
+    for k, (b, t) in enumerate(zip(bounds, trials, strict=True)):
         if not b.near_linear:
             raise ValueError(f"design: calibrate needs a bound at every arm; robust_over[{k}]: {b.message}")
         pred = predict_se(t, f, free=free, draws=draws, key=key)
@@ -245,13 +245,17 @@ def design_calibrated(
     result, trace = first, list(first.trace)
     for r in range(1, rounds + 1):
         # the rounds' draws are common to all of them; the final prediction's are its own
-        bound, predicted = friction_ratios(result.trials, result.signal, plan.free, entries, draws=draws, key=round_key)
+        bound, predicted = friction_ratios(
+            result.bounds, result.trials, result.signal, plan.free, entries, draws=draws, key=round_key
+        )
         step_plan = plan._replace(trials=result.trials, progress=_counted(plan.progress, r, rounds + 1))
         result = design_on_bound(
             step_plan, result.family, design_gains=design_gains, precision=precision, ratios=predicted / bound
         )
         trace += result.trace
-    bound, predicted = friction_ratios(result.trials, result.signal, plan.free, entries, draws=draws, key=final_key)
+    bound, predicted = friction_ratios(
+        result.bounds, result.trials, result.signal, plan.free, entries, draws=draws, key=final_key
+    )
     seconds = result.signal.shape[0] * plan.trials[0].period
     z95 = scipy.stats.norm.ppf(0.975)  # as Bound.record_for's minutes: +-precision at 95%
     return result._replace(

@@ -237,7 +237,7 @@ def _check_calibrate(calibrate, method: str) -> int:
             f"design: calibrate ({calibrate} rounds) weighs the bound; the Monte Carlo criterion has none "
             "(method 'monte_carlo', or 'auto' through stick-slip)"
         )
-    return calibrate
+    return int(calibrate)
 
 
 def record_for(
