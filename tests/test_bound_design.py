@@ -145,13 +145,13 @@ def test_bad_controllers_and_limits_are_one_line_errors():
         aj.design(trial, _family(), free=ARM, limits=LIMITS, method="monte_carlo", controller=True, steps=1)
     with pytest.raises(ValueError, match="method='bound' covers the arm's matrices"):
         aj.design(trial, _family(), free=(*ARM, "friction.tau_c"), limits=LIMITS, method="bound", steps=1)
-    with pytest.raises(ValueError, match="design: calibrate must be an integer >= 0 \\(rounds\\), got -1"):
+    with pytest.raises(ValueError, match="design: calibrate must be an integer >= 0, got -1"):
         aj.design(trial, _family(), free=ARM, limits=LIMITS, method="bound", calibrate=-1, steps=1)
     with pytest.raises(ValueError, match="calibrate .* weighs the bound; the Monte Carlo criterion has none"):
         aj.design(trial, _family(), free=ARM, limits=LIMITS, method="monte_carlo", calibrate=1, steps=1)
 
 
-@pytest.mark.slow  # about 3 min: predict_se through the friction at the design, twice
+@pytest.mark.slow  # about 70 s: predict_se through the friction at the design, twice
 def test_a_calibrated_design_weighs_the_bound_by_the_friction_and_predicts_its_minutes():
     """One calibrated round on a 2 s record with 1 N m of friction: the limits still hold, the
     trace runs over both rounds, the start is the first round's, and the predicted minutes are

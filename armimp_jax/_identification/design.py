@@ -210,7 +210,7 @@ def design(
     """
     require_x64("design")
     counts = {"steps": (steps, 1), "draws": (draws, 8), "predict_draws": (predict_draws, 8)}
-    calibrate = _check_calibrate(calibrate, method)
+    counts["calibrate"] = (calibrate, 0)  # rounds
     candidates, layout, idx, trials = _check_design(
         trial, family, free, limits, targets, criterion, robust_over, aggregate, counts, learning_rate, precision
     )
@@ -227,17 +227,15 @@ def design(
     return design_monte_carlo(plan, candidates, draws=draws, predict_draws=predict_draws)
 
 
-def _check_calibrate(calibrate, method: str) -> int:
-    """``calibrate`` as a count of rounds, refused in one line where the criterion has no bound to
-    weigh (the Monte Carlo one: asked for, or chosen by ``"auto"`` through stick-slip)."""
-    if isinstance(calibrate, bool) or not isinstance(calibrate, (int, np.integer)) or calibrate < 0:
-        raise ValueError(f"design: calibrate must be an integer >= 0 (rounds), got {calibrate!r}")
+def _check_calibrate(calibrate: int, method: str) -> None:
+    """Calibration rounds (a count ``_check_design`` checked) refused in one line where the
+    criterion has no bound to weigh (the Monte Carlo one: asked for, or chosen by ``"auto"``
+    through stick-slip)."""
     if calibrate and method == "monte_carlo":
         raise ValueError(
             f"design: calibrate ({calibrate} rounds) weighs the bound; the Monte Carlo criterion has none "
             "(method 'monte_carlo', or 'auto' through stick-slip)"
         )
-    return int(calibrate)
 
 
 def record_for(
