@@ -1,6 +1,6 @@
 """Design the perturbation of an impedance experiment within a patient's limits, and check it.
 
-    python sweeps/design_experiment.py CONFIG.toml --out DIR [--validate SEEDS]
+    python sweeps/design_experiment.py CONFIG.toml --out DIR [--validate SEEDS [--validate-record predicted]]
 
 CONFIG.toml names the robot, controller, sensors, the person's own force and the friction
 (as the model route of estimate_recording.py), the arm to design for ([arm], or the
@@ -15,7 +15,9 @@ software loads), DIR/perturbation.npz, DIR/design.json (settings, limits met, pr
 before and after, the optimisation trace, the check) and DIR/spectrum.png, DIR/se.png,
 DIR/trace.png. With --validate SEEDS (or [validate] seeds) it simulates and identifies
 SEEDS recordings per arm under new noise with the designed perturbation and reports the
-spread of the estimates against the predicted SEs. Every bad config gets one line on
+spread of the estimates against the predicted SEs; --validate-record predicted (or
+[validate] record) runs it at the record the design's minutes predict, where the SEs should
+meet the precision asked (the family's signal at that length, within the same limits). Every bad config gets one line on
 stderr and exit status 2, before any computation.
 """
 
@@ -27,7 +29,7 @@ import sys
 import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _cli import Parser, error_line  # noqa: E402
+from _cli import Z95, Parser, error_line  # noqa: E402
 
 PROG = "design_experiment"
 
@@ -37,6 +39,11 @@ def parse(argv):
     ap.add_argument("config", type=pathlib.Path, help="TOML config (see above)")
     ap.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR", help="output folder (created)")
     ap.add_argument("--validate", type=int, metavar="SEEDS", help="Monte Carlo check: recordings per arm")
+    ap.add_argument(
+        "--validate-record",
+        choices=("design", "predicted"),
+        help="the check's record: the design's (default) or the one its minutes predict",
+    )
     args = ap.parse_args(argv)
     if args.validate is not None and args.validate < 0:
         ap.error(f"--validate must be >= 0 recordings, got {args.validate}")
@@ -124,14 +131,21 @@ def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:
         f"{np.round(result.achieved['peak_force'], 4).tolist()} N, displacement "
         f"{1e3 * result.achieved['peak_displacement']:.3f} mm"
     )
+    if "validation" in doc:
+        v = doc["validation"]
+        print(
+            f"checked at a {v['record_s']:g} s record: RMS {np.round(v['rms_force'], 4).tolist()} N, peak "
+            f"{np.round(v['peak_force'], 4).tolist()} N; predicted SEs scaled to that record"
+        )
     for k, row in enumerate(doc["trials"]):
         if "relative_spread" in row.get("validation", {}):
-            spread, predicted = row["validation"]["relative_spread"], row["relative_se_predicted"]
+            spread, predicted = row["validation"]["relative_spread"], row["validation"]["relative_se_predicted"]
             worst = max(spread, key=spread.get)
             print(
                 f"arm {k + 1}: largest relative spread {spread[worst]:.4g} ({worst}) / largest predicted "
-                f"{max(predicted.values()):.4g} = {spread[worst] / max(predicted.values()):.2f} "
-                f"({row['validation']['converged']} of {row['validation']['recordings']} recordings converged)"
+                f"{max(predicted.values()):.4g} = {spread[worst] / max(predicted.values()):.2f}; +-"
+                f"{Z95 * spread[worst]:.1%} at 95% ({row['validation']['converged']} of "
+                f"{row['validation']['recordings']} recordings converged)"
             )
         elif "validation" in row:
             ratio = np.asarray(row["validation"]["spread_over_predicted"])
@@ -161,6 +175,7 @@ def main(argv=None) -> int:
     except ValueError as err:  # ConfigError included
         return fail(str(err))
     seeds = config["validate"]["seeds"] if args.validate is None else args.validate
+    at = config["validate"]["record"] if args.validate_record is None else args.validate_record
     start = time.perf_counter()
     print(describe(trials, family, limits, options), flush=True)
     try:
@@ -170,9 +185,9 @@ def main(argv=None) -> int:
     paper = paper_reference(aj, jax, result, trials, limits, options)
     if isinstance(result, aj.BoundDesign):
         trials = result.trials  # with the designed controller
-    settings = dict(config_path=str(args.config), config=config, validate_seeds=seeds)
+    settings = dict(config_path=str(args.config), config=config, validate_seeds=seeds, validate_record=at)
 
-    def write(validation):
+    def write(validation, signal=None):
         doc = dx.result_dict(
             result,
             trials,
@@ -181,6 +196,7 @@ def main(argv=None) -> int:
             targets=options["targets"],
             validation=validation,
             paper=paper,
+            validation_signal=signal,
         )
         return doc, dx.write_results(args.out, result, trials, limits, doc=doc)
 
@@ -188,10 +204,13 @@ def main(argv=None) -> int:
     # interrupted check loses no design
     doc, paths = write(None)
     if seeds:
+        record = limits.record if at == "design" else dx.predicted_record(doc, design_record=limits.record)
+        signal = dx.validation_signal(result, limits, record, trials=trials, key=options["key"])
+        print(f"validating at a {record:g} s record ({at}): {seeds} recordings per arm", flush=True)
         vbar = tqdm(total=seeds * len(trials), unit="fit", desc="validating")
         try:
             validation = dx.validate(
-                result.signal,
+                signal,
                 trials,
                 options["free"],
                 seeds=seeds,
@@ -202,7 +221,7 @@ def main(argv=None) -> int:
             vbar.close()
             return fail(f"{err} (the design, unvalidated, is in {args.out})")
         vbar.close()
-        doc, paths = write(validation)
+        doc, paths = write(validation, signal)
     print_summary(np, result, doc, config, limits, on_bound=isinstance(result, aj.BoundDesign))
     print(f"{time.perf_counter() - start:.0f} s; wrote " + ", ".join(p.name for p in paths))
     return 0

@@ -3,13 +3,16 @@ limits that hold exactly on the designed signal, one-line refusals, and a short 
 
 import importlib.util
 import json
+import math
 import pathlib
 import re
+import types
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.stats
 
 import armimp_jax as aj
 from armimp_jax import paper
@@ -214,6 +217,10 @@ BAD_DESIGN_CONFIGS = {
         ('"arm.mass[0,0]", "arm.mass[1,1]"', '"arm.mass[0,0]", "arm.mass[2,2]"'),
         r"unknown target 'arm.mass\[2,2\]'",
     ),
+    "unknown validation record": (
+        ("seeds = 0 ", 'record = "longest"\nseeds = 0 '),
+        r"\[validate\] record must be one of 'design', 'predicted', got 'longest'",
+    ),
 }
 
 
@@ -290,18 +297,29 @@ def test_the_shipped_design_configs_build_the_must_shows_limits():
         assert (limits.rms_force, limits.peak_force, limits.peak_displacement) == (0.66, 2.25, 0.010)
         assert (options["method"], options["controller"]) == (method, controller)
     assert (limits.drift, limits.min_stiffness) == (None, 0.0)  # PD: the gains are fixed
+    # PD without friction (the reference the PD case is set against): its gains designed on the bound
+    path = ROOT / "sweeps" / "configs" / "design_pd_frictionless.toml"
+    trials, _, limits, options = dx.build_design(dx.read_design_config(path), where=str(path))
+    assert all(isinstance(t.controller, aj.PD) and np.all(np.asarray(t.friction.tau_c) == 0.0) for t in trials)
+    assert (options["method"], options["controller"], limits.drift, limits.min_stiffness) == (
+        "bound",
+        True,
+        0.003,
+        50.0,
+    )
     imbic = dx.make_limits(dx.read_design_config(IMBIC_CONFIG)["limits"])
     assert (imbic.drift, imbic.min_stiffness) == (0.003, 50.0)
 
 
-@pytest.mark.slow  # ~2 min: a two-step design on the bound with the controller and a calibrated round
+@pytest.mark.slow  # ~3 min: a two-step design on the bound with the controller and a calibrated round, checked
 def test_a_bound_design_writes_the_controller_and_the_minutes(tmp_path, capsys):
     text = IMBIC_CONFIG.read_text().replace("robust = [1, 2, 3, 4]", "robust = [2]")
     text = text.replace("record = 20.0 ", "record = 3.0 ").replace("steps = 40", "steps = 2")
+    text = text.replace("precision = 0.1 ", "precision = 0.5 ")  # a short predicted record to check at
     config = tmp_path / "small.toml"
     config.write_text(text)
     out = tmp_path / "out"
-    code, captured = _run_script([config, "--out", out], capsys)
+    code, captured = _run_script([config, "--out", out, "--validate", "3", "--validate-record", "predicted"], capsys)
     assert code == 0, captured.err
     doc = json.loads((out / "design.json").read_text())
     c = doc["controller"]
@@ -309,7 +327,7 @@ def test_a_bound_design_writes_the_controller_and_the_minutes(tmp_path, capsys):
     assert np.all(np.diag(c["k_rd"]) >= 50.0) and np.all(np.diag(c["b_rd"]) >= 1.0)
     assert doc["achieved"]["drift"] <= 0.003 * (1 + 1e-9) and doc["achieved"]["peak_displacement"] <= 0.010
     assert doc["minutes"] == max(r["minutes_after"] for r in doc["trials"]) > 0
-    assert (out / "minutes.png").stat().st_size > 0 and "minutes for +-10% at 95%" in captured.out
+    assert (out / "minutes.png").stat().st_size > 0 and "minutes for +-50% at 95%" in captured.out
     # the config's calibrated round through its LuGre 1 / 1.5 N m: predict_se's minutes, per arm and overall
     assert "through the joints' Coulomb friction (1 N m), predict_se's minutes per arm" in captured.out
     row = doc["trials"][0]
@@ -317,6 +335,43 @@ def test_a_bound_design_writes_the_controller_and_the_minutes(tmp_path, capsys):
     assert set(row["friction_ratio"]) == set(doc["targets"]) == set(row["relative_se_predicted"])
     for t in doc["targets"]:
         assert row["relative_se_predicted"][t] == pytest.approx(row["relative_se_after"][t] * row["friction_ratio"][t])
+    # checked at the record its minutes predict, against the predictions scaled there by 1/sqrt(T)
+    record = doc["validation"]["record_s"]
+    assert record == math.ceil(60 * doc["predicted_minutes"]) and f"checked at a {record:g} s record" in captured.out
+    assert np.all(np.asarray(doc["validation"]["rms_force"]) <= 0.66 * (1 + 1e-12))
+    assert np.all(np.asarray(doc["validation"]["peak_force"]) <= 2.25 * (1 + 1e-12))
+    scale = np.sqrt(3.0 / record)
+    for t in doc["targets"]:
+        assert row["validation"]["relative_se_predicted"][t] == pytest.approx(row["relative_se_predicted"][t] * scale)
+    assert row["validation"]["converged"] >= 2 and len(row["validation"]["relative_spread"]) == len(doc["targets"])
+
+
+def test_the_predicted_record_is_the_designs_own_answer_rounded_up_to_a_second():
+    def doc(method, rows, precision=0.1):
+        return dict(method=method, trials=rows, settings=dict(config=dict(design=dict(precision=precision))))
+
+    bound = [dict(minutes_after=1.2), dict(minutes_after=0.51)]
+    assert dx.predicted_record(doc("bound", bound), design_record=20.0) == 72.0
+    calibrated = [dict(minutes_after=1.2, predicted_minutes=2.02), dict(minutes_after=0.5, predicted_minutes=0.9)]
+    assert dx.predicted_record(doc("bound", calibrated), design_record=20.0) == 122.0  # through the friction
+    # Monte Carlo: the largest relative SE at the design's record, by the 1/sqrt(T) law: 20 s x (0.2 z / 0.1)^2
+    mc = [dict(relative_se_after={"a": 0.2, "b": 0.05}), dict(relative_se_after={"a": 0.1})]
+    z = scipy.stats.norm.ppf(0.975)
+    assert dx.predicted_record(doc("monte_carlo", mc), design_record=20.0) == math.ceil(20.0 * (0.2 * z / 0.1) ** 2)
+    assert dx.predicted_record(doc("bound", [dict(minutes_after=1e-4)]), design_record=20.0) == 2.0  # Limits' least
+
+
+def test_the_validation_signal_is_the_design_at_its_record_and_the_family_within_the_limits_beyond():
+    limits = aj.Limits(rms_force=0.6, peak_force=1.2, record=2.0)
+    fam = aj.multisine(np.linspace(0.5, 8.0, 6), 1.0)
+    design_signal = aj.limited_signal(fam, limits, key=jax.random.split(jax.random.key(3))[0])
+    result = types.SimpleNamespace(signal=design_signal, family=fam)
+    same = dx.validation_signal(result, limits, 2.0, trials=None, key=jax.random.key(3))
+    assert np.array_equal(same, design_signal)
+    longer = dx.validation_signal(result, limits, 5.0, trials=None, key=jax.random.key(3))
+    assert longer.shape == (5000, 2)
+    np.testing.assert_allclose(np.sqrt(np.mean(longer**2, axis=0)), 0.6, rtol=1e-12)
+    assert np.abs(longer).max() <= 1.2 + 1e-12
 
 
 @pytest.mark.slow  # ~1 min: two predictions

@@ -15,10 +15,13 @@ Keys, units and defaults: docs/experiment_design.md.
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import pathlib
 
 import jax
 import numpy as np
+import scipy.stats
 from matplotlib.figure import Figure  # no pyplot: no global figure state
 
 from .._identification.bound import has_friction
@@ -28,7 +31,7 @@ from .._identification.design import AGGREGATES, CRITERIA, METHODS
 from .._identification.identify import identify
 from .._identification.indirect import IDENTIFY_NUMERICS
 from .._identification.layout import PARAMETERS, make_layout, natural, pack
-from .._identification.limits import Limits
+from .._identification.limits import Limits, limited_signal
 from .._model.families import ShapedNoise, multisine
 from .._simulate import simulate
 from ..presets import arm as paper_arm
@@ -37,6 +40,8 @@ from .figures import save_figure
 from .results import atomic_write_json, atomic_write_npz, atomic_write_text, package_version
 
 FAMILIES = ("shaped_noise", "multisine")
+# the record the Monte Carlo check runs at: the design's own, or the one its minutes predict
+VALIDATE_RECORDS = ("design", "predicted")
 SECTIONS = {
     **{k: v for k, v in TRIAL_SECTIONS.items()},
     "family": {
@@ -73,7 +78,7 @@ SECTIONS = {
         "predict_draws": ("int", 8, 64),
         "seed": ("int", 0, 0),
     },
-    "validate": {"seeds": ("int", 0, 0), "draws": ("int", 8, 32)},
+    "validate": {"seeds": ("int", 0, 0), "draws": ("int", 8, 32), "record": ("text", VALIDATE_RECORDS, "design")},
 }
 REQUIRED_SECTIONS = ("controller", "friction", "limits", "design")
 
@@ -166,6 +171,33 @@ def truth(trial, free) -> np.ndarray:
     """The true values of ``free``'s entries in ``trial`` (the natural vector, in label order)."""
     layout = make_layout(free)
     return np.asarray(natural(layout, pack(layout, trial), trial))
+
+
+def predicted_record(doc: dict, *, design_record: float) -> float:
+    """The record [s] a design's answer says meets its precision at 95% on every target at
+    every arm, rounded up to a whole second (at least 2 s): ``predict_se``'s minutes through the
+    friction where the design was calibrated, else the bound's minutes, else (Monte Carlo) the
+    largest predicted relative SE at ``design_record`` [s] by the ``1 / sqrt(T)`` law. ``doc`` is
+    ``result_dict``'s."""
+    rows = doc["trials"]
+    if doc["method"] == "bound":
+        minutes = max(r.get("predicted_minutes", r["minutes_after"]) for r in rows)
+    else:
+        worst = max(max(r["relative_se_after"].values()) for r in rows)
+        z = scipy.stats.norm.ppf(0.975)
+        minutes = design_record / 60.0 * (worst * z / doc["settings"]["config"]["design"]["precision"]) ** 2
+    return float(max(math.ceil(60.0 * minutes - 1e-9), 2))
+
+
+def validation_signal(result, limits: Limits, record: float, *, trials, key) -> np.ndarray:
+    """The designed perturbation at ``record`` [s]: the design's own signal at its record,
+    else its family's at the new length, within the same limits (``limited_signal`` with the
+    design's family key ``jax.random.split(key)[0]``, the hand's displacement checked on every
+    trial's full simulation at that length)."""
+    if record == limits.record:
+        return np.asarray(result.signal)
+    longer = dataclasses.replace(limits, record=record)
+    return limited_signal(result.family, longer, key=jax.random.split(key)[0], trials=trials)
 
 
 def validate(signal, trials, free, *, seeds: int, draws: int = 32, progress=None) -> list[dict]:
@@ -281,21 +313,31 @@ def _predicted_rows(result, trials, free, targets, paper):
     return rows
 
 
-def result_dict(result, trials, *, settings: dict, free, targets, validation=None, paper=None) -> dict:
+def result_dict(
+    result, trials, *, settings: dict, free, targets, validation=None, paper=None, validation_signal=None
+) -> dict:
     """What ``design.json`` holds (before strict JSON conversion), for a ``Design`` (Monte Carlo)
-    or a ``BoundDesign``: the latter adds the ``controller`` and the minutes per arm."""
+    or a ``BoundDesign``: the latter adds the ``controller`` and the minutes per arm. With a
+    ``validation`` run on ``validation_signal`` (``(N, 2)`` [N]; default the design's own), the
+    predicted SEs it is set against are those at that signal's record, by the ``1 / sqrt(T)``
+    law, and ``"validation"`` records the record, RMS and peak it ran at."""
     labels = make_layout(free).labels()
     targets = list(targets or [labels[i] for i in default_targets(make_layout(free))])
     on_bound = isinstance(result, BoundDesign)
     rows = _bound_rows(result, targets, paper) if on_bound else _predicted_rows(result, trials, free, targets, paper)
+    checked = np.asarray(result.signal if validation_signal is None else validation_signal)
+    scale = math.sqrt(np.asarray(result.signal).shape[0] / checked.shape[0])  # SE at the checked record
     for k, row in enumerate(rows):
         if validation is not None:
-            row["validation"] = _validation_row(validation[k], row["se_after"])
+            row["validation"] = _validation_row(validation[k], row["se_after"] * scale)
             if "relative_se_predicted" in row:  # against predict_se's through the friction, per target
                 value = np.abs(truth(trials[k], free))
                 spread = validation[k]["spread"]
                 row["validation"]["relative_spread"] = {
                     t: spread[labels.index(t)] / value[labels.index(t)] for t in targets
+                }
+                row["validation"]["relative_se_predicted"] = {
+                    t: v * scale for t, v in row["relative_se_predicted"].items()
                 }
     doc = {
         "settings": {**settings, "armimp_jax": package_version()},
@@ -310,6 +352,12 @@ def result_dict(result, trials, *, settings: dict, free, targets, validation=Non
         "trials": rows,
         "time_s": result.time_s,
     }
+    if validation is not None:
+        doc["validation"] = dict(
+            record_s=checked.shape[0] * trials[0].period,
+            rms_force=np.sqrt(np.mean(checked**2, axis=0)),
+            peak_force=np.abs(checked).max(axis=0),
+        )
     if on_bound:
         doc.update(controller=result.controller, minutes=max(result.minutes), start_minutes=max(result.start_minutes))
         if result.predicted_minutes is not None:
