@@ -1,6 +1,7 @@
 """Perturbation families and experiment design (issue 28): the families' spectra and levels,
 limits that hold exactly on the designed signal, one-line refusals, and a short design run."""
 
+import dataclasses
 import importlib.util
 import json
 import math
@@ -239,6 +240,17 @@ def test_bad_design_configs_get_one_line_before_any_work(case, tmp_path, capsys)
     assert not out.exists()
 
 
+@pytest.mark.parametrize(
+    "args", [["--validate-record", "predicted"], ["--validate", "2", "--validate-record", "longest"]]
+)
+def test_a_check_at_another_record_needs_recordings_and_a_known_record(args, tmp_path, capsys):
+    code, captured = _run_script([EXAMPLE, "--out", tmp_path / "out", *args], capsys)
+    lines = captured.err.strip().splitlines()
+    assert code == 2 and len(lines) == 1, captured.err
+    assert "--validate-record takes one of ('design', 'predicted') with --validate SEEDS > 0" in lines[0]
+    assert not (tmp_path / "out").exists()
+
+
 def test_example_design_config_builds_four_arms_and_the_documented_limits():
     config = dx.read_design_config(EXAMPLE)
     trials, family, limits, options = dx.build_design(config, where=str(EXAMPLE))
@@ -336,42 +348,48 @@ def test_a_bound_design_writes_the_controller_and_the_minutes(tmp_path, capsys):
     for t in doc["targets"]:
         assert row["relative_se_predicted"][t] == pytest.approx(row["relative_se_after"][t] * row["friction_ratio"][t])
     # checked at the record its minutes predict, against the predictions scaled there by 1/sqrt(T)
-    record = doc["validation"]["record_s"]
-    assert record == math.ceil(60 * doc["predicted_minutes"]) and f"checked at a {record:g} s record" in captured.out
-    assert np.all(np.asarray(doc["validation"]["rms_force"]) <= 0.66 * (1 + 1e-12))
-    assert np.all(np.asarray(doc["validation"]["peak_force"]) <= 2.25 * (1 + 1e-12))
-    scale = np.sqrt(3.0 / record)
+    check = doc["validation"]
+    record = check["record_s"]
+    assert record == max(math.ceil(60 * doc["predicted_minutes"]), 3.0) and f"checked at a {record:g} s" in captured.out
+    assert np.all(np.asarray(check["rms_force"]) <= 0.66 * (1 + 1e-12))
+    assert np.all(np.asarray(check["peak_force"]) <= 2.25 * (1 + 1e-12))
+    level = np.max(np.asarray(doc["achieved"]["rms_force"]) / np.asarray(check["rms_force"]))
+    scale = np.sqrt(3.0 / record) * max(1.0, level)
+    assert (out / "perturbation_checked.csv").exists() == (record != 3.0)
     for t in doc["targets"]:
         assert row["validation"]["relative_se_predicted"][t] == pytest.approx(row["relative_se_predicted"][t] * scale)
     assert row["validation"]["converged"] >= 2 and len(row["validation"]["relative_spread"]) == len(doc["targets"])
 
 
 def test_the_predicted_record_is_the_designs_own_answer_rounded_up_to_a_second():
-    def doc(method, rows, precision=0.1):
-        return dict(method=method, trials=rows, settings=dict(config=dict(design=dict(precision=precision))))
+    def record(method, rows):
+        return dx.predicted_record(dict(method=method, trials=rows), design_record=20.0, precision=0.1)
 
-    bound = [dict(minutes_after=1.2), dict(minutes_after=0.51)]
-    assert dx.predicted_record(doc("bound", bound), design_record=20.0) == 72.0
+    assert record("bound", [dict(minutes_after=1.2), dict(minutes_after=0.51)]) == 72.0
     calibrated = [dict(minutes_after=1.2, predicted_minutes=2.02), dict(minutes_after=0.5, predicted_minutes=0.9)]
-    assert dx.predicted_record(doc("bound", calibrated), design_record=20.0) == 122.0  # through the friction
+    assert record("bound", calibrated) == 122.0  # through the friction
     # Monte Carlo: the largest relative SE at the design's record, by the 1/sqrt(T) law: 20 s x (0.2 z / 0.1)^2
     mc = [dict(relative_se_after={"a": 0.2, "b": 0.05}), dict(relative_se_after={"a": 0.1})]
-    z = scipy.stats.norm.ppf(0.975)
-    assert dx.predicted_record(doc("monte_carlo", mc), design_record=20.0) == math.ceil(20.0 * (0.2 * z / 0.1) ** 2)
-    assert dx.predicted_record(doc("bound", [dict(minutes_after=1e-4)]), design_record=20.0) == 2.0  # Limits' least
+    assert record("monte_carlo", mc) == math.ceil(20.0 * (0.2 * scipy.stats.norm.ppf(0.975) / 0.1) ** 2)
+    assert record("bound", [dict(minutes_after=0.01)]) == 20.0  # never below the design's own record
 
 
-def test_the_validation_signal_is_the_design_at_its_record_and_the_family_within_the_limits_beyond():
-    limits = aj.Limits(rms_force=0.6, peak_force=1.2, record=2.0)
-    fam = aj.multisine(np.linspace(0.5, 8.0, 6), 1.0)
-    design_signal = aj.limited_signal(fam, limits, key=jax.random.split(jax.random.key(3))[0])
+def test_the_checked_signal_is_the_design_at_its_record_and_the_family_within_the_limits_beyond():
+    limits = aj.Limits(rms_force=0.6, peak_force=1.5, record=2.0)
+    fam = aj.ShapedNoise(knots=np.linspace(0.5, 15.0, 6), shape=np.ones((2, 6)), rms=1.0)
+    key = jax.random.key(3)
+    design_signal = aj.limited_signal(fam, limits, key=jax.random.split(key)[0])
     result = types.SimpleNamespace(signal=design_signal, family=fam)
-    same = dx.validation_signal(result, limits, 2.0, trials=None, key=jax.random.key(3))
-    assert np.array_equal(same, design_signal)
-    longer = dx.validation_signal(result, limits, 5.0, trials=None, key=jax.random.key(3))
-    assert longer.shape == (5000, 2)
+    np.testing.assert_array_equal(dx.validation_signal(result, limits, 2.0, trials=None, key=key), design_signal)
+    longer = dx.validation_signal(result, limits, 5.0, trials=None, key=key)
+    # the design's own family key, at the new length
+    expected = aj.limited_signal(fam, dataclasses.replace(limits, record=5.0), key=jax.random.split(key)[0])
+    np.testing.assert_array_equal(longer, expected)
     np.testing.assert_allclose(np.sqrt(np.mean(longer**2, axis=0)), 0.6, rtol=1e-12)
-    assert np.abs(longer).max() <= 1.2 + 1e-12
+    assert longer.shape == (5000, 2) and np.abs(longer).max() <= 1.5 + 1e-12
+    # the predictions at the checked signal: 1/sqrt(T), and one over the level where it fell
+    assert dx.checked_scale(design_signal, longer) == pytest.approx(np.sqrt(2.0 / 5.0))
+    assert dx.checked_scale(design_signal, 0.5 * longer) == pytest.approx(2.0 * np.sqrt(2.0 / 5.0))
 
 
 @pytest.mark.slow  # ~1 min: two predictions

@@ -173,20 +173,20 @@ def truth(trial, free) -> np.ndarray:
     return np.asarray(natural(layout, pack(layout, trial), trial))
 
 
-def predicted_record(doc: dict, *, design_record: float) -> float:
-    """The record [s] a design's answer says meets its precision at 95% on every target at
-    every arm, rounded up to a whole second (at least 2 s): ``predict_se``'s minutes through the
-    friction where the design was calibrated, else the bound's minutes, else (Monte Carlo) the
-    largest predicted relative SE at ``design_record`` [s] by the ``1 / sqrt(T)`` law. ``doc`` is
-    ``result_dict``'s."""
+def predicted_record(doc: dict, *, design_record: float, precision: float) -> float:
+    """The record [s] a design's answer says meets ``precision`` (relative, at 95%) on every
+    target at every arm, rounded up to a whole second: ``predict_se``'s minutes through the
+    friction where the design was calibrated, else the bound's minutes (which leave any friction
+    out), else (Monte Carlo) the largest predicted relative SE at ``design_record`` [s] by the
+    ``1 / sqrt(T)`` law. Never shorter than ``design_record``: the law is checked upward, on
+    at least the record the design saw. ``doc`` is ``result_dict``'s."""
     rows = doc["trials"]
     if doc["method"] == "bound":
         minutes = max(r.get("predicted_minutes", r["minutes_after"]) for r in rows)
     else:
         worst = max(max(r["relative_se_after"].values()) for r in rows)
-        z = scipy.stats.norm.ppf(0.975)
-        minutes = design_record / 60.0 * (worst * z / doc["settings"]["config"]["design"]["precision"]) ** 2
-    return float(max(math.ceil(60.0 * minutes - 1e-9), 2))
+        minutes = design_record / 60.0 * (worst * scipy.stats.norm.ppf(0.975) / precision) ** 2
+    return float(max(math.ceil(60.0 * minutes - 1e-9), design_record))
 
 
 def validation_signal(result, limits: Limits, record: float, *, trials, key) -> np.ndarray:
@@ -198,6 +198,16 @@ def validation_signal(result, limits: Limits, record: float, *, trials, key) -> 
         return np.asarray(result.signal)
     longer = dataclasses.replace(limits, record=record)
     return limited_signal(result.family, longer, key=jax.random.split(key)[0], trials=trials)
+
+
+def checked_scale(design_signal, checked_signal) -> float:
+    """What a design's predicted SEs become on ``checked_signal`` ``(N, 2)`` [N]: times
+    ``sqrt(T_design / T)`` (the ``1 / sqrt(T)`` law) and, where the displacement check at the
+    new length lowered the level, times the largest per-axis RMS ratio (an SE goes as one
+    over the level in a near-linear loop)."""
+    d, c = np.asarray(design_signal), np.asarray(checked_signal)
+    level = float(np.max(np.sqrt(np.mean(d**2, axis=0) / np.mean(c**2, axis=0))))
+    return math.sqrt(d.shape[0] / c.shape[0]) * max(1.0, level)
 
 
 def validate(signal, trials, free, *, seeds: int, draws: int = 32, progress=None) -> list[dict]:
@@ -237,7 +247,11 @@ def validate(signal, trials, free, *, seeds: int, draws: int = 32, progress=None
     return out
 
 
-def _validation_row(v, se) -> dict:
+def _validation_row(v, se, relative_value, predicted: dict, labels, scale: float) -> dict:
+    """One arm's check: the spread against the predicted SEs ``se`` (already at the checked
+    record) per entry, and per target the relative spread against ``predicted`` (the relative
+    SEs at the design's record) times ``scale``."""
+    at = {t: labels.index(t) for t in predicted}
     return dict(
         recordings=v["recordings"],
         diverged=v["diverged"],
@@ -245,6 +259,8 @@ def _validation_row(v, se) -> dict:
         spread=v["spread"],
         spread_over_predicted=v["spread"] / se,
         mean_error=v["mean_error"],
+        relative_spread={t: v["spread"][i] / relative_value[i] for t, i in at.items()},
+        relative_se_predicted={t: predicted[t] * scale for t in predicted},
     )
 
 
@@ -319,26 +335,19 @@ def result_dict(
     """What ``design.json`` holds (before strict JSON conversion), for a ``Design`` (Monte Carlo)
     or a ``BoundDesign``: the latter adds the ``controller`` and the minutes per arm. With a
     ``validation`` run on ``validation_signal`` (``(N, 2)`` [N]; default the design's own), the
-    predicted SEs it is set against are those at that signal's record, by the ``1 / sqrt(T)``
-    law, and ``"validation"`` records the record, RMS and peak it ran at."""
+    predicted SEs it is set against are those at that signal (``checked_scale``), and
+    ``"validation"`` records the record, RMS and peak it ran at."""
     labels = make_layout(free).labels()
     targets = list(targets or [labels[i] for i in default_targets(make_layout(free))])
     on_bound = isinstance(result, BoundDesign)
     rows = _bound_rows(result, targets, paper) if on_bound else _predicted_rows(result, trials, free, targets, paper)
     checked = np.asarray(result.signal if validation_signal is None else validation_signal)
-    scale = math.sqrt(np.asarray(result.signal).shape[0] / checked.shape[0])  # SE at the checked record
+    scale = checked_scale(result.signal, checked)
     for k, row in enumerate(rows):
-        if validation is not None:
-            row["validation"] = _validation_row(validation[k], row["se_after"] * scale)
-            if "relative_se_predicted" in row:  # against predict_se's through the friction, per target
-                value = np.abs(truth(trials[k], free))
-                spread = validation[k]["spread"]
-                row["validation"]["relative_spread"] = {
-                    t: spread[labels.index(t)] / value[labels.index(t)] for t in targets
-                }
-                row["validation"]["relative_se_predicted"] = {
-                    t: v * scale for t, v in row["relative_se_predicted"].items()
-                }
+        if validation is not None:  # per target against predict_se's through the friction where calibrated
+            predicted = row.get("relative_se_predicted", row["relative_se_after"])
+            value = np.abs(truth(trials[k], free))
+            row["validation"] = _validation_row(validation[k], row["se_after"] * scale, value, predicted, labels, scale)
     doc = {
         "settings": {**settings, "armimp_jax": package_version()},
         "method": "bound" if on_bound else "monte_carlo",
@@ -462,17 +471,20 @@ def minutes_figure(doc: dict, precision: float):
     return fig
 
 
-def write_results(out_dir, result, trials, limits: Limits, *, doc: dict) -> list[pathlib.Path]:
+def write_results(out_dir, result, trials, limits: Limits, *, doc: dict, checked=None) -> list[pathlib.Path]:
     """``perturbation.csv`` (header ``f_delta_x,f_delta_y``, one row per 1 ms sample [N]),
     ``perturbation.npz``, ``design.json`` (``doc``, strict JSON) and ``spectrum.png``,
     ``se.png``, ``trace.png`` (and, for a ``BoundDesign``, ``minutes.png``) under ``out_dir``,
-    each atomically; returns their paths."""
+    each atomically; returns their paths. A ``checked`` signal ``(N, 2)`` [N] of another length
+    (the Monte Carlo check's, ``validation_signal``) is written beside them as
+    ``perturbation_checked.csv``: what a lab plays for a session of that length."""
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     fs = 1.0 / trials[0].period
-    csv = out_dir / "perturbation.csv"
-    rows = "\n".join(f"{a:.17g},{b:.17g}" for a, b in result.signal)
-    atomic_write_text(csv, "f_delta_x,f_delta_y\n" + rows + "\n")
+    csv = _write_csv(out_dir / "perturbation.csv", result.signal)
+    extra = []
+    if checked is not None and np.shape(checked) != np.shape(result.signal):
+        extra.append(_write_csv(out_dir / "perturbation_checked.csv", checked))
     npz = atomic_write_npz(
         out_dir / "perturbation.npz", f_delta=result.signal, fs_hz=fs, **_family_arrays(result.family)
     )
@@ -485,4 +497,11 @@ def write_results(out_dir, result, trials, limits: Limits, *, doc: dict) -> list
     }
     if isinstance(result, BoundDesign):
         figures["minutes.png"] = minutes_figure(doc, doc["settings"]["config"]["design"]["precision"])
-    return [csv, npz, json_path] + [save_figure(fig, out_dir / name) for name, fig in figures.items()]
+    return [csv, *extra, npz, json_path] + [save_figure(fig, out_dir / name) for name, fig in figures.items()]
+
+
+def _write_csv(path, signal) -> pathlib.Path:
+    """``f_delta_x,f_delta_y`` [N], one row per sample, atomically."""
+    rows = "\n".join(f"{a:.17g},{b:.17g}" for a, b in np.asarray(signal))
+    atomic_write_text(path, "f_delta_x,f_delta_y\n" + rows + "\n")
+    return pathlib.Path(path)
