@@ -118,15 +118,15 @@ def compare(aj, np, jax, dx, result, trials, paper_signal, limits, knots, a) -> 
     }
 
 
-def monte_carlo(dx, result, trials, predicted, a) -> dict:
+def monte_carlo(dc, result, trials, predicted, a) -> dict:
     """``--seeds`` recordings per arm with the designed signal, each identified from the truth:
     the relative spread per target against the predicted relative SE."""
     crit_after, per_after = predicted
     labels = list(result.before[0].labels)
-    check = dx.validate(result.signal, trials, FREE, seeds=a.seeds)
+    check = dc.validate(result.signal, trials, FREE, seeds=a.seeds)
     spread_rel, ratios = [], []
     for k, (t, v) in enumerate(zip(trials, check)):
-        truth = dx.truth(t, FREE)
+        truth = dc.truth(t, FREE)
         row = {}
         for lab in TARGETS:
             row[lab] = float(v["spread"][labels.index(lab)] / abs(truth[labels.index(lab)]))
@@ -153,6 +153,7 @@ def monte_carlo(dx, result, trials, predicted, a) -> dict:
 
 def run_case(aj, np, jax, controller, tau_c, a):
     """One case: the design, its comparison with the other signals and (``--seeds``) its check."""
+    from armimp_jax.study import design_check as dc
     from armimp_jax.study import design_experiment as dx
 
     trials, paper_signal, limits, knots = make_case(aj, np, jax, controller, tau_c, a)
@@ -183,7 +184,7 @@ def run_case(aj, np, jax, controller, tau_c, a):
         flush=True,
     )
     if a.seeds:
-        out["validation"] = monte_carlo(dx, result, trials, crit["designed"], a)
+        out["validation"] = monte_carlo(dc, result, trials, crit["designed"], a)
     return out
 
 

@@ -164,6 +164,7 @@ def main(argv=None) -> int:
     from tqdm import tqdm
 
     import armimp_jax as aj
+    from armimp_jax.study import design_check as dc
     from armimp_jax.study import design_experiment as dx
 
     try:
@@ -206,16 +207,16 @@ def main(argv=None) -> int:
         precision = config["design"]["precision"]
         predicted = at == "predicted"
         record = (
-            dx.predicted_record(doc, design_record=limits.record, precision=precision) if predicted else limits.record
+            dc.predicted_record(doc, design_record=limits.record, precision=precision) if predicted else limits.record
         )
         print(f"validating at a {record:g} s record ({at}): {seeds} recordings per arm", flush=True)
         try:
-            signal = dx.validation_signal(result, limits, record, trials=trials, key=options["key"])
+            signal = dc.validation_signal(result, limits, record, trials=trials, key=options["key"])
         except ValueError as err:  # the family or the limits at that length
             return fail(f"{err} (the design, unvalidated, is in {args.out})")
         vbar = tqdm(total=seeds * len(trials), unit="fit", desc="validating")
         try:
-            validation = dx.validate(
+            validation = dc.validate(
                 signal,
                 trials,
                 options["free"],

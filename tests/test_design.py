@@ -20,6 +20,7 @@ from armimp_jax import paper
 from armimp_jax._identification import layout as lay
 from armimp_jax._identification import limits as des
 from armimp_jax._identification.design import _record_statistic as record_statistic
+from armimp_jax.study import design_check as dc
 from armimp_jax.study import design_experiment as dx
 
 NOISE = dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(0.3, 2.0))
@@ -363,7 +364,7 @@ def test_a_bound_design_writes_the_controller_and_the_minutes(tmp_path, capsys):
 
 def test_the_predicted_record_is_the_designs_own_answer_rounded_up_to_a_second():
     def record(method, rows):
-        return dx.predicted_record(dict(method=method, trials=rows), design_record=20.0, precision=0.1)
+        return dc.predicted_record(dict(method=method, trials=rows), design_record=20.0, precision=0.1)
 
     assert record("bound", [dict(minutes_after=1.2), dict(minutes_after=0.51)]) == 72.0
     calibrated = [dict(minutes_after=1.2, predicted_minutes=2.02), dict(minutes_after=0.5, predicted_minutes=0.9)]
@@ -380,16 +381,16 @@ def test_the_checked_signal_is_the_design_at_its_record_and_the_family_within_th
     key = jax.random.key(3)
     design_signal = aj.limited_signal(fam, limits, key=jax.random.split(key)[0])
     result = types.SimpleNamespace(signal=design_signal, family=fam)
-    np.testing.assert_array_equal(dx.validation_signal(result, limits, 2.0, trials=None, key=key), design_signal)
-    longer = dx.validation_signal(result, limits, 5.0, trials=None, key=key)
+    np.testing.assert_array_equal(dc.validation_signal(result, limits, 2.0, trials=None, key=key), design_signal)
+    longer = dc.validation_signal(result, limits, 5.0, trials=None, key=key)
     # the design's own family key, at the new length
     expected = aj.limited_signal(fam, dataclasses.replace(limits, record=5.0), key=jax.random.split(key)[0])
     np.testing.assert_array_equal(longer, expected)
     np.testing.assert_allclose(np.sqrt(np.mean(longer**2, axis=0)), 0.6, rtol=1e-12)
     assert longer.shape == (5000, 2) and np.abs(longer).max() <= 1.5 + 1e-12
     # the predictions at the checked signal: 1/sqrt(T), and one over the level where it fell
-    assert dx.checked_scale(design_signal, longer) == pytest.approx(np.sqrt(2.0 / 5.0))
-    assert dx.checked_scale(design_signal, 0.5 * longer) == pytest.approx(2.0 * np.sqrt(2.0 / 5.0))
+    assert dc.checked_scale(design_signal, longer) == pytest.approx(np.sqrt(2.0 / 5.0))
+    assert dc.checked_scale(design_signal, 0.5 * longer) == pytest.approx(2.0 * np.sqrt(2.0 / 5.0))
 
 
 @pytest.mark.slow  # ~1 min: two predictions

@@ -14,7 +14,8 @@ Parquet), ``figures`` (``save_figure``), ``sweep`` (the sweep's specification an
 ``recording_report`` (both routes' figures and text), ``config`` (the one trial schema:
 TOML configs and sweep points), ``identify_recording`` (the model route for measured data:
 its config, ``identify``, its results on disk), ``design_experiment`` (experiment design's
-config, its Monte Carlo check and its files) and ``tune``.
+config and its files), ``design_check`` (the design's Monte Carlo check: its record, its
+signal, the spread of ``identify``) and ``tune``.
 
 The names below are imported on first use (so ``armimp_jax.study.distributed``'s option
 helpers stay importable without JAX).

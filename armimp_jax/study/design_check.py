@@ -1,0 +1,107 @@
+"""The Monte Carlo check of a designed experiment: the record it runs at, the signal, the
+spread of ``identify``'s estimates over new noise, and what the predictions become there.
+
+- ``predicted_record(doc, ...)``: the record [s] the design's own answer names;
+- ``validation_signal(result, limits, record, ...)``: the designed perturbation at that record,
+  within the same limits;
+- ``checked_scale(design_signal, checked_signal)``: the factor on the predicted SEs there;
+- ``validate(signal, trials, free, seeds=...)``: simulate and identify under new noise;
+- ``truth(trial, free)``: the values the estimates are scored against.
+
+``design_experiment`` sets the spread against the predictions in ``design.json``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import numpy as np
+import scipy.stats
+
+from .._identification.identify import identify
+from .._identification.indirect import IDENTIFY_NUMERICS
+from .._identification.layout import make_layout, natural, pack
+from .._identification.limits import Limits, limited_signal
+from .._simulate import simulate
+
+
+def truth(trial, free) -> np.ndarray:
+    """The true values of ``free``'s entries in ``trial`` (the natural vector, in label order)."""
+    layout = make_layout(free)
+    return np.asarray(natural(layout, pack(layout, trial), trial))
+
+
+def predicted_record(doc: dict, *, design_record: float, precision: float) -> float:
+    """The record [s] a design's answer says meets ``precision`` (relative, at 95%) on every
+    target at every arm, rounded up to a whole second: ``predict_se``'s minutes through the
+    friction where the design was calibrated, else the bound's minutes (which leave any friction
+    out), else (Monte Carlo) the largest predicted relative SE at ``design_record`` [s] by the
+    ``1 / sqrt(T)`` law. Never shorter than ``design_record``: the law is checked upward, on
+    at least the record the design saw. ``doc`` is ``result_dict``'s."""
+    rows = doc["trials"]
+    if doc["method"] == "bound":
+        minutes = max(r.get("predicted_minutes", r["minutes_after"]) for r in rows)
+    else:
+        worst = max(max(r["relative_se_after"].values()) for r in rows)
+        minutes = design_record / 60.0 * (worst * scipy.stats.norm.ppf(0.975) / precision) ** 2
+    return float(max(math.ceil(60.0 * minutes - 1e-9), design_record))
+
+
+def validation_signal(result, limits: Limits, record: float, *, trials, key) -> np.ndarray:
+    """The designed perturbation at ``record`` [s]: the design's own signal at its record,
+    else its family's at the new length, within the same limits (``limited_signal`` with the
+    design's family key ``jax.random.split(key)[0]``, the hand's displacement checked on every
+    trial's full simulation at that length)."""
+    if record == limits.record:
+        return np.asarray(result.signal)
+    longer = dataclasses.replace(limits, record=record)
+    return limited_signal(result.family, longer, key=jax.random.split(key)[0], trials=trials)
+
+
+def checked_scale(design_signal, checked_signal) -> float:
+    """What a design's predicted SEs become on ``checked_signal`` ``(N, 2)`` [N]: times
+    ``sqrt(T_design / T)`` (the ``1 / sqrt(T)`` law) and, where the displacement check at the
+    new length lowered the level, times the largest per-axis RMS ratio (an SE goes as one
+    over the level in a near-linear loop)."""
+    d, c = np.asarray(design_signal), np.asarray(checked_signal)
+    level = float(np.max(np.sqrt(np.mean(d**2, axis=0) / np.mean(c**2, axis=0))))
+    return math.sqrt(d.shape[0] / c.shape[0]) * max(1.0, level)
+
+
+def validate(signal, trials, free, *, seeds: int, draws: int = 32, progress=None) -> list[dict]:
+    """Per trial: ``seeds`` recordings under new noise with ``signal``, each identified from the
+    truth; returns per trial the spread ``(n,)`` (natural entries) of the estimates of the
+    fits that converged, and how many recordings diverged and how many fits converged (the
+    rest are counted, never scored). ``progress()`` is called after each recording."""
+    sim = jax.jit(simulate, static_argnames="numerics")
+    out = []
+    for i, trial in enumerate(trials):
+        estimates, converged, diverged = [], 0, 0
+        for seed in range(seeds):
+            rec = sim(trial, signal, key=jax.random.key(50_000 + 1000 * i + seed), numerics=IDENTIFY_NUMERICS)
+            if bool(rec.diverged):
+                diverged += 1
+            else:
+                res = identify(trial, signal, rec.x, rec.fh, free=free, draws=draws, key=jax.random.key(seed))
+                if res.converged:
+                    converged += 1
+                    estimates.append(np.concatenate([np.ravel(res.values[n]) for n in free]))
+            if progress is not None:
+                progress()
+        if len(estimates) < 2:
+            raise RuntimeError(
+                f"validate: only {len(estimates)} of {seeds} fits converged for trial {i}; no spread to report"
+            )
+        e = np.stack(estimates)
+        out.append(
+            dict(
+                recordings=seeds,
+                diverged=diverged,
+                converged=converged,
+                spread=e.std(axis=0, ddof=1),
+                mean_error=e.mean(axis=0) - truth(trial, free),
+            )
+        )
+    return out
