@@ -152,6 +152,18 @@ def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:
             )
 
 
+def check_options(args, config, records) -> tuple[int, str]:
+    """The check's recordings per arm and its record (the command line over the config); a
+    ``ValueError`` for an unknown record, or a record given on the command line for no check."""
+    seeds = config["validate"]["seeds"] if args.validate is None else args.validate
+    at = config["validate"]["record"] if args.validate_record is None else args.validate_record
+    if at not in records:
+        raise ValueError(f"--validate-record must be one of {', '.join(map(repr, records))}, got {at!r}")
+    if args.validate_record is not None and not seeds:
+        raise ValueError(f"--validate-record {at} sets the check's record, but no check runs: add --validate SEEDS")
+    return seeds, at
+
+
 def main(argv=None) -> int:
     args = parse(argv)
     import jax  # after the arguments: --help stays fast
@@ -170,12 +182,9 @@ def main(argv=None) -> int:
     try:
         config = dx.read_design_config(args.config)
         trials, family, limits, options = dx.build_design(config, where=str(args.config))
+        seeds, at = check_options(args, config, dx.VALIDATE_RECORDS)
     except ValueError as err:  # ConfigError included
         return fail(str(err))
-    seeds = config["validate"]["seeds"] if args.validate is None else args.validate
-    at = config["validate"]["record"] if args.validate_record is None else args.validate_record
-    if at not in dx.VALIDATE_RECORDS or (args.validate_record is not None and not seeds):
-        return fail(f"--validate-record takes one of {dx.VALIDATE_RECORDS} with --validate SEEDS > 0, got {at!r}")
     start = time.perf_counter()
     print(describe(trials, family, limits, options), flush=True)
     try:

@@ -242,13 +242,17 @@ def test_bad_design_configs_get_one_line_before_any_work(case, tmp_path, capsys)
 
 
 @pytest.mark.parametrize(
-    "args", [["--validate-record", "predicted"], ["--validate", "2", "--validate-record", "longest"]]
+    "args, message",
+    [
+        (["--validate-record", "predicted"], "--validate-record predicted sets the check's record, but no check runs"),
+        (["--validate", "2", "--validate-record", "longest"], "must be one of 'design', 'predicted', got 'longest'"),
+    ],
 )
-def test_a_check_at_another_record_needs_recordings_and_a_known_record(args, tmp_path, capsys):
+def test_a_check_at_another_record_needs_recordings_and_a_known_record(args, message, tmp_path, capsys):
     code, captured = _run_script([EXAMPLE, "--out", tmp_path / "out", *args], capsys)
     lines = captured.err.strip().splitlines()
     assert code == 2 and len(lines) == 1, captured.err
-    assert "--validate-record takes one of ('design', 'predicted') with --validate SEEDS > 0" in lines[0]
+    assert lines[0].startswith("design_experiment: error: --validate-record") and message in lines[0], lines[0]
     assert not (tmp_path / "out").exists()
 
 
