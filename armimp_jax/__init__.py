@@ -1,5 +1,6 @@
 """armimp_jax: differentiable, vectorised simulation of stochastic human-arm impedance
-estimation with a friction-afflicted planar robot under PD or IMBIC control.
+estimation with a friction-afflicted planar robot under PD, IMBIC or admittance control (or a
+controller and a friction law of your own: ``AbstractController``, ``AbstractFriction``).
 
 The general simulator is at the top level (``make_trial``, ``simulate``, ``estimate``,
 ``accuracy``); the paper's presets and study are in ``armimp_jax.paper``.
@@ -51,8 +52,15 @@ _EXPORTS = {
     "input_coherence": "._estimation.estimate",
     "welch_segments": "._estimation.welch",
     "Arm": "._model.arm",
-    "IMBIC": "._model.control",
-    "PD": "._model.control",
+    "no_arm": "._model.arm",
+    "AbstractController": "._model.controllers",
+    "controller_kind": "._model.controllers",
+    "Admittance": "._model.controllers",
+    "IMBIC": "._model.controllers",
+    "PD": "._model.controllers",
+    "AbstractFriction": "._model.friction",
+    "friction_kind": "._model.friction",
+    "CoulombViscous": "._model.friction",
     "NO_FRICTION": "._model.friction",
     "LuGre": "._model.friction",
     "lugre": "._model.friction",
@@ -159,15 +167,22 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._identification.predict import PredictedSE as PredictedSE
     from ._identification.predict import predict_se as predict_se
     from ._model.arm import Arm as Arm
-    from ._model.control import IMBIC as IMBIC
-    from ._model.control import PD as PD
+    from ._model.arm import no_arm as no_arm
+    from ._model.controllers import IMBIC as IMBIC
+    from ._model.controllers import PD as PD
+    from ._model.controllers import AbstractController as AbstractController
+    from ._model.controllers import Admittance as Admittance
+    from ._model.controllers import controller_kind as controller_kind
     from ._model.families import Multisine as Multisine
     from ._model.families import PaperNoise as PaperNoise
     from ._model.families import ShapedNoise as ShapedNoise
     from ._model.families import crest_factor as crest_factor
     from ._model.families import multisine as multisine
     from ._model.friction import NO_FRICTION as NO_FRICTION
+    from ._model.friction import AbstractFriction as AbstractFriction
+    from ._model.friction import CoulombViscous as CoulombViscous
     from ._model.friction import LuGre as LuGre
+    from ._model.friction import friction_kind as friction_kind
     from ._model.friction import lugre as lugre
     from ._model.perturbation import perturbation as perturbation
     from ._model.plant import PlantState as PlantState

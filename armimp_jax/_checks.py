@@ -138,3 +138,17 @@ def check_positive_definite(name: str, a, *, where: str, unit: str = ""):
             f"{unit}; got {m.tolist()} with eigenvalues {eig.tolist()}"
         )
     return a
+
+
+def check_positive_semidefinite(name: str, a, *, where: str, unit: str = ""):
+    """``a`` (2x2), refused when its symmetric part has a negative eigenvalue."""
+    message = f"{where}: {name} must have a positive semi-definite symmetric part (eigenvalues of (A + A^T)/2 >= 0)"
+    if not is_concrete(a):
+        s12 = 0.5 * (a[..., 0, 1] + a[..., 1, 0])
+        bad = jnp.any(a[..., 0, 0] < 0) | jnp.any(a[..., 1, 1] < 0) | jnp.any(a[..., 0, 0] * a[..., 1, 1] < s12 * s12)
+        return _traced_rule(a, bad, message + unit)
+    m = np.asarray(a)
+    eig = np.linalg.eigvalsh(0.5 * (m + m.T))
+    if not np.all(eig >= -1e-12 * max(1.0, np.abs(m).max())):
+        raise ValueError(f"{message}{unit}; got {m.tolist()} with eigenvalues {eig.tolist()}")
+    return a

@@ -43,13 +43,15 @@ def params(cls=None, *, static: tuple[str, ...] = ()):
             unflatten,
             flatten_func=lambda obj: ([getattr(obj, n) for n in data], tuple(getattr(obj, n) for n in static)),
         )
-        cls.__repr__ = _repr
+        cls.__repr__ = show_fields
         return cls
 
     return wrap if cls is None else wrap(cls)
 
 
-def _repr(self) -> str:
+def show_fields(self) -> str:
+    """``Name(field=value, ...)`` with concrete values as numbers or nested lists."""
+
     def show(v):
         try:
             import numpy as np

@@ -23,8 +23,8 @@ import jax.numpy as jnp
 
 from ._checks import as_float64, check_choice, require_x64
 from ._model.arm import Arm
-from ._model.control import matvec
-from ._model.friction import LuGre
+from ._model.controllers import CONTROLLER_KINDS, AbstractController, matvec
+from ._model.friction import FRICTION_KINDS, AbstractFriction
 from ._model.plant import PlantState, Trig, displacement, measure, plant_model, rest_state, trig_of
 from ._model.robot import MIT_MANUS, Robot, fk, ik, jacobian_from_trig
 from ._model.sensors import IDEAL, Sensors, quantise, sample_noise
@@ -45,7 +45,8 @@ class Trial:
     with ``make_trial``, which resolves and checks it).
 
     Leaves (float64, may be tracers): ``robot`` (``Robot``), ``arm`` (``Arm``), ``friction``
-    (``LuGre``), ``controller`` (a bound ``PD``, ``IMBIC`` or user controller), ``sensors``
+    (an ``AbstractFriction``: ``LuGre``, ``CoulombViscous`` or a user's law), ``controller``
+    (a bound ``AbstractController``: ``PD``, ``IMBIC``, ``Admittance`` or a user's), ``sensors``
     (``Sensors``), and the equilibrium ``q0`` ``(2,)`` [rad] with ``x0 = fk(q0)`` ``(2,)``
     [m]; ``voluntary``, the person's own force (``VoluntaryForce``, or ``None``: a passive
     arm). Static: ``acquisition`` and the control ``period`` [s].
@@ -53,8 +54,8 @@ class Trial:
 
     robot: Robot
     arm: Arm
-    friction: LuGre
-    controller: Any
+    friction: AbstractFriction
+    controller: AbstractController
     sensors: Sensors
     q0: jnp.ndarray
     x0: jnp.ndarray
@@ -68,16 +69,16 @@ class Trial:
         return not (self.sensors.ideal and self.voluntary is None)
 
 
-def _require(name, value, cls):
+def _require(name, value, cls, what=None):
     if not isinstance(value, cls):
-        raise ValueError(f"make_trial: {name} must be a {cls.__name__}, got {type(value).__name__}")
+        raise ValueError(f"make_trial: {name} must be {what or 'a ' + cls.__name__}, got {type(value).__name__}")
 
 
 def make_trial(
-    controller,
+    controller: AbstractController,
     *,
     arm: Arm,
-    friction: LuGre,
+    friction: AbstractFriction,
     sensors: Sensors | None = None,
     robot: Robot | None = None,
     acquisition: str = "instant",
@@ -87,11 +88,13 @@ def make_trial(
     """One trial's parameters.
 
     Args:
-        controller: ``PD(...)``, ``IMBIC(...)`` or any value with ``bind``, ``init`` and
-            ``step`` (see ``armimp_jax._model.control``). Its defaults that depend on the
-            equilibrium (IMBIC's ``M_rd = M_x(q0)``) are resolved here.
+        controller: ``PD(...)``, ``IMBIC(...)``, ``Admittance(...)`` or any kind of
+            ``AbstractController`` (``armimp_jax/_model/controllers/base.py``). Its defaults
+            that depend on the equilibrium or the period (IMBIC's ``M_rd = M_x(q0)``, an
+            admittance's discretised virtual model) are resolved here.
         arm: the human arm, with its equilibrium ``endpoint`` [m] in the world frame.
-        friction: joint friction, ``LuGre(...)`` or ``NO_FRICTION``.
+        friction: joint friction: ``LuGre(...)``, ``NO_FRICTION``, ``CoulombViscous(...)`` or
+            any kind of ``AbstractFriction`` (``armimp_jax/_model/friction/base.py``).
         sensors: ``Sensors(...)``; default ideal.
         robot: ``Robot(...)``; default ``MIT_MANUS``.
         acquisition: ``"instant"`` (samples at ``t_k``, the paper's) or ``"interval_mean"``
@@ -106,14 +109,9 @@ def make_trial(
     with a ``ValueError``. Values may be tracers (``jax.vmap`` over ``mhat`` or an arm).
     """
     require_x64("make_trial")
-    for method in ("bind", "init", "step"):
-        if not callable(getattr(controller, method, None)):
-            raise ValueError(
-                f"make_trial: controller must be PD(...), IMBIC(...) or provide bind/init/step, "
-                f"got {type(controller).__name__}"
-            )
+    _require("controller", controller, AbstractController, f"an AbstractController ({_kind_names(CONTROLLER_KINDS)})")
     _require("arm", arm, Arm)
-    _require("friction", friction, LuGre)
+    _require("friction", friction, AbstractFriction, f"an AbstractFriction ({_kind_names(FRICTION_KINDS)})")
     sensors = IDEAL if sensors is None else sensors
     _require("sensors", sensors, Sensors)
     robot = MIT_MANUS if robot is None else robot
@@ -134,7 +132,7 @@ def make_trial(
         robot=robot,
         arm=arm,
         friction=friction,
-        controller=controller.bind(robot, q0, x0),
+        controller=controller.bind(robot, q0, x0, period=float(period)),
         sensors=sensors,
         q0=q0,
         x0=x0,
@@ -142,6 +140,11 @@ def make_trial(
         period=float(period),
         voluntary=voluntary,
     )
+
+
+def _kind_names(registry) -> str:
+    """The registered kinds' class names (for a refusal)."""
+    return ", ".join(sorted(registry.get(n).__name__ for n in registry.names()))
 
 
 def _align_sensors(trials: list[Trial]) -> list[Trial]:

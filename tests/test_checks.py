@@ -63,7 +63,7 @@ def test_gradients_pass_through_the_checks():
         (lambda v: aj.LuGre(tau_c=0.1, tau_s=0.2, v_s=v), "LuGre: v_s must be > 0 rad/s"),
         (
             lambda v: aj.Arm(mass=v * jnp.eye(2), damping=jnp.eye(2), stiffness=jnp.eye(2), endpoint=[0.0, 0.4]),
-            "Arm: mass must have a positive definite symmetric part",
+            "Arm: mass must have a positive semi-definite symmetric part",
         ),
     ],
 )

@@ -211,7 +211,7 @@ BAD_CONFIGS = {
     "unknown parameter": (
         _edit(identify={"free": ["arm.stiffness", "arm.inertia"]}),
         r"\[identify\] free: unknown parameter 'arm.inertia'; allowed: arm.mass, arm.damping, arm.stiffness, "
-        r"friction.tau_c, friction.tau_s",
+        r"friction.tau_c, friction.viscous, friction.tau_s",
     ),
     "unknown key": (
         _edit(sensors={"force_nosie": 0.05}),
@@ -236,7 +236,10 @@ BAD_CONFIGS = {
         r"\[controller\] kv \[N s/m\] must be a 2x2 array",
     ),
     "text for a number": (_edit(friction={"tau_c": "0.3"}), r"\[friction\] tau_c \[N m\] must be a number or a list"),
-    "unknown controller": (_edit(controller={"type": "pid"}), r"\[controller\] type must be one of 'pd', 'imbic'"),
+    "unknown controller": (
+        _edit(controller={"type": "pid"}),
+        r"\[controller\] type: unknown controller type 'pid'; known: admittance, imbic, pd",
+    ),
     "unknown acquisition": (
         _edit(acquisition={"mode": "delay"}),
         r"\[acquisition\] mode must be one of 'instant', 'interval_mean', got 'delay'",
@@ -249,7 +252,7 @@ BAD_CONFIGS = {
     "stiction below Coulomb": (_edit(friction={"tau_s": 0.1}), r"\[friction\] LuGre: tau_s must be >= tau_c"),
     "mass not definite": (
         _edit(arm={"mass": [[1.0, 0.0], [0.0, -1.0]]}),
-        r"\[arm\] Arm: mass .*positive definite",
+        r"\[arm\] Arm: mass .*positive semi-definite",
     ),
 }
 

@@ -147,7 +147,7 @@ def test_the_dataframes_are_the_csv_files_read_back(tiny):
     from armimp_jax.study import load_summary, load_sweep, tables
 
     trials = load_sweep(tiny)
-    assert len(trials) == 12 and list(trials.columns) == tables.trial_columns(sweep.saved_settings(tiny).points[0])
+    assert len(trials) == 12 and list(trials.columns) == tables.trial_columns(sweep.saved_settings(tiny).points)
     assert trials["phi_T"].dtype == "float64" and trials["diverged"].dtype == bool and trials["arm"].iloc[0] == "1"
     assert trials.loc[trials["controller"] == "pd", "mhat"].isna().all()  # PD has no mhat
     pd.testing.assert_frame_equal(tables.read_table(tiny / "trials.csv", tables.TRIAL_DTYPES), trials, check_exact=True)
@@ -165,7 +165,7 @@ def test_the_dataframes_are_the_csv_files_read_back(tiny):
 
 def test_diverged_trials_are_counted_and_left_out_of_every_statistic(tiny):
     result = strict_load(tiny / "summary.json")
-    wild = [c for c in result["conditions"] if c["point"]["mhat"] == 40]
+    wild = [c for c in result["conditions"] if c["point"].get("mhat") == 40]
     assert len(wild) == 2
     for c in wild:
         assert c["diverged"] == 2 and c["n"] == 0 and c["diverged_seeds"] == [0, 1]
@@ -240,7 +240,9 @@ def test_a_folder_in_use_is_refused_at_once(tmp_path, main, capsys):
 @pytest.mark.parametrize(
     "argv, fragment",
     [
-        (["--set", "friction=1", "--out", "X"], "unknown setting(s) 'friction'"),
+        (["--set", "frictio=1", "--out", "X"], "unknown setting(s) 'frictio'"),
+        (["--set", "friction=dahl", "--out", "X"], "unknown friction type 'dahl'; known: coulomb_viscous, lugre"),
+        (["--set", "controller=mpc", "--out", "X"], "unknown controller type 'mpc'; known: admittance, imbic, pd"),
         (["--set", "tau_c=-1", "--out", "X"], "LuGre: tau_c must be >= 0 N m"),
         (["--set", "tau_c", "--out", "X"], "--set needs NAME=V1,V2"),
         (["--set", "arm=7", "--out", "X"], "arm must be a paper location"),
@@ -280,7 +282,7 @@ def test_points_normalise_and_deduplicate():
     )
     # PD ignores mhat: 2 (peak/tau) x (PD 2 arms + IMBIC 2 mhat x 2 arms)
     assert len(pts) == 2 * (2 + 4)
-    assert pts[0]["peak"] == [3.0, 3.0] and pts[0]["perturbation_level"] is None and pts[0]["mhat"] is None
+    assert pts[0]["peak"] == [3.0, 3.0] and pts[0]["perturbation_level"] is None and "mhat" not in pts[0]
     assert pts[-1]["peak"] == [2.25, 2.25] and pts[-1]["noverlap"] == 6144
     assert sp.normalize_point(pts[3]) == pts[3]  # idempotent
     assert sp.point_columns(pts[1])["arm"].startswith("user-")

@@ -288,8 +288,11 @@ GOOD_ARM = dict(mass=np.eye(2), damping=np.eye(2), stiffness=100 * np.eye(2), en
             ),
             "too close to a singular posture",
         ),
-        (lambda: aj.make_trial(aj.PD(), arm=paper.arm(1), friction=1.0), "friction must be a LuGre"),
-        (lambda: aj.make_trial("pd", arm=paper.arm(1), friction=aj.NO_FRICTION), "controller must be PD"),
+        (lambda: aj.make_trial(aj.PD(), arm=paper.arm(1), friction=1.0), "friction must be an AbstractFriction"),
+        (
+            lambda: aj.make_trial("pd", arm=paper.arm(1), friction=aj.NO_FRICTION),
+            "controller must be an AbstractController",
+        ),
         (lambda: aj.make_trial(aj.PD(), arm=paper.arm(1), friction=aj.NO_FRICTION, period=0), "period must be"),
     ],
 )

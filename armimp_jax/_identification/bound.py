@@ -51,13 +51,14 @@ def check_bound_inputs(trial: Trial, f, free, symmetric, where: str):
     """The layout of ``free`` (arm matrices only) and ``f`` as float64 ``(N, 2)``; one-line errors."""
     if not isinstance(trial, Trial):
         raise ValueError(f"{where}: trial must be a Trial (from make_trial), got {type(trial).__name__}")
-    layout = lay.make_layout(free, symmetric)
-    other = [n for n in layout.names if n not in lay.ARM_PARAMETERS]
+    free = (free,) if isinstance(free, str) else tuple(free)
+    other = [n for n in free if n not in lay.ARM_PARAMETERS]
     if other:
         raise ValueError(
             f"{where}: the bound covers the arm's matrices ({', '.join(lay.ARM_PARAMETERS)}), not {other}: friction "
             "is outside the linearised loop"
         )
+    layout = lay.make_layout(free, symmetric, where=where)
     f = as_float64("f", f, where=where)
     if f.ndim != 2 or f.shape[1] != 2 or f.shape[0] < 8:
         raise ValueError(f"{where}: f must have shape (N, 2) with N >= 8 samples, got {f.shape}")
@@ -231,7 +232,7 @@ def silent_readings(trial: Trial) -> list[str]:
 def has_friction(trial: Trial) -> bool:
     """Whether the trial's robot has Coulomb (or Stribeck) joint friction, the nonlinear part
     (concrete values; viscous friction is linear and stays in the linearised loop)."""
-    return bool(np.any(np.asarray(trial.friction.tau_s) > 0))
+    return trial.friction.has_coulomb()
 
 
 def crlb(trial: Trial, f, *, free=ARM, symmetric=(), check: bool = True, numerics=None) -> Bound:

@@ -2,10 +2,12 @@
 projected onto what a clinician allows (minimum stiffness and damping, the hand's drift under
 the person's own force, stability with margin).
 
-A design moves the log of the diagonal gains: IMBIC's desired stiffness ``k_rd`` [N/m] and
-damping ``b_rd`` [N s/m], or PD's ``kp`` and ``kv`` (the same roles). ``mhat`` and ``m_rd``
-stay at the trial's values: the time-delay estimation's stability is set by ``mhat`` against
-the robot's inertia, which no gain here changes. The designed gains are diagonal.
+A design moves the log of the diagonal of the two gains the controller's kind names in
+``DESIGN_GAINS`` (a stiffness [N/m] and a damping [N s/m]): IMBIC's desired ``k_rd`` and
+``b_rd``, PD's ``kp`` and ``kv``, an admittance's virtual ``k_v`` and ``b_v``. The rest stays at
+the trial's values (IMBIC's ``mhat`` and ``m_rd``: the time-delay estimation's stability is
+set by ``mhat`` against the robot's inertia, which no gain here changes; an admittance's
+virtual mass and servo). The designed gains are diagonal.
 """
 
 from __future__ import annotations
@@ -14,7 +16,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._model.control import IMBIC, PD
 from .._pytree import replace_unchecked
 from .._simulate import Trial
 from . import linear
@@ -25,12 +26,11 @@ MAX_STIFFENING = 6.0  # log of the largest factor the drift projection may raise
 
 
 def gain_names(trial: Trial) -> tuple[str, str]:
-    """The constructor's names of the designed stiffness and damping gains."""
-    if isinstance(trial.controller, IMBIC):
-        return "k_rd", "b_rd"
-    if isinstance(trial.controller, PD):
-        return "kp", "kv"
-    raise ValueError(f"design: no gains to design for a {type(trial.controller).__name__} controller")
+    """The constructor's names of the designed stiffness and damping gains (the kind's ``DESIGN_GAINS``)."""
+    names = type(trial.controller).DESIGN_GAINS
+    if names is None:
+        raise ValueError(f"design: no gains to design for a {type(trial.controller).__name__} controller")
+    return names
 
 
 def initial_log_gains(trial: Trial) -> np.ndarray:
@@ -48,18 +48,14 @@ def with_gains(trial: Trial, log_gains) -> Trial:
     (traceable: the design differentiates through it)."""
     k, b = gain_names(trial)
     g = jnp.exp(jnp.asarray(log_gains))
-    controller = replace_unchecked(trial.controller, **{k: jnp.diag(g[:2]), b: jnp.diag(g[2:])})
+    controller = trial.controller.with_gains(**{k: jnp.diag(g[:2]), b: jnp.diag(g[2:])})
     return replace_unchecked(trial, controller=controller)
 
 
 def controller_record(trial: Trial) -> dict:
-    """The controller as ``design.json`` writes it: its ``type`` and the constructor's own argument
-    names with 2x2 lists (IMBIC: ``mhat``, ``k_rd``, ``b_rd``, ``m_rd``; PD: ``kp``, ``kv``)."""
-    c = trial.controller
-    names = ("mhat", "k_rd", "b_rd", "m_rd") if isinstance(c, IMBIC) else ("kp", "kv")
-    out = {"type": "imbic" if isinstance(c, IMBIC) else "pd"}
-    out.update({n: np.asarray(getattr(c, n), dtype=float).tolist() for n in names})
-    return out
+    """The controller as ``design.json`` writes it: its ``type`` (the kind) and the constructor's
+    own argument names with 2x2 lists (the kind's ``record``)."""
+    return trial.controller.record()
 
 
 @jax.jit

@@ -45,7 +45,7 @@ def default_targets(layout) -> list[int]:
 def relative_se(pred, trial: Trial, *, free, targets) -> dict:
     """``{label: SE / |value|}`` of the ``targets`` entries from ``pred`` (a ``PredictedSE`` of
     ``trial`` for the parameters ``free``), the values being ``trial``'s own."""
-    layout = lay.make_layout(free)
+    layout = lay.make_layout(free, friction=trial.friction)
     labels = layout.labels()
     values = np.asarray(lay.natural_with_jacobian(layout, lay.pack(layout, trial), trial)[0])
     se = np.sqrt(np.diag(np.asarray(pred.covariance)))

@@ -68,7 +68,7 @@ def _check_design(
         raise ValueError(f"design: unknown aggregate {aggregate!r}; allowed: {', '.join(AGGREGATES)}")
     if not isinstance(limits, Limits):
         raise ValueError(f"design: limits must be a Limits, got {type(limits).__name__}")
-    layout = lay.make_layout(free)
+    layout = lay.make_layout(free, friction=getattr(trial, "friction", None), where="design")
     idx = _targets(layout, targets)
     trials = [trial] if robust_over is None else list(robust_over)
     if not trials or not all(isinstance(t, Trial) for t in trials):
@@ -264,7 +264,7 @@ def record_for(
     matrix is free, as ``identify``)."""
     require_x64("record_for")
     check_choice("statistic", statistic, STATISTICS)
-    layout = lay.make_layout(free)
+    layout = lay.make_layout(free, friction=getattr(trial, "friction", None), where="record_for")
     labels = layout.labels()
     if not isinstance(target, dict) or not target:
         raise ValueError(f"record_for: target must map entry labels to relative SEs, got {target!r}")

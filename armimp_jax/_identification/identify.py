@@ -196,7 +196,7 @@ def _check(model, f, x, fh, free, symmetric, statistic, numerics, draws, jacobia
     """Every one-line refusal before long work; the checked values."""
     if not isinstance(model, Trial):
         raise ValueError(f"identify: model must be a Trial (from make_trial), got {type(model).__name__}")
-    layout = lay.make_layout(free, symmetric)
+    layout = lay.make_layout(free, symmetric, friction=model.friction)
     f, x, fh = check_recording(f, x, fh, "identify")
     check_statistic_record(f.shape[0], model.period, "identify")
     numerics, draws, jacobian_draws = check_sampling("identify", statistic, numerics, draws, jacobian_draws)
@@ -264,8 +264,9 @@ def identify(
         f: the commanded perturbation ``F_Delta`` ``(N, 2)`` [N].
         x, fh: the recorded hand position [m] and force [N], ``(N, 2)`` each.
         free: names of the parameters to estimate, from ``"arm.mass"``, ``"arm.damping"``,
-            ``"arm.stiffness"`` (full 2x2), ``"friction.tau_c"``, ``"friction.tau_s"``,
-            ``"friction.sigma0"``, ``"friction.sigma1"``, ``"friction.sigma2"`` (per joint).
+            ``"arm.stiffness"`` (full 2x2) and the friction law's ``IDENTIFIABLE`` ones as
+            ``"friction.<name>"`` (per joint): LuGre's ``tau_c``, ``tau_s``, ``sigma0``,
+            ``sigma1``, ``sigma2``; CoulombViscous's ``tau_c``, ``viscous``.
         symmetric: free arm matrices to constrain symmetric (3 numbers instead of 4).
         statistic: the arm's statistic: ``"efficient"`` (module docstring), ``"welch"``, or
             ``"auto"`` (default: efficient unless the model's loop is far from linear).

@@ -2,14 +2,13 @@
 
 A free parameter is named by its path in the trial (``"arm.stiffness"``, ``"friction.tau_c"``).
 The optimiser works on one flat vector ``p``: the arm's matrices by their entries (all four,
-or three when constrained symmetric: ``[a11, a12 = a21, a22]``), the friction parameters per
-joint on log scales (they are positive, and their scales span orders of magnitude), with
-stiction kept above the Coulomb torque as ``LuGre`` requires: ``tau_s = tau_c + exp(b)``;
-``tau_c = exp(a)``, or ``tau_s sigmoid(a)`` when ``tau_s`` is held fixed. An optimiser
-left free to cross ``tau_s < tau_c`` was seen to dive there from a generic start (a
-Stribeck curve that rises with speed), where the fit is rough and meaningless.
-The *natural* vector lists every entry in the parameter's own units and shape, row by row
-(a symmetric matrix keeps both off-diagonal entries); covariances are reported on it.
+or three when constrained symmetric: ``[a11, a12 = a21, a22]``), the friction law's parameters
+per joint on the law's own internal scales (``AbstractFriction.to_internal`` /
+``from_internal``: logs by default, as they are positive and span orders of magnitude;
+LuGre keeps its stiction above the Coulomb torque). Which friction parameters may be freed is
+the law's ``IDENTIFIABLE``. The *natural* vector lists every entry in the parameter's own
+units and shape, row by row (a symmetric matrix keeps both off-diagonal entries);
+covariances are reported on it.
 """
 
 from __future__ import annotations
@@ -21,18 +20,27 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._model.friction import FRICTION_KINDS
 from .._pytree import replace_unchecked
 from .._simulate import Trial
 
 ARM_PARAMETERS = {"arm.mass": "kg", "arm.damping": "N s/m", "arm.stiffness": "N/m"}
-FRICTION_PARAMETERS = {
-    "friction.tau_c": "N m",
-    "friction.tau_s": "N m",
-    "friction.sigma0": "N m/rad",
-    "friction.sigma1": "N m s/rad",
-    "friction.sigma2": "N m s/rad",
-}
-PARAMETERS = {**ARM_PARAMETERS, **FRICTION_PARAMETERS}  # name -> unit
+
+
+def friction_parameters(friction=None) -> dict:
+    """``{"friction.<name>": unit}`` of the parameters a friction law (an instance or class) lets
+    ``identify`` free; ``None``: those of every registered law."""
+    laws = [friction] if friction is not None else [FRICTION_KINDS.get(n) for n in FRICTION_KINDS.names()]
+    out = {}
+    for law in laws:
+        out.update({f"friction.{n}": law.UNITS[n] for n in law.IDENTIFIABLE})
+    return out
+
+
+def parameter_units(friction=None) -> dict:
+    """``{name: unit}`` of every parameter that may be freed: the arm's matrices, then the
+    friction law's (``friction_parameters``)."""
+    return {**ARM_PARAMETERS, **friction_parameters(friction)}
 
 
 class Layout(NamedTuple):
@@ -63,25 +71,33 @@ class Layout(NamedTuple):
                 out += [f"{name}[{i}]" for i in range(2)]
         return out
 
+    def friction_names(self) -> tuple[str, ...]:
+        """The free friction law's fields, in order (``"tau_c"`` for ``"friction.tau_c"``)."""
+        return tuple(n.split(".", 1)[1] for n in self.names if n not in ARM_PARAMETERS)
 
-def make_layout(free, symmetric=()) -> Layout:
-    """Check the names of ``free`` and ``symmetric`` (one-line errors listing the valid names)."""
+
+def make_layout(free, symmetric=(), *, friction=None, where: str = "identify") -> Layout:
+    """Check the names of ``free`` and ``symmetric`` (one-line errors listing the valid names).
+    ``friction`` (the trial's law, an instance or class) says which friction parameters may be
+    freed; ``None`` allows those of every registered law."""
     if isinstance(free, str):
         free = (free,)
     free = tuple(free)
-    valid = ", ".join(PARAMETERS)
+    valid = parameter_units(friction)
+    names = ", ".join(valid)
     if not free:
-        raise ValueError(f"identify: free must name at least one parameter; valid names: {valid}")
+        raise ValueError(f"{where}: free must name at least one parameter; valid names: {names}")
     for name in free:
-        if name not in PARAMETERS:
-            raise ValueError(f"identify: unknown parameter {name!r}; valid names: {valid}")
+        if name not in valid:
+            law = "" if friction is None else f" (the friction's those of {getattr(friction, 'kind', '')!r})"
+            raise ValueError(f"{where}: unknown parameter {name!r}; valid names: {names}{law}")
     if len(set(free)) != len(free):
-        raise ValueError(f"identify: free names a parameter twice: {list(free)}")
+        raise ValueError(f"{where}: free names a parameter twice: {list(free)}")
     symmetric = (symmetric,) if isinstance(symmetric, str) else tuple(symmetric)
     for name in symmetric:
         if name not in free or name not in ARM_PARAMETERS:
             raise ValueError(
-                f"identify: symmetric names {name!r}, which is not a free arm matrix; free arm matrices: "
+                f"{where}: symmetric names {name!r}, which is not a free arm matrix; free arm matrices: "
                 f"{[n for n in free if n in ARM_PARAMETERS]}"
             )
     return Layout(free, tuple(n in symmetric for n in free))
@@ -94,37 +110,20 @@ def _get(trial: Trial, name: str):
 
 def pack(layout: Layout, trial: Trial):
     """``p`` of a trial's values (concrete); a ``ValueError`` where a value cannot be represented
-    (a friction value <= 0 has no logarithm; a symmetric matrix must start symmetric)."""
+    (a friction value outside its law's internal scale; a symmetric matrix must start symmetric)."""
+    friction = dict(trial.friction.to_internal(layout.friction_names())) if layout.friction_names() else {}
     parts = []
     for name, sym in zip(layout.names, layout.symmetric, strict=True):
+        if name not in ARM_PARAMETERS:
+            parts.append(np.asarray(friction[name.split(".", 1)[1]], dtype=float))
+            continue
         v = np.asarray(_get(trial, name), dtype=float)
-        if name in ARM_PARAMETERS:
-            if sym:
-                if abs(v[0, 1] - v[1, 0]) > 1e-12 * max(1.0, np.abs(v).max()):
-                    raise ValueError(f"identify: {name} is constrained symmetric but starts at {v.tolist()}")
-                parts.append(np.array([v[0, 0], v[0, 1], v[1, 1]]))
-            else:
-                parts.append(v.reshape(-1))
-        elif name == "friction.tau_s":
-            excess = v - np.asarray(trial.friction.tau_c, dtype=float)
-            if np.any(excess <= 0):
-                raise ValueError(
-                    f"identify: friction.tau_s must start above tau_c to be estimated (tau_s = tau_c + exp(b)), got "
-                    f"tau_s = {v.tolist()} and tau_c = {np.asarray(trial.friction.tau_c).tolist()} N m"
-                )
-            parts.append(np.log(excess))
-        elif name == "friction.tau_c" and "friction.tau_s" not in layout.names:
-            ratio = v / np.asarray(trial.friction.tau_s, dtype=float)
-            if np.any(v <= 0) or np.any(ratio >= 1):
-                raise ValueError(
-                    f"identify: friction.tau_c must start in (0, tau_s) to be estimated with tau_s held fixed, got "
-                    f"tau_c = {v.tolist()} and tau_s = {np.asarray(trial.friction.tau_s).tolist()} N m"
-                )
-            parts.append(np.log(ratio / (1.0 - ratio)))
+        if sym:
+            if abs(v[0, 1] - v[1, 0]) > 1e-12 * max(1.0, np.abs(v).max()):
+                raise ValueError(f"identify: {name} is constrained symmetric but starts at {v.tolist()}")
+            parts.append(np.array([v[0, 0], v[0, 1], v[1, 1]]))
         else:
-            if np.any(v <= 0):
-                raise ValueError(f"identify: {name} must start > 0 to be estimated (on a log scale), got {v.tolist()}")
-            parts.append(np.log(v))
+            parts.append(v.reshape(-1))
     return jnp.asarray(np.concatenate(parts))
 
 
@@ -142,26 +141,21 @@ def pack_arm(layout: Layout, trial: Trial):
 
 def split(layout: Layout, p, trial: Trial) -> dict:
     """``p`` -> ``{name: value}`` in the parameters' units and shapes (traceable); ``trial``
-    supplies the fixed friction torque that a free one is tied to."""
+    supplies the friction law that maps its internal values (and the fixed values a free one
+    is tied to)."""
     out, raw, i = {}, {}, 0
-    for k, name in enumerate(layout.names):
-        n = layout.n_internal(k)
-        raw[name] = p[i : i + n]
-        i += n
     for k, (name, sym) in enumerate(zip(layout.names, layout.symmetric, strict=True)):
-        q = raw[name]
+        n = layout.n_internal(k)
+        q = p[i : i + n]
+        i += n
         if name in ARM_PARAMETERS:
             out[name] = jnp.stack([q[0], q[1], q[1], q[2]]).reshape(2, 2) if sym else q.reshape(2, 2)
-        elif name not in ("friction.tau_c", "friction.tau_s"):
-            out[name] = jnp.exp(q)
-    if "friction.tau_s" in raw:
-        tau_c = jnp.exp(raw["friction.tau_c"]) if "friction.tau_c" in raw else trial.friction.tau_c
-        if "friction.tau_c" in raw:
-            out["friction.tau_c"] = tau_c
-        out["friction.tau_s"] = tau_c + jnp.exp(raw["friction.tau_s"])
-    elif "friction.tau_c" in raw:
-        out["friction.tau_c"] = trial.friction.tau_s * jax.nn.sigmoid(raw["friction.tau_c"])
-    return out
+        else:
+            raw[name.split(".", 1)[1]] = q
+    if raw:
+        values = trial.friction.from_internal(raw)
+        out.update({f"friction.{n}": values[n] for n in raw})
+    return {name: out[name] for name in layout.names}
 
 
 def natural(layout: Layout, p, trial: Trial):
@@ -187,7 +181,7 @@ def with_values(layout: Layout, trial: Trial, p) -> Trial:
     optimiser may try values the constructors would refuse)."""
     values = split(layout, p, trial)
     arm = {n.split(".")[1]: v for n, v in values.items() if n in ARM_PARAMETERS}
-    friction = {n.split(".")[1]: v for n, v in values.items() if n in FRICTION_PARAMETERS}
+    friction = {n.split(".")[1]: v for n, v in values.items() if n not in ARM_PARAMETERS}
     out = trial
     if arm:
         out = replace_unchecked(out, arm=replace_unchecked(out.arm, **arm))

@@ -22,8 +22,8 @@ rest (``respond``), the noise's stationary covariance (``stationary_cov``; the h
 under the person's force, ``drift``) and the loop's stability (``spectral_radius``); the
 noise's own Kalman filter is in ``kalman.py``. The loop is linearised without its Coulomb
 friction (``without_friction``: no bristles, the viscous part kept): at rest LuGre's
-bristles would be a stiff spring, the joints stuck, which is no linear model of a moving
-robot.
+bristles would be a stiff spring (a static law's ``tanh`` a huge damper), the joints stuck,
+which is no linear model of a moving robot.
 """
 
 from __future__ import annotations
@@ -64,12 +64,9 @@ class LinearLoop(NamedTuple):
 
 
 def without_friction(trial: Trial) -> Trial:
-    """``trial`` without its Coulomb and Stribeck friction (``tau_c = tau_s = 0``: no bristles),
-    its viscous friction kept (linear): the loop IMBIC promises to leave."""
-    fr = trial.friction
-    return replace_unchecked(
-        trial, friction=replace_unchecked(fr, tau_c=jnp.zeros_like(fr.tau_c), tau_s=jnp.zeros_like(fr.tau_s))
-    )
+    """``trial`` without its Coulomb and Stribeck friction (the law's ``without_coulomb``: no
+    bristles), its viscous friction kept (linear): the loop IMBIC promises to leave."""
+    return replace_unchecked(trial, friction=trial.friction.without_coulomb())
 
 
 def _noise_variances(trial: Trial):

@@ -99,7 +99,7 @@ def predict_se(
         raise ValueError(f"predict_se: trial must be a Trial (from make_trial), got {type(trial).__name__}")
     if not trial.noisy:
         raise ValueError("predict_se: the trial has no noise (ideal sensors, no voluntary force): nothing to predict")
-    layout = lay.make_layout(free, symmetric)
+    layout = lay.make_layout(free, symmetric, friction=trial.friction, where="predict_se")
     f = check_signal(trial, f, "predict_se")
     numerics, draws, jacobian_draws = check_sampling("predict_se", statistic, numerics, draws, jacobian_draws)
     if statistic == "auto":

@@ -11,7 +11,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import as_param, check_positive_definite
+from .._checks import as_param, check_positive_semidefinite
 from .._pytree import params
 
 UPPER_ARM_LENGTH = 0.21  # l_u [m]
@@ -40,10 +40,11 @@ class Arm:
         endpoint: ``x0`` ``(2,)`` [m], the hand's equilibrium in the world frame (origin at
             the shoulder); the robot holds the hand there at rest.
 
-    The matrices may be non-symmetric. ``mass`` must have a positive definite symmetric
-    part (the coupled plant's inertia must stay invertible); damping and stiffness are
-    free (a user may study unstable or negative-stiffness arms). Values are checked
-    when concrete; traced values pass, so ``grad`` and ``vmap`` flow through them.
+    The matrices may be non-symmetric. ``mass`` must have a positive semi-definite symmetric
+    part (the coupled plant's inertia, the robot's plus ``J^T M_h J``, then stays invertible);
+    damping and stiffness are free (a user may study unstable or negative-stiffness arms).
+    All zero is no arm on the handle (``no_arm(endpoint)``: the robot alone). Values
+    are checked when concrete; traced values pass, so ``grad`` and ``vmap`` flow through them.
     """
 
     mass: jnp.ndarray
@@ -56,7 +57,7 @@ class Arm:
         for name, unit in (("mass", "kg"), ("damping", "N s/m"), ("stiffness", "N/m")):
             object.__setattr__(self, name, as_param(f"{name} [{unit}]", getattr(self, name), (2, 2), where=w))
         object.__setattr__(self, "endpoint", as_param("endpoint [m]", self.endpoint, (2,), where=w))
-        object.__setattr__(self, "mass", check_positive_definite("mass", self.mass, where=w, unit=" [kg]"))
+        object.__setattr__(self, "mass", check_positive_semidefinite("mass", self.mass, where=w, unit=" [kg]"))
 
     def impedance(self, f):
         """``Z_h(j 2 pi f)`` [N/m] ``(F, 2, 2)`` complex at frequencies ``f`` [Hz] ``(F,)``."""
@@ -67,3 +68,10 @@ def impedance_response(arm: Arm, f):
     """``M s^2 + B s + K`` at ``s = j 2 pi f`` for ``f`` [Hz] ``(F,)``: ``(F, 2, 2)`` complex [N/m]."""
     s = 2j * jnp.pi * jnp.asarray(f, dtype=jnp.float64)[:, None, None]
     return jnp.asarray(arm.mass)[None] * s**2 + jnp.asarray(arm.damping)[None] * s + jnp.asarray(arm.stiffness)[None]
+
+
+def no_arm(endpoint) -> Arm:
+    """No arm on the handle: zero mass, damping and stiffness, the robot held at ``endpoint`` [m]
+    (a robot-alone recording; the hand force is then zero)."""
+    zero = np.zeros((2, 2))
+    return Arm(zero, zero, zero, endpoint)

@@ -2,7 +2,7 @@
 force, force sensor), not how they are integrated (``armimp_jax._solver``).
 
 The continuous state is ``PlantState``: joint angles ``q`` [rad], rates ``qd`` [rad/s],
-LuGre bristle states ``z`` [rad], and ``xi = int (x - x0) dt`` [m s] over the current
+the friction law's states ``z`` [rad] (LuGre's bristles), and ``xi = int (x - x0) dt`` [m s] over the current
 control period (for the ``"interval_mean"`` acquisition; it integrates the deviation
 from ``x0`` so that a robot at rest accumulates an exact zero). Every field is a scalar,
 so under ``jax.vmap`` the batch is structure-of-arrays, one ``(B,)`` array per field.
@@ -20,13 +20,13 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from .arm import Arm
-from .friction import LuGre, lugre
+from .friction import AbstractFriction
 from .robot import Robot, jacobian_from_trig, mass_matrix_entries
 
 
 class PlantState(NamedTuple):
-    """Continuous state, all scalars: ``q1, q2`` [rad], ``qd1, qd2`` [rad/s], ``z1, z2`` [rad],
-    ``xi1, xi2`` [m s]."""
+    """Continuous state, all scalars: ``q1, q2`` [rad], ``qd1, qd2`` [rad/s], ``z1, z2`` [rad]
+    (the friction law's state; 0 for a law without one), ``xi1, xi2`` [m s]."""
 
     q1: jnp.ndarray
     q2: jnp.ndarray
@@ -45,7 +45,8 @@ class PlantModel(NamedTuple):
     trig of ``q0``: displacements ``x - x0`` are formed from trig differences, which are
     exactly zero at ``q = q0`` whatever XLA's FMA contraction does to the fused
     expressions. ``mh``, ``bh``, ``kh`` are the arm's ``(m11, m12, m21, m22)``;
-    ``friction`` the LuGre scalars of each joint; ``robot`` the robot's parameters.
+    ``friction`` the friction law of each joint (``AbstractFriction.joint``: scalar fields);
+    ``robot`` the robot's parameters.
     """
 
     x0: tuple
@@ -61,7 +62,7 @@ def _entries(m):
     return (m[0, 0], m[0, 1], m[1, 0], m[1, 1])
 
 
-def plant_model(q0, x0, arm: Arm, friction: LuGre, robot: Robot) -> PlantModel:
+def plant_model(q0, x0, arm: Arm, friction: AbstractFriction, robot: Robot) -> PlantModel:
     """Unpack trial parameters into the scalars the inner loop uses (hoisted out of it)."""
     cq0 = (jnp.cos(q0[0]), jnp.sin(q0[0]), jnp.cos(q0[1]), jnp.sin(q0[1]))
     return PlantModel(
@@ -173,8 +174,8 @@ def plant_dynamics(s: PlantState, fu, model: PlantModel, *, trig: Trig | None = 
     f0y = (mh21 * jdqd_x + mh22 * jdqd_y) + (bh21 * xd + bh22 * yd) + (kh21 * ex + kh22 * ey)
     rx, ry = fu[0] - f0x, fu[1] - f0y
 
-    tau_f1, zd1 = lugre(s.qd1, s.z1, model.friction[0])
-    tau_f2, zd2 = lugre(s.qd2, s.z2, model.friction[1])
+    tau_f1, zd1 = model.friction[0].torque_and_rate(s.qd1, s.z1)
+    tau_f2, zd2 = model.friction[1].torque_and_rate(s.qd2, s.z2)
     hc = model.robot.inertia[1] * sin_d
     b1 = (j11 * rx + j21 * ry) - hc * qd2sq - tau_f1
     b2 = (j12 * rx + j22 * ry) + hc * qd1sq - tau_f2

@@ -37,7 +37,6 @@ from typing import ClassVar, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .._model.friction import bristle_g_and_slope
 from .._model.plant import PlantModel, PlantState, Trig, coupled_inertia, displacement, trig_of, trig_of_angles
 from .._model.robot import jacobian_from_trig, mass_matrix_entries
 from .common import check_checkpoint, check_kernel, rotate
@@ -128,25 +127,31 @@ def _mv(m, x1, x2):
 
 
 def _bristled(model: PlantModel):
-    """Per joint: has it bristles? ``g(v) > 0`` for every ``v`` exactly when ``tau_s > 0``
-    (as ``tau_s >= tau_c >= 0``); otherwise ``g = 0`` everywhere and ``z' = 0``."""
-    return tuple(p.tau_s > 0.0 for p in model.friction)
+    """Per joint: has it a bristle state (the friction law's ``has_state``: a bool, possibly
+    traced)? Without one ``z' = 0``."""
+    return tuple(p.has_state() for p in model.friction)
+
+
+def stateless(model: PlantModel) -> bool:
+    """Whether the friction law has no bristle state on either joint, known when tracing (the
+    bristle solve is then skipped: ``z`` stays as it is)."""
+    return all(b is False for b in _bristled(model))
+
+
+def stiff_static(model: PlantModel) -> bool:
+    """Whether the friction law has a stiff stateless torque to take implicitly. Such a law has
+    no bristle state (refused otherwise: the two implicit parts are solved apart)."""
+    if not type(model.friction[0]).STIFF_STATIC:
+        return False
+    if not stateless(model):
+        raise TypeError(f"{type(model.friction[0]).__name__}: a STIFF_STATIC friction law cannot have a bristle state")
+    return True
 
 
 def _velocity(fr: _Frame, p, z, model: PlantModel):
     """``qd = A^-1 (p - Sigma1 z)`` [rad/s]."""
     f1, f2 = model.friction
-    return _mv(fr.ainv, p[0] - f1.sigma1 * z[0], p[1] - f2.sigma1 * z[1])
-
-
-def _relaxation(v, p, bristled):
-    """``lambda = sigma0 |v| / g(v)`` [1/s] of one joint and ``d lambda / dv`` [1/rad] (both 0
-    where it has no bristles)."""
-    g, dg = bristle_g_and_slope(v, p)
-    inv_g = 1.0 / jnp.where(bristled, g, 1.0)
-    lam = jnp.where(bristled, p.sigma0 * jnp.abs(v) * inv_g, 0.0)
-    dlam = jnp.where(bristled, p.sigma0 * (jnp.sign(v) - jnp.abs(v) * dg * inv_g) * inv_g, 0.0)
-    return lam, dlam
+    return _mv(fr.ainv, p[0] - f1.state_damping() * z[0], p[1] - f2.state_damping() * z[1])
 
 
 def _solve2(m11, m12, m21, m22, r1, r2):
@@ -169,12 +174,51 @@ def _solve_bristles(fr: _Frame, p, r, hg, z, lam, model: PlantModel, bristled):
     i11, i12, i21, i22 = fr.ainv
     b1, b2 = bristled
     # qd(z) = u - C z with C = A^-1 Sigma1, so for frozen lambda: (I + hg (C + Lambda)) z = r + hg u.
-    c11, c12, c21, c22 = i11 * f1.sigma1, i12 * f2.sigma1, i21 * f1.sigma1, i22 * f2.sigma1
+    d1, d2 = f1.state_damping(), f2.state_damping()
+    c11, c12, c21, c22 = i11 * d1, i12 * d2, i21 * d1, i22 * d2
     c = (c11, c22, jnp.where(b1, hg * c12, 0.0), jnp.where(b2, hg * c21, 0.0))
     z = _frozen_solve(r, hg, (u1, u2), lam, c, bristled)
     v1, v2 = u1 - c11 * z[0] - c12 * z[1], u2 - c21 * z[0] - c22 * z[1]
-    relax = _relaxation(v1, f1, b1), _relaxation(v2, f2, b2)
+    relax = f1.relaxation(v1), f2.relaxation(v2)
     return _newton_step(z, r, hg, (v1, v2), relax, c, bristled)
+
+
+# Newton steps of the stiff stateless torque's stage solve after its secant solve (a third
+# changed no result in sweeps/bench_convergence.py's tanh law runs).
+STATIC_NEWTON_STEPS = 2
+
+
+def _secant(f, v):
+    """``static_torque(v) / v`` [N m s/rad] of one joint (its slope where ``v = 0``): the damper
+    that gives the law's torque at ``v``."""
+    zero = v == 0.0
+    return jnp.where(zero, f.static_slope(v), f.static_torque(v) / jnp.where(zero, 1.0, v))
+
+
+def solve_static(ainv, r, hg, v_guess, model: PlantModel):
+    """``p`` of the implicit stage ``p = r - hg phi(A^-1 p)`` for both joints (``phi``: the
+    friction law's stiff stateless torque; no bristle state) and the velocity ``A^-1 p`` there.
+
+    First a solve with ``phi`` replaced by its secant at ``v_guess`` (the previous stage's
+    velocity): linear, and a damper of any size keeps it stable, as the frozen bristle solve
+    does. Then ``STATIC_NEWTON_STEPS`` Newton steps on the stage equation itself."""
+    f1, f2 = model.friction
+    i11, i12, i21, i22 = ainv
+    s1, s2 = hg * _secant(f1, v_guess[0]), hg * _secant(f2, v_guess[1])
+    p = _solve2(1.0 + s1 * i11, s1 * i12, s2 * i21, 1.0 + s2 * i22, r[0], r[1])
+    for _ in range(STATIC_NEWTON_STEPS):
+        v1, v2 = _mv(ainv, p[0], p[1])
+        d1, d2 = hg * f1.static_slope(v1), hg * f2.static_slope(v2)
+        g1 = p[0] - r[0] + hg * f1.static_torque(v1)
+        g2 = p[1] - r[1] + hg * f2.static_torque(v2)
+        dp = _solve2(1.0 + d1 * i11, d1 * i12, d2 * i21, 1.0 + d2 * i22, g1, g2)
+        p = (p[0] - dp[0], p[1] - dp[1])
+    return p, _mv(ainv, p[0], p[1])
+
+
+def static_rate(v, model: PlantModel):
+    """``-phi(v)`` [N m] per joint: the stiff stateless torque's share of ``p'`` from the formula."""
+    return tuple(-f.static_torque(vj) for f, vj in zip(model.friction, v))
 
 
 def _frozen_solve(r, hg, u, lam, c, bristled):
@@ -229,10 +273,10 @@ def _explicit_rates(fr: _Frame, p, z, fu, model: PlantModel, bristled):
     ls, le = model.robot.shoulder_link, model.robot.elbow_link
     f1, f2 = model.friction
     # Jd^T M_h xd, with Jd = [[-ls c1 qd1, -le c2 qd2], [-ls s1 qd1, -le s2 qd2]].
-    pd1 = dtdq - ls * v1 * (c1 * wx + s1 * wy) + (j11 * fx + j21 * fy) - f1.sigma2 * v1
-    pd2 = -dtdq - le * v2 * (c2 * wx + s2 * wy) + (j12 * fx + j22 * fy) - f2.sigma2 * v2
-    pd1 = pd1 - jnp.where(bristled[0], f1.sigma0 * z[0], 0.0)
-    pd2 = pd2 - jnp.where(bristled[1], f2.sigma0 * z[1], 0.0)
+    pd1 = dtdq - ls * v1 * (c1 * wx + s1 * wy) + (j11 * fx + j21 * fy) - f1.viscous_coefficient() * v1
+    pd2 = -dtdq - le * v2 * (c2 * wx + s2 * wy) + (j12 * fx + j22 * fy) - f2.viscous_coefficient() * v2
+    pd1 = pd1 - jnp.where(bristled[0], f1.state_stiffness() * z[0], 0.0)
+    pd2 = pd2 - jnp.where(bristled[1], f2.state_stiffness() * z[1], 0.0)
     return (v1, v2), (pd1, pd2), (ex, ey)
 
 
@@ -249,7 +293,7 @@ class MomentumState(NamedTuple):
 
 def _bristle_rate(v, z, model: PlantModel, bristled):
     """``z' = qd - lambda z`` from the formula (0 without bristles), and ``lambda``."""
-    lam = tuple(_relaxation(vj, fj, b)[0] for vj, fj, b in zip(v, model.friction, bristled))
+    lam = tuple(fj.relaxation(vj)[0] for vj, fj in zip(v, model.friction))
     return tuple(jnp.where(b, vj - lj * zj, 0.0) for vj, zj, lj, b in zip(v, z, lam, bristled)), lam
 
 
@@ -258,7 +302,7 @@ def to_momentum(s: PlantState, model: PlantModel) -> MomentumState:
     fr = _frame(trig, model)
     m1, m2 = _mv(fr.a, s.qd1, s.qd2)
     f1, f2 = model.friction
-    p = (m1 + f1.sigma1 * s.z1, m2 + f2.sigma1 * s.z2)
+    p = (m1 + f1.state_damping() * s.z1, m2 + f2.state_damping() * s.z2)
     return MomentumState((s.q1, s.q2), p, (s.z1, s.z2), (s.xi1, s.xi2), trig)
 
 
@@ -269,8 +313,10 @@ def from_momentum(m: MomentumState, model: PlantModel) -> PlantState:
 def ark_step(m: MomentumState, fu, model: PlantModel, h, *, tableau: Tableau = ARK324, rotating: bool = True):
     """One additive Runge-Kutta step of size ``h`` [s] with ``fu`` [N] held. ``rotating``
     carries ``cos/sin`` through the stages by ``rotate`` (as the ``"fast"`` RK4 kernel
-    does) instead of evaluating them."""
+    does) instead of evaluating them. A friction law's stiff stateless torque (``STIFF_STATIC``)
+    is the implicit half's share of ``p'`` (``solve_static``); its bristles, ``z'``."""
     bristled = _bristled(model)
+    static, no_state = stiff_static(model), stateless(model)
     # XLA:CPU copies chains of cheap operations into every fusion that uses them, so a later
     # stage's fusion would recompute the earlier stages (docs/performance.md has the cost).
     # XLA never duplicates a division: each stage's inputs, solve and rates are divided by a
@@ -282,7 +328,7 @@ def ark_step(m: MomentumState, fu, model: PlantModel, h, *, tableau: Tableau = A
 
     hg = h * tableau.gamma
     inv_hg = 1.0 / hg
-    ks = []  # per stage: (qd, p', x - x0, z')
+    ks = []  # per stage: (qd, p', x - x0, z'), and the stiff torque's share of p' (STIFF_STATIC)
     lam = None  # the latest relaxation rates, from the first stage on
 
     def advance(x0, coeffs, field):
@@ -299,7 +345,13 @@ def ark_step(m: MomentumState, fu, model: PlantModel, h, *, tableau: Tableau = A
             dq = advance((0.0, 0.0), ae, 0)
             trig = rotate(m.trig, *dq) if rotating else trig_of_angles(angles(dq))
             fr, p, r = share((_frame(trig, model), advance(m.p, ae, 1), advance(m.z, ai, 3)))
-            z, lam = share(_solve_bristles(fr, p, r, hg, z, lam, model, bristled))
+            if static:
+                rp = share(advance(p, ai, 4))
+                p = share(solve_static(fr.ainv, rp, hg, ks[-1][0], model)[0])
+            if no_state:
+                z = r
+            else:
+                z, lam = share(_solve_bristles(fr, p, r, hg, z, lam, model, bristled))
         v, pdot, e = _explicit_rates(fr, p, z, fu, model, bristled)
         # An implicit stage's z' is its own (exact for the solved stage equation), not the
         # formula's, which would multiply the solver's residual by lambda. The first stage
@@ -308,11 +360,17 @@ def ark_step(m: MomentumState, fu, model: PlantModel, h, *, tableau: Tableau = A
             zd, lam = _bristle_rate(v, z, model, bristled)
         else:
             zd = ((z[0] - r[0]) * inv_hg, (z[1] - r[1]) * inv_hg)
-        ks.append(share((v, pdot, e, zd)))
+        stage = (v, pdot, e, zd)
+        if static:  # likewise the stiff torque's share of p'
+            stage += (static_rate(v, model) if i == 0 else ((p[0] - rp[0]) * inv_hg, (p[1] - rp[1]) * inv_hg),)
+        ks.append(share(stage))
     dq = advance((0.0, 0.0), tableau.b, 0)
     trig = rotate(m.trig, *dq) if rotating else trig_of_angles(angles(dq))
+    p_new = advance(m.p, tableau.b, 1)
+    if static:
+        p_new = advance(p_new, tableau.b, 4)
     # Stiffly accurate: the last stage's z is the step's.
-    return MomentumState(angles(dq), advance(m.p, tableau.b, 1), z, advance(m.xi, tableau.b, 2), trig)
+    return MomentumState(angles(dq), p_new, z, advance(m.xi, tableau.b, 2), trig)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

@@ -48,8 +48,11 @@ from .ark import (
     _frozen_solve,
     _mv,
     _newton_step,
-    _relaxation,
     from_momentum,
+    solve_static,
+    stateless,
+    static_rate,
+    stiff_static,
     to_momentum,
 )
 from .common import check_checkpoint, check_kernel
@@ -111,13 +114,14 @@ def _frozen(trig: Trig, fu, model: PlantModel) -> _Frozen:
     jt = (j11, j21, j12, j22)
     f1, f2 = model.friction
     i11, i12, i21, i22 = fr.ainv
+    d1, d2 = f1.state_damping(), f2.state_damping()
     bj = _matmul(jt, _matmul(model.bh, fr.j))
     mj = _matmul(model.mh, fr.j)
     ls, le = model.robot.shoulder_link, model.robot.elbow_link
     return _Frozen(
         ainv=fr.ainv,
-        c=(i11 * f1.sigma1, i12 * f2.sigma1, i21 * f1.sigma1, i22 * f2.sigma1),
-        damping=(bj[0] + f1.sigma2, bj[1], bj[2], bj[3] + f2.sigma2),
+        c=(i11 * d1, i12 * d2, i21 * d1, i22 * d2),
+        damping=(bj[0] + f1.viscous_coefficient(), bj[1], bj[2], bj[3] + f2.viscous_coefficient()),
         stiffness=_matmul(jt, model.kh),
         drive=_mv(jt, fu[0], fu[1]),
         inertial=(
@@ -141,7 +145,7 @@ def _solve_bristles(fr: _Frozen, p, r, hg, lam, model: PlantModel, bristled, sha
     c = (c11, c22, jnp.where(b1, hg * c12, 0.0), jnp.where(b2, hg * c21, 0.0))
     z = share(_frozen_solve(r, hg, (u1, u2), lam, c, bristled))
     v1, v2 = share((u1 - c11 * z[0] - c12 * z[1], u2 - c21 * z[0] - c22 * z[1]))
-    relax = share((_relaxation(v1, f1, b1), _relaxation(v2, f2, b2)))
+    relax = share((f1.relaxation(v1), f2.relaxation(v2)))
     return _newton_step(z, r, hg, (v1, v2), relax, c, bristled)
 
 
@@ -156,13 +160,13 @@ def _rates(fr: _Frozen, e, p, z, model: PlantModel, bristled, share):
     d1, d2 = _mv(fr.damping, v1, v2)
     k1, k2 = _mv(fr.stiffness, e[0], e[1])
     cor = fr.coriolis * v1 * v2
-    pd1 = (fr.drive[0] - d1 - k1) + (cor - v1 * a1) - jnp.where(bristled[0], f1.sigma0 * z[0], 0.0)
-    pd2 = (fr.drive[1] - d2 - k2) - (cor + v2 * a2) - jnp.where(bristled[1], f2.sigma0 * z[1], 0.0)
+    pd1 = (fr.drive[0] - d1 - k1) + (cor - v1 * a1) - jnp.where(bristled[0], f1.state_stiffness() * z[0], 0.0)
+    pd2 = (fr.drive[1] - d2 - k2) - (cor + v2 * a2) - jnp.where(bristled[1], f2.state_stiffness() * z[1], 0.0)
     return (v1, v2), (pd1, pd2)
 
 
 def _bristle_rate(v, z, model: PlantModel, bristled):
-    lam = tuple(_relaxation(vj, fj, b)[0] for vj, fj, b in zip(v, model.friction, bristled))
+    lam = tuple(fj.relaxation(vj)[0] for vj, fj in zip(v, model.friction))
     return tuple(jnp.where(b, vj - lj * zj, 0.0) for vj, zj, lj, b in zip(v, z, lam, bristled)), lam
 
 
@@ -172,6 +176,7 @@ def graded_step(m: MomentumState, v_est, fu, model: PlantModel, h, one, *, table
     step's ``v_est``). ``one`` is a runtime 1.0 from outside the loop (so that the divisions
     by it need no recomputation of it)."""
     bristled = _bristled(model)
+    static, no_state = stiff_static(model), stateless(model)
 
     def share(tree):
         return jax.tree.map(lambda x: x / one, tree)
@@ -180,7 +185,7 @@ def graded_step(m: MomentumState, v_est, fu, model: PlantModel, h, one, *, table
     fr = share(_frozen(mid, fu, model))
     hg = h * tableau.gamma
     inv_hg = 1.0 / hg
-    ks = []  # per stage: (qd, p', x - x0, z')
+    ks = []  # per stage: (qd, p', x - x0, z'), and the stiff torque's share of p' (STIFF_STATIC)
     lam = None
 
     def advance(x0, coeffs, field):
@@ -195,8 +200,14 @@ def graded_step(m: MomentumState, v_est, fu, model: PlantModel, h, one, *, table
             dq = share(advance((0.0, 0.0), ae, 0))
             e = share(displacement(_rotate(m.trig, *dq), model))
             p, r = share((advance(m.p, ae, 1), advance(m.z, ai, 3)))
-            z, lam = _solve_bristles(fr, p, r, hg, lam, model, bristled, share)
-            z = share(z)  # lam is shared within
+            if static:  # the stiff stateless torque implicitly (ark.solve_static)
+                rp = share(advance(p, ai, 4))
+                p = share(solve_static(fr.ainv, rp, hg, ks[-1][0], model)[0])
+            if no_state:
+                z = r
+            else:
+                z, lam = _solve_bristles(fr, p, r, hg, lam, model, bristled, share)
+                z = share(z)  # lam is shared within
         v, pdot = _rates(fr, e, p, z, model, bristled, share)
         if i == 0:
             zd, lam = _bristle_rate(v, z, model, bristled)
@@ -204,11 +215,15 @@ def graded_step(m: MomentumState, v_est, fu, model: PlantModel, h, one, *, table
             zd = ((z[0] - r[0]) * inv_hg, (z[1] - r[1]) * inv_hg)
         # v and e are shared already; an implicit stage's z' is three operations away from
         # shared values, cheaper recomputed than divided.
-        ks.append((v, share(pdot), e, share(zd) if i == 0 else zd))
+        stage = (v, share(pdot), e, share(zd) if i == 0 else zd)
+        if static:
+            stage += (share(static_rate(v, model) if i == 0 else ((p[0] - rp[0]) * inv_hg, (p[1] - rp[1]) * inv_hg)),)
+        ks.append(stage)
     dq = share(advance((0.0, 0.0), tableau.b, 0))
+    p_new = advance(m.p, tableau.b, 1)
     new = MomentumState(
         (m.q[0] + dq[0], m.q[1] + dq[1]),
-        advance(m.p, tableau.b, 1),
+        advance(p_new, tableau.b, 4) if static else p_new,
         z,  # stiffly accurate: the last stage's z is the step's
         advance(m.xi, tableau.b, 2),
         _rotate(m.trig, *dq),

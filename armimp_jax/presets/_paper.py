@@ -8,7 +8,7 @@ import numpy as np
 
 from .._checks import check_choice
 from .._model.arm import Arm, arm_endpoint
-from .._model.control import IMBIC, PD
+from .._model.controllers import IMBIC, PD
 from .._model.friction import LuGre
 from .._simulate import make_trial
 from ._tables import ARM_LOCATIONS, FRICTION_LEVELS, PERTURBATION_PEAKS

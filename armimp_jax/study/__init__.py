@@ -51,7 +51,10 @@ _EXPORTS = {
     "IdentifyConfigError": "identify_recording",
     "read_identify_config": "identify_recording",
     "POINT_DEFAULTS": "points",
+    "known_settings": "points",
     "expand": "points",
+    "normalize_point": "points",
+    "build_trial": "points",
     "parse_set": "points",
     "read_toml": "points",
     "SweepSettings": "sweep",
@@ -80,7 +83,10 @@ if TYPE_CHECKING:
     from .identify_recording import IdentifyConfigError as IdentifyConfigError
     from .identify_recording import read_identify_config as read_identify_config
     from .points import POINT_DEFAULTS as POINT_DEFAULTS
+    from .points import build_trial as build_trial
     from .points import expand as expand
+    from .points import known_settings as known_settings
+    from .points import normalize_point as normalize_point
     from .points import parse_set as parse_set
     from .points import read_toml as read_toml
     from .results import ResultsError as ResultsError

@@ -9,6 +9,10 @@ design): sections of typed keys, read and checked into plain values, then the ``
   ``TRIAL_SECTIONS``, built by their constructors, the only validators (their range
   checks come back as ``ConfigError`` naming the section); ``build_trial`` the ``Trial``.
   A sweep's point (``study.points.point_config``) is read into the same sections.
+- ``[controller]`` and ``[friction]`` name a kind (``type = "admittance"``, ``type =
+  "coulomb_viscous"``; the friction's default is ``"lugre"``) and take that kind's own
+  parameters, read from its class (``kind_section``): a kind of one's own, once its class is
+  defined, needs no edit here.
 
 A section's spec maps each key to ``(kind, unit or allowed values or minimum, default)``;
 a default of ``None`` is the library's own (the constructor's default), ``REQUIRED`` means
@@ -23,9 +27,10 @@ import tomllib
 
 import numpy as np
 
+from .._model import kinds
 from .._model.arm import Arm
-from .._model.control import IMBIC, PD
-from .._model.friction import LuGre
+from .._model.controllers import controller_kind
+from .._model.friction import friction_kind
 from .._model.robot import MIT_MANUS
 from .._model.sensors import Sensors
 from .._model.voluntary import VoluntaryForce
@@ -41,16 +46,7 @@ TRIAL_SECTIONS = {
         "inertia": ("triple", "kg m^2", None),
         "base": ("vector", "m", None),
     },
-    "controller": {
-        "type": ("text", ("pd", "imbic"), REQUIRED),
-        "kp": ("matrix", "N/m", None),
-        "kv": ("matrix", "N s/m", None),
-        "mhat": ("matrix", "kg", None),
-        "m_rd": ("matrix", "kg", None),
-        "b_rd": ("matrix", "N s/m", None),
-        "k_rd": ("matrix", "N/m", None),
-        "accel_estimate": ("text", ("velocity", "position"), None),
-    },
+    "controller": {"type": ("kind", controller_kind, REQUIRED)},  # and the kind's own keys (kind_section)
     "acquisition": {"mode": ("text", ("instant", "interval_mean"), "instant")},
     "sensors": {
         "force_noise": ("pair", "N", 0.0),
@@ -64,16 +60,8 @@ TRIAL_SECTIONS = {
         "stiffness": ("matrix", "N/m", REQUIRED),
         "endpoint": ("vector", "m", REQUIRED),
     },
-    "friction": {
-        "tau_c": ("pair", "N m", REQUIRED),
-        "tau_s": ("pair", "N m", REQUIRED),
-        "sigma0": ("pair", "N m/rad", None),
-        "sigma1": ("pair", "N m s/rad", None),
-        "sigma2": ("pair", "N m s/rad", None),
-        "v_s": ("pair", "rad/s", None),
-    },
+    "friction": {"type": ("kind", friction_kind, "lugre")},  # and the kind's own keys (kind_section)
 }
-CONTROLLER_KEYS = {"pd": ("type", "kp", "kv"), "imbic": tuple(TRIAL_SECTIONS["controller"])}
 SHAPES = {"scalar": (), "pair": (2,), "vector": (2,), "triple": (3,), "matrix": (2, 2)}
 SHAPE_WORDS = {
     "scalar": "a number",
@@ -88,6 +76,25 @@ class ConfigError(ValueError):
     """A config that cannot be used (one line naming the key)."""
 
 
+def kind_section(spec: dict, table: dict, where: str) -> dict:
+    """A kind section's keys: ``type`` (whose spec is ``("kind", lookup, default)``), then the
+    named kind's parameters as its class gives them (2x2 gains are ``"matrix"``, per-joint
+    values ``"pair"``, text options their words; defaults the constructor's own)."""
+    _, lookup, default = spec["type"]
+    name = table.get("type", None if default is REQUIRED else default)
+    if name is None:
+        return spec
+    try:
+        cls = lookup(name, where=f"{where} type")
+    except ValueError as err:
+        raise ConfigError(str(err)) from None
+    out = {"type": spec["type"]}
+    for p in cls.parameters().values():
+        kind = "text" if p.shape is None else ("matrix" if p.shape == (2, 2) else "pair")
+        out[p.name] = (kind, p.unit, REQUIRED if p.default is kinds.REQUIRED else None)
+    return out
+
+
 def _numeric_leaves(v) -> bool:
     if isinstance(v, list):
         return all(_numeric_leaves(x) for x in v)
@@ -96,6 +103,8 @@ def _numeric_leaves(v) -> bool:
 
 def _value(where: str, key: str, spec, v):
     kind, extra, _ = spec
+    if kind == "kind":  # checked by kind_section
+        return v
     if kind == "text":
         if not isinstance(v, str) or v not in extra:
             raise ConfigError(f"{where} {key} must be one of {', '.join(map(repr, extra))}, got {v!r}")
@@ -117,7 +126,8 @@ def _value(where: str, key: str, spec, v):
         if bad:
             raise ConfigError(f"{where} {key}: {bad[0]!r} is not one of {', '.join(map(str, extra))}")
         return list(v)
-    if kind == "names":
+    if kind == "names":  # extra: the allowed names, or a function giving them
+        extra = tuple(extra()) if callable(extra) else extra
         v = [v] if isinstance(v, str) else v
         if not isinstance(v, list) or not all(isinstance(n, str) for n in v):
             raise ConfigError(f"{where} {key} must be a list of parameter names, got {v!r}")
@@ -171,12 +181,13 @@ def read_config(path, sections: dict, required: tuple) -> dict:
         table, where = data[section], f"{path}: [{section}]"
         if not isinstance(table, dict):
             raise ConfigError(f"{where} must be a table of keys, got {table!r}")
+        is_kind = keys.get("type", (None,))[0] == "kind"
+        if is_kind:
+            keys = kind_section(keys, table, where)
         allowed = tuple(keys)
-        if section == "controller" and table.get("type") in CONTROLLER_KEYS:
-            allowed = CONTROLLER_KEYS[table["type"]]
         bad = [k for k in table if k not in allowed]
         if bad:
-            kind = f" for type {table['type']!r}" if section == "controller" else ""
+            kind = f" for type {table['type']!r}" if is_kind and "type" in table else ""
             raise ConfigError(f"{where} unknown key {bad[0]!r}{kind}; allowed: {', '.join(allowed)}")
         out = {}
         for key, spec in keys.items():
@@ -194,6 +205,12 @@ def read_config(path, sections: dict, required: tuple) -> dict:
 
 def _given(table: dict, keys) -> dict:
     return {k: table[k] for k in keys if table.get(k) is not None}
+
+
+def _kind(lookup, table: dict):
+    """The value of a kind section: its class (``type``) built from the keys given."""
+    values = {k: v for k, v in table.items() if v is not None}
+    return lookup(values.pop("type"))(**values)
 
 
 def trial_parts(config: dict, *, where: str | None = "config", arm=None) -> dict:
@@ -214,8 +231,7 @@ def trial_parts(config: dict, *, where: str | None = "config", arm=None) -> dict
         return dataclasses.replace(MIT_MANUS, **overrides) if overrides else MIT_MANUS
 
     def controller(t):
-        gains = _given(t, TRIAL_SECTIONS["controller"])
-        return (PD if gains.pop("type") == "pd" else IMBIC)(**gains)
+        return _kind(controller_kind, t)
 
     def sensors(t):
         return Sensors(t["force_noise"], t["encoder_counts"], t["velocity_noise"]) if t else Sensors()
@@ -228,7 +244,7 @@ def trial_parts(config: dict, *, where: str | None = "config", arm=None) -> dict
         arm=arm
         if arm is not None
         else make("arm", lambda t: Arm(t["mass"], t["damping"], t["stiffness"], t["endpoint"])),
-        friction=make("friction", lambda t: LuGre(**_given(t, TRIAL_SECTIONS["friction"]))),
+        friction=make("friction", lambda t: _kind(friction_kind, {"type": "lugre", **t})),
     )
 
 

@@ -25,7 +25,7 @@ from .._identification.bound import has_friction
 from .._identification.bound_design import BoundDesign
 from .._identification.criterion import default_targets, relative_se
 from .._identification.design import AGGREGATES, CRITERIA, METHODS
-from .._identification.layout import PARAMETERS, make_layout
+from .._identification.layout import make_layout, parameter_units
 from .._identification.limits import Limits
 from .._model.families import ShapedNoise, multisine
 from ..presets import arm as paper_arm
@@ -58,7 +58,7 @@ SECTIONS = {
         "min_damping": ("scalar", "N s/m", 0.0),
     },
     "design": {
-        "free": ("names", tuple(PARAMETERS), REQUIRED),
+        "free": ("names", parameter_units, REQUIRED),
         "targets": ("texts", "", []),
         "criterion": ("text", CRITERIA, "max_relative_se"),
         "aggregate": ("text", AGGREGATES, "worst"),
@@ -185,14 +185,15 @@ def friction_note(result: BoundDesign) -> str:
     rough = [t for t in result.trials if has_friction(t)]
     if not rough:
         return ""
-    tau_c = max(float(np.max(np.asarray(t.friction.tau_c))) for t in rough)
+    torques = [np.max(np.asarray(t.friction.tau_c)) for t in rough if hasattr(t.friction, "tau_c")]
+    tau_c = f"{max(torques):g} N m" if torques else type(rough[0].friction).__name__
     if result.predicted_minutes is not None:
         return (
-            f"  through the joints' Coulomb friction ({tau_c:g} N m), predict_se's minutes per arm: "
+            f"  through the joints' Coulomb friction ({tau_c}), predict_se's minutes per arm: "
             f"{np.round(result.predicted_minutes, 2).tolist()} (the bound's leave the friction out)"
         )
     return (
-        f"  (the bound's minutes leave out the joints' Coulomb friction, {tau_c:g} N m here, which adds to "
+        f"  (the bound's minutes leave out the joints' Coulomb friction, {tau_c} here, which adds to "
         "them; [validate] seeds = 30 measures them by identification, docs/experiment_design.md)"
     )
 

@@ -15,7 +15,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from .points import POINT_DEFAULTS, POINT_UNITS, default_x, point_columns, swept_settings
+from .points import default_x, known_settings, point_columns, setting_unit, swept_settings
 from .results import atomic_write_bytes
 from .stats import CI_LEVEL
 
@@ -50,12 +50,12 @@ def plot_summary(summary: list[Mapping], path, *, x: str | None = None, metric: 
     swept = swept_settings(points)
     if x is None:
         x = default_x(points)
-    if x is not None and x not in POINT_DEFAULTS:
+    if x is not None and x not in known_settings():
         raise ValueError(f"cannot plot against {x!r}: not a setting")
     unit = "N/m" if metric.startswith("phi") else ""
     fig, ax = plt.subplots(figsize=(8, 4.5), layout="constrained")
     if x is None:
-        labels = [", ".join(f"{k}: {point_columns(p)[k]}" for k in swept) or "all" for p in points]
+        labels = [", ".join(f"{k}: {point_columns(p).get(k, '-')}" for k in swept) or "all" for p in points]
         m = [e["stats"][metric]["mean"] for e in summary]
         lo = [e["stats"][metric]["ci_lo"] for e in summary]
         hi = [e["stats"][metric]["ci_hi"] for e in summary]
@@ -73,7 +73,7 @@ def plot_summary(summary: list[Mapping], path, *, x: str | None = None, metric: 
         for e in summary:
             if e["point"][x] is None:  # the setting does not apply to this point (PD's mhat)
                 continue
-            label = ", ".join(f"{k}: {point_columns(e['point'])[k]}" for k in others) or metric
+            label = ", ".join(f"{k}: {point_columns(e['point']).get(k, '-')}" for k in others) or metric
             lines.setdefault(label, []).append(e)
         for label, es in lines.items():
             es = sorted(es, key=lambda e: e["point"][x])
@@ -91,7 +91,7 @@ def plot_summary(summary: list[Mapping], path, *, x: str | None = None, metric: 
                 ax.set_xscale("symlog", linthresh=pos.min(), linscale=0.5)
             else:
                 ax.set_xscale("log")
-        unit_x = POINT_UNITS.get(x)
+        unit_x = setting_unit(x)
         ax.set_xlabel(f"{x} [{unit_x}]" if unit_x else x)
         if len(lines) > 1 or others:
             ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
@@ -107,7 +107,17 @@ def plot_summary(summary: list[Mapping], path, *, x: str | None = None, metric: 
 
 
 _TITLE_NAMES = dict(seconds="record", perturbation_level="perturbation level", force_noise="force noise")
-_TITLE_SETTINGS = ("controller", "arm", "tau_c", "perturbation_level", "peak", "seconds", "acquisition", "force_noise")
+_TITLE_SETTINGS = (
+    "controller",
+    "friction",
+    "arm",
+    "tau_c",
+    "perturbation_level",
+    "peak",
+    "seconds",
+    "acquisition",
+    "force_noise",
+)
 
 
 def _fixed_settings(points: list[Mapping], swept: list[str]) -> str:
@@ -118,7 +128,7 @@ def _fixed_settings(points: list[Mapping], swept: list[str]) -> str:
         value = points[0].get(k)
         if k in swept or value is None or isinstance(value, (dict, list)):
             continue
-        unit = POINT_UNITS.get(k)
+        unit = setting_unit(k)
         name = _TITLE_NAMES.get(k, k)
         parts.append(f"{name} {columns.get(k, value)}{' ' + unit if unit else ''}")
     return ", ".join(parts)

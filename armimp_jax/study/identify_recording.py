@@ -31,7 +31,7 @@ import numpy as np
 
 from .._identification.identify import identify
 from .._identification.indirect import IDENTIFY_NUMERICS
-from .._identification.layout import ARM_PARAMETERS, PARAMETERS
+from .._identification.layout import ARM_PARAMETERS, parameter_units
 from .._model.sensors import Sensors
 from .._simulate import simulate
 from .._solver.numerics import METHODS, Numerics, named_solver
@@ -46,7 +46,7 @@ from .tables import table, write_table
 SECTIONS = {
     **TRIAL_SECTIONS,
     "identify": {
-        "free": ("names", tuple(PARAMETERS), REQUIRED),
+        "free": ("names", parameter_units, REQUIRED),
         "symmetric": ("names", tuple(ARM_PARAMETERS), []),
         "draws": ("int", 8, 64),
         "jacobian_draws": ("int", 1, 8),
@@ -167,7 +167,7 @@ class Entry(NamedTuple):
 def entries(res, classical=None) -> list[Entry]:
     """Every entry of an ``Identification``, in the order of ``res.labels``, with the arm's beside
     the ``classical`` fit's (an ``ImpedanceFit``; ``None``: no classical column)."""
-    out = []
+    out, units = [], parameter_units()
     for name, value in res.values.items():
         value, se = np.asarray(value), np.asarray(res.se[name])
         low, high = (np.asarray(a) for a in res.interval(name))
@@ -178,7 +178,7 @@ def entries(res, classical=None) -> list[Entry]:
             index = ",".join(map(str, idx))
             numbers = [float(a[idx]) for a in (value, se, low, high)]
             beside = [None if a is None else float(a[idx]) for a in (cval, cse)]
-            out.append(Entry(name, index, f"{name}[{index}]", PARAMETERS[name], *numbers, *beside))
+            out.append(Entry(name, index, f"{name}[{index}]", units[name], *numbers, *beside))
     return out
 
 

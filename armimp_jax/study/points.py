@@ -1,15 +1,18 @@
 """The points of a sweep: every setting of one trial, its default and unit, and how grids are read.
 
-A *point* is a flat dict of JSON values that fixes one trial apart from its seed
-(``POINT_DEFAULTS`` lists every setting with its default and unit): the controller, the
-LuGre friction (a Coulomb torque ``tau_c`` with the stiction given as a ratio; the
-bristle and viscous defaults are ``LuGre``'s), the arm (paper location 1-4 or a user's
-matrices), the perturbation (level or peak, record length), the sensors, the
-acquisition, IMBIC's ``mhat`` and the Welch settings. ``normalize_point`` resolves every
-default into a number, so equal trials give equal points (and keys). ``expand`` turns a
-grid of value lists and/or a list of points into the normalized, de-duplicated points of
-a run; ``read_toml`` and ``parse_set`` read them from a TOML file and ``--set NAME=V1,V2``
-options. ``build_trial`` makes a point's ``Trial``; ``point_columns`` its table columns.
+A *point* is a flat dict of JSON values that fixes one trial apart from its seed: the
+controller's kind and its gains, the friction law's kind and its parameters, the arm (paper
+location 1-4 or a user's matrices), the perturbation (level or peak, record length), the
+sensors, the acquisition and the Welch settings. The base settings are ``POINT_DEFAULTS``;
+a kind's own settings come from its class (``point_parameters``: IMBIC's ``mhat``, PD's
+``kp`` and ``kv``, LuGre's ``tau_c`` with the stiction as a ratio, an admittance's ``m_v``
+...; a gain given as a number is that times the identity), so a kind of one's own sweeps
+with no edit here. ``known_settings()`` lists them all. ``normalize_point`` resolves every
+default into a number and drops the settings the point's kinds do not take (a PD point
+ignores ``mhat``), so equal trials give equal points (and keys). ``expand`` turns a grid of
+value lists and/or a list of points into the normalized, de-duplicated points of a run;
+``read_toml`` and ``parse_set`` read them from a TOML file and ``--set NAME=V1,V2`` options.
+``build_trial`` makes a point's ``Trial``; ``point_columns`` its table columns.
 """
 
 from __future__ import annotations
@@ -27,22 +30,20 @@ import numpy as np
 from .._checks import check_choice
 from .._estimation.welch import Welch
 from .._model.arm import Arm
+from .._model.controllers import CONTROLLER_KINDS, controller_kind
+from .._model.friction import FRICTION_KINDS, friction_kind
 from .._simulate import ACQUISITIONS, Trial
-from ..presets import LOCATIONS, LUGRE_DEFAULTS, PERTURBATION_LEVELS, perturbation_peak
+from ..presets import LOCATIONS, PERTURBATION_LEVELS, perturbation_peak
 from ..presets import arm as paper_arm
 from . import config
 from .results import settings_key
 
-# Every setting of a point, its default and its unit. ``None`` defaults are resolved by
-# ``normalize_point`` (the peak from the perturbation level, the overlap from the segment).
+# The settings of every point, their defaults and units (the kinds' own settings follow each
+# kind: ``kind_settings``). ``None`` defaults are resolved by ``normalize_point`` (the peak from
+# the perturbation level, the overlap from the segment).
 POINT_DEFAULTS: dict[str, Any] = dict(
-    controller="pd",  # "pd" | "imbic"
-    tau_c=0.0,  # Coulomb torque [N m], both joints
-    stiction_ratio=1.5,  # tau_s / tau_c [-], >= 1
-    sigma0=LUGRE_DEFAULTS["sigma0"],  # bristle stiffness [N m/rad]
-    sigma1=LUGRE_DEFAULTS["sigma1"],  # bristle damping [N m s/rad]
-    sigma2=LUGRE_DEFAULTS["sigma2"],  # viscous friction [N m s/rad]
-    v_s=LUGRE_DEFAULTS["v_s"],  # Stribeck velocity [rad/s]
+    controller="pd",  # a controller kind: "pd" | "imbic" | "admittance" | one's own
+    friction="lugre",  # a friction kind: "lugre" | "coulomb_viscous" | one's own
     arm=1,  # paper location 1-4, or {"mass", "damping", "stiffness": 2x2, "endpoint": (2,)}
     perturbation_level=1,  # paper level 1-3 (None when a peak is given)
     peak=None,  # per-axis peak |F_Delta| [N], (2,); default: the level's
@@ -51,7 +52,6 @@ POINT_DEFAULTS: dict[str, Any] = dict(
     encoder_counts=None,  # encoder resolution [counts/rev]; None: exact angles
     velocity_noise=0.0,  # joint-rate noise sd [rad/s]
     acquisition="instant",  # "instant" | "interval_mean"
-    mhat=0.25,  # IMBIC Mhat, times the identity [kg] (None for PD)
     nperseg=8192,  # Welch segment [samples]
     noverlap=None,  # Welch overlap [samples]; default 3/4 of nperseg
     fmax=15.0,  # highest frequency estimated [Hz]
@@ -60,23 +60,41 @@ POINT_DEFAULTS: dict[str, Any] = dict(
 )
 
 POINT_UNITS = dict(
-    tau_c="N m",
-    stiction_ratio="-",
-    sigma0="N m/rad",
-    sigma1="N m s/rad",
-    sigma2="N m s/rad",
-    v_s="rad/s",
     peak="N",
     seconds="s",
     force_noise="N",
     encoder_counts="counts/rev",
     velocity_noise="rad/s",
-    mhat="kg",
     nperseg="samples",
     noverlap="samples",
     fmax="Hz",
     nfft="samples",
 )
+KIND_SETTINGS = {"controller": (CONTROLLER_KINDS, controller_kind), "friction": (FRICTION_KINDS, friction_kind)}
+
+
+def kind_settings(setting: str, kind: str) -> dict:
+    """``{name: (default, unit)}`` of the point settings of the ``kind`` chosen for ``setting``
+    (``"controller"`` or ``"friction"``), from its class."""
+    return KIND_SETTINGS[setting][1](kind, where=setting).point_parameters()
+
+
+def known_settings() -> dict:
+    """``{name: (default, unit)}`` of every setting a point may name: ``POINT_DEFAULTS`` and the
+    settings of every registered kind (a name two kinds share appears once, with the first's
+    default)."""
+    out = {k: (v, POINT_UNITS.get(k)) for k, v in POINT_DEFAULTS.items()}
+    for setting, (registry, _) in KIND_SETTINGS.items():
+        for kind in registry.names():
+            for name, spec in kind_settings(setting, kind).items():
+                out.setdefault(name, spec)
+    return out
+
+
+def setting_unit(name: str) -> str | None:
+    """The unit of a point setting (``None``: unitless or unknown)."""
+    unit = known_settings().get(name, (None, None))[1]
+    return None if unit in (None, "-") else unit
 
 
 def _number(name: str, value, *, minimum: float | None = None, exclusive: bool = False, integer: bool = False):
@@ -103,24 +121,46 @@ def _arm_setting(value):
     return int(value)
 
 
-def normalize_point(raw: Mapping) -> dict:
-    """The canonical form of a point: every setting of ``POINT_DEFAULTS``, in that order,
-    resolved to plain JSON values (defaults filled in, numbers as floats, the peak from the
-    perturbation level, the overlap from the segment, ``mhat`` ``None`` for PD).
+def _kind_value(name: str, value, default):
+    """A kind's setting: a number, or (where the default is not a number: a per-joint pair, a
+    matrix) a nested list of numbers of the default's shape."""
+    if np.ndim(value) == 0:
+        return _number(name, value)
+    a = np.asarray(value, dtype=object)
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in a.ravel()):
+        raise ValueError(f"{name} must be a number or a list of numbers, got {value!r}")
+    if np.ndim(default) and a.shape != np.shape(default) and not (a.shape == (2,) or a.shape == (2, 2)):
+        raise ValueError(f"{name} must be a number, a pair or a 2x2 list, got {value!r}")
+    return np.asarray(value, dtype=float).tolist()
 
-    Raises ``ValueError`` (one line) for an unknown setting, a value of the wrong type, or
-    a value that cannot run: the parameter constructors (``LuGre``, ``Sensors``, ``PD``,
-    ``IMBIC``, ``Arm``; ``trial_parts``) and ``Welch``'s check are the validators, and their
-    messages name the value and the allowed range."""
-    unknown = [k for k in raw if k not in POINT_DEFAULTS]
+
+def _kind(setting: str, p: Mapping) -> dict:
+    """``{setting: kind, its settings...}`` of a point, defaults filled in."""
+    kind = p[setting]
+    if not isinstance(kind, str):
+        raise ValueError(f"{setting} must name a kind, got {kind!r}")
+    out: dict[str, Any] = {setting: kind}
+    for name, (default, _) in kind_settings(setting, kind).items():
+        out[name] = _kind_value(name, p.get(name, default), default)
+    return out
+
+
+def normalize_point(raw: Mapping) -> dict:
+    """The canonical form of a point: the base settings of ``POINT_DEFAULTS`` and the settings of
+    its controller's and friction's kinds, resolved to plain JSON values (defaults filled in,
+    numbers as floats, the peak from the perturbation level, the overlap from the segment);
+    settings of other kinds are dropped.
+
+    Raises ``ValueError`` (one line) for an unknown setting or kind, a value of the wrong type,
+    or a value that cannot run: the parameter constructors (the kinds, ``Sensors``, ``Arm``;
+    ``trial_parts``) and ``Welch``'s check are the validators, and their messages name the
+    value and the allowed range."""
+    known = known_settings()
+    unknown = [k for k in raw if k not in known]
     if unknown:
-        raise ValueError(f"unknown setting(s) {', '.join(map(repr, unknown))}; known: {', '.join(POINT_DEFAULTS)}")
+        raise ValueError(f"unknown setting(s) {', '.join(map(repr, unknown))}; known: {', '.join(known)}")
     p = dict(POINT_DEFAULTS) | dict(raw)
-    if p["controller"] not in ("pd", "imbic"):
-        raise ValueError(f"controller must be 'pd' or 'imbic', got {p['controller']!r}")
-    out: dict[str, Any] = dict(controller=p["controller"])
-    for name in ("tau_c", "stiction_ratio", "sigma0", "sigma1", "sigma2", "v_s"):
-        out[name] = _number(name, p[name])
+    out: dict[str, Any] = _kind("controller", p) | _kind("friction", p)
     out["arm"] = _arm_setting(p["arm"])
     out |= _perturbation(raw, p)
     out["seconds"] = _number("seconds", p["seconds"], minimum=0.0, exclusive=True)
@@ -129,7 +169,6 @@ def normalize_point(raw: Mapping) -> dict:
     out["velocity_noise"] = _number("velocity_noise", p["velocity_noise"])
     check_choice("acquisition", p["acquisition"], ACQUISITIONS)
     out["acquisition"] = p["acquisition"]
-    out["mhat"] = None if out["controller"] == "pd" else _number("mhat", p["mhat"])
     out |= _welch_settings(p)
     config.trial_parts(point_config(out), where=None, arm=point_arm(out))  # the constructors check the values
     try:
@@ -192,19 +231,26 @@ def point_arm(point: Mapping) -> Arm:
     return paper_arm(point["arm"]) if isinstance(point["arm"], int) else Arm(**point["arm"])
 
 
+def point_parts(point: Mapping) -> tuple:
+    """``(controller, friction)`` of a normalized point, built by their kinds' ``from_point``."""
+    out = []
+    for setting in KIND_SETTINGS:
+        kind = point[setting]
+        values = {n: point[n] for n in kind_settings(setting, kind)}
+        out.append(KIND_SETTINGS[setting][1](kind).from_point(values))
+    return tuple(out)
+
+
 def point_config(point: Mapping) -> dict:
     """A normalized point as the trial sections of a TOML config (``study.config``): one
-    schema, built by the same constructors (the arm is ``point_arm``'s)."""
-    controller = dict(type=point["controller"])
-    if point["controller"] == "imbic":
-        controller["mhat"] = (point["mhat"] * np.eye(2)).tolist()
-    keys = ("sigma0", "sigma1", "sigma2", "v_s")
+    schema, built by the same constructors (the arm is ``point_arm``'s; the controller and the
+    friction as their records)."""
+    controller, friction = point_parts(point)
     return dict(
-        controller=controller,
+        controller=controller.settings(),
         acquisition=dict(mode=point["acquisition"]),
         sensors={k: point[k] for k in ("force_noise", "encoder_counts", "velocity_noise")},
-        friction=dict(tau_c=point["tau_c"], tau_s=point["tau_c"] * point["stiction_ratio"])
-        | {k: point[k] for k in keys},
+        friction=friction.settings(),
     )
 
 
@@ -215,10 +261,11 @@ def build_trial(point: Mapping) -> Trial:
 
 
 def static_group(point: Mapping) -> tuple:
-    """What must agree within one compiled batch: controller type, acquisition, encoder
-    on/off, record length and Welch settings."""
+    """What must agree within one compiled batch: controller and friction kinds, acquisition,
+    encoder on/off, record length and Welch settings."""
     return (
         point["controller"],
+        point["friction"],
         point["acquisition"],
         point["encoder_counts"] is not None,
         n_samples(point),
@@ -334,7 +381,8 @@ def read_toml(path) -> tuple[dict, list | None, dict]:
 
 def point_columns(point: Mapping) -> dict:
     """The settings of a point as flat table columns (``arm`` a location or ``user-<hash>``;
-    ``peak`` as ``peak_x``, ``peak_y`` [N]; ``tau_s`` [N m] derived from the ratio)."""
+    ``peak`` as ``peak_x``, ``peak_y`` [N]; LuGre's ``tau_s`` [N m] derived from the ratio; a
+    kind's gain given as a matrix as JSON text)."""
     arm = point["arm"] if isinstance(point["arm"], int) else f"user-{settings_key(dict(arm=point['arm']))[:8]}"
     cols = {}
     for k, v in point.items():
@@ -344,6 +392,8 @@ def point_columns(point: Mapping) -> dict:
             cols["peak_x"], cols["peak_y"] = v
         elif k == "window":
             cols["window"] = v if isinstance(v, str) else ":".join(map(str, v))
+        elif isinstance(v, list):
+            cols[k] = json.dumps(v)
         else:
             cols[k] = v
         if k == "stiction_ratio":
@@ -354,12 +404,13 @@ def point_columns(point: Mapping) -> dict:
 def swept_settings(points: list[Mapping]) -> list[str]:
     """The settings that take more than one value across ``points`` (``None``, a setting that
     does not apply, such as PD's ``mhat``, is not a value)."""
-    return [k for k in POINT_DEFAULTS if len({json.dumps(p[k]) for p in points if p[k] is not None}) > 1]
+    names = list(dict.fromkeys(k for p in points for k in p))
+    return [k for k in names if len({json.dumps(p[k]) for p in points if p.get(k) is not None}) > 1]
 
 
 def is_numeric(points: list[Mapping], name: str) -> bool:
     """Whether setting ``name`` is a number wherever it applies (an axis to plot against)."""
-    values = [p[name] for p in points if p[name] is not None]
+    values = [p[name] for p in points if p.get(name) is not None]
     return (
         bool(values) and name != "arm" and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
     )

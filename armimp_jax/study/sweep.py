@@ -38,9 +38,9 @@ from . import distributed, engine
 from .figures import plot_summary
 from .metrics import estimate_arrays
 from .points import (
-    POINT_DEFAULTS,
     build_trial,
     default_x,
+    known_settings,
     n_samples,
     normalize_point,
     point_arm,
@@ -320,7 +320,7 @@ def load_sweep(out, *, warn: Callable[[str], None] = warn_stderr) -> pd.DataFram
     """The trials of the sweep in folder ``out`` as a tidy DataFrame (one row per trial with a
     valid record; the columns of ``trials.csv``), read from the checked records."""
     settings = saved_settings(out)
-    return trials_frame(collect(settings, out, warn=warn)[0], trial_columns(settings.points[0]))
+    return trials_frame(collect(settings, out, warn=warn)[0], trial_columns(settings.points))
 
 
 def load_summary(out, *, warn: Callable[[str], None] = warn_stderr) -> pd.DataFrame:
@@ -382,7 +382,7 @@ def write_outputs(
     out = pathlib.Path(out)
     rows, missing = collect(settings, out, warn=warn)
     numerics = dict(method=settings.method, substeps=settings.substeps)
-    write_table(trials_frame(rows, trial_columns(settings.points[0])), out / "trials.csv")
+    write_table(trials_frame(rows, trial_columns(settings.points)), out / "trials.csv")
     summary = summarize(settings, rows)
     write_table(summary_frame(summary, numerics), out / "summary.csv")
     x = x or default_x(list(settings.points))
@@ -441,8 +441,8 @@ def run_sweep(
     before any computation (by process 0 only, in a ``jax.distributed`` job).
     """
     settings.validate()
-    if x is not None and x not in POINT_DEFAULTS:
-        raise ValueError(f"cannot plot against {x!r}: not a setting; known: {', '.join(POINT_DEFAULTS)}")
+    if x is not None and x not in known_settings():
+        raise ValueError(f"cannot plot against {x!r}: not a setting; known: {', '.join(known_settings())}")
     if batch_size < 1:
         raise ValueError(f"batch_size must be >= 1, got {batch_size}")
     out = pathlib.Path(out)

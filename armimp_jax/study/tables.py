@@ -55,6 +55,7 @@ METRIC_COLUMNS = (
 # column types of a point's columns (``points.point_columns``; floats where none is named)
 POINT_DTYPES = dict(
     controller=STRING,
+    friction=STRING,
     arm=STRING,  # a location ("1") or "user-<hash>"
     perturbation_level=NULLABLE_INTEGER,  # none when a peak is given
     acquisition=STRING,
@@ -148,20 +149,29 @@ def write_csv(path: pathlib.Path | str, rows: Sequence[Mapping]) -> None:
 # --- a sweep's tables ---------------------------------------------------------------------
 
 
-def trial_columns(point: Mapping) -> list[str]:
-    """The columns of a sweep's ``trials.csv``, in order (``point``: any point of the sweep)."""
+def trial_columns(points: Mapping | Sequence[Mapping]) -> list[str]:
+    """The columns of a sweep's ``trials.csv``, in order: every point column of ``points`` (a
+    sweep's points, or one of them; points of other kinds have other settings)."""
+    points = [points] if isinstance(points, Mapping) else points
     return (
         ["point_index", "seed", "trial_id"]
-        + list(point_columns(point))
+        + list(dict.fromkeys(c for p in points for c in point_columns(p)))
         + ["base_seed", "method", "substeps"]
         + list(METRIC_COLUMNS)
         + ["diverged", "diverged_at"]
     )
 
 
+def _with_texts(dtypes: Mapping[str, str], rows: Sequence[Mapping]) -> dict:
+    """``dtypes`` plus ``STRING`` for every other column that holds text (a kind's gain given as
+    a matrix, written as JSON)."""
+    texts = {c for r in rows for c, v in r.items() if isinstance(v, str) and c not in dtypes}
+    return dict(dtypes) | dict.fromkeys(texts, STRING)
+
+
 def trials_frame(rows: Sequence[Mapping], columns: Sequence[str]) -> pd.DataFrame:
     """A sweep's trial rows (``sweep.collect``) as its tidy table: one row per trial."""
-    return table(rows, TRIAL_DTYPES, columns=columns)
+    return table(rows, _with_texts(TRIAL_DTYPES, rows), columns=columns)
 
 
 def summary_rows(summary: Sequence[Mapping], numerics: Mapping) -> list[dict]:
@@ -179,4 +189,5 @@ def summary_rows(summary: Sequence[Mapping], numerics: Mapping) -> list[dict]:
 
 def summary_frame(summary: Sequence[Mapping], numerics: Mapping) -> pd.DataFrame:
     """A sweep's per-point entries as its summary table: one row per point."""
-    return table(summary_rows(summary, numerics), SUMMARY_DTYPES)
+    rows = summary_rows(summary, numerics)
+    return table(rows, _with_texts(SUMMARY_DTYPES, rows), columns=list(dict.fromkeys(c for r in rows for c in r)))

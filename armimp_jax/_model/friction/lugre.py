@@ -1,4 +1,5 @@
-"""LuGre joint friction (docs/model.md section 4): parameters per joint and the pure model.
+"""LuGre joint friction (docs/model.md section 4): the law (``LuGre``, kind ``"lugre"``) and its
+pure per-joint functions.
 
 ``g(v) = tau_c + (tau_s - tau_c) exp(-(v/v_s)^2)``, ``zd = v - sigma0 |v| z / g(v)``,
 ``tau_f = sigma0 z + sigma1 zd + sigma2 v``. Where ``g(v) = 0`` (``tau_c = tau_s = 0``)
@@ -6,23 +7,28 @@ there are no bristles: ``zd = 0`` and ``tau_f = sigma2 v``, the limit of the mod
 ``tau_c -> 0``. ``NO_FRICTION`` (also ``sigma2 = 0``) is exactly zero friction; the
 guarded division (double ``where``) keeps its values and gradients finite.
 
-Functions act on scalars (one joint) and broadcast; batch with ``jax.vmap``.
+Functions act on scalars (one joint) and broadcast; batch with ``jax.vmap``. The
+integrators reach them only through ``AbstractFriction``'s methods (``base.py``).
 """
 
 from __future__ import annotations
 
 import math
+from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import as_param, check_range, is_concrete
-from .._pytree import params
+from ..._checks import as_param, check_range, is_concrete
+from ..._pytree import replace_unchecked
+from .base import AbstractFriction
+
+UNITS = dict(tau_c="N m", tau_s="N m", sigma0="N m/rad", sigma1="N m s/rad", sigma2="N m s/rad", v_s="rad/s")
 
 
-@params
-class LuGre:
+class LuGre(AbstractFriction):
     """LuGre parameters of the two joints (an immutable pytree; every field ``(2,)`` float64,
     one value per joint; a scalar is used for both joints).
 
@@ -35,8 +41,13 @@ class LuGre:
         v_s: Stribeck velocity [rad/s], ``> 0``.
 
     Defaults for the bristles and viscosity are those of Canudas de Wit et al. (1995),
-    which the paper adopts. Values are checked when concrete; tracers pass.
+    which the paper adopts. Values are checked when concrete; tracers pass. Identify may
+    free ``tau_c``, ``tau_s`` (kept above ``tau_c``) and the bristle and viscous parameters.
     """
+
+    kind: ClassVar[str] = "lugre"
+    UNITS: ClassVar[dict] = UNITS
+    IDENTIFIABLE: ClassVar[tuple[str, ...]] = ("tau_c", "tau_s", "sigma0", "sigma1", "sigma2")
 
     tau_c: jnp.ndarray
     tau_s: jnp.ndarray
@@ -47,8 +58,7 @@ class LuGre:
 
     def __post_init__(self):
         w = "LuGre"
-        units = dict(tau_c="N m", tau_s="N m", sigma0="N m/rad", sigma1="N m s/rad", sigma2="N m s/rad", v_s="rad/s")
-        for name, unit in units.items():
+        for name, unit in UNITS.items():
             value = as_param(f"{name} [{unit}]", getattr(self, name), (2,), where=w, broadcast=True)
             value = check_range(name, value, where=w, minimum=0.0, exclusive=name == "v_s", unit=f" {unit}")
             object.__setattr__(self, name, value)
@@ -65,8 +75,95 @@ class LuGre:
     def joint(self, i: int) -> LuGre:
         """The parameters of joint ``i`` (0 or 1) as scalars (what ``lugre`` takes)."""
         out = object.__new__(LuGre)
-        for name in ("tau_c", "tau_s", "sigma0", "sigma1", "sigma2", "v_s"):
+        for name in UNITS:
             object.__setattr__(out, name, getattr(self, name)[..., i])
+        return out
+
+    @classmethod
+    def point_parameters(cls) -> dict:
+        """A sweep point gives the stiction as a ratio to the Coulomb torque (``tau_c`` swept,
+        the Stribeck curve's shape kept)."""
+        out = super().point_parameters()
+        del out["tau_s"]
+        out["tau_c"] = (0.0, "N m")
+        return {"tau_c": out.pop("tau_c"), "stiction_ratio": (1.5, "-"), **out}
+
+    @classmethod
+    def from_point(cls, values: dict) -> LuGre:
+        values = dict(values)
+        ratio = values.pop("stiction_ratio")
+        return cls(tau_s=values["tau_c"] * ratio, **values)
+
+    # one joint
+    def torque_and_rate(self, v, z):
+        return lugre(v, z, self)
+
+    def viscous_coefficient(self):
+        return self.sigma2
+
+    def has_state(self):
+        return self.tau_s > 0.0  # tau_s >= tau_c >= 0: g > 0 everywhere exactly when tau_s > 0
+
+    def state_stiffness(self):
+        return self.sigma0
+
+    def state_damping(self):
+        return self.sigma1
+
+    def relaxation(self, v):
+        """``lambda = sigma0 |v| / g(v)`` [1/s] and ``d lambda / dv`` [1/rad] (both 0 where the
+        joint has no bristles)."""
+        bristled = self.has_state()
+        g, dg = bristle_g_and_slope(v, self)
+        inv_g = 1.0 / jnp.where(bristled, g, 1.0)
+        lam = jnp.where(bristled, self.sigma0 * jnp.abs(v) * inv_g, 0.0)
+        dlam = jnp.where(bristled, self.sigma0 * (jnp.sign(v) - jnp.abs(v) * dg * inv_g) * inv_g, 0.0)
+        return lam, dlam
+
+    # the whole law
+    def without_coulomb(self) -> LuGre:
+        """No Coulomb or Stribeck torque (``tau_c = tau_s = 0``: no bristles), the viscous kept."""
+        return replace_unchecked(self, tau_c=jnp.zeros_like(self.tau_c), tau_s=jnp.zeros_like(self.tau_s))
+
+    def has_coulomb(self) -> bool:
+        return bool(np.any(np.asarray(self.tau_s) > 0))
+
+    def to_internal(self, names) -> dict:
+        """Log scales, with stiction kept above the Coulomb torque as the law requires:
+        ``tau_s = tau_c + exp(b)``; ``tau_c = exp(a)``, or ``tau_s sigmoid(a)`` when ``tau_s``
+        is held fixed. (An optimiser left free to cross ``tau_s < tau_c`` was seen to dive there
+        from a generic start: a Stribeck curve that rises with speed.)"""
+        plain = [n for n in names if n not in ("tau_c", "tau_s")]
+        out = super().to_internal(plain)
+        tau_c, tau_s = np.asarray(self.tau_c, dtype=float), np.asarray(self.tau_s, dtype=float)
+        if "tau_s" in names:
+            if np.any(tau_s - tau_c <= 0):
+                raise ValueError(
+                    f"identify: friction.tau_s must start above tau_c to be estimated (tau_s = tau_c + exp(b)), got "
+                    f"tau_s = {tau_s.tolist()} and tau_c = {tau_c.tolist()} N m"
+                )
+            out["tau_s"] = np.log(tau_s - tau_c)
+            if "tau_c" in names:
+                out.update(super().to_internal(["tau_c"]))
+        elif "tau_c" in names:
+            ratio = tau_c / tau_s
+            if np.any(tau_c <= 0) or np.any(ratio >= 1):
+                raise ValueError(
+                    f"identify: friction.tau_c must start in (0, tau_s) to be estimated with tau_s held fixed, got "
+                    f"tau_c = {tau_c.tolist()} and tau_s = {tau_s.tolist()} N m"
+                )
+            out["tau_c"] = np.log(ratio / (1.0 - ratio))
+        return {n: out[n] for n in names}
+
+    def from_internal(self, raw: dict) -> dict:
+        out = super().from_internal({n: q for n, q in raw.items() if n not in ("tau_c", "tau_s")})
+        if "tau_s" in raw:
+            tau_c = jnp.exp(raw["tau_c"]) if "tau_c" in raw else self.tau_c
+            if "tau_c" in raw:
+                out["tau_c"] = tau_c
+            out["tau_s"] = tau_c + jnp.exp(raw["tau_s"])
+        elif "tau_c" in raw:
+            out["tau_c"] = self.tau_s * jax.nn.sigmoid(raw["tau_c"])
         return out
 
 

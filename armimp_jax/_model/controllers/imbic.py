@@ -1,73 +1,25 @@
-"""Controllers (docs/model.md section 9): PD and IMBIC as values with pure per-sample functions.
+"""Internal-model-based impedance control (paper eqs. 10-17 and 30, docs/model.md section 9.2):
+``IMBIC``, kind ``"imbic"``.
 
-A controller is an immutable pytree of gains with three methods, which is all the
-simulation loop knows about it (so a new controller needs no change to the loop):
-
-- ``bind(robot, q0, x0)``: the controller with its defaults resolved for the trial's
-  equilibrium (IMBIC's desired inertia ``M_x(q0)``); ``make_trial`` calls it.
-- ``init(x0)``: its memory at rest at ``x0`` (a pytree).
-- ``step(memory, x, xd, fh, f_delta, x0, period)``: the command ``F_u,k`` [N] ``(2,)`` held
-  over the next period, and the new memory, from the measured ``x_k`` [m], ``xd_k``
-  [m/s], ``F_h,k`` [N] and the perturbation ``F_Delta,k`` [N].
-
-Vectors are ``(2,)``; batch with ``jax.vmap``. The 2x2 products are written out
-(``matvec``) rather than left to a generic ``dot``: that keeps the rounding identical in
-batched and unbatched programs and lets an unperturbed IMBIC stay exactly at rest.
+The 2x2 products are written out (``matvec``) rather than left to a generic ``dot``: that
+keeps the rounding identical in batched and unbatched programs and lets an unperturbed
+IMBIC stay exactly at rest.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import ClassVar, NamedTuple
 
+import equinox as eqx
 import jax.numpy as jnp
 
-from .._checks import as_param, check_choice, check_positive_definite
-from .._pytree import params
-from .robot import cartesian_inertia
+from ..._checks import check_choice
+from ..robot import cartesian_inertia
+from .base import AbstractController, gain, matvec
+from .pd import PD_DAMPING, PD_STIFFNESS
 
 ACCEL_ESTIMATES = ("velocity", "position")
-# Defaults as nested tuples (immutable): K_p [N/m], K_v [N s/m] (paper eq. 5), Mhat [kg] (docs/model.md section 9.2)
-PD_STIFFNESS = ((250.0, 0.0), (0.0, 250.0))
-PD_DAMPING = ((4.0, 0.0), (0.0, 4.0))
-DEFAULT_MHAT = ((0.25, 0.0), (0.0, 0.25))
-
-
-def matvec(a, v):
-    """``a @ v`` for a ``(2, 2)`` matrix and a ``(2,)`` vector, with a fixed summation order."""
-    return jnp.stack([a[0, 0] * v[0] + a[0, 1] * v[1], a[1, 0] * v[0] + a[1, 1] * v[1]])
-
-
-def _gain(name, value, unit, where, *, definite=True):
-    arr = as_param(f"{name} [{unit}]", value, (2, 2), where=where)
-    if definite:
-        arr = check_positive_definite(name, arr, where=where, unit=f" [{unit}]")
-    return arr
-
-
-@params
-class PD:
-    """PD control (paper eq. 5): ``F_u = F_Delta - K_p (x - x0) - K_v xd``.
-
-    Args:
-        kp: ``K_p`` ``(2, 2)`` [N/m]; its symmetric part positive definite.
-        kv: ``K_v`` ``(2, 2)`` [N s/m]; its symmetric part positive definite.
-    """
-
-    kp: jnp.ndarray = PD_STIFFNESS
-    kv: jnp.ndarray = PD_DAMPING
-
-    def __post_init__(self):
-        object.__setattr__(self, "kp", _gain("kp", self.kp, "N/m", "PD"))
-        object.__setattr__(self, "kv", _gain("kv", self.kv, "N s/m", "PD"))
-
-    def bind(self, robot, q0, x0) -> PD:
-        return self
-
-    def init(self, x0):
-        return ()
-
-    def step(self, memory, x, xd, fh, f_delta, x0, period):
-        return f_delta - matvec(self.kp, x - x0) - matvec(self.kv, xd), memory
+DEFAULT_MHAT = ((0.25, 0.0), (0.0, 0.25))  # Mhat [kg] (docs/model.md section 9.2)
 
 
 class IMBICMemory(NamedTuple):
@@ -81,8 +33,7 @@ class IMBICMemory(NamedTuple):
     fu_prev: jnp.ndarray
 
 
-@params(static=("accel_estimate",))
-class IMBIC:
+class IMBIC(AbstractController):
     """Internal-model-based impedance control (paper eqs. 10-17 and 30, docs/model.md section 9.2).
 
     Desired robot dynamics ``M_rd xdd + B_rd xd + K_rd (x - x0) = F_Delta - F_h``, realised by
@@ -98,7 +49,17 @@ class IMBIC:
         k_rd: desired stiffness [N/m]; ``None`` is ``kp``.
         accel_estimate: ``"velocity"`` (``a_k-1 = (xd_k - xd_k-1) / L``, default) or
             ``"position"`` (``(x_k - 2 x_k-1 + x_k-2) / L^2``); static.
+
+    Experiment design moves ``k_rd`` and ``b_rd``; ``design.json`` records ``mhat`` and the
+    resolved desired dynamics.
     """
+
+    kind: ClassVar[str] = "imbic"
+    UNITS: ClassVar[dict] = dict(
+        mhat="kg", kp="N/m", kv="N s/m", m_rd="kg", b_rd="N s/m", k_rd="N/m", accel_estimate=ACCEL_ESTIMATES
+    )
+    DESIGN_GAINS: ClassVar[tuple[str, str]] = ("k_rd", "b_rd")
+    RECORDED: ClassVar[tuple[str, ...]] = ("mhat", "k_rd", "b_rd", "m_rd")
 
     mhat: jnp.ndarray = DEFAULT_MHAT
     kp: jnp.ndarray = PD_STIFFNESS
@@ -107,20 +68,20 @@ class IMBIC:
     b_rd: jnp.ndarray | None = None
     k_rd: jnp.ndarray | None = None
     m_rd_inv: jnp.ndarray | None = None
-    accel_estimate: str = "velocity"
+    accel_estimate: str = eqx.field(static=True, default="velocity")
 
     def __post_init__(self):
         w = "IMBIC"
         set_ = object.__setattr__
-        set_(self, "mhat", _gain("mhat", self.mhat, "kg", w))
-        set_(self, "kp", _gain("kp", self.kp, "N/m", w))
-        set_(self, "kv", _gain("kv", self.kv, "N s/m", w))
+        set_(self, "mhat", gain("mhat", self.mhat, "kg", w))
+        set_(self, "kp", gain("kp", self.kp, "N/m", w))
+        set_(self, "kv", gain("kv", self.kv, "N s/m", w))
         for name, unit in (("m_rd", "kg"), ("b_rd", "N s/m"), ("k_rd", "N/m")):
             if getattr(self, name) is not None:
-                set_(self, name, _gain(name, getattr(self, name), unit, w))
+                set_(self, name, gain(name, getattr(self, name), unit, w))
         check_choice("accel_estimate", self.accel_estimate, ACCEL_ESTIMATES)
 
-    def bind(self, robot, q0, x0) -> IMBIC:
+    def bind(self, robot, q0, x0, *, period: float) -> IMBIC:
         """Resolve the desired dynamics for the equilibrium ``q0`` (and invert ``M_rd`` once)."""
         m_rd = cartesian_inertia(q0, robot) if self.m_rd is None else jnp.asarray(self.m_rd)
         out = object.__new__(IMBIC)
@@ -152,6 +113,3 @@ class IMBIC:
         u = v - matvec(minv, matvec(bd, xd) + matvec(kd, x))
         fu = matvec(self.mhat, u) + memory.fu_prev - matvec(self.mhat, a)
         return fu, IMBICMemory(x, memory.x_prev, xd, v, fu)
-
-
-CONTROLLERS = {"pd": PD, "imbic": IMBIC}

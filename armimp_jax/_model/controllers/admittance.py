@@ -1,0 +1,165 @@
+"""Admittance control (docs/model.md section 11e): ``Admittance``, kind ``"admittance"``.
+
+At each control instant ``k`` the controller reads the force the person exerts on the handle,
+``F_m,k = -F_h,k`` (the transducer reads ``F_h``, the force on the hand), and integrates a
+virtual mass-damper-spring over one period with ``F_m,k + F_Delta,k`` held (zero-order hold,
+exact: one matrix exponential per trial, at ``bind``)::
+
+    M_v xdd_r + B_v xd_r + K_v (x_r - x0) = F_m + F_Delta
+
+An inner Cartesian servo then drives the robot, with its own inertia and joint friction,
+towards the virtual model's new position and velocity: the command held over the period is
+``F_u,k = K_p (x_r,k+1 - x_k) + K_v,servo (xd_r,k+1 - xd_k)`` (the motors apply ``J^T F_u``).
+The perturbation enters through the virtual model, not as a direct robot force. As the servo
+stiffens the hand follows the virtual model.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar, NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..._checks import check_positive_semidefinite, is_concrete
+from ..robot import cartesian_inertia
+from .base import AbstractController, gain, matvec
+
+EYE = ((1.0, 0.0), (0.0, 1.0))
+# The virtual model may sit on the unit circle (K_v = 0: a free mass-damper drifts); above this
+# it grows without bound.
+MARGINAL = 1e-9
+
+
+def _scaled(k):
+    return tuple(tuple(k * v for v in row) for row in EYE)
+
+
+class AdmittanceMemory(NamedTuple):
+    """The virtual model's state (both ``(2,)``): ``x_r - x0`` [m] and ``xd_r`` [m/s]."""
+
+    offset: jnp.ndarray
+    velocity: jnp.ndarray
+
+
+def _mv(a, v):
+    """``a @ v`` for an ``(n, m)`` matrix and ``(m,)`` vector, summed in a fixed order."""
+    rows = []
+    for i in range(a.shape[0]):
+        acc = a[i, 0] * v[0]
+        for j in range(1, a.shape[1]):
+            acc = acc + a[i, j] * v[j]
+        rows.append(acc)
+    return jnp.stack(rows)
+
+
+def discretise(m_v, b_v, k_v, period):
+    """``(Phi (4, 4), Gamma (4, 2))``: the exact zero-order-hold map of the virtual model over
+    ``period`` [s] on the state ``(x_r - x0, xd_r)`` with the force input ``F_m + F_Delta``."""
+    minv = jnp.linalg.inv(m_v)
+    z, eye = jnp.zeros((2, 2)), jnp.eye(2)
+    a = jnp.block([[z, eye], [-minv @ k_v, -minv @ b_v]])
+    b = jnp.concatenate([z, minv])
+    generator = jnp.zeros((6, 6)).at[:4, :4].set(a).at[:4, 4:].set(b)
+    hold = jax.scipy.linalg.expm(generator * period)
+    return hold[:4, :4], hold[:4, 4:]
+
+
+def _radius(a) -> float:
+    return float(np.max(np.abs(np.linalg.eigvals(np.asarray(a)))))
+
+
+def servo_radius(kp, kv, inertia, period) -> float:
+    """Spectral radius per period of the servo alone on a Cartesian ``inertia`` [kg]: the
+    sampled loop ``M xdd = -K_p x - K_v xd`` with the force held over each period."""
+    minv = np.linalg.inv(np.asarray(inertia))
+    eye, z = np.eye(2), np.zeros((2, 2))
+    phi = np.block([[eye, period * eye], [z, eye]])
+    gamma = np.vstack([0.5 * period**2 * minv, period * minv])
+    return _radius(phi - gamma @ np.hstack([np.asarray(kp), np.asarray(kv)]))
+
+
+class Admittance(AbstractController):
+    """Admittance control: a virtual mass-damper-spring driven by the measured hand force and the
+    perturbation, and an inner position servo (module docstring).
+
+    Args:
+        m_v: virtual mass ``M_v`` ``(2, 2)`` [kg], positive definite symmetric part.
+        b_v: virtual damping ``B_v`` ``(2, 2)`` [N s/m], positive semi-definite symmetric part.
+        k_v: virtual stiffness ``K_v`` ``(2, 2)`` [N/m], positive semi-definite symmetric part.
+        kp: the servo's stiffness ``(2, 2)`` [N/m], positive definite symmetric part.
+        kv: the servo's damping ``(2, 2)`` [N s/m], positive definite symmetric part.
+
+    ``make_trial`` discretises the virtual model at the control period and refuses, in one line,
+    a virtual model that grows (spectral radius per period above 1) or a servo whose sampled
+    loop on the robot's own inertia at the equilibrium is unstable. Experiment design moves
+    ``k_v`` and ``b_v``.
+    """
+
+    kind: ClassVar[str] = "admittance"
+    UNITS: ClassVar[dict] = dict(m_v="kg", b_v="N s/m", k_v="N/m", kp="N/m", kv="N s/m")
+    DESIGN_GAINS: ClassVar[tuple[str, str]] = ("k_v", "b_v")
+
+    m_v: jnp.ndarray = _scaled(2.0)
+    b_v: jnp.ndarray = _scaled(10.0)
+    k_v: jnp.ndarray = _scaled(50.0)
+    kp: jnp.ndarray = _scaled(4000.0)
+    kv: jnp.ndarray = _scaled(60.0)
+    phi: jnp.ndarray | None = None
+    gamma: jnp.ndarray | None = None
+    period: float | None = eqx.field(static=True, default=None)
+
+    def __post_init__(self):
+        w, set_ = "Admittance", object.__setattr__
+        set_(self, "m_v", gain("m_v", self.m_v, "kg", w))
+        for name, unit in (("b_v", "N s/m"), ("k_v", "N/m")):
+            set_(
+                self,
+                name,
+                check_positive_semidefinite(
+                    name, gain(name, getattr(self, name), unit, w, definite=False), where=w, unit=f" [{unit}]"
+                ),
+            )
+        set_(self, "kp", gain("kp", self.kp, "N/m", w))
+        set_(self, "kv", gain("kv", self.kv, "N s/m", w))
+
+    def bind(self, robot, q0, x0, *, period: float) -> Admittance:
+        """The virtual model discretised at ``period`` [s]; its stability and the servo's on the
+        robot's inertia at ``q0`` checked when the values are concrete."""
+        out = self.with_gains(period=float(period))
+        if is_concrete((out.phi, out.kp, out.kv, q0)):
+            virtual = _radius(out.phi)
+            if virtual > 1.0 + MARGINAL:
+                raise ValueError(
+                    f"Admittance: the virtual model (m_v, b_v, k_v) grows: spectral radius {virtual:.6f} per "
+                    f"{period:g} s period, must be <= 1; make m_v positive definite and b_v, k_v >= 0"
+                )
+            servo = servo_radius(out.kp, out.kv, cartesian_inertia(q0, robot), period)
+            if not servo < 1.0:
+                raise ValueError(
+                    f"Admittance: the servo (kp, kv) is unstable on the robot's inertia: spectral radius "
+                    f"{servo:.6f} per {period:g} s period, must be < 1; lower kp or kv"
+                )
+        return out
+
+    def with_gains(self, **values) -> Admittance:
+        """The controller with parameters replaced and its virtual model discretised again."""
+        out = super().with_gains(**values)
+        if out.period is None:
+            return out
+        phi, gamma = discretise(out.m_v, out.b_v, out.k_v, out.period)
+        return super(Admittance, out).with_gains(phi=phi, gamma=gamma)
+
+    def init(self, x0) -> AdmittanceMemory:
+        """At rest: the virtual model at ``x0``, still."""
+        zero = jnp.zeros_like(x0)
+        return AdmittanceMemory(zero, zero)
+
+    def step(self, memory: AdmittanceMemory, x, xd, fh, f_delta, x0, period):
+        state = jnp.concatenate([memory.offset, memory.velocity])
+        new = _mv(self.phi, state) + _mv(self.gamma, f_delta - fh)
+        offset, velocity = new[:2], new[2:]
+        fu = matvec(self.kp, offset - (x - x0)) + matvec(self.kv, velocity - xd)
+        return fu, AdmittanceMemory(offset, velocity)

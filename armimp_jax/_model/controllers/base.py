@@ -1,0 +1,130 @@
+"""The controller as an extension point: ``AbstractController``, whose methods are everything
+the simulation loop, the linearisation behind ``crlb``, identification and experiment design
+ask of a controller, and the registry of its kinds.
+
+- ``bind(robot, q0, x0, period=)``: the controller with its defaults resolved for the trial's
+  equilibrium and control period (IMBIC's desired inertia ``M_x(q0)``, an admittance's
+  discretised virtual model); ``make_trial`` calls it.
+- ``init(x0)``: its memory at rest at ``x0`` (a pytree of floats: the linearisation treats
+  every float of it as loop state).
+- ``step(memory, x, xd, fh, f_delta, x0, period)``: the Cartesian command ``F_u,k`` [N] ``(2,)``
+  held over the next period (the motors apply ``J^T F_u``), and the new memory, from the
+  measured ``x_k`` [m], ``xd_k`` [m/s], ``F_h,k`` [N] (the force on the hand) and the
+  perturbation ``F_Delta,k`` [N].
+
+The linearised loop is the forward-mode derivative of the simulation's own period step
+(``_identification/linear.py``), so a kind needs no linear form of its own. Experiment design
+moves the two gains named by ``DESIGN_GAINS`` (stiffness [N/m], damping [N s/m]) through
+``with_gains``. A new controller is one class in one file (docs/extending.md).
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from ..._checks import as_param, check_positive_definite
+from ..._pytree import replace_unchecked, show_fields
+from .. import kinds
+
+CONTROLLER_KINDS = kinds.Registry("controller")
+
+
+def matvec(a, v):
+    """``a @ v`` for a ``(2, 2)`` matrix and a ``(2,)`` vector, with a fixed summation order
+    (the rounding stays identical in batched and unbatched programs)."""
+    return jnp.stack([a[0, 0] * v[0] + a[0, 1] * v[1], a[1, 0] * v[0] + a[1, 1] * v[1]])
+
+
+def gain(name, value, unit, where, *, definite=True):
+    """A ``(2, 2)`` gain [unit], finite and (when ``definite``) with a positive definite symmetric part."""
+    arr = as_param(f"{name} [{unit}]", value, (2, 2), where=where)
+    if definite:
+        arr = check_positive_definite(name, arr, where=where, unit=f" [{unit}]")
+    return arr
+
+
+class AbstractController(eqx.Module):
+    """A controller: an immutable pytree of gains (``(2, 2)`` float leaves) with the methods above.
+
+    Class attributes of a kind: ``kind`` (its name in configs, points and records), ``UNITS``
+    (every parameter's unit, or a tuple of allowed words for a text option), ``DESIGN_GAINS``
+    (the ``(stiffness, damping)`` parameters experiment design may move, or ``None``) and
+    ``RECORDED`` (the parameters a record writes; ``None``: all).
+    """
+
+    kind: ClassVar[str]
+    UNITS: ClassVar[dict]
+    DESIGN_GAINS: ClassVar[tuple[str, str] | None] = None
+    RECORDED: ClassVar[tuple[str, ...] | None] = None
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if "UNITS" in cls.__dict__:
+            kinds.check_units(cls)
+        CONTROLLER_KINDS.register(cls)
+
+    __repr__ = show_fields
+
+    # --- what the simulation loop calls -------------------------------------------------
+
+    def bind(self, robot, q0, x0, *, period: float):
+        """The controller resolved for the equilibrium ``q0`` [rad] / ``x0`` [m] and the control
+        ``period`` [s] (by default itself)."""
+        return self
+
+    @abc.abstractmethod
+    def init(self, x0):
+        """The memory at rest at ``x0`` [m]."""
+
+    @abc.abstractmethod
+    def step(self, memory, x, xd, fh, f_delta, x0, period):
+        """``(F_u,k, new memory)`` from the measured samples (module docstring)."""
+
+    # --- what experiment design calls ----------------------------------------------------
+
+    def with_gains(self, **values):
+        """The bound controller with some parameters replaced (traceable: design differentiates
+        through it); a kind with derived values re-derives them."""
+        return replace_unchecked(self, **values)
+
+    # --- the schema: configs, sweep points, records --------------------------------------
+
+    @classmethod
+    def parameters(cls) -> dict:
+        """``{name: kinds.Parameter}`` of the controller's parameters (gains ``(2, 2)``)."""
+        return kinds.parameters(cls, (2, 2))
+
+    def record(self) -> dict:
+        """The controller as ``design.json`` writes it: ``{"type": kind, name: 2x2 list}`` of the
+        ``RECORDED`` parameters (all by default)."""
+        return kinds.record(self, self.RECORDED or self.parameters())
+
+    def settings(self) -> dict:
+        """Every parameter given (``None`` ones left out), as a config's ``[controller]`` takes them."""
+        return kinds.record(self, self.parameters())
+
+    @classmethod
+    def point_parameters(cls) -> dict:
+        """``{name: (default, unit)}`` of the controller's settings in a sweep point (a number
+        is that times the identity); by default every gain with a numeric default."""
+        out = {}
+        for p in cls.parameters().values():
+            if p.shape is not None and p.default is not None and p.default is not kinds.REQUIRED:
+                d = np.asarray(p.default, dtype=float)
+                out[p.name] = (float(d[0, 0]) if np.array_equal(d, d[0, 0] * np.eye(2)) else d.tolist(), p.unit)
+        return out
+
+    @classmethod
+    def from_point(cls, values: dict):
+        """The controller of a sweep point's settings (``point_parameters``' names)."""
+        return cls(**{k: v * np.eye(2) if np.ndim(v) == 0 else v for k, v in values.items()})
+
+
+def controller_kind(name: str, *, where: str = ""):
+    """The controller class registered as ``name`` (one line naming the known kinds if none)."""
+    return CONTROLLER_KINDS.get(name, where=where)

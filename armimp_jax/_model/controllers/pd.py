@@ -1,0 +1,41 @@
+"""PD control (paper eq. 5, docs/model.md section 9.1): ``PD``, kind ``"pd"``."""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import jax.numpy as jnp
+
+from .base import AbstractController, gain, matvec
+
+# Defaults as nested tuples (immutable): K_p [N/m], K_v [N s/m] (paper eq. 5)
+PD_STIFFNESS = ((250.0, 0.0), (0.0, 250.0))
+PD_DAMPING = ((4.0, 0.0), (0.0, 4.0))
+
+
+class PD(AbstractController):
+    """PD control (paper eq. 5): ``F_u = F_Delta - K_p (x - x0) - K_v xd``.
+
+    Args:
+        kp: ``K_p`` ``(2, 2)`` [N/m]; its symmetric part positive definite.
+        kv: ``K_v`` ``(2, 2)`` [N s/m]; its symmetric part positive definite.
+
+    Experiment design moves ``kp`` and ``kv``.
+    """
+
+    kind: ClassVar[str] = "pd"
+    UNITS: ClassVar[dict] = dict(kp="N/m", kv="N s/m")
+    DESIGN_GAINS: ClassVar[tuple[str, str]] = ("kp", "kv")
+
+    kp: jnp.ndarray = PD_STIFFNESS
+    kv: jnp.ndarray = PD_DAMPING
+
+    def __post_init__(self):
+        object.__setattr__(self, "kp", gain("kp", self.kp, "N/m", "PD"))
+        object.__setattr__(self, "kv", gain("kv", self.kv, "N s/m", "PD"))
+
+    def init(self, x0):
+        return ()
+
+    def step(self, memory, x, xd, fh, f_delta, x0, period):
+        return f_delta - matvec(self.kp, x - x0) - matvec(self.kv, xd), memory

@@ -1,0 +1,104 @@
+"""Kinds as classes: the registries of controllers and friction laws, and the schema each
+class gives of its own parameters.
+
+A kind (``PD``, ``IMBIC``, ``Admittance``; ``LuGre``, ``CoulombViscous``; a user's own) is an
+``equinox.Module`` subclass of ``AbstractController`` or ``AbstractFriction`` that names
+itself with a class attribute ``kind = "..."``. Defining the class registers it: configs,
+sweep points, ``design.json`` and run records find a kind by that name and its parameters
+by the class's own ``UNITS`` (field -> unit, or a tuple of allowed words for a text option),
+so no list elsewhere names the kinds. An unknown name is refused in one line that names the
+known ones.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, NamedTuple
+
+import numpy as np
+
+REQUIRED = object()  # a parameter without a default
+
+
+class Parameter(NamedTuple):
+    """One parameter of a kind: its field ``name``, ``shape`` (``None`` for a text option),
+    ``unit`` (or the allowed words of a text option) and ``default`` (``REQUIRED`` where the
+    constructor needs it; ``None`` where the kind resolves it itself)."""
+
+    name: str
+    shape: tuple | None
+    unit: Any
+    default: Any
+
+
+class Registry:
+    """The kinds of one extension point by name, in the order they were defined."""
+
+    def __init__(self, what: str):
+        self.what = what
+        self._kinds: dict[str, type] = {}
+
+    def register(self, cls: type) -> None:
+        name = cls.__dict__.get("kind")
+        if name is None:  # an abstract class, or a subclass that keeps its parent's kind
+            return
+        if not isinstance(name, str) or not name.isidentifier() or name != name.lower():
+            raise TypeError(f"{cls.__name__}: kind must be a lower-case identifier, got {name!r}")
+        old = self._kinds.get(name)
+        if old is not None and (old.__module__, old.__qualname__) != (cls.__module__, cls.__qualname__):
+            raise TypeError(f"{cls.__name__}: the {self.what} kind {name!r} is {old.__qualname__}'s already")
+        self._kinds[name] = cls
+
+    def names(self) -> tuple[str, ...]:
+        return tuple(self._kinds)
+
+    def get(self, name, *, where: str = "") -> type:
+        """The class of kind ``name``; a one-line ``ValueError`` naming the known kinds."""
+        cls = self._kinds.get(name) if isinstance(name, str) else None
+        if cls is None:
+            prefix = f"{where}: " if where else ""
+            raise ValueError(f"{prefix}unknown {self.what} type {name!r}; known: {', '.join(sorted(self._kinds))}")
+        return cls
+
+
+def check_units(cls) -> None:
+    """A kind's ``UNITS`` must name its own fields (checked when the class is defined, from its
+    annotations: the dataclass is made after ``__init_subclass__``)."""
+    names = set()
+    for base in cls.__mro__:
+        for name, note in vars(base).get("__annotations__", {}).items():
+            if "ClassVar" not in str(note):
+                names.add(name)
+    unknown = sorted(set(cls.UNITS) - names)
+    if unknown:
+        raise TypeError(f"{cls.__name__}.UNITS names {unknown}, which are not fields")
+
+
+def parameters(cls, shape: tuple) -> dict[str, Parameter]:
+    """``{name: Parameter}`` of a kind's ``UNITS`` fields, in field order; numeric ones have
+    ``shape``, text ones (a tuple of words in ``UNITS``) none."""
+    out = {}
+    for f in dataclasses.fields(cls):
+        if f.name not in cls.UNITS:
+            continue
+        unit = cls.UNITS[f.name]
+        if f.default is not dataclasses.MISSING:
+            default = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            default = f.default_factory()
+        else:
+            default = REQUIRED
+        out[f.name] = Parameter(f.name, None if isinstance(unit, tuple) else shape, unit, default)
+    return out
+
+
+def record(obj, names) -> dict:
+    """``{"type": kind, name: value}`` of ``obj``'s parameters ``names`` as JSON values (arrays
+    as nested lists; ``None``, a parameter the kind resolves itself, left out)."""
+    out = {"type": type(obj).kind}
+    for name in names:
+        value = getattr(obj, name)
+        if value is None:
+            continue
+        out[name] = value if isinstance(value, str) else np.asarray(value, dtype=float).tolist()
+    return out
