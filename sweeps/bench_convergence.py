@@ -1,7 +1,9 @@
 """Convergence study: phi_T and estimated K errors and cost per trial, per solver and substeps.
 
-For every controller (PD, IMBIC), Coulomb torque ``tau_c`` (stiction ``1.5 tau_c``, the
-paper's bristle and viscous parameters; 0 is ``tau_c = tau_s = 0``) and paper arm, one trial
+For every controller kind (``--controllers``: PD, IMBIC, admittance, at their defaults),
+Coulomb torque ``tau_c`` of the ``--friction`` law (LuGre: stiction ``1.5 tau_c``, the paper's
+bristle and viscous parameters, 0 is ``tau_c = tau_s = 0``; ``coulomb_viscous``: the tanh law
+with ``--v-s`` and ``--viscous``) and paper arm, one trial
 is simulated under each setting ``METHOD:SUBSTEPS`` (``rk4``, ``ark3``, ``ark4``, ``gark4``:
 ``GradedARK4``) with the same seeded perturbation (paper level 1), and scored: ``phi_T``
 (``assess_batch``) and the stiffness ``K`` of ``fit_impedance``. A setting's error is
@@ -21,6 +23,7 @@ alternated across settings; the host's load average is recorded with every run.
     python sweeps/bench_convergence.py [--seconds 50] [--settings gark4:4,ark3:20] [--refine 4] [--out DIR]
     python sweeps/bench_convergence.py --reference ark3:160 [--settings ...]   # one common reference
     python sweeps/bench_convergence.py --timing [--batch 24] [--repeats 3]     # cost only
+    python sweeps/bench_convergence.py --friction coulomb_viscous --v-s 0.001 --controllers pd imbic admittance
 
 Writes ``DIR/convergence.json`` (every number) and ``DIR/convergence.md`` (the tables), or
 ``convergence_timing.*`` with ``--timing``.
@@ -51,7 +54,10 @@ def parse(argv):
     ap.add_argument("--seconds", type=float, default=50.0, help="record length [s] (default 50)")
     ap.add_argument("--taus", type=str, default=",".join(f"{t:g}" for t in DEFAULT_TAUS), help="Coulomb torques [N m]")
     ap.add_argument("--locations", type=int, nargs="+", default=[1, 2, 3, 4], choices=[1, 2, 3, 4])
-    ap.add_argument("--controllers", nargs="+", default=["pd", "imbic"], choices=["pd", "imbic"])
+    ap.add_argument("--controllers", nargs="+", default=["pd", "imbic"], help="controller kinds (default pd imbic)")
+    ap.add_argument("--friction", default="lugre", choices=("lugre", "coulomb_viscous"), help="the friction law")
+    ap.add_argument("--v-s", type=float, default=0.01, help="coulomb_viscous: the tanh's scale [rad/s] (0.01)")
+    ap.add_argument("--viscous", type=float, default=0.0025, help="coulomb_viscous: viscous [N m s/rad]")
     ap.add_argument("--settings", type=str, default=DEFAULT_SETTINGS, help="METHOD:SUBSTEPS,... to assess")
     ap.add_argument("--refine", type=int, default=4, help="each setting against itself at this many times the substeps")
     ap.add_argument("--reference", type=str, help="METHOD:SUBSTEPS: one common reference instead of --refine")
@@ -79,6 +85,8 @@ def parse(argv):
         ap.error(f"--taus takes comma-separated numbers, got {args.taus!r}")
     if any(t < 0 for t in args.taus):
         ap.error(f"--taus must be >= 0 N m, got {args.taus}")
+    if not (args.v_s > 0 and args.viscous >= 0):
+        ap.error(f"--v-s must be > 0 and --viscous >= 0, got {args.v_s} and {args.viscous}")
     if args.seconds * 1000 < 2 * CHUNK:
         ap.error(f"--seconds must be >= {2 * CHUNK / 1000:g} (two chunks), got {args.seconds}")
     return args
@@ -89,6 +97,20 @@ def numerics(method, substeps):
     import armimp_jax as aj
 
     return aj.Numerics(solver=solver(method), substeps=substeps)
+
+
+def friction(aj, args, tau):
+    """The ``--friction`` law at Coulomb torque ``tau`` [N m]."""
+    if args.friction == "lugre":
+        return aj.LuGre(tau, 1.5 * tau)
+    return aj.CoulombViscous(tau, viscous=args.viscous, v_s=args.v_s)
+
+
+def base_trial(aj, ctrl, loc):
+    """A frictionless trial of controller kind ``ctrl`` (its defaults) at paper arm ``loc``."""
+    from armimp_jax import presets
+
+    return aj.make_trial(aj.controller_kind(ctrl)(), arm=presets.arm(loc), friction=aj.NO_FRICTION)
 
 
 def label(setting):
@@ -109,7 +131,7 @@ def timing(args, n, fd1, n_devices):
     for i in range(args.batch):
         tau, loc = points[i % len(points)]
         base = paper.trial("imbic", 0, loc)
-        trials.append(aj.make_trial(base.controller, arm=base.arm, friction=aj.LuGre(tau, 1.5 * tau)))
+        trials.append(aj.make_trial(base.controller, arm=base.arm, friction=friction(aj, args, tau)))
     batch = aj.stack_trials(trials)
     fd = np.broadcast_to(fd1, (args.batch, n, 2))
     settings = args.settings
@@ -216,7 +238,13 @@ def main(argv=None):
     else:
         references = {(m, k): (m, args.refine * k) for m, k in args.settings}
     runs = list(dict.fromkeys(list(args.settings) + list(references.values())))
+    for ctrl in args.controllers:
+        try:
+            aj.controller_kind(ctrl)
+        except ValueError as err:
+            raise SystemExit(f"bench_convergence: error: --controllers: {err}") from None
     results = dict(
+        friction=dict(law=args.friction, v_s=args.v_s, viscous=args.viscous),
         settings=[label(s) for s in args.settings],
         references={label(s): label(r) for s, r in references.items()},
         seed=args.seed,
@@ -226,10 +254,9 @@ def main(argv=None):
     for ctrl in args.controllers:
         trials, labels = [], []
         for tau in args.taus:
-            friction = aj.LuGre(tau, 1.5 * tau)
             for loc in args.locations:
-                base = paper.trial(ctrl, 0, loc)
-                trials.append(aj.make_trial(base.controller, arm=base.arm, friction=friction))
+                base = base_trial(aj, ctrl, loc)
+                trials.append(aj.make_trial(base.controller, arm=base.arm, friction=friction(aj, args, tau)))
                 labels.append((tau, loc))
         batch = aj.stack_trials(trials)
         fd = np.broadcast_to(fd1, (len(trials), n, 2))
@@ -287,8 +314,12 @@ def markdown(results, taus) -> str:
     )
     head = "| controller | setting | " + " | ".join(f"tau_c={t:g}" for t in taus) + " |"
     rule = "|" + "---|" * (2 + len(taus))
-    lines = [f"Errors {against} (max over arms; D: diverged trials), {results['seconds']:g} s records, seed "]
-    lines[0] += f"{results['seed']}; references: " + ", ".join(f"{s} -> {r}" for s, r in results["references"].items())
+    law = results.get("friction", dict(law="lugre"))
+    what = "LuGre, tau_s = 1.5 tau_c" if law["law"] == "lugre" else f"CoulombViscous, v_s {law['v_s']:g} rad/s, "
+    what += "" if law["law"] == "lugre" else f"viscous {law['viscous']:g} N m s/rad"
+    lines = [f"Friction: {what}.", ""]
+    lines += [f"Errors {against} (max over arms; D: diverged trials), {results['seconds']:g} s records, seed "]
+    lines[-1] += f"{results['seed']}; references: " + ", ".join(f"{s} -> {r}" for s, r in results["references"].items())
     for title, index in (("phi_T relative error", 0), ("K relative error (Frobenius)", 1)):
         lines += ["", f"{title}:", "", head, rule]
         for (ctrl, setting), cells in errs.items():
