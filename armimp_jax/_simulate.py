@@ -21,13 +21,13 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ._checks import as_float64, check_choice, require_x64
+from ._checks import as_float64, check_choice, is_concrete, require_x64
 from ._model.arm import Arm
 from ._model.controllers import CONTROLLER_KINDS, AbstractController, matvec
 from ._model.friction import FRICTION_KINDS, AbstractFriction
 from ._model.plant import PlantState, Trig, displacement, measure, plant_model, rest_state, trig_of
 from ._model.robot import MIT_MANUS, Robot, fk, ik, jacobian_from_trig
-from ._model.sensors import IDEAL, Sensors, quantise, sample_noise
+from ._model.sensors import FORCE_HISTORY, IDEAL, Sensors, delayed_force, quantise, sample_noise
 from ._model.timing import CONTROL_PERIOD
 from ._model.voluntary import VoluntaryForce, voluntary_init, voluntary_key, voluntary_normals, voluntary_update
 from ._pytree import params
@@ -119,6 +119,7 @@ def make_trial(
     check_choice("acquisition", acquisition, ACQUISITIONS)
     if not (isinstance(period, (int, float)) and not isinstance(period, bool) and period > 0):
         raise ValueError(f"make_trial: period must be a positive number of seconds, got {period!r}")
+    _check_calibration(sensors, acquisition, period)
     if voluntary is not None:
         _require("voluntary", voluntary, VoluntaryForce)
         if not voluntary.cutoff < 0.5 / period:
@@ -142,6 +143,22 @@ def make_trial(
     )
 
 
+def _check_calibration(sensors: Sensors, acquisition: str, period: float) -> None:
+    """The force channel's calibration needs the instant acquisition and a delay the delay line holds."""
+    if not sensors.calibrated:
+        return
+    if acquisition != "instant":
+        raise ValueError(
+            f"make_trial: the force channel's gain, offset and delay need acquisition 'instant', got {acquisition!r}"
+        )
+    longest = (FORCE_HISTORY - 1) * period
+    if is_concrete(sensors.force_delay) and not float(sensors.force_delay) < longest:
+        raise ValueError(
+            f"make_trial: Sensors force_delay must be below {longest:g} s ({FORCE_HISTORY - 1} periods), "
+            f"got {float(sensors.force_delay):g} s"
+        )
+
+
 def _kind_names(registry) -> str:
     """The registered kinds' class names (for a refusal)."""
     return ", ".join(sorted(registry.get(n).__name__ for n in registry.names()))
@@ -149,20 +166,24 @@ def _kind_names(registry) -> str:
 
 def _align_sensors(trials: list[Trial]) -> list[Trial]:
     """Give every trial the union of the batch's sensor flags (a level of 0 then adds zeros)."""
-    flags = [(t.sensors.force_on, t.sensors.encoder_on, t.sensors.velocity_on) for t in trials]
+    flags = [(t.sensors.force_on, t.sensors.encoder_on, t.sensors.velocity_on, t.sensors.calibrated) for t in trials]
     if len(set(flags)) == 1:
         return trials
     if len({f[1] for f in flags}) > 1:
         raise ValueError("stack_trials: trials with and without encoder quantisation cannot share a batch")
-    force_on, velocity_on = any(f[0] for f in flags), any(f[2] for f in flags)
+    force_on, velocity_on, calibrated = (any(f[i] for f in flags) for i in (0, 2, 3))
     out = []
     for t in trials:
         s = Sensors(
             t.sensors.force_noise,
             t.sensors.encoder_counts,
             t.sensors.velocity_noise,
+            t.sensors.force_gain,
+            t.sensors.force_offset,
+            t.sensors.force_delay,
             force_on=force_on,
             velocity_on=velocity_on,
+            calibrated=calibrated,
         )
         out.append(dataclasses.replace(t, sensors=s))
     return out
@@ -232,7 +253,9 @@ class SimCarry(NamedTuple):
     ``F_u,k-1`` and the true ``x_k-1``, ``xd_k-1`` (the acquisition's memory); the
     controller's memory; ``diverged_at`` (int32, -1 while the trial is sound) and ``k``,
     the next sample index; ``voluntary``, the person's force's memory (``VoluntaryState``;
-    ``None`` without one)."""
+    ``None`` without one); ``force_history`` ``(FORCE_HISTORY, 2)`` [N], the transducer's last
+    true samples, newest first (the force channel's delay line; ``None`` unless the sensors are
+    ``calibrated``)."""
 
     plant: PlantState
     fu_prev: jnp.ndarray
@@ -242,6 +265,7 @@ class SimCarry(NamedTuple):
     diverged_at: jnp.ndarray
     k: jnp.ndarray
     voluntary: Any = None
+    force_history: Any = None
 
 
 def _check_trial(trial, where):
@@ -262,6 +286,7 @@ def simulate_init(trial: Trial) -> SimCarry:
         jnp.asarray(-1, dtype=jnp.int32),
         jnp.asarray(0, dtype=jnp.int32),
         None if trial.voluntary is None else voluntary_init(trial.x0),
+        jnp.zeros((FORCE_HISTORY, 2), dtype=trial.x0.dtype) if trial.sensors.calibrated else None,
     )
 
 
@@ -342,11 +367,16 @@ def period_step(trial: Trial, model, numerics: Numerics, carry: SimCarry, fd, in
     x, xd, fh = jax.lax.optimization_barrier(measure(*jax.lax.optimization_barrier((state, applied)), model))
     if carry.voluntary is not None:
         fh = fh - carry.voluntary.force
+    history = None
     x_rec, fh_rec = _record(trial, state, x, xd, fh, carry)
     if not trial.sensors.ideal or inputs.encoder is not None:
         x_m, xd_m, fh_m = _sense(trial, model, state, x, xd, fh, inputs)
         if trial.acquisition == "instant":
             x_rec, fh_rec = x_m, fh_m
+            if trial.sensors.calibrated:  # the recorded force channel: gain, delay line, offset (model.md section 8)
+                history = jnp.concatenate([fh[None], carry.force_history[:-1]])
+                fh_rec = delayed_force(trial.sensors, history, period) + trial.sensors.force_offset
+                fh_rec = fh_rec + inputs.force if trial.sensors.force_on else fh_rec
         elif trial.sensors.force_on:
             fh_rec = fh_rec + inputs.force
     else:
@@ -370,11 +400,11 @@ def period_step(trial: Trial, model, numerics: Numerics, carry: SimCarry, fd, in
     )
     diverged_at = jnp.where((carry.diverged_at < 0) & ~(finite & in_range), k + 1, carry.diverged_at)
     frozen = diverged_at >= 0
-    new = (new_state, fu, x, xd, memory, voluntary)
-    old = (state, carry.fu_prev, carry.x_prev, carry.xd_prev, carry.memory, carry.voluntary)
+    new = (new_state, fu, x, xd, memory, voluntary, history)
+    old = (state, carry.fu_prev, carry.x_prev, carry.xd_prev, carry.memory, carry.voluntary, carry.force_history)
     keep = jax.tree.map(lambda n, o: jnp.where(frozen, o, n), new, old)
     out = (x_rec, xd_m, fh_rec, fu, jnp.stack([state.q1, state.q2]), jnp.stack([state.z1, state.z2]))
-    return SimCarry(*keep[:5], diverged_at, k + 1, keep[5]), out
+    return SimCarry(*keep[:5], diverged_at, k + 1, *keep[5:]), out
 
 
 def simulate_chunk(
@@ -394,6 +424,8 @@ def simulate_chunk(
         raise ValueError("simulate: the trial's voluntary force is random; pass key=jax.random.key(seed)")
     if (trial.voluntary is None) != (carry.voluntary is None):
         raise ValueError("simulate_chunk: the carry does not match the trial's voluntary force (use simulate_init)")
+    if trial.sensors.calibrated != (carry.force_history is not None):
+        raise ValueError("simulate_chunk: the carry does not match the trial's force channel (use simulate_init)")
     model = plant_model(trial.q0, trial.x0, trial.arm, trial.friction, trial.robot)
     stream = None if trial.voluntary is None else voluntary_key(key)
 

@@ -54,19 +54,35 @@ class LinearLoop(NamedTuple):
     above, inputs in the order of ``INPUTS`` (two each), outputs ``OUTPUTS``. ``noise_var``
     ``(8,)``: the per-sample variance of each noise input (``u[2:]``): ``sigma_F^2`` [N^2],
     ``sigma_v^2`` [rad^2/s^2], ``D^2 / 12`` [rad^2] (0 without encoders), 1 (0 without the
-    person's force)."""
+    person's force). ``rest`` ``(4,)``: the recorded outputs at rest where the recorded force
+    has an offset (calibrated sensors), else ``None`` (zero)."""
 
     a: jnp.ndarray
     b: jnp.ndarray
     c: jnp.ndarray
     d: jnp.ndarray
     noise_var: jnp.ndarray
+    rest: jnp.ndarray | None = None
 
 
 def without_friction(trial: Trial) -> Trial:
     """``trial`` without its Coulomb and Stribeck friction (the law's ``without_coulomb``: no
     bristles), its viscous friction kept (linear): the loop IMBIC promises to leave."""
     return replace_unchecked(trial, friction=trial.friction.without_coulomb())
+
+
+def _routed(sensors: Sensors) -> Sensors:
+    """The linearisation's sensors: every noise routed through an input, the force channel's
+    calibration (gain, delay line, offset) kept."""
+    if not sensors.calibrated:
+        return _ROUTED
+    return replace_unchecked(
+        _ROUTED,
+        force_gain=sensors.force_gain,
+        force_offset=sensors.force_offset,
+        force_delay=sensors.force_delay,
+        calibrated=True,
+    )
 
 
 def _noise_variances(trial: Trial):
@@ -135,30 +151,39 @@ def linearise(trial: Trial) -> LinearLoop:
     Single-trial and traceable: ``jax.vmap`` over stacked trials, ``jax.grad`` / ``jax.jacfwd``
     through any float of ``trial``.
     """
-    routed = replace_unchecked(without_friction(trial), sensors=_ROUTED)
+    routed = replace_unchecked(without_friction(trial), sensors=_routed(trial.sensors))
     model = plant_model(routed.q0, routed.x0, routed.arm, routed.friction, routed.robot)
     rest = simulate_init(routed)
     rest = rest._replace(k=jnp.asarray(1, dtype=jnp.int32))  # past the person's force's start
     exact = _ExactNumerics(_ExactPlant(rest.plant))
-    floats = (rest.plant, rest.fu_prev, rest.x_prev, rest.xd_prev, rest.memory, rest.voluntary)
+    floats = (rest.plant, rest.fu_prev, rest.x_prev, rest.xd_prev, rest.memory, rest.voluntary, rest.force_history)
     s0, unravel = ravel_pytree(floats)
     s0 = _drop_bristles(s0)
     with_voluntary = trial.voluntary is not None
 
     def period(s, u):
-        plant, fu_prev, x_prev, xd_prev, memory, voluntary = unravel(_with_bristles(s))
+        plant, fu_prev, x_prev, xd_prev, memory, voluntary, history = unravel(_with_bristles(s))
         carry = rest._replace(
-            plant=plant, fu_prev=fu_prev, x_prev=x_prev, xd_prev=xd_prev, memory=memory, voluntary=voluntary
+            plant=plant,
+            fu_prev=fu_prev,
+            x_prev=x_prev,
+            xd_prev=xd_prev,
+            memory=memory,
+            voluntary=voluntary,
+            force_history=history,
         )
         normals = jnp.concatenate([u[8:10][None], jnp.zeros((2, 2), u.dtype)]) if with_voluntary else None
         inputs = PeriodInputs(force=u[2:4], rate=u[4:6], voluntary=normals, encoder=u[6:8])
         new, out = period_step(routed, model, exact, carry, u[:2], inputs)
-        s_new, _ = ravel_pytree((new.plant, new.fu_prev, new.x_prev, new.xd_prev, new.memory, new.voluntary))
+        s_new, _ = ravel_pytree(
+            (new.plant, new.fu_prev, new.x_prev, new.xd_prev, new.memory, new.voluntary, new.force_history)
+        )
         return _drop_bristles(s_new), jnp.concatenate([out[0] - routed.x0, out[2]])
 
     u0 = jnp.zeros(2 * len(INPUTS), dtype=s0.dtype)
     (a, b), (c, d) = jax.jacfwd(period, argnums=(0, 1))(s0, u0)
-    return LinearLoop(a, b, c, d, _noise_variances(trial))
+    rest_out = period(s0, u0)[1] if trial.sensors.calibrated else None
+    return LinearLoop(a, b, c, d, _noise_variances(trial), rest_out)
 
 
 def respond(loop: LinearLoop, f):
@@ -169,7 +194,8 @@ def respond(loop: LinearLoop, f):
     def step(s, fk):
         return a @ s + b @ fk, c @ s + d @ fk
 
-    return jax.lax.scan(step, jnp.zeros(a.shape[0], dtype=a.dtype), f)[1]
+    y = jax.lax.scan(step, jnp.zeros(a.shape[0], dtype=a.dtype), f)[1]
+    return y if loop.rest is None else y + loop.rest[None, :]
 
 
 def spectral_radius(loop: LinearLoop) -> float:

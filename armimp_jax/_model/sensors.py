@@ -1,4 +1,5 @@
-"""Sensor models (docs/model.md section 8): force noise, encoder quantisation, velocity noise.
+"""Sensor models (docs/model.md section 8): force noise, encoder quantisation, velocity noise, and
+the force channel's calibration (gain, offset, delay).
 
 Every option is off by default, and a trial with all options off computes no noise at
 all, so its results are bitwise those of ideal sensors. The noise of sample ``k`` is drawn
@@ -27,7 +28,12 @@ def _active(x) -> bool:
     return not is_concrete(x) or bool(np.any(np.asarray(x) != 0.0))
 
 
-@params(static=("force_on", "encoder_on", "velocity_on"))
+# The recorded force channel's delay line: the transducer's last samples kept in the loop's
+# carry, so a delay up to (FORCE_HISTORY - 1) periods is read by linear interpolation.
+FORCE_HISTORY = 8
+
+
+@params(static=("force_on", "encoder_on", "velocity_on", "calibrated"))
 class Sensors:
     """Sensor imperfections (an immutable pytree).
 
@@ -39,18 +45,31 @@ class Sensors:
             the measured position and the Jacobian of the measured velocity use them.
         velocity_noise: standard deviation ``sigma_v`` [rad/s] of white Gaussian noise added
             to each joint rate before ``xd = J qd`` (scalar or ``(2,)``), ``>= 0``.
+        force_gain: the recorded force channel's gain per axis (scalar or ``(2,)``), ``> 0``:
+            the recording reads ``gain F_h(t - delay) + offset`` (plus the force noise).
+            Default 1. The calibration is the recording's: the controller's own force input is
+            taken as calibrated (a documented choice, docs/model.md section 8: a force delay
+            inside IMBIC's loop makes it unstable, 1 ms already).
+        force_offset: the recorded force's offset [N] per axis (scalar or ``(2,)``). Default 0.
+        force_delay: the recorded force's delay [s] behind the position channel, ``>= 0`` and
+            below ``(FORCE_HISTORY - 1)`` control periods (7 ms at 1 kHz); read by linear
+            interpolation between samples. Default 0.
 
-    The static flags ``force_on``, ``encoder_on``, ``velocity_on`` (derived, not
-    arguments) say which options the simulation computes; ``stack_trials`` aligns them
-    across a batch.
+    The static flags ``force_on``, ``encoder_on``, ``velocity_on`` and ``calibrated`` (any of
+    gain, offset and delay not at its default, or traced; derived, not arguments) say which
+    options the simulation computes; ``stack_trials`` aligns them across a batch.
     """
 
     force_noise: jnp.ndarray = 0.0
     encoder_counts: jnp.ndarray | None = None
     velocity_noise: jnp.ndarray = 0.0
+    force_gain: jnp.ndarray = 1.0
+    force_offset: jnp.ndarray = 0.0
+    force_delay: jnp.ndarray = 0.0
     force_on: bool = False
     encoder_on: bool = False
     velocity_on: bool = False
+    calibrated: bool = False
 
     def __post_init__(self):
         w = "Sensors"
@@ -72,13 +91,20 @@ class Sensors:
             counts = as_param("encoder_counts [counts/rev]", counts, (), where=w)
             counts = check_range("encoder_counts", counts, where=w, minimum=1.0, unit=" counts per revolution")
         set_(self, "encoder_counts", counts)
+        set_(self, "force_gain", as_param("force_gain", self.force_gain, (2,), where=w, broadcast=True))
+        set_(self, "force_gain", check_range("force_gain", self.force_gain, where=w, minimum=0.0, exclusive=True))
+        set_(self, "force_offset", as_param("force_offset [N]", self.force_offset, (2,), where=w, broadcast=True))
+        delay = check_range("force_delay", as_param("force_delay [s]", self.force_delay, (), where=w), where=w, minimum=0.0)
+        set_(self, "force_delay", delay)
+        calibration = (self.force_gain - 1.0, self.force_offset, self.force_delay)
+        set_(self, "calibrated", bool(self.calibrated) or any(_active(v) for v in calibration))
         set_(self, "force_on", bool(self.force_on) or _active(self.force_noise))
         set_(self, "velocity_on", bool(self.velocity_on) or _active(self.velocity_noise))
         set_(self, "encoder_on", counts is not None)
 
     @property
     def ideal(self) -> bool:
-        return not (self.force_on or self.encoder_on or self.velocity_on)
+        return not (self.force_on or self.encoder_on or self.velocity_on or self.calibrated)
 
 
 IDEAL = Sensors()
@@ -117,3 +143,13 @@ def quantise(q, sensors: Sensors):
     if not sensors.encoder_on:
         return q
     return _round_to(q, 2.0 * jnp.pi / sensors.encoder_counts)
+
+
+def delayed_force(sensors: Sensors, history, period: float):
+    """The transducer's reading ``gain F_h(t - delay)`` [N] ``(2,)`` from ``history``
+    ``(FORCE_HISTORY, 2)``, the true force's last samples, newest first: linear interpolation
+    between samples (weights ``max(0, 1 - |i - delay / period|)``, differentiable in the delay)."""
+    lag = sensors.force_delay / period
+    i = jnp.arange(FORCE_HISTORY, dtype=history.dtype)
+    w = jnp.maximum(0.0, 1.0 - jnp.abs(i - lag))
+    return sensors.force_gain * (w[:, None] * history).sum(axis=0)
