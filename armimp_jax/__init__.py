@@ -84,6 +84,7 @@ _EXPORTS = {
     "drift": "._identification.linear",
     "Identification": "._identification.identify",
     "identify": "._identification.identify",
+    "Recording": "._identification.pool",
     "IDENTIFY_NUMERICS": "._identification.indirect",
     "PredictedSE": "._identification.predict",
     "predict_se": "._identification.predict",
@@ -164,6 +165,7 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._identification.linear import drift as drift
     from ._identification.linear import linearise as linearise
     from ._identification.monte_carlo_design import Design as Design
+    from ._identification.pool import Recording as Recording
     from ._identification.predict import PredictedSE as PredictedSE
     from ._identification.predict import predict_se as predict_se
     from ._model.arm import Arm as Arm

@@ -152,11 +152,11 @@ def friction_statistics(trial, f, x, fh):
 
 def statistics(layout: Layout, trial, f, x, fh, arm_stat=None):
     """The statistics matched to ``layout``'s free parameters ``(m,)``, ``m >= layout.size``:
-    the arm's, in the order of ``p``: ``arm_stat`` applied to the recording (``efficient.py``:
-    one entry per internal parameter) or, when it is ``None``, for each free arm matrix its
-    four classical entries (three for a symmetric one: the mean of the off-diagonal pair);
-    then, when any friction parameter is free, every friction statistic of both joints
-    (``(2, 4)`` flattened)."""
+    the linearised loop's (the arm's, the robot's, the force channel's), in the order of ``p``:
+    ``arm_stat`` applied to the recording (``efficient.py``: one entry per internal
+    parameter) or, when it is ``None``, for each free arm matrix its four classical entries
+    (three for a symmetric one: the mean of the off-diagonal pair); then, when any friction
+    parameter is free, every friction statistic of both joints (``(2, 4)`` flattened)."""
     parts = []
     if arm_stat is not None:
         parts.append(efficient.apply(arm_stat, trial, x, fh))
@@ -166,17 +166,27 @@ def statistics(layout: Layout, trial, f, x, fh, arm_stat=None):
             if name in ARM_PARAMETERS:
                 a = arm[name]
                 parts.append(jnp.stack([a[0, 0], 0.5 * (a[0, 1] + a[1, 0]), a[1, 1]]) if sym else a.reshape(-1))
-    if any(n not in ARM_PARAMETERS for n in layout.names):
+    if layout.friction_names():
         parts.append(friction_statistics(trial, f, x, fh).reshape(-1))
     return jnp.concatenate(parts)
 
 
-def statistic_labels(layout: Layout) -> list[str]:
-    """Names of ``statistics``' entries (``"arm.mass[0,1]"``, ``"friction coulomb[1]"``)."""
+def _internal_labels(layout: Layout) -> list[str]:
+    """Names of the internal entries of a layout of the linearised loop's parameters (a symmetric
+    matrix's three)."""
     out = []
     for name, sym in zip(layout.names, layout.symmetric, strict=True):
-        if name in ARM_PARAMETERS:
-            out += [f"{name}[{k}]" for k in (("0,0", "0,1", "1,1") if sym else ("0,0", "0,1", "1,0", "1,1"))]
-    if any(n not in ARM_PARAMETERS for n in layout.names):
+        if sym:
+            out += [f"{name}[{k}]" for k in ("0,0", "0,1", "1,1")]
+        else:
+            out += Layout((name,), (False,)).labels()
+    return out
+
+
+def statistic_labels(layout: Layout) -> list[str]:
+    """Names of ``statistics``' entries (``"arm.mass[0,1]"``, ``"friction coulomb[1]"``)."""
+    linear = layout.linear()
+    out = [] if linear is None else _internal_labels(linear)
+    if layout.friction_names():
         out += [f"friction {s}[{j}]" for j in range(2) for s in FRICTION_STATISTICS]
     return out

@@ -43,6 +43,9 @@ SPECTRUM_NPERSEG = 1024  # Welch segments of the innovations' excess spectrum (~
 FIT_STEPS = 30  # Gauss-Newton steps of fit_linear at most
 FIT_TOLERANCE = 0.01  # fit_linear stops when a step moves every parameter by less than this many SEs
 HALVINGS = 8
+# Eigenvalues of the unit-diagonal information below this fraction of the largest are directions
+# a recording does not tell (pseudo-inverse, where the calibration is free).
+CONFOUNDED_RTOL = 1e-8
 
 
 class Efficient(NamedTuple):
@@ -105,7 +108,23 @@ def efficient_statistic(layout: lay.Layout, trial, p_ref, f, weight=None) -> Eff
     de = kalman.whiten(filt, dy)
     h = _gram(filt, de, de, weight)
     gamma = kalman.whiten_transpose(filt, _cotangent(filt, de, weight))  # (N, 4, n): the score's weights
-    return Efficient(p_ref, y_ref, jnp.einsum("tjn,nm->tjm", gamma, jnp.linalg.inv(h)), h)
+    return Efficient(p_ref, y_ref, jnp.einsum("tjn,nm->tjm", gamma, _inverse(layout, h)), h)
+
+
+def _confounded(layout) -> bool:
+    """Whether the layout frees the robot's or the force channel's calibration, which one
+    recording may not tell apart from the arm (the robot's inertia and the arm's mass add)."""
+    return any(n not in lay.ARM_PARAMETERS for n in layout.names)
+
+
+def _inverse(layout, h):
+    """``H^-1``; where the calibration is free, the pseudo-inverse of ``H`` scaled to a unit
+    diagonal: directions one recording cannot tell apart leave its statistic where it is (the
+    other recordings of a pooled identification tell them)."""
+    if not _confounded(layout):
+        return jnp.linalg.inv(h)
+    d = 1.0 / jnp.sqrt(jnp.diag(h))
+    return d[:, None] * jnp.linalg.pinv(d[:, None] * h * d[None, :], rtol=CONFOUNDED_RTOL) * d[None, :]
 
 
 def _response(layout, trial, p, f):
@@ -122,8 +141,13 @@ def _fit_step(layout, trial, p, f, y, filt, weight):
     y_lin, dy = _response(layout, trial, p, f)
     e, de = kalman.whiten(filt, y - y_lin)[:, :, None], kalman.whiten(filt, dy)
     h = _gram(filt, de, de, weight)
-    step = jnp.linalg.solve(h, _gram(filt, de, e, weight)[:, 0])
-    return step, _gram(filt, e, e, weight)[0, 0], jnp.sqrt(jnp.diag(jnp.linalg.inv(h)))
+    h_inv = _inverse(layout, h)
+    step = (
+        h_inv @ _gram(filt, de, e, weight)[:, 0]
+        if _confounded(layout)
+        else jnp.linalg.solve(h, _gram(filt, de, e, weight)[:, 0])
+    )
+    return step, _gram(filt, e, e, weight)[0, 0], jnp.sqrt(jnp.diag(h_inv))
 
 
 @functools.partial(jax.jit, static_argnames="layout")

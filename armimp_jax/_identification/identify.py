@@ -14,6 +14,10 @@ out (friction, sampling, the robot's kinematics). ``statistic="welch"`` is the c
 Welch fit instead (1 Hz bins: blind at the low frequencies where stiffness shows). For the
 friction, a regression of the joint torques.
 
+Several recordings (``Recording``: postures, trials, the robot alone) are identified in one
+call (``pool.py``): shared parameters (the robot's friction, inertia, force channel) once,
+the arm once per group (posture), with one joint covariance.
+
 Why match statistics and not fit the signals: with the person's own force and the sensors'
 noise fed back through a loop with friction, the noise-free simulation is not the mean of
 the noisy loop, and an output-error fit's 95% intervals covered the truth 42-74% of the time
@@ -31,118 +35,30 @@ lab's terms (``diagnosis.py``: joints that stood still), fit quality and the cla
 
 from __future__ import annotations
 
-import dataclasses
 import functools
+import sys
 import time
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.stats
 
 from .._checks import as_float64, check_int, require_x64
-from .._estimation.estimate import estimate
-from .._estimation.fit import ImpedanceFit, fit_impedance
 from .._estimation.welch import check_finite
 from .._simulate import Trial
 from .._solver.numerics import Numerics
 from . import efficient, indirect, search
 from . import layout as lay
+from . import pool as pl
 from .auxiliary import check_statistic_record, statistic_labels, statistics
 from .bound import has_friction, is_near_linear
-from .diagnosis import motion_diagnosis
-from .indirect import predict
+from .pool import Recording
 from .predict import check_sampling
+from .result import Identification, assemble, predict_jit
 
-# An entry whose SE exceeds this multiple of its parameter's scale is reported as barely identifiable.
-WEAK_RELATIVE_SE = 1.0
-WHITENESS_LAGS = 20  # Ljung-Box lags of the residual
 MIN_SAMPLES = 1000
 CHANNELS = ("x1", "x2", "fh1", "fh2")
-
-
-@dataclasses.dataclass(frozen=True)
-class Identification:
-    """The result of ``identify`` (host values).
-
-    Attributes:
-        values: ``{name: array}`` the estimates, in each parameter's units and shape
-            (``(2, 2)`` arm matrices indexed ``[output, input]``, ``(2,)`` friction per joint).
-        se: ``{name: array}`` their standard errors, same units and shapes.
-        covariance: ``(n, n)`` covariance of every entry, in the order of ``labels``.
-        labels: names of the entries, e.g. ``"arm.mass[0,1]"``.
-        converged: whether the search settled (``message`` says why not).
-        intervals_reliable: converged and nothing in ``warnings`` but the ``not_told`` note
-            (whose intervals are the ranges those entries were allowed).
-        warnings: plain sentences on what not to trust.
-        not_told: ``{label: (low, high)}``, entries of friction parameters the recording barely
-            tells, with the range they were allowed (the nuisance prior's 95% range, within the
-            parameter's physical range); ``interval`` gives that range for them.
-        statistic: the arm's statistic, ``"efficient"`` or ``"welch"``.
-        cost: ``(b - beta(p))^T W (b - beta(p)) / 2`` at the estimate (``W``: each statistic in
-            units of its spread over the draws).
-        iterations: Gauss-Newton steps taken.
-        history: per step, ``cost`` (as ``cost``) before it and ``step_se``, its largest move
-            in standard errors (``refused``: no fraction of it lowered the mismatch, so the slope
-            was recomputed instead).
-        draws: noise draws ``R`` behind the binding and the covariance.
-        statistics: ``{label: value}`` the recording's statistics, by ``statistic_labels``.
-        vaf_position, vaf_force: ``(2,)`` variance of the recorded ``x`` and ``F_h`` accounted
-            for by the fitted model's noise-free simulation [%], per axis.
-        whiteness_p: ``(4,)`` Ljung-Box p-values of that simulation's residual (x1, x2, fh1,
-            fh2; ``WHITENESS_LAGS`` lags): small when the noise is coloured, as it is in a
-            loop; a fit-quality figure, not a test of the intervals.
-        stuck_fraction: ``(2,)`` share of the record each joint stood still (``diagnosis.py``).
-        classical: the Welch FRF + ``fit_impedance`` answer from the same recording
-            (``None`` when the record is too short for two Welch segments).
-        trial: the model with the estimates in place.
-        time_s: wall time of the call [s]; forward_s: one noise-free simulation of the
-            record, timed in the call [s] (the unit of ``time_s / forward_s``).
-    """
-
-    values: dict
-    se: dict
-    covariance: np.ndarray
-    labels: list
-    converged: bool
-    message: str
-    intervals_reliable: bool
-    warnings: list
-    not_told: dict
-    statistic: str
-    cost: float
-    iterations: int
-    history: list
-    draws: int
-    statistics: dict
-    vaf_position: np.ndarray
-    vaf_force: np.ndarray
-    whiteness_p: np.ndarray
-    stuck_fraction: np.ndarray
-    classical: ImpedanceFit | None
-    trial: Trial
-    time_s: float
-    forward_s: float
-
-    def interval(self, name: str, level: float = 0.95):
-        """Two-sided normal ``level`` interval ``(low, high)`` of parameter ``name`` (for an entry
-        in ``not_told``, the range it was allowed)."""
-        z = scipy.stats.norm.ppf(0.5 + level / 2)
-        low, high = self.values[name] - z * self.se[name], self.values[name] + z * self.se[name]
-        for label, (lo, hi) in self.not_told.items():
-            if label.startswith(name + "["):
-                index = tuple(int(i) for i in label[len(name) + 1 : -1].split(","))
-                low[index], high[index] = lo, hi
-        return low, high
-
-    def summary(self) -> str:
-        """A few lines: convergence, warnings, then each parameter as value +- SE."""
-        lines = [("converged" if self.converged else "NOT CONVERGED: " + self.message)]
-        lines += ["WARNING: " + w for w in self.warnings]
-        for name in self.values:
-            v, s = np.asarray(self.values[name]), np.asarray(self.se[name])
-            lines.append(f"{name}: {np.array2string(v, precision=4)} +- {np.array2string(s, precision=4)}")
-        return "\n".join(lines)
 
 
 def check_recording(f, x, fh, where: str):
@@ -168,59 +84,78 @@ def _statistics(layout, model, f, x, fh, arm_stat):
     return statistics(layout, model, f, x, fh, arm_stat)
 
 
-@functools.partial(jax.jit, static_argnames=("layout", "numerics"))
-def _predict(layout, model, p, f, numerics):
-    return predict(layout, model, p, f, numerics)
+def _recordings(model, f, x, fh) -> list[Recording]:
+    """The recordings of the call (one ``Trial`` with its arrays, or a list of ``Recording``),
+    their arrays checked (one-line errors naming the recording)."""
+    if isinstance(model, Trial):
+        return [Recording(model, *check_recording(f, x, fh, "identify"))]
+    items = list(model) if isinstance(model, (list, tuple)) else None
+    if not items or not all(isinstance(r, Recording) for r in items):
+        raise ValueError(
+            f"identify: model must be a Trial (from make_trial) or a list of Recording, got {type(model).__name__}"
+        )
+    if not (f is None and x is None and fh is None):
+        raise ValueError("identify: with a list of Recording, give f, x and fh in each Recording, not beside it")
+    out = []
+    for i, r in enumerate(items):
+        if not isinstance(r.model, Trial):
+            raise ValueError(f"identify: recording {i + 1}'s model must be a Trial, got {type(r.model).__name__}")
+        out.append(r._replace(f=None, x=None, fh=None)._replace(**_arrays(r, f"identify: recording {i + 1}")))
+    if len({type(r.model.friction) for r in out}) > 1:
+        raise ValueError("identify: every recording's robot must have the same kind of friction law (one robot)")
+    if len({r.model.noisy for r in out}) > 1:
+        raise ValueError("identify: every recording's model must have noise (Sensors, VoluntaryForce), or none")
+    return out
 
 
-def _ljung_box_p(e, lags: int):
-    e = e - e.mean(axis=0)
-    n = e.shape[0]
-    denom = np.sum(e * e, axis=0)
-    q = np.zeros(e.shape[1])
-    for k in range(1, lags + 1):
-        rho = np.sum(e[k:] * e[:-k], axis=0) / denom
-        q += rho**2 / (n - k)
-    return scipy.stats.chi2.sf(n * (n + 2) * q, lags)
+def _arrays(r: Recording, where: str) -> dict:
+    f, x, fh = check_recording(r.f, r.x, r.fh, where)
+    return dict(f=f, x=x, fh=fh)
 
 
-def _classical(f, x, fh, acquisition, period):
-    try:
-        est = estimate(f, x, fh, fs=1.0 / period)  # segments that follow the record (welch_segments)
-    except ValueError:
-        return None
-    return fit_impedance(est, acquisition=acquisition, period=period, se="spectral")
-
-
-def _check(model, f, x, fh, free, symmetric, statistic, numerics, draws, jacobian_draws, max_steps):
+def _check(recordings, free, symmetric, shared, statistic, numerics, draws, jacobian_draws, max_steps):
     """Every one-line refusal before long work; the checked values."""
-    if not isinstance(model, Trial):
-        raise ValueError(f"identify: model must be a Trial (from make_trial), got {type(model).__name__}")
-    layout = lay.make_layout(free, symmetric, friction=model.friction)
-    f, x, fh = check_recording(f, x, fh, "identify")
-    check_statistic_record(f.shape[0], model.period, "identify")
+    friction = recordings[0].model.friction
+    layout = lay.make_layout(free, symmetric, friction=friction)
+    for i, r in enumerate(recordings):
+        where = "identify" if len(recordings) == 1 else f"identify: recording {i + 1}"
+        check_statistic_record(r.f.shape[0], r.model.period, where)
+        for name, arr in (("x", r.x), ("fh", r.fh)):
+            flat = [f"{name}[:, {j}]" for j in range(2) if not float(jnp.std(arr[:, j])) > 0]
+            if flat and not (name == "fh" and pl.robot_alone(r.model)):
+                raise ValueError(f"{where}: the recorded channel(s) {flat} are constant; nothing to fit")
+        if any(n.startswith("sensors.") for n in layout.names) and r.model.acquisition != "instant":
+            raise ValueError(f"{where}: the force channel's calibration needs acquisition 'instant'")
     numerics, draws, jacobian_draws = check_sampling("identify", statistic, numerics, draws, jacobian_draws)
+    calibration = [n for n in layout.names if n in lay.LINEAR and n not in lay.ARM_PARAMETERS]
+    if calibration and statistic == "welch":
+        raise ValueError(f"identify: {', '.join(calibration)} need the efficient statistic; use statistic='auto'")
+    shared = tuple(n for n in layout.names if n not in lay.ARM_PARAMETERS) if shared is None else tuple(shared)
+    unknown = [n for n in shared if n not in layout.names]
+    if unknown:
+        raise ValueError(f"identify: shared names {unknown}, which are not free; free: {list(layout.names)}")
     max_steps = check_int("max_steps", max_steps, minimum=1)
-    for name, arr in (("x", x), ("fh", fh)):
-        flat = [f"{name}[:, {i}]" for i in range(2) if not float(jnp.std(arr[:, i])) > 0]
-        if flat:
-            raise ValueError(f"identify: the recorded channel(s) {flat} are constant; nothing to fit")
-    return layout, f, x, fh, numerics, draws, jacobian_draws, max_steps
+    return layout, shared, numerics, draws, jacobian_draws, max_steps
 
 
 def _arm_statistic(layout, model, p, f, x, fh, statistic, numerics, keys):
-    """The arm's statistic (``None``: Welch), the search's start and the statistic's name.
+    """The statistic of the linearised loop's parameters (the arm's, the robot's, the force
+    channel's; ``None``: Welch), its centre (``None`` for Welch) and its name.
 
     ``auto`` takes the efficient statistic unless the model's loop is far from linear
-    (``bound.is_near_linear``: stick-slip), where the Welch fit is the safer. The efficient
-    statistic is centred where the recording puts the arm through the linear loop
-    (``efficient.fit_linear``), and the search starts there, unless the model diverges there:
-    then at the model's start. Under friction the innovations are weighed by their spread in
+    (``bound.is_near_linear``: stick-slip), where the Welch fit is the safer for the arm (the
+    calibration's parameters always take the efficient one). The efficient statistic is
+    centred where the recording puts the parameters through the linear loop
+    (``efficient.fit_linear``). Under friction the innovations are weighed by their spread in
     recordings simulated at the model's start (``efficient.excess_weight``)."""
     arm = indirect.arm_layout(layout)
-    if arm is None or statistic == "welch" or (statistic == "auto" and not is_near_linear(model, f, numerics)):
-        return None, p, "welch"
-    idx = indirect.arm_index(layout)
+    calibration = arm is not None and any(n not in lay.ARM_PARAMETERS for n in arm.names)
+    if (
+        arm is None
+        or statistic == "welch"
+        or (statistic == "auto" and not calibration and not is_near_linear(model, f, numerics))
+    ):
+        return None, None, "welch"
     weight = None
     if has_friction(model) and model.noisy:
         # friction's effect is no part of the linear loop: weigh the innovations by their spread
@@ -232,106 +167,194 @@ def _arm_statistic(layout, model, p, f, x, fh, statistic, numerics, keys):
         weight = jax.block_until_ready(weight)
         if not np.all(np.isfinite(np.asarray(weight))):
             raise ValueError("identify: noisy simulations of the model diverge at the start; choose another start")
-    ref, _ = efficient.fit_linear(arm, model, p[idx], f, efficient.recorded(model, x, fh), weight)
+    # The centre moves the arm alone, or the calibration where the robot is alone: a frictionless
+    # linear fit of both to one recording with friction was seen to run far off.
+    names = lay.ARM_PARAMETERS if not pl.robot_alone(model) else tuple(n for n in arm.names)
+    own = layout.index(names)
     centred = p.copy()
-    centred[idx] = ref
-    start = centred if not bool(_predict(layout, model, jnp.asarray(centred), f, numerics)[1]) else p
+    if own.size:
+        at = lay.with_values(layout, model, jnp.asarray(p))
+        only = lay.Layout(*zip(*[(n, s) for n, s in zip(arm.names, arm.symmetric, strict=True) if n in names]))
+        ref, converged = efficient.fit_linear(only, at, p[own], f, efficient.recorded(model, x, fh), weight)
+        if converged or not calibration:  # a fit that did not settle beside a calibration: keep the start
+            centred[own] = ref
     stat = indirect.arm_statistic(layout, model, jnp.asarray(centred), f, weight)
-    return jax.block_until_ready(stat), start, "efficient"
+    return jax.block_until_ready(stat), centred, "efficient"
 
 
 def identify(
-    model: Trial,
-    f,
-    x,
-    fh,
+    model,
+    f=None,
+    x=None,
+    fh=None,
     *,
     free,
     symmetric=(),
+    shared=None,
     statistic: str = "auto",
     numerics: Numerics | None = None,
     key=None,
     draws: int = 64,
     jacobian_draws: int = 8,
     max_steps: int = 20,
+    progress: Callable[[dict], None] | bool | None = None,
 ) -> Identification:
-    """Estimate parameters of ``model`` from a recording, through the closed-loop simulation.
+    """Estimate parameters from one recording, or several, through the closed-loop simulation.
 
     Args:
         model: a ``Trial`` holding every fixed setting (robot, controller, acquisition,
             sensors' and voluntary force's noise levels, which the intervals rest on) and the
-            starting values of the free parameters.
+            starting values of the free parameters; or a list of ``Recording`` (each its own
+            ``Trial``, perturbation and recording, of any length; ``f``, ``x``, ``fh`` then
+            ``None``): postures, repeated trials, the robot alone (``aj.no_arm``).
         f: the commanded perturbation ``F_Delta`` ``(N, 2)`` [N].
         x, fh: the recorded hand position [m] and force [N], ``(N, 2)`` each.
         free: names of the parameters to estimate, from ``"arm.mass"``, ``"arm.damping"``,
-            ``"arm.stiffness"`` (full 2x2) and the friction law's ``IDENTIFIABLE`` ones as
-            ``"friction.<name>"`` (per joint): LuGre's ``tau_c``, ``tau_s``, ``sigma0``,
-            ``sigma1``, ``sigma2``; CoulombViscous's ``tau_c``, ``viscous``.
+            ``"arm.stiffness"`` (full 2x2), the friction law's ``IDENTIFIABLE`` ones as
+            ``"friction.<name>"`` (per joint: LuGre's ``tau_c``, ``tau_s``, ``sigma0``,
+            ``sigma1``, ``sigma2``; CoulombViscous's ``tau_c``, ``viscous``), the robot's link
+            inertias ``"robot.inertia"`` (``(c1, c2, c3)`` [kg m^2]) and the recorded force
+            channel's ``"sensors.force_gain"``, ``"sensors.force_offset"`` [N] and
+            ``"sensors.force_delay"`` [s] (``Sensors``).
         symmetric: free arm matrices to constrain symmetric (3 numbers instead of 4).
-        statistic: the arm's statistic: ``"efficient"`` (module docstring), ``"welch"``, or
-            ``"auto"`` (default: efficient unless the model's loop is far from linear).
+        shared: the free names one value serves for every recording; the others take one
+            value per group of recordings (``Recording.group``). Default: every name but the
+            arm's (one robot, its friction and force channel; an arm per posture).
+        statistic: the statistic of the arm (and of the calibration's parameters):
+            ``"efficient"`` (module docstring), ``"welch"``, or ``"auto"`` (default: efficient
+            unless a loop is far from linear).
         numerics: integration settings (default ``IDENTIFY_NUMERICS``, ``GradedARK4`` at 4
             substeps: converged at every friction in [0, 4] N m).
         key: ``jax.random`` key of the simulated noise draws (default ``key(0)``: the result
-            is deterministic).
+            is deterministic); each recording draws on a stream of its own.
         draws: noise draws ``R`` behind the binding and the covariance (>= 8; rounded up to
             a multiple of the local devices). The SEs carry a Monte Carlo error of about
             ``1 / sqrt(2 R)``; the estimate's variance grows by ``1 / R``.
         jacobian_draws: draws averaged in the Jacobian ``A`` (1 to ``draws``).
         max_steps: Gauss-Newton steps at most.
+        progress: a function called after each step with ``{"step", "cost", "step_se",
+            "seconds"}``, or ``True`` for one line per step on stderr.
 
     Returns an ``Identification``. Raises a one-line ``ValueError`` before any long
-    computation for an unknown parameter, NaN or inf in the recording, mismatched
-    lengths, or a start at which the model diverges. A fit that does not converge is
+    computation for an unknown parameter, NaN or inf in a recording, mismatched
+    lengths, or a start at which a model diverges. A fit that does not converge is
     returned with ``converged=False`` and the reason in ``message``.
     """
     require_x64("identify")
     t_start = time.perf_counter()
-    checked = _check(model, f, x, fh, free, symmetric, statistic, numerics, draws, jacobian_draws, max_steps)
-    layout, f, x, fh, numerics, draws, jacobian_draws, max_steps = checked
+    recordings = _recordings(model, f, x, fh)
+    checked = _check(recordings, free, symmetric, shared, statistic, numerics, draws, jacobian_draws, max_steps)
+    layout, shared, numerics, draws, jacobian_draws, max_steps = checked
+    pool = pl.make_pool(recordings, layout.names, tuple(n for n, s in zip(layout.names, layout.symmetric) if s), shared)
     key = jax.random.key(0) if key is None else key
-    p, forward_s = _checked_start(layout, model, f, numerics)
-    n_draws, n_jac = indirect.draw_counts(model, draws, jacobian_draws)
-    keys = jax.random.split(key, n_draws)
-    arm_stat, start, statistic = _arm_statistic(layout, model, p, f, x, fh, statistic, numerics, keys)
-    problem = _problem(layout, model, f, x, fh, numerics, keys, n_jac, arm_stat)
+    p = pl.pack(pool)
+    n_draws, n_jac = indirect.draw_counts(recordings[0].model, draws, jacobian_draws)
+    parts, centred, names, forward_s = [], p.copy(), [], []
+    groups = pl.templates(recordings, pool.groups)
+    for t, members in enumerate(groups):
+        r = members[0]  # the template's first recording centres its statistic
+        rec, rlayout, index = recordings[r], pool.layouts[r], pool.indices[r]
+        keys = jax.random.split(key if t == 0 else jax.random.fold_in(key, t), n_draws)
+        forward_s.append(_checked_start(rlayout, rec.model, p[index], rec.f, numerics))
+        stat, at, name = _arm_statistic(rlayout, rec.model, p[index], rec.f, rec.x, rec.fh, statistic, numerics, keys)
+        if at is not None:  # a group's first recording centres its arm, the first robot alone the calibration
+            own = indirect.arm_index(rlayout) if len(recordings) == 1 else _own(rlayout, pool, r, recordings)
+            unset = centred[index[own]] == p[index[own]]
+            centred[index[own]] = np.where(unset, at[own], centred[index[own]])
+        parts.append(search.Part(rlayout, rec.model, rec.f, keys, stat, index, len(members)))
+        names.append(name)
+    start = centred if not _diverges(parts, centred, numerics) else p
+    problem = _problem(parts, groups, recordings, pool, p, numerics, n_jac)
     state = _init(problem, start, p)
+    report = _reporter(progress, t_start)
     while not state.done:
         state = search.step(problem, state, max_steps)
-    return _assemble(problem, state, f, x, fh, statistic, t_start, forward_s)
+        report(state)
+    statistic = ", ".join(dict.fromkeys(names))
+    part_of = {r: t for t, members in enumerate(groups) for r in members}
+    recorded = [(part_of[i], r.x, r.fh) for i, r in enumerate(recordings)]
+    return assemble(problem, state, pool, recorded, statistic, t_start, forward_s[0])
 
 
-def _checked_start(layout, model, f, numerics):
-    """The packed start ``p``, and the wall time [s] of one noise-free simulation there; a
-    one-line error if the model diverges at the start."""
-    p = np.asarray(lay.pack(layout, model))
-    _, diverged = _predict(layout, model, jnp.asarray(p), f, numerics)
+def _own(layout: lay.Layout, pool: pl.Pool, r: int, recordings) -> np.ndarray:
+    """Positions in recording ``r``'s ``p`` of what its centre sets in a pooled start: its group's
+    arm if it is the group's first; the calibration if the robot is alone."""
+    if pl.robot_alone(recordings[r].model):
+        return layout.index(tuple(n for n in layout.names if n in lay.LINEAR))
+    if pool.groups.index(pool.groups[r]) != r:
+        return np.zeros(0, dtype=int)
+    return layout.index(lay.ARM_PARAMETERS)
+
+
+def _diverges(parts, p, numerics) -> bool:
+    """Whether a noise-free simulation of any recording diverges at ``p``."""
+    return any(bool(predict_jit(pt.layout, pt.model, jnp.asarray(p[pt.index]), pt.f, numerics)[1]) for pt in parts)
+
+
+def _reporter(progress, t_start):
+    """``report(state)`` after each step: ``progress``'s function, a line on stderr, or nothing."""
+    if not progress:
+        return lambda state: None
+    if progress is True:
+
+        def progress(info):
+            sys.stderr.write(
+                f"identify: step {info['step']}, mismatch {info['cost']:.4g}, largest move {info['step_se']:.3g} SE, "
+                f"{info['seconds']:.0f} s\n"
+            )
+            sys.stderr.flush()
+
+    def report(state):
+        if state.history:
+            last = state.history[-1]
+            info = dict(step=len(state.history), cost=last["cost"], step_se=last["step_se"])
+            progress(info | dict(seconds=time.perf_counter() - t_start))
+
+    return report
+
+
+def _checked_start(layout, model, p, f, numerics) -> float:
+    """The wall time [s] of one noise-free simulation at the start ``p``; a one-line error if
+    the model diverges there."""
+    _, diverged = predict_jit(layout, model, jnp.asarray(p), f, numerics)
     if bool(diverged):
         start = {n: np.asarray(v).tolist() for n, v in lay.split(layout, jnp.asarray(p), model).items()}
         raise ValueError(f"identify: the model diverges at the starting values {start}; choose another start")
     t0 = time.perf_counter()
-    jax.block_until_ready(_predict(layout, model, jnp.asarray(p), f, numerics))
-    return p, time.perf_counter() - t0
+    jax.block_until_ready(predict_jit(layout, model, jnp.asarray(p), f, numerics))
+    return time.perf_counter() - t0
 
 
-def _problem(layout, model, f, x, fh, numerics, keys, n_jac, arm_stat) -> search.Problem:
-    """What the search holds fixed: the recording's statistics, the nuisance prior and the
-    slack; a one-line error for statistics the recording leaves undefined."""
-    b = np.asarray(_statistics(layout, model, f, x, fh, arm_stat))
-    if not np.all(np.isfinite(b)):
-        bad = [lab for lab, v in zip(statistic_labels(layout), b, strict=True) if not np.isfinite(v)]
-        raise ValueError(
-            f"identify: the recording's statistics {', '.join(bad)} are not finite (a joint that never moves "
-            "leaves its friction unmeasured); free fewer friction parameters or record with more motion"
-        )
-    noisy, packed = model.noisy, np.asarray(lay.pack(layout, model))
-    # the nuisance prior: friction parameters of a noisy model (without noise there is no spread to weigh it by)
-    prior_index = np.setdiff1d(np.arange(packed.size), indirect.arm_index(layout)) if noisy else np.zeros(0, dtype=int)
-    prior_mean = packed[prior_index]
-    slack = b.size / keys.shape[0] if noisy else 1e-24 * (1.0 + float(b @ b))  # the binding's own MC jitter
+def _problem(parts, groups, recordings, pool: pl.Pool, p0, numerics, n_jac) -> search.Problem:
+    """What the search holds fixed: the recordings' statistics (the mean over a template's
+    recordings), the nuisance prior and the slack; a one-line error for statistics a recording
+    leaves undefined."""
+    bs = []
+    for part, members in zip(parts, groups, strict=True):
+        b = []
+        for i in members:
+            rec = recordings[i]
+            b.append(np.asarray(_statistics(part.layout, part.model, rec.f, rec.x, rec.fh, part.arm_stat)))
+            if not np.all(np.isfinite(b[-1])):
+                bad = [lab for lab, v in zip(statistic_labels(part.layout), b[-1], strict=True) if not np.isfinite(v)]
+                which = "" if len(recordings) == 1 else f" (recording {i + 1})"
+                raise ValueError(
+                    f"identify: the recording's statistics {', '.join(bad)}{which} are not finite (a joint that never "
+                    "moves leaves its friction unmeasured); free fewer friction parameters or record with more motion"
+                )
+        bs.append(b[0] if len(b) == 1 else np.mean(b, axis=0))
+    b = np.concatenate(bs)
+    noisy = recordings[0].model.noisy
+    # the nuisance prior: every parameter but the arm's, of a noisy model (without noise there is
+    # no spread to weigh it by)
+    arm = np.concatenate([blk.slice.start + blk.layout.index(lay.ARM_PARAMETERS) for blk in pool.blocks])
+    prior_index = np.setdiff1d(np.arange(p0.size), arm) if noisy else np.zeros(0, dtype=int)
+    prior_mean = p0[prior_index]
+    n_draws = parts[0].keys.shape[0]
+    slack = b.size / n_draws if noisy else 1e-24 * (1.0 + float(b @ b))  # the binding's own MC jitter
     statistics_and_prior = np.concatenate([b, prior_mean])
     return search.Problem(
-        layout, model, f, numerics, keys, n_jac, noisy, statistics_and_prior, arm_stat, prior_index, prior_mean, slack
+        tuple(parts), numerics, n_jac, noisy, statistics_and_prior, prior_index, prior_mean, slack, p0.size
     )
 
 
@@ -344,117 +367,3 @@ def _init(problem: search.Problem, start, given) -> search.Search:
         if start is given:
             raise
         return search.init(problem, given)
-
-
-def _warnings(problem: search.Problem, p, labels, values, se, cov_p) -> tuple[list, dict]:
-    """Plain warnings, and the friction entries the recording does not tell."""
-    layout, warnings = problem.layout, []
-    if not problem.noisy:
-        warnings.append(
-            "the model has no noise (ideal sensors, no voluntary force): the standard errors are zero; give the "
-            "model the recording's noise (Sensors, VoluntaryForce) for intervals"
-        )
-        return warnings, {}
-    not_told = {}
-    se_internal = np.sqrt(np.maximum(np.diag(cov_p), 0.0))
-    nat_index = _natural_of_internal(layout)
-    for k, mean in zip(problem.prior_index, problem.prior_mean, strict=True):
-        if se_internal[k] > 0.5 * search.PRIOR_SD:
-            ends = []
-            for end in (-1.96, 1.96):  # the prior's 95% range, through the parameter's own map
-                q = np.array(p, dtype=float)
-                q[k] = mean + end * search.PRIOR_SD
-                ends.append(np.asarray(lay.natural_with_jacobian(layout, jnp.asarray(q), problem.model)[0]))
-            for j in nat_index[k]:
-                low, high = sorted((float(ends[0][j]), float(ends[1][j])))
-                not_told[labels[j]] = (low, high)
-    if not_told:
-        told = ", ".join(f"{lab} (allowed {lo:.3g} to {hi:.3g})" for lab, (lo, hi) in not_told.items())
-        warnings.append(
-            f"the recording barely tells {told}: their intervals are the ranges they were allowed about the "
-            "start, and the arm's intervals carry that uncertainty"
-        )
-    # an arm entry is weak when its SE exceeds its matrix's largest entry (an off-diagonal entry
-    # near zero is not weak for being small)
-    weak = []
-    for name, v in lay.unflatten(layout, values).items():
-        if name not in lay.ARM_PARAMETERS:
-            continue
-        scale = np.abs(v).max()
-        s = lay.unflatten(layout, se)[name]
-        weak += [
-            f"{name}[{i},{j}] (SE {s[i, j]:.3g} against {v[i, j]:.3g})"
-            for i, j in np.ndindex(2, 2)
-            if s[i, j] > WEAK_RELATIVE_SE * scale
-        ]
-    if weak:
-        warnings.append(
-            f"barely identifiable from this recording: {', '.join(weak)}; hold it fixed at a value known from "
-            "elsewhere, or record with a perturbation that excites it"
-        )
-    return warnings, not_told
-
-
-def _natural_of_internal(layout: lay.Layout) -> list[list[int]]:
-    """For each internal parameter, the natural entries it sets."""
-    out, nat = [], 0
-    for k, name in enumerate(layout.names):
-        if layout.symmetric[k]:
-            out += [[nat], [nat + 1, nat + 2], [nat + 3]]
-        else:
-            out += [[nat + i] for i in range(layout.n_internal(k))]
-        nat += int(np.prod(layout.shape(name)))
-    return out
-
-
-def _assemble(problem: search.Problem, state: search.Search, f, x, fh, statistic, t_start, forward_s) -> Identification:
-    layout, model, p = problem.layout, problem.model, state.p
-    cov_p, problems = search.final_covariance(problem, state)
-    y_fit, diverged_fit = _predict(layout, model, jnp.asarray(p), f, problem.numerics)
-    if bool(diverged_fit):
-        problems = problems + ("the fitted model diverges",)
-    values, g = (np.asarray(v) for v in lay.natural_with_jacobian(layout, jnp.asarray(p), model))
-    cov = g @ cov_p @ g.T
-    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    labels = layout.labels()
-    warnings, not_told = _warnings(problem, p, labels, values, se, cov_p)
-    stuck = motion_diagnosis(model, x)
-    message = "; ".join(problems)
-    if problems and stuck.advice:  # why, in a lab's terms, before the search's own account
-        message = f"{stuck.advice[0]} (the search: {message})"
-    elif any("barely identifiable" in w for w in warnings):
-        warnings = warnings + stuck.advice
-    y = np.concatenate([x, fh], axis=1)
-    resid = y - np.asarray(y_fit)
-    vaf = 100.0 * (1.0 - np.sum(resid**2, axis=0) / np.sum((y - y.mean(axis=0)) ** 2, axis=0))
-    return Identification(
-        values=lay.unflatten(layout, values),
-        se=lay.unflatten(layout, se),
-        covariance=cov,
-        labels=labels,
-        converged=not problems,
-        message=message,
-        intervals_reliable=not problems and len(warnings) == bool(not_told),
-        warnings=warnings,
-        not_told=not_told,
-        statistic=statistic,
-        cost=state.cost,
-        iterations=state.iterations,
-        history=list(state.history),
-        draws=problem.keys.shape[0],
-        statistics=dict(
-            zip(
-                statistic_labels(layout),
-                (float(v) for v in problem.b[: problem.b.size - problem.prior_index.size]),
-                strict=True,
-            )
-        ),
-        vaf_position=vaf[:2],
-        vaf_force=vaf[2:],
-        whiteness_p=_ljung_box_p(resid, WHITENESS_LAGS),
-        stuck_fraction=stuck.fraction,
-        classical=_classical(f, x, fh, model.acquisition, model.period),
-        trial=lay.with_values(layout, model, jnp.asarray(p)),
-        time_s=time.perf_counter() - t_start,
-        forward_s=forward_s,
-    )

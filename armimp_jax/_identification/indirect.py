@@ -43,7 +43,7 @@ from .._solver.graded import GradedARK4
 from .._solver.numerics import Numerics
 from . import efficient
 from .auxiliary import statistics
-from .layout import ARM_PARAMETERS, Layout, with_values
+from .layout import LINEAR, Layout, with_values
 
 # The converged step at every friction in [0, 4] N m and the cheapest measured (docs/performance.md).
 IDENTIFY_NUMERICS = Numerics(solver=GradedARK4(), substeps=4)
@@ -53,20 +53,14 @@ WEIGHT_DRAWS = 16
 
 
 def arm_layout(layout: Layout) -> Layout | None:
-    """The layout of ``layout``'s arm matrices alone (``None`` when none is free)."""
-    kept = [(n, s) for n, s in zip(layout.names, layout.symmetric, strict=True) if n in ARM_PARAMETERS]
-    return Layout(tuple(n for n, _ in kept), tuple(s for _, s in kept)) if kept else None
+    """The layout of ``layout``'s parameters of the linearised loop alone: the arm's matrices and
+    the robot's and force channel's calibration (``None`` when none is free)."""
+    return layout.linear()
 
 
 def arm_index(layout: Layout) -> np.ndarray:
-    """Positions of the arm's internal parameters in ``p``."""
-    out, i = [], 0
-    for k, name in enumerate(layout.names):
-        n = layout.n_internal(k)
-        if name in ARM_PARAMETERS:
-            out += list(range(i, i + n))
-        i += n
-    return np.asarray(out, dtype=int)
+    """Positions of those parameters' internal entries in ``p``."""
+    return layout.index(LINEAR)
 
 
 def weight_draws(n_draws: int) -> int:

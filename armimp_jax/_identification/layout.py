@@ -1,14 +1,19 @@
 """Which parameters of a trial are estimated, and the vector an optimiser moves.
 
-A free parameter is named by its path in the trial (``"arm.stiffness"``, ``"friction.tau_c"``).
-The optimiser works on one flat vector ``p``: the arm's matrices by their entries (all four,
-or three when constrained symmetric: ``[a11, a12 = a21, a22]``), the friction law's parameters
-per joint on the law's own internal scales (``AbstractFriction.to_internal`` /
-``from_internal``: logs by default, as they are positive and span orders of magnitude;
-LuGre keeps its stiction above the Coulomb torque). Which friction parameters may be freed is
-the law's ``IDENTIFIABLE``. The *natural* vector lists every entry in the parameter's own
-units and shape, row by row (a symmetric matrix keeps both off-diagonal entries);
-covariances are reported on it.
+A free parameter is named by its path in the trial (``"arm.stiffness"``, ``"friction.tau_c"``,
+``"robot.inertia"``, ``"sensors.force_gain"``). The optimiser works on one flat vector ``p``:
+the arm's matrices by their entries (all four, or three when constrained symmetric: ``[a11,
+a12 = a21, a22]``); the friction law's parameters per joint on the law's own internal scales
+(``AbstractFriction.to_internal`` / ``from_internal``: logs by default, as they are positive
+and span orders of magnitude; LuGre keeps its stiction above the Coulomb torque; which may be
+freed is the law's ``IDENTIFIABLE``); the robot's and the force channel's calibration
+(``ROBOT_PARAMETERS``, ``SENSOR_PARAMETERS``) on the scales of ``_CALIBRATION``: the link
+inertias ``(c1, c2, c3)`` and the force gain on log scales (positive), the force offset as it
+is, the force delay in control periods (the simulation holds it within its delay line). The
+*natural* vector lists every entry in the parameter's own units and shape, row by row (a
+symmetric matrix keeps both off-diagonal entries); covariances are reported on it. The arm's,
+the robot's and the sensors' parameters are those of the linearised loop (``LINEAR``): the
+efficient statistic covers them; the friction's are nuisances matched by their own statistics.
 """
 
 from __future__ import annotations
@@ -25,6 +30,18 @@ from .._pytree import replace_unchecked
 from .._simulate import Trial
 
 ARM_PARAMETERS = {"arm.mass": "kg", "arm.damping": "N s/m", "arm.stiffness": "N/m"}
+ROBOT_PARAMETERS = {"robot.inertia": "kg m^2"}
+SENSOR_PARAMETERS = {"sensors.force_gain": "-", "sensors.force_offset": "N", "sensors.force_delay": "s"}
+# The calibration parameters' shapes and internal scales ("log": positive; "plain": as they
+# are; "periods": the value over the control period)
+_CALIBRATION = {
+    "robot.inertia": ((3,), "log"),
+    "sensors.force_gain": ((2,), "log"),
+    "sensors.force_offset": ((2,), "plain"),
+    "sensors.force_delay": ((), "periods"),
+}
+# The parameters of the linearised loop: what the efficient statistic (and crlb) covers.
+LINEAR = {**ARM_PARAMETERS, **ROBOT_PARAMETERS, **SENSOR_PARAMETERS}
 
 
 def friction_parameters(friction=None) -> dict:
@@ -38,9 +55,9 @@ def friction_parameters(friction=None) -> dict:
 
 
 def parameter_units(friction=None) -> dict:
-    """``{name: unit}`` of every parameter that may be freed: the arm's matrices, then the
-    friction law's (``friction_parameters``)."""
-    return {**ARM_PARAMETERS, **friction_parameters(friction)}
+    """``{name: unit}`` of every parameter that may be freed: the arm's matrices, the friction
+    law's (``friction_parameters``), the robot's and the force channel's."""
+    return {**ARM_PARAMETERS, **friction_parameters(friction), **ROBOT_PARAMETERS, **SENSOR_PARAMETERS}
 
 
 class Layout(NamedTuple):
@@ -51,10 +68,12 @@ class Layout(NamedTuple):
     symmetric: tuple[bool, ...]
 
     def shape(self, name: str) -> tuple[int, ...]:
+        if name in _CALIBRATION:
+            return _CALIBRATION[name][0]
         return (2, 2) if name in ARM_PARAMETERS else (2,)
 
     def n_internal(self, i: int) -> int:
-        return 3 if self.symmetric[i] else (4 if self.names[i] in ARM_PARAMETERS else 2)
+        return 3 if self.symmetric[i] else int(np.prod(self.shape(self.names[i]), dtype=int))
 
     @property
     def size(self) -> int:
@@ -65,15 +84,31 @@ class Layout(NamedTuple):
         """Names of the natural vector's entries, e.g. ``"arm.mass[0,1]"``, ``"friction.tau_c[1]"``."""
         out = []
         for name in self.names:
-            if name in ARM_PARAMETERS:
-                out += [f"{name}[{i},{j}]" for i in range(2) for j in range(2)]
+            shape = self.shape(name)
+            if not shape:
+                out.append(name)
             else:
-                out += [f"{name}[{i}]" for i in range(2)]
+                out += [f"{name}[{','.join(map(str, i))}]" for i in np.ndindex(*shape)]
         return out
 
     def friction_names(self) -> tuple[str, ...]:
         """The free friction law's fields, in order (``"tau_c"`` for ``"friction.tau_c"``)."""
-        return tuple(n.split(".", 1)[1] for n in self.names if n not in ARM_PARAMETERS)
+        return tuple(n.split(".", 1)[1] for n in self.names if n.startswith("friction."))
+
+    def linear(self) -> Layout | None:
+        """The layout of the linearised loop's parameters alone (``None`` when none is free)."""
+        kept = [(n, s) for n, s in zip(self.names, self.symmetric, strict=True) if n in LINEAR]
+        return Layout(tuple(n for n, _ in kept), tuple(s for _, s in kept)) if kept else None
+
+    def index(self, names) -> np.ndarray:
+        """Positions in ``p`` of the internal entries of the parameters in ``names``."""
+        out, i = [], 0
+        for k, name in enumerate(self.names):
+            n = self.n_internal(k)
+            if name in names:
+                out += list(range(i, i + n))
+            i += n
+        return np.asarray(out, dtype=int)
 
 
 def make_layout(free, symmetric=(), *, friction=None, where: str = "identify") -> Layout:
@@ -114,6 +149,9 @@ def pack(layout: Layout, trial: Trial):
     friction = dict(trial.friction.to_internal(layout.friction_names())) if layout.friction_names() else {}
     parts = []
     for name, sym in zip(layout.names, layout.symmetric, strict=True):
+        if name in _CALIBRATION:
+            parts.append(_calibration_internal(name, np.asarray(_get(trial, name), dtype=float), trial.period))
+            continue
         if name not in ARM_PARAMETERS:
             parts.append(np.asarray(friction[name.split(".", 1)[1]], dtype=float))
             continue
@@ -127,15 +165,38 @@ def pack(layout: Layout, trial: Trial):
     return jnp.asarray(np.concatenate(parts))
 
 
+def _calibration_internal(name: str, v, period: float):
+    """A calibration parameter's internal values (concrete), with one-line errors."""
+    scale = _CALIBRATION[name][1]
+    if scale == "log":
+        if np.any(v <= 0):
+            raise ValueError(f"identify: {name} must start > 0 to be estimated (on a log scale), got {v.tolist()}")
+        return np.log(v).reshape(-1)
+    return (v / period if scale == "periods" else v).reshape(-1)
+
+
+def _calibration_value(name: str, q, period: float):
+    """Inverse of ``_calibration_internal``, traceable."""
+    scale = _CALIBRATION[name][1]
+    q = q.reshape(_CALIBRATION[name][0])
+    return jnp.exp(q) if scale == "log" else (q * period if scale == "periods" else q)
+
+
 def pack_arm(layout: Layout, trial: Trial):
-    """``p`` of a layout of arm matrices only, traceable (no checks: a symmetric matrix is read
-    from its upper triangle)."""
+    """``p`` of a layout of the linearised loop's parameters (``LINEAR``: the arm's matrices, the
+    robot's and the force channel's calibration), traceable (no checks: a symmetric matrix is
+    read from its upper triangle)."""
     parts = []
     for name, sym in zip(layout.names, layout.symmetric, strict=True):
-        if name not in ARM_PARAMETERS:
-            raise ValueError(f"pack_arm: {name} is not an arm matrix")
+        if name not in LINEAR:
+            raise ValueError(f"pack_arm: {name} is not a parameter of the linearised loop")
         v = jnp.asarray(_get(trial, name))
-        parts.append(jnp.stack([v[0, 0], v[0, 1], v[1, 1]]) if sym else v.reshape(-1))
+        if name in _CALIBRATION:
+            scale = _CALIBRATION[name][1]
+            v = jnp.log(v) if scale == "log" else (v / trial.period if scale == "periods" else v)
+            parts.append(v.reshape(-1))
+        else:
+            parts.append(jnp.stack([v[0, 0], v[0, 1], v[1, 1]]) if sym else v.reshape(-1))
     return jnp.concatenate(parts)
 
 
@@ -150,6 +211,8 @@ def split(layout: Layout, p, trial: Trial) -> dict:
         i += n
         if name in ARM_PARAMETERS:
             out[name] = jnp.stack([q[0], q[1], q[1], q[2]]).reshape(2, 2) if sym else q.reshape(2, 2)
+        elif name in _CALIBRATION:
+            out[name] = _calibration_value(name, q, trial.period)
         else:
             raw[name.split(".", 1)[1]] = q
     if raw:
@@ -180,13 +243,13 @@ def with_values(layout: Layout, trial: Trial, p) -> Trial:
     """``trial`` with its free parameters set from ``p`` (no checks: traced values pass, and an
     optimiser may try values the constructors would refuse)."""
     values = split(layout, p, trial)
-    arm = {n.split(".")[1]: v for n, v in values.items() if n in ARM_PARAMETERS}
-    friction = {n.split(".")[1]: v for n, v in values.items() if n not in ARM_PARAMETERS}
     out = trial
-    if arm:
-        out = replace_unchecked(out, arm=replace_unchecked(out.arm, **arm))
-    if friction:
-        out = replace_unchecked(out, friction=replace_unchecked(out.friction, **friction))
+    for group in ("arm", "friction", "robot", "sensors"):
+        fields = {n.split(".")[1]: v for n, v in values.items() if n.split(".")[0] == group}
+        if group == "sensors" and fields:
+            fields["calibrated"] = True  # the recorded force channel's calibration is then simulated
+        if fields:
+            out = replace_unchecked(out, **{group: replace_unchecked(getattr(out, group), **fields)})
     return out
 
 

@@ -27,6 +27,7 @@ from .._simulate import Trial
 from .._solver.numerics import Numerics
 from . import efficient, indirect
 from . import layout as lay
+from .auxiliary import statistic_labels
 
 CONVERGED_FRACTION = 0.15  # a step below this many SEs: converged (the binding's own MC error is 1/sqrt(R) SE)
 JACOBIAN_REUSE_SE = 3.0  # A computed within this many SEs of the estimate serves its covariance
@@ -36,23 +37,41 @@ HALVINGS = 6  # a step is halved at most this many times while a draw diverges o
 PRIOR_SD = 2.0
 
 
-class Problem(NamedTuple):
-    """What the search holds fixed: the layout, model, recording, draws, the recording's
-    statistics ``b``, the arm's statistic, the nuisance prior (``prior_index`` into ``p``,
-    ``prior_mean``) and the mismatch's Monte Carlo slack."""
+class Part(NamedTuple):
+    """One binding of the problem: its own layout (the free parameters it sees), model,
+    perturbation ``f``, keys of its noise draws, arm statistic (``None``: Welch), ``index``,
+    the positions in the search's vector ``p`` of its own internal parameters, and ``count``,
+    the recordings it serves (repeated trials: their statistics' mean is matched)."""
 
     layout: lay.Layout
     model: Trial
     f: jnp.ndarray
-    numerics: Numerics
     keys: jnp.ndarray
+    arm_stat: efficient.Efficient | None
+    index: np.ndarray
+    count: int = 1
+
+
+class Problem(NamedTuple):
+    """What the search holds fixed: the recordings (``parts``), the numerics, the Jacobian's
+    draws ``n_jac``, the recordings' statistics ``b`` (one after the other, then the nuisance
+    prior's means), the nuisance prior (``prior_index`` into ``p``, ``prior_mean``), the
+    mismatch's Monte Carlo slack and the length ``size`` of ``p``. The recordings are
+    independent: their statistics' covariance is block-diagonal."""
+
+    parts: tuple
+    numerics: Numerics
     n_jac: int
     noisy: bool
     b: np.ndarray
-    arm_stat: efficient.Efficient | None
     prior_index: np.ndarray
     prior_mean: np.ndarray
     slack: float
+    size: int
+
+    @property
+    def n_draws(self) -> int:
+        return self.parts[0].keys.shape[0]
 
 
 class Search(NamedTuple):
@@ -91,12 +110,26 @@ def _weights(problem: Problem, stats, jac):
     return np.concatenate([w, np.full(problem.prior_index.size, PRIOR_SD**-2)])
 
 
+def _blocks(problem: Problem) -> list[slice]:
+    """The rows of each recording's statistics in ``b`` (``auxiliary.statistic_labels``)."""
+    out, i = [], 0
+    for part in problem.parts:
+        n = len(statistic_labels(part.layout))
+        out.append(slice(i, i + n))
+        i += n
+    return out
+
+
 def _covariance(problem: Problem, jac, stats, n_draws, w):
-    """The sandwich covariance with the prior's own variance in ``Omega`` (block-diagonal)."""
+    """The sandwich covariance with ``Omega`` block-diagonal: each recording's statistics' own
+    covariance over its draws, then the prior's own variance."""
     m = stats.shape[1] - problem.prior_index.size
     omega = np.zeros((stats.shape[1],) * 2)
     if stats.shape[0] > 1:
-        omega[:m, :m] = (1.0 + 1.0 / n_draws) * np.atleast_2d(np.cov(stats[:, :m].T, ddof=1))
+        # a mean of `count` recordings spreads as one over the count; the binding's own MC error adds 1 / R
+        for rows, part in zip(_blocks(problem), problem.parts, strict=True):
+            scale = 1.0 / part.count + 1.0 / n_draws
+            omega[rows, rows] = scale * np.atleast_2d(np.cov(stats[:, rows].T, ddof=1))
     omega[m:, m:] = PRIOR_SD**2 * np.eye(problem.prior_index.size)
     aw = jac.T * w[None, :]
     sens = np.linalg.solve(aw @ jac, aw)
@@ -104,28 +137,37 @@ def _covariance(problem: Problem, jac, stats, n_draws, w):
 
 
 def _binding(problem: Problem, p):
-    stats, diverged = indirect.binding_draws(
-        problem.layout, problem.model, jnp.asarray(p), problem.f, problem.keys, problem.numerics, problem.arm_stat
-    )
-    stats, diverged = np.asarray(stats), np.asarray(diverged)
+    parts, diverged = [], False
+    for part in problem.parts:
+        stats, div = indirect.binding_draws(
+            part.layout, part.model, jnp.asarray(p[part.index]), part.f, part.keys, problem.numerics, part.arm_stat
+        )
+        parts.append(np.asarray(stats))
+        diverged |= bool(np.asarray(div).any())
+    stats = np.concatenate(parts, axis=1)
     mean, stats, _ = _with_prior(problem, p, stats.mean(axis=0), stats)
-    return mean, stats, bool(diverged.any())
+    return mean, stats, diverged
 
 
 def _jacobian(problem: Problem, p):
-    jac, div = indirect.binding_jacobian(
-        problem.layout,
-        problem.model,
-        jnp.asarray(p),
-        problem.f,
-        problem.keys[: problem.n_jac],
-        problem.numerics,
-        problem.arm_stat,
-    )
-    jac = np.asarray(jac)
-    if bool(div) or not np.all(np.isfinite(jac)):
-        return None
-    return _with_prior(problem, p, np.zeros(0), np.zeros((1, 0)), jac)[2]
+    blocks = []
+    for part in problem.parts:
+        jac, div = indirect.binding_jacobian(
+            part.layout,
+            part.model,
+            jnp.asarray(p[part.index]),
+            part.f,
+            part.keys[: problem.n_jac],
+            problem.numerics,
+            part.arm_stat,
+        )
+        jac = np.asarray(jac)
+        if bool(div) or not np.all(np.isfinite(jac)):
+            return None
+        full = np.zeros((jac.shape[0], problem.size))
+        full[:, part.index] = jac
+        blocks.append(full)
+    return _with_prior(problem, p, np.zeros(0), np.zeros((1, 0)), np.concatenate(blocks, axis=0))[2]
 
 
 def _cost(problem: Problem, mean, w):
@@ -166,7 +208,7 @@ def step(problem: Problem, state: Search, max_steps: int) -> Search:
     if not np.all(np.isfinite(step)):
         why = "the binding's Jacobian is singular: some parameter does not move the statistics"
         return state._replace(problems=state.problems + (why,), done=True)
-    n_draws = problem.keys.shape[0]
+    n_draws = problem.n_draws
     se_p = np.sqrt(np.diag(_covariance(problem, jac, state.stats, n_draws, w)))
     # settled: every parameter moves by less than a fraction of its SE, but a nuisance the
     # recording barely tells (its SE most of its prior's), which may wander inside its prior
@@ -204,7 +246,7 @@ def step(problem: Problem, state: Search, max_steps: int) -> Search:
 def final_covariance(problem: Problem, state: Search):
     """The covariance of ``p`` at the estimate (the slope refreshed if it is far from there)."""
     jac, problems = state.jac, state.problems
-    n_draws = problem.keys.shape[0]
+    n_draws = problem.n_draws
     if jac is not None and state.se_p is not None:
         if not np.all(np.abs(state.p - state.jac_at) <= JACOBIAN_REUSE_SE * state.se_p):
             jac = _jacobian(problem, state.p)

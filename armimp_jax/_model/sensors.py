@@ -149,7 +149,7 @@ def delayed_force(sensors: Sensors, history, period: float):
     """The transducer's reading ``gain F_h(t - delay)`` [N] ``(2,)`` from ``history``
     ``(FORCE_HISTORY, 2)``, the true force's last samples, newest first: linear interpolation
     between samples (weights ``max(0, 1 - |i - delay / period|)``, differentiable in the delay)."""
-    lag = sensors.force_delay / period
+    lag = jnp.clip(sensors.force_delay / period, 0.0, FORCE_HISTORY - 1.0)
     i = jnp.arange(FORCE_HISTORY, dtype=history.dtype)
     w = jnp.maximum(0.0, 1.0 - jnp.abs(i - lag))
     return sensors.force_gain * (w[:, None] * history).sum(axis=0)
