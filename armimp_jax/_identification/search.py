@@ -6,10 +6,20 @@ is reused between them (a chord) and recomputed after a step of more than
 ``JACOBIAN_REUSE_SE`` standard errors or one that fails; a step is halved while a draw
 diverges or the mismatch grows (a stale slope gets two tries before it is refreshed); the
 search stops when a step moves every parameter by less than ``CONVERGED_FRACTION`` of its
-SE. Friction parameters are nuisances for the arm: each carries a prior about its start
-(``PRIOR_SD`` on its internal log or logit scale), one more moment of the match with its own
-variance in ``Omega``, so one the recording cannot tell stays within its range, with an
-interval as wide as the prior, and the arm's covariance carries its uncertainty. Why not
+SE, or by less than twice the binding's own Monte Carlo error (``1 / sqrt(R)`` SE: a smaller
+step chases the draws' noise).
+
+Far from the answer the draws' noise does not matter: the search starts **coarse**, the
+binding on ``COARSE_DRAWS`` of the draws and the slope on ``COARSE_JACOBIAN_DRAWS``, and takes
+all of them once a step moves every parameter by less than ``FINE_WITHIN_SE`` of its SE (or a
+coarse step fails); only a fine step may settle, and the covariance is computed at the answer
+with every draw (a coarse slope there is refreshed).
+
+Every parameter but the arm's (the friction's, the robot's and the force channel's
+calibration) is a nuisance for the arm: each carries a prior about its start (``PRIOR_SD`` on
+its internal scale), one more moment of the match with its own variance in ``Omega``, so one
+the recordings cannot tell stays within its range, with an interval as wide as the prior,
+and the arm's covariance carries its uncertainty. Why not
 optimistix's least-squares solvers: the cost is in Monte Carlo draws and the Jacobian is the
 expensive part, so it is reused across steps, and the stopping rule is in standard errors
 that the draws at each step give.
@@ -20,6 +30,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -30,6 +41,10 @@ from . import layout as lay
 from .auxiliary import statistic_labels
 
 CONVERGED_FRACTION = 0.15  # a step below this many SEs: converged (the binding's own MC error is 1/sqrt(R) SE)
+NOISE_MULTIPLE = 2.0  # ... or below this many times the binding's own MC error, 1/sqrt(R) SE
+COARSE_DRAWS = 8  # the binding's draws far from the answer (rounded up to the devices)
+COARSE_JACOBIAN_DRAWS = 2  # the slope's draws far from the answer (rounded up to the devices)
+FINE_WITHIN_SE = 2.0  # coarse steps until one moves every parameter by less than this many SEs
 JACOBIAN_REUSE_SE = 3.0  # A computed within this many SEs of the estimate serves its covariance
 HALVINGS = 6  # a step is halved at most this many times while a draw diverges or the mismatch grows
 # The nuisance prior of each free friction parameter: this SD on its internal (log or logit) scale
@@ -91,6 +106,8 @@ class Search(NamedTuple):
     history: tuple
     problems: tuple
     done: bool
+    draws: int = 0  # the binding's draws now (the coarse stage's fewer)
+    jac_draws: int = 0  # the draws behind ``jac``
 
 
 def _with_prior(problem: Problem, p, mean, stats, jac=None):
@@ -136,11 +153,12 @@ def _covariance(problem: Problem, jac, stats, n_draws, w):
     return sens @ omega @ sens.T
 
 
-def _binding(problem: Problem, p):
+def _binding(problem: Problem, p, draws=None):
     parts, diverged = [], False
     for part in problem.parts:
+        keys = part.keys if draws is None else part.keys[:draws]
         stats, div = indirect.binding_draws(
-            part.layout, part.model, jnp.asarray(p[part.index]), part.f, part.keys, problem.numerics, part.arm_stat
+            part.layout, part.model, jnp.asarray(p[part.index]), part.f, keys, problem.numerics, part.arm_stat
         )
         parts.append(np.asarray(stats))
         diverged |= bool(np.asarray(div).any())
@@ -149,15 +167,15 @@ def _binding(problem: Problem, p):
     return mean, stats, diverged
 
 
-def _jacobian(problem: Problem, p):
-    blocks = []
+def _jacobian(problem: Problem, p, draws=None):
+    blocks, draws = [], problem.n_jac if draws is None else draws
     for part in problem.parts:
         jac, div = indirect.binding_jacobian(
             part.layout,
             part.model,
             jnp.asarray(p[part.index]),
             part.f,
-            part.keys[: problem.n_jac],
+            part.keys[:draws],
             problem.numerics,
             part.arm_stat,
         )
@@ -175,14 +193,38 @@ def _cost(problem: Problem, mean, w):
     return 0.5 * float(d @ (w * d))
 
 
+def _coarse_counts(problem: Problem) -> tuple[int, int]:
+    """``(draws, jacobian draws)`` of the coarse stage: fewer than the problem's, as multiples of
+    the local devices (the problem's own where it has no more)."""
+    n_dev = jax.local_device_count()
+
+    def rounded(n):
+        return int(math.ceil(n / n_dev) * n_dev)
+
+    draws = min(problem.n_draws, rounded(COARSE_DRAWS)) if problem.noisy else problem.n_draws
+    return draws, min(problem.n_jac, rounded(COARSE_JACOBIAN_DRAWS)) if problem.noisy else problem.n_jac
+
+
 def init(problem: Problem, p0) -> Search:
-    mean, stats, diverged = _binding(problem, p0)
+    draws, jac_draws = _coarse_counts(problem)
+    mean, stats, diverged = _binding(problem, p0, draws)
     if diverged:
         raise ValueError("identify: noisy simulations of the model diverge at the start; choose another start")
-    jac = _jacobian(problem, p0)
+    jac = _jacobian(problem, p0, jac_draws)
     w = _weights(problem, stats, jac)
     problems = () if jac is not None else ("the binding's Jacobian is not finite at the start",)
-    return Search(p0, mean, stats, _cost(problem, mean, w), jac, p0, w, None, 0, (), problems, jac is None)
+    cost = _cost(problem, mean, w)
+    return Search(p0, mean, stats, cost, jac, p0, w, None, 0, (), problems, jac is None, draws, jac_draws)
+
+
+def _fine(problem: Problem, state: Search) -> Search:
+    """The search at the same ``p`` with every draw (the slope kept: a chord)."""
+    mean, stats, diverged = _binding(problem, state.p)
+    if diverged:
+        why = "noisy simulations diverge at the coarse stage's answer"
+        return state._replace(problems=state.problems + (why,), done=True)
+    w = _weights(problem, stats, state.jac)
+    return state._replace(mean=mean, stats=stats, w=w, cost=_cost(problem, mean, w), draws=problem.n_draws)
 
 
 def _propose(problem: Problem, state: Search, step):
@@ -191,11 +233,12 @@ def _propose(problem: Problem, state: Search, step):
     ``(kept, p, mean, stats, cost, scale)``."""
     stale = not np.array_equal(state.jac_at, state.p)
     scale = 1.0
+    slack = problem.slack * problem.n_draws / state.draws  # the mismatch's MC jitter at the draws in use
     for _ in range(2 if stale else HALVINGS + 1):
         trial_p = state.p + scale * step
-        mean, stats, diverged = _binding(problem, trial_p)
+        mean, stats, diverged = _binding(problem, trial_p, state.draws)
         cost = _cost(problem, mean, state.w) if np.all(np.isfinite(mean)) else math.inf
-        if not diverged and cost < state.cost + problem.slack:
+        if not diverged and cost < state.cost + slack:
             return True, trial_p, mean, stats, cost, scale
         scale *= 0.5
     return False, state.p, state.mean, state.stats, state.cost, scale
@@ -208,16 +251,19 @@ def step(problem: Problem, state: Search, max_steps: int) -> Search:
     if not np.all(np.isfinite(step)):
         why = "the binding's Jacobian is singular: some parameter does not move the statistics"
         return state._replace(problems=state.problems + (why,), done=True)
-    n_draws = problem.n_draws
-    se_p = np.sqrt(np.diag(_covariance(problem, jac, state.stats, n_draws, w)))
+    se_p = np.sqrt(np.diag(_covariance(problem, jac, state.stats, state.draws, w)))
     # settled: every parameter moves by less than a fraction of its SE, but a nuisance the
     # recording barely tells (its SE most of its prior's), which may wander inside its prior
     told = np.ones(step.size, dtype=bool)
     told[problem.prior_index] = se_p[problem.prior_index] <= 0.5 * PRIOR_SD
     step_se = float(np.max(np.abs(step[told]) / se_p[told])) if problem.noisy else math.nan
-    history = state.history + (dict(cost=state.cost, step_se=step_se),)
+    coarse = state.draws < problem.n_draws
+    history = state.history + (dict(cost=state.cost, step_se=step_se, draws=state.draws),)
     state = state._replace(se_p=se_p, history=history)
-    if problem.noisy and np.all(np.abs(step[told]) <= CONVERGED_FRACTION * se_p[told]):
+    if coarse and step_se <= FINE_WITHIN_SE:
+        return _fine(problem, state)
+    settle = max(CONVERGED_FRACTION, NOISE_MULTIPLE / math.sqrt(problem.n_draws))
+    if problem.noisy and not coarse and np.all(np.abs(step[told]) <= settle * se_p[told]):
         return state._replace(done=True)
     if not problem.noisy and np.all(np.abs(step) <= 1e-10 * (1.0 + np.abs(state.p))):
         return state._replace(done=True)  # noise-free: converged to round-off
@@ -233,14 +279,17 @@ def step(problem: Problem, state: Search, max_steps: int) -> Search:
         state = state._replace(history=history[:-1] + (dict(history[-1], refused=True),))
     if kept and np.all(np.abs(scale * step) <= JACOBIAN_REUSE_SE * se_p):
         return state
-    new = _jacobian(problem, state.p) if (stale or kept) else None
+    jac_draws = problem.n_jac if not coarse else state.jac_draws
+    new = _jacobian(problem, state.p, jac_draws) if (stale or kept) else None
     if new is None:
         if kept:
             return state
+        if coarse:  # a coarse step that fails: go on with every draw
+            return _fine(problem, state)
         why = f"no step from iteration {state.iterations} kept the simulations sound and lowered the mismatch"
         return state._replace(problems=state.problems + (why,), done=True)
     w = _weights(problem, state.stats, new)
-    return state._replace(jac=new, jac_at=state.p, w=w, cost=_cost(problem, state.mean, w))
+    return state._replace(jac=new, jac_at=state.p, w=w, cost=_cost(problem, state.mean, w), jac_draws=jac_draws)
 
 
 def final_covariance(problem: Problem, state: Search):
@@ -248,7 +297,8 @@ def final_covariance(problem: Problem, state: Search):
     jac, problems = state.jac, state.problems
     n_draws = problem.n_draws
     if jac is not None and state.se_p is not None:
-        if not np.all(np.abs(state.p - state.jac_at) <= JACOBIAN_REUSE_SE * state.se_p):
+        far = not np.all(np.abs(state.p - state.jac_at) <= JACOBIAN_REUSE_SE * state.se_p)
+        if far or state.jac_draws < problem.n_jac:  # a slope far from the answer, or a coarse one
             jac = _jacobian(problem, state.p)
             if jac is None:
                 problems = problems + ("the binding's Jacobian is not finite at the estimate",)
