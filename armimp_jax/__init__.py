@@ -85,6 +85,8 @@ _EXPORTS = {
     "Identification": "._identification.identify",
     "identify": "._identification.identify",
     "Recording": "._identification.pool",
+    "Sensitivity": "._identification.sensitivity",
+    "robot_sensitivity": "._identification.sensitivity",
     "IDENTIFY_NUMERICS": "._identification.indirect",
     "PredictedSE": "._identification.predict",
     "predict_se": "._identification.predict",
@@ -168,6 +170,8 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._identification.pool import Recording as Recording
     from ._identification.predict import PredictedSE as PredictedSE
     from ._identification.predict import predict_se as predict_se
+    from ._identification.sensitivity import Sensitivity as Sensitivity
+    from ._identification.sensitivity import robot_sensitivity as robot_sensitivity
     from ._model.arm import Arm as Arm
     from ._model.arm import no_arm as no_arm
     from ._model.controllers import IMBIC as IMBIC

@@ -330,6 +330,8 @@ def _sense(trial: Trial, model, state: PlantState, x, xd, fh, inputs: PeriodInpu
             t = trig_of(state)
         j11, j12, j21, j22 = jacobian_from_trig(trial.robot, *t)
         xd = jnp.stack([j11 * qd[0] + j12 * qd[1], j21 * qd[0] + j22 * qd[1]])
+    if s.calibrated:  # the transducer's gain: the controller reads it too
+        fh = s.force_gain * fh
     if s.force_on:
         fh = fh + inputs.force
     return x, xd, fh

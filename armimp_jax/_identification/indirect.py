@@ -104,12 +104,13 @@ def draw_counts(model: Trial, draws: int, jacobian_draws: int) -> tuple[int, int
     return tuple(int(math.ceil(d / n_dev) * n_dev) for d in (draws, jacobian_draws))
 
 
-def draw_statistics(layout: Layout, model: Trial, p, f, key, numerics, arm_stat=None):
+def draw_statistics(layout: Layout, model: Trial, p, f, key, numerics, arm_stat=None, stat_layout=None):
     """The statistics of one noisy recording at ``p`` and whether it diverged (``arm_stat``: the
-    arm's statistic, ``auxiliary.statistics``)."""
+    arm's statistic, ``auxiliary.statistics``; ``stat_layout``: the parameters the statistics are
+    of, default ``layout``'s: a larger ``layout`` gives their slope in parameters held fixed)."""
     trial = with_values(layout, model, p)
     sim = simulate(trial, f, key=key, numerics=numerics)
-    return statistics(layout, trial, f, sim.x, sim.fh, arm_stat), sim.diverged
+    return statistics(stat_layout or layout, trial, f, sim.x, sim.fh, arm_stat), sim.diverged
 
 
 def draw_recordings(layout: Layout, model: Trial, p, f, keys, numerics):
@@ -142,13 +143,17 @@ def binding_draws(layout: Layout, model: Trial, p, f, keys, numerics, arm_stat=N
     return _sharded(per_device, 2)(keys)
 
 
-@functools.partial(jax.jit, static_argnames=("layout", "numerics"))
-def binding_jacobian(layout: Layout, model: Trial, p, f, keys, numerics, arm_stat=None):
+@functools.partial(jax.jit, static_argnames=("layout", "numerics", "stat_layout"))
+def binding_jacobian(layout: Layout, model: Trial, p, f, keys, numerics, arm_stat=None, stat_layout=None):
     """``A = d beta / d p`` ``(m, n)`` averaged over the draws of ``keys`` (forward mode: one
-    pass per draw carries every parameter's tangent), and whether a draw diverged."""
+    pass per draw carries every parameter's tangent), and whether a draw diverged
+    (``stat_layout``: as ``draw_statistics``)."""
 
     def one(k):
-        return jax.jacfwd(lambda q: draw_statistics(layout, model, q, f, k, numerics, arm_stat), has_aux=True)(p)
+        def stats(q):
+            return draw_statistics(layout, model, q, f, k, numerics, arm_stat, stat_layout)
+
+        return jax.jacfwd(stats, has_aux=True)(p)
 
     def per_device(k):
         # one draw at a time: a vmap over draws of the tangents' batch ran several times slower

@@ -45,15 +45,16 @@ class Sensors:
             the measured position and the Jacobian of the measured velocity use them.
         velocity_noise: standard deviation ``sigma_v`` [rad/s] of white Gaussian noise added
             to each joint rate before ``xd = J qd`` (scalar or ``(2,)``), ``>= 0``.
-        force_gain: the recorded force channel's gain per axis (scalar or ``(2,)``), ``> 0``:
-            the recording reads ``gain F_h(t - delay) + offset`` (plus the force noise).
-            Default 1. The calibration is the recording's: the controller's own force input is
-            taken as calibrated (a documented choice, docs/model.md section 8: a force delay
-            inside IMBIC's loop makes it unstable, 1 ms already).
-        force_offset: the recorded force's offset [N] per axis (scalar or ``(2,)``). Default 0.
-        force_delay: the recorded force's delay [s] behind the position channel, ``>= 0`` and
-            below ``(FORCE_HISTORY - 1)`` control periods (7 ms at 1 kHz); read by linear
-            interpolation between samples. Default 0.
+        force_gain: the force transducer's gain per axis (scalar or ``(2,)``), ``> 0``: the
+            controller reads ``gain F_h`` and the recording ``gain F_h(t - delay) + offset``
+            (each plus the force noise). Default 1.
+        force_offset: the recorded force's offset [N] per axis (scalar or ``(2,)``); the
+            controller's input is taken as tared (a documented choice, docs/model.md section 8).
+            Default 0.
+        force_delay: the recorded force's delay [s] behind the position channel (the
+            acquisition's, not the controller's: a force delay inside IMBIC's loop makes it
+            unstable, 1 ms already), ``>= 0`` and below ``(FORCE_HISTORY - 1)`` control periods
+            (7 ms at 1 kHz); read by linear interpolation between samples. Default 0.
 
     The static flags ``force_on``, ``encoder_on``, ``velocity_on`` and ``calibrated`` (any of
     gain, offset and delay not at its default, or traced; derived, not arguments) say which

@@ -1,0 +1,173 @@
+"""How well must a lab know its robot? ``robot_sensitivity``: the bias a calibration error leaves
+in the arm's estimates, per 1% error in each robot parameter, in standard errors.
+
+``identify`` with the robot's parameters ``phi`` held at the lab's values solves
+``beta(theta; phi_model) = b``, with ``b`` near ``beta(theta_true; phi_true)``. To first order
+the estimate moves by
+
+    d theta = -(A_t^T W A_t)^-1 A_t^T W A_p d phi,     A_t = d beta / d theta,  A_p = d beta / d phi,
+
+the derivative of the estimate through the binding (``indirect.py``), with the statistics the
+lab's own ``identify`` matches (of the arm alone). ``A_p`` comes from the same noisy draws as
+``identify``'s slope (forward mode through the simulation), the arm's SEs from
+``predict_se`` on those draws. Robot parameters: the link inertias, the friction law's
+``IDENTIFIABLE`` parameters and the force channel's gain, each by 1% of its value (a parameter
+at zero has no 1%: it is left out, and a force offset or delay has no percentage).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._checks import require_x64
+from .._simulate import Trial
+from .._solver.numerics import Numerics
+from . import indirect
+from . import layout as lay
+from .bound import ARM, has_friction, is_near_linear
+from .predict import check_sampling, check_signal, predict_se
+
+DIAGONALS = ("[0,0]", "[1,1]")
+
+
+@dataclasses.dataclass(frozen=True)
+class Sensitivity:
+    """``robot_sensitivity``'s answer (host values).
+
+    Attributes:
+        bias_per_percent: ``(n_arm, n_robot)`` the move of each arm entry [its units] per 1%
+            error in each robot parameter entry (the model's value 1% above the truth).
+        in_se: the same over the arm entry's SE (``predict_se``).
+        arm_labels, robot_labels: the rows' and columns' names.
+        se: ``(n_arm,)`` the arm entries' SEs.
+        plausible: the calibration error [%] the warnings are for.
+        warnings: per robot parameter that error would move an arm entry by more than one SE.
+    """
+
+    bias_per_percent: np.ndarray
+    in_se: np.ndarray
+    arm_labels: list
+    robot_labels: list
+    se: np.ndarray
+    plausible: float
+    warnings: list
+
+    def table(self, *, diagonals: bool = True) -> str:
+        """A Markdown table of ``in_se`` (the arm's diagonals by default)."""
+        rows = [i for i, lab in enumerate(self.arm_labels) if not diagonals or lab.endswith(DIAGONALS)]
+        head = "| arm entry | " + " | ".join(self.robot_labels) + " |"
+        lines = [head, "|" + "---|" * (1 + len(self.robot_labels))]
+        for i in rows:
+            lines.append(f"| {self.arm_labels[i]} | " + " | ".join(f"{v:+.2f}" for v in self.in_se[i]) + " |")
+        return "\n".join(lines)
+
+
+def _robot_names(trial: Trial) -> list[str]:
+    """The robot's parameters with a value to take 1% of: the inertias, the friction law's and
+    the force gain."""
+    names = ["robot.inertia"] + [f"friction.{n}" for n in type(trial.friction).IDENTIFIABLE]
+    names.append("sensors.force_gain")
+    return [n for n in names if np.all(np.asarray(lay._get(trial, n)) > 0)]
+
+
+def robot_sensitivity(
+    trial: Trial,
+    f,
+    *,
+    free=ARM,
+    robot=None,
+    plausible: float = 10.0,
+    statistic: str = "auto",
+    numerics: Numerics | None = None,
+    key=None,
+    draws: int = 64,
+    jacobian_draws: int = 8,
+) -> Sensitivity:
+    """The bias per 1% calibration error, for a planned experiment (module docstring).
+
+    Args:
+        trial: the planned experiment at its (assumed) true values, with its noise.
+        f: the perturbation ``(N, 2)`` [N].
+        free: the arm matrices ``identify`` will estimate.
+        robot: the robot's parameters to probe (names as ``identify``'s: ``"robot.inertia"``,
+            ``"friction.<name>"``, ``"sensors.force_gain"``); default every one with a value.
+        plausible: the calibration error [%] the warnings are for.
+        statistic, numerics, key, draws, jacobian_draws: as ``predict_se``.
+
+    Returns a ``Sensitivity``. One-line errors for names that are not arm matrices (``free``) or
+    robot parameters (``robot``), and for a bad ``f``.
+    """
+    require_x64("robot_sensitivity")
+    if not isinstance(trial, Trial):
+        raise ValueError(f"robot_sensitivity: trial must be a Trial, got {type(trial).__name__}")
+    free = (free,) if isinstance(free, str) else tuple(free)
+    if not free or any(n not in lay.ARM_PARAMETERS for n in free):
+        raise ValueError(f"robot_sensitivity: free must name arm matrices ({', '.join(lay.ARM_PARAMETERS)})")
+    robot = tuple(_robot_names(trial) if robot is None else ((robot,) if isinstance(robot, str) else robot))
+    if not robot or any(n in lay.ARM_PARAMETERS for n in robot):
+        raise ValueError("robot_sensitivity: robot must name the robot's parameters (not the arm's)")
+    est = lay.make_layout(free, friction=trial.friction, where="robot_sensitivity")
+    both = lay.make_layout(free + robot, friction=trial.friction, where="robot_sensitivity")
+    f = check_signal(trial, f, "robot_sensitivity")
+    numerics, draws, jacobian_draws = check_sampling("robot_sensitivity", statistic, numerics, draws, jacobian_draws)
+    key = jax.random.key(0) if key is None else key
+    pred = predict_se(
+        trial, f, free=free, statistic=statistic, numerics=numerics, key=key, draws=draws, jacobian_draws=jacobian_draws
+    )
+    model = _calibrated(trial, robot)
+    p = lay.pack(both, model)
+    n_draws, n_jac = indirect.draw_counts(model, draws, jacobian_draws)
+    keys = jax.random.split(key, n_draws)
+    if statistic == "auto":  # as identify and predict_se choose
+        statistic = "efficient" if is_near_linear(trial, f, numerics) else "welch"
+    weight = None
+    if statistic == "efficient" and has_friction(model):
+        weight = indirect.statistic_weight(
+            est, model, lay.pack(est, model), f, keys[: indirect.weight_draws(n_draws)], numerics
+        )
+    arm_stat = indirect.arm_statistic(est, model, lay.pack(est, model), f, weight) if statistic == "efficient" else None
+    stats, _ = indirect.binding_draws(est, model, lay.pack(est, model), f, keys, numerics, arm_stat)
+    jac, diverged = indirect.binding_jacobian(both, model, p, f, keys[:n_jac], numerics, arm_stat, est)
+    if bool(diverged):
+        raise ValueError("robot_sensitivity: a noisy simulation of the trial diverged")
+    return _answer(est, both, model, np.asarray(p), np.asarray(stats), np.asarray(jac), pred, plausible)
+
+
+def _calibrated(trial: Trial, robot) -> Trial:
+    """The trial with its force channel simulated where its gain is probed (the same values)."""
+    if any(n.startswith("sensors.") for n in robot) and not trial.sensors.calibrated:
+        return dataclasses.replace(trial, sensors=dataclasses.replace(trial.sensors, calibrated=True))
+    return trial
+
+
+def _answer(est, both, model, p, stats, jac, pred, plausible) -> Sensitivity:
+    n = est.size
+    w = np.asarray(indirect.weights(jnp.asarray(stats), jnp.asarray(jac[:, :n])))
+    a_t, a_p = jac[:, :n], jac[:, n:]
+    aw = a_t.T * w[None, :]
+    move = -np.linalg.solve(aw @ a_t, aw @ a_p)  # internal arm per internal robot unit
+    # 1% of each robot entry in its internal units, and the arm's internal -> natural map
+    robot_layout = lay.Layout(both.names[len(est.names) :], both.symmetric[len(est.names) :])
+    q = p[n:]
+    natural = np.asarray(lay.natural(robot_layout, jnp.asarray(q), model))
+    d_nat = np.asarray(jax.jacfwd(lambda v: lay.natural(robot_layout, v, model))(jnp.asarray(q)))
+    per_percent = np.linalg.pinv(d_nat) @ np.diag(0.01 * natural)  # internal move per 1% of each entry
+    g = np.asarray(lay.natural_jacobian(est, jnp.asarray(p[:n]), model))
+    bias = g @ move @ per_percent
+    se = np.sqrt(np.diag(np.asarray(pred.covariance)))
+    in_se = bias / se[:, None]
+    arm_labels, robot_labels = est.labels(), robot_layout.labels()
+    warnings = []
+    for j, lab in enumerate(robot_labels):
+        worst = int(np.argmax(np.abs(in_se[:, j])))
+        if abs(in_se[worst, j]) * plausible > 1.0:
+            warnings.append(
+                f"a {plausible:g}% error in the robot's {lab} would move {arm_labels[worst]} by "
+                f"{abs(in_se[worst, j]) * plausible:.1f} SE: calibrate it (free it in identify with a robot-alone "
+                "recording) or know it better"
+            )
+    return Sensitivity(bias, in_se, arm_labels, robot_labels, se, float(plausible), warnings)
