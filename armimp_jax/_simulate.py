@@ -26,7 +26,7 @@ from ._model.arm import Arm
 from ._model.controllers import CONTROLLER_KINDS, AbstractController, matvec
 from ._model.friction import FRICTION_KINDS, AbstractFriction
 from ._model.plant import PlantState, Trig, displacement, measure, plant_model, rest_state, trig_of
-from ._model.robot import MIT_MANUS, Robot, fk, ik, jacobian_from_trig
+from ._model.robot import MIT_MANUS, Robot, cartesian_inertia, fk, ik, jacobian_from_trig
 from ._model.sensors import FORCE_HISTORY, IDEAL, Sensors, delayed_force, quantise, sample_noise
 from ._model.timing import CONTROL_PERIOD
 from ._model.voluntary import VoluntaryForce, voluntary_init, voluntary_key, voluntary_normals, voluntary_update
@@ -144,7 +144,10 @@ def make_trial(
 
 
 def _check_calibration(sensors: Sensors, acquisition: str, period: float) -> None:
-    """The force channel's calibration needs the instant acquisition and a delay the delay line holds."""
+    """The force channel's calibration, or a force from the motor torques, needs the instant
+    acquisition, and a delay the delay line holds."""
+    if sensors.motor_force and acquisition != "instant":
+        raise ValueError(f"make_trial: a force from the motor torques needs acquisition 'instant', got {acquisition!r}")
     if not sensors.calibrated:
         return
     if acquisition != "instant":
@@ -353,6 +356,13 @@ def _record(trial: Trial, state: PlantState, x, xd, fh, carry: SimCarry):
     return xbar, fbar
 
 
+def motor_force(trial: Trial, q, xd, carry: SimCarry):
+    """The hand force [N] ``(2,)`` a robot without a transducer computes from its motor torques:
+    ``F_u,k-1 - M_x,model(q) (xd_k - xd_k-1) / L`` (``Sensors.force_model``)."""
+    inertia = cartesian_inertia(q, trial.sensors.force_model)
+    return carry.fu_prev - matvec(inertia, (xd - carry.xd_prev) / trial.period)
+
+
 def period_step(trial: Trial, model, numerics: Numerics, carry: SimCarry, fd, inputs: PeriodInputs):
     """One control period from ``carry`` under the perturbation sample ``fd`` (2,) [N] and the
     period's random ``inputs``: measure, control, integrate. Returns the new carry and the
@@ -369,6 +379,8 @@ def period_step(trial: Trial, model, numerics: Numerics, carry: SimCarry, fd, in
     x, xd, fh = jax.lax.optimization_barrier(measure(*jax.lax.optimization_barrier((state, applied)), model))
     if carry.voluntary is not None:
         fh = fh - carry.voluntary.force
+    if trial.sensors.motor_force:  # no transducer: the force from the motor torques, through the model
+        fh = motor_force(trial, jnp.stack([state.q1, state.q2]), xd, carry)
     history = None
     x_rec, fh_rec = _record(trial, state, x, xd, fh, carry)
     if not trial.sensors.ideal or inputs.encoder is not None:

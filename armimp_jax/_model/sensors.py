@@ -21,6 +21,7 @@ import numpy as np
 
 from .._checks import as_param, check_range, is_concrete
 from .._pytree import params
+from .robot import Robot
 
 
 def _active(x) -> bool:
@@ -33,7 +34,7 @@ def _active(x) -> bool:
 FORCE_HISTORY = 8
 
 
-@params(static=("force_on", "encoder_on", "velocity_on", "calibrated"))
+@params(static=("force_on", "encoder_on", "velocity_on", "calibrated", "motor_force"))
 class Sensors:
     """Sensor imperfections (an immutable pytree).
 
@@ -55,6 +56,12 @@ class Sensors:
             acquisition's, not the controller's: a force delay inside IMBIC's loop makes it
             unstable, 1 ms already), ``>= 0`` and below ``(FORCE_HISTORY - 1)`` control periods
             (7 ms at 1 kHz); read by linear interpolation between samples. Default 0.
+        force_model: a ``Robot``: the robot has no force transducer, and the hand force is
+            computed from the commanded motor torques through this model of the robot,
+            ``F = F_u,k-1 - M_x,model(q_k) a_k`` (``J^-T tau_motor`` less the model's inertial
+            force; ``a_k = (xd_k - xd_k-1) / L``, the acceleration while ``F_u,k-1`` acted): what
+            the controller and the recording read, plus the force noise. The robot's own
+            friction and any error of the model stay in it. Default ``None`` (a transducer).
 
     The static flags ``force_on``, ``encoder_on``, ``velocity_on`` and ``calibrated`` (any of
     gain, offset and delay not at its default, or traced; derived, not arguments) say which
@@ -67,10 +74,12 @@ class Sensors:
     force_gain: jnp.ndarray = 1.0
     force_offset: jnp.ndarray = 0.0
     force_delay: jnp.ndarray = 0.0
+    force_model: object = None
     force_on: bool = False
     encoder_on: bool = False
     velocity_on: bool = False
     calibrated: bool = False
+    motor_force: bool = False
 
     def __post_init__(self):
         w = "Sensors"
@@ -99,13 +108,16 @@ class Sensors:
         set_(self, "force_delay", check_range("force_delay", delay, where=w, minimum=0.0, unit=" s"))
         calibration = (self.force_gain - 1.0, self.force_offset, self.force_delay)
         set_(self, "calibrated", bool(self.calibrated) or any(_active(v) for v in calibration))
+        if self.force_model is not None and not isinstance(self.force_model, Robot):
+            raise ValueError(f"Sensors: force_model must be a Robot (the model of the robot), got {self.force_model!r}")
+        set_(self, "motor_force", self.force_model is not None)
         set_(self, "force_on", bool(self.force_on) or _active(self.force_noise))
         set_(self, "velocity_on", bool(self.velocity_on) or _active(self.velocity_noise))
         set_(self, "encoder_on", counts is not None)
 
     @property
     def ideal(self) -> bool:
-        return not (self.force_on or self.encoder_on or self.velocity_on or self.calibrated)
+        return not (self.force_on or self.encoder_on or self.velocity_on or self.calibrated or self.motor_force)
 
 
 IDEAL = Sensors()
