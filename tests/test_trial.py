@@ -260,7 +260,7 @@ GOOD_ARM = dict(mass=np.eye(2), damping=np.eye(2), stiffness=100 * np.eye(2), en
         (lambda: aj.Arm(**(GOOD_ARM | dict(stiffness=[[1, np.inf], [0, 1]]))), "Arm: stiffness .* must be finite"),
         (
             lambda: aj.Arm(**(GOOD_ARM | dict(mass=-np.eye(2)))),
-            "Arm: mass must have a positive definite symmetric part",
+            "Arm: mass must have a positive semi-definite symmetric part",
         ),
         (lambda: aj.LuGre(-0.1, 0.2), r"LuGre: tau_c must be >= 0 N m, got \[-0.1, -0.1\]"),
         (lambda: aj.LuGre(1.0, 0.5), "LuGre: tau_s must be >= tau_c"),

@@ -246,11 +246,31 @@ def identify(
     checked = _check(recordings, free, symmetric, shared, statistic, numerics, draws, jacobian_draws, max_steps)
     layout, shared, numerics, draws, jacobian_draws, max_steps = checked
     pool = pl.make_pool(recordings, layout.names, tuple(n for n, s in zip(layout.names, layout.symmetric) if s), shared)
-    key = jax.random.key(0) if key is None else key
     p = pl.pack(pool)
-    n_draws, n_jac = indirect.draw_counts(recordings[0].model, draws, jacobian_draws)
-    parts, centred, names, forward_s = [], p.copy(), [], []
     groups = pl.templates(recordings, pool.groups)
+    parts, centred, names, forward_s = _parts(
+        recordings, pool, groups, p, statistic, numerics, key, draws, jacobian_draws
+    )
+    start = centred if not _diverges(parts, centred, numerics) else p
+    n_jac = indirect.draw_counts(recordings[0].model, draws, jacobian_draws)[1]
+    problem = _problem(parts, groups, recordings, pool, p, numerics, n_jac)
+    state = _init(problem, start, p)
+    report = _reporter(progress, t_start)
+    while not state.done:
+        state = search.step(problem, state, max_steps)
+        report(state)
+    statistic = ", ".join(dict.fromkeys(names))
+    part_of = {r: t for t, members in enumerate(groups) for r in members}
+    recorded = [(part_of[i], r.x, r.fh) for i, r in enumerate(recordings)]
+    return assemble(problem, state, pool, recorded, statistic, t_start, forward_s[0])
+
+
+def _parts(recordings, pool: pl.Pool, groups, p, statistic, numerics, key, draws, jacobian_draws):
+    """One search part per template (recordings sharing a model and a perturbation), its
+    statistic, and the start centred on each group's arm; the forward seconds at the start."""
+    key = jax.random.key(0) if key is None else key
+    n_draws, _ = indirect.draw_counts(recordings[0].model, draws, jacobian_draws)
+    parts, centred, names, forward_s = [], p.copy(), [], []
     for t, members in enumerate(groups):
         r = members[0]  # the template's first recording centres its statistic
         rec, rlayout, index = recordings[r], pool.layouts[r], pool.indices[r]
@@ -263,17 +283,7 @@ def identify(
             centred[index[own]] = np.where(unset, at[own], centred[index[own]])
         parts.append(search.Part(rlayout, rec.model, rec.f, keys, stat, index, len(members)))
         names.append(name)
-    start = centred if not _diverges(parts, centred, numerics) else p
-    problem = _problem(parts, groups, recordings, pool, p, numerics, n_jac)
-    state = _init(problem, start, p)
-    report = _reporter(progress, t_start)
-    while not state.done:
-        state = search.step(problem, state, max_steps)
-        report(state)
-    statistic = ", ".join(dict.fromkeys(names))
-    part_of = {r: t for t, members in enumerate(groups) for r in members}
-    recorded = [(part_of[i], r.x, r.fh) for i, r in enumerate(recordings)]
-    return assemble(problem, state, pool, recorded, statistic, t_start, forward_s[0])
+    return parts, centred, names, forward_s
 
 
 def _own(layout: lay.Layout, pool: pl.Pool, r: int, recordings) -> np.ndarray:

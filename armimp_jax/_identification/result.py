@@ -144,9 +144,10 @@ def _ljung_box_p(e, lags: int):
     n = e.shape[0]
     denom = np.sum(e * e, axis=0)
     q = np.zeros(e.shape[1])
-    for k in range(1, lags + 1):
-        rho = np.sum(e[k:] * e[:-k], axis=0) / denom
-        q += rho**2 / (n - k)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a residual of exact zeros (a noise-free fit) has no p
+        for k in range(1, lags + 1):
+            rho = np.sum(e[k:] * e[:-k], axis=0) / denom
+            q += rho**2 / (n - k)
     return scipy.stats.chi2.sf(n * (n + 2) * q, lags)
 
 
@@ -233,7 +234,8 @@ def _fit(part: search.Part, p, numerics, x, fh, group):
     stuck = motion_diagnosis(model, x)
     y = np.concatenate([x, fh], axis=1)
     resid = y - np.asarray(y_fit)
-    vaf = 100.0 * (1.0 - np.sum(resid**2, axis=0) / np.sum((y - y.mean(axis=0)) ** 2, axis=0))
+    with np.errstate(invalid="ignore", divide="ignore"):  # a channel without variance (no arm: no force) has no VAF
+        vaf = 100.0 * (1.0 - np.sum(resid**2, axis=0) / np.sum((y - y.mean(axis=0)) ** 2, axis=0))
     fit = RecordingFit(
         group=group,
         trial=lay.with_values(layout, model, jnp.asarray(p[part.index])),
