@@ -128,9 +128,9 @@ def command_line(out: pathlib.Path, options: dict) -> str:
 def run_folder(out: pathlib.Path):
     """The tuning run's folder (``armimp_jax.study.runfolder``): its ``run.json`` holds the
     training settings, their key, and the options of the last command that ran it."""
-    from armimp_jax.study.runfolder import RunFolder
+    from armimp_jax.study.runfolder import StudyRun
 
-    return RunFolder(out, kind=RUN_KIND, format=RUN_FORMAT, noun="tuning run", records=None)
+    return StudyRun(out, kind=RUN_KIND, format=RUN_FORMAT, noun="tuning run", records=None)
 
 
 def setup(options: dict, tune, paper_tune, Welch):

@@ -33,11 +33,9 @@ _EXPORTS = {
     "seed_stats": "stats",
     "first_crossing": "stats",
     "bootstrap_crossing": "stats",
-    "RunFolder": "runfolder",
-    "open_run": "runfolder",
-    "trial_status": "runfolder",
+    "StudyRun": "runfolder",
+    "RunLock": "runfolder",
     "ResultsError": "results",
-    "RunLock": "results",
     "atomic_write_json": "results",
     "read_json": "results",
     "stamped": "results",
@@ -90,16 +88,14 @@ if TYPE_CHECKING:
     from .points import parse_set as parse_set
     from .points import read_toml as read_toml
     from .results import ResultsError as ResultsError
-    from .results import RunLock as RunLock
     from .results import atomic_write_json as atomic_write_json
     from .results import load_record as load_record
     from .results import read_json as read_json
     from .results import save_record as save_record
     from .results import settings_key as settings_key
     from .results import stamped as stamped
-    from .runfolder import RunFolder as RunFolder
-    from .runfolder import open_run as open_run
-    from .runfolder import trial_status as trial_status
+    from .runfolder import RunLock as RunLock
+    from .runfolder import StudyRun as StudyRun
     from .seeds import perturbation_key as perturbation_key
     from .stats import CI_LEVEL as CI_LEVEL
     from .stats import MeanCI as MeanCI
