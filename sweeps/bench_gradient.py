@@ -71,8 +71,8 @@ def child(mode, kernel, checkpoint, seconds, substeps, repeats, codegen):
     import numpy as np
 
     from armimp_jax import Welch
-    from armimp_jax.paper import tune as paper_tune
-    from armimp_jax.study import tune
+    from armimp_jax.paper import mhat_experiment as paper_tune
+    from armimp_jax.study import tuning as tune
 
     welch = Welch() if seconds >= 10.24 else Welch(1024, 768)
     kind = "full" if mode.endswith("full") else "diagonal"
@@ -192,8 +192,8 @@ def child_training(repeats, codegen):
     from jax.sharding import NamedSharding, PartitionSpec
 
     from armimp_jax import Welch
-    from armimp_jax.paper import tune as paper_tune
-    from armimp_jax.study import tune
+    from armimp_jax.paper import mhat_experiment as paper_tune
+    from armimp_jax.study import tuning as tune
 
     theta = tune.theta_from_mhat(0.25 * np.eye(2), "diagonal")
     # tune_mhat.py's defaults: friction 1-2 x 4 locations x 2 seeds, 16 s, 20 substeps

@@ -181,7 +181,7 @@ def test_the_tables_are_tidy_dataframes_and_csv_files_of_the_results(quick_run):
 def test_every_study_draws_one_signal_per_seed():
     """Common random numbers: the reproduction, the tuner and a sweep give seed s the same
     perturbation shape (scaled to the peak); another seed changes it."""
-    from armimp_jax.paper import tune as paper_tune
+    from armimp_jax.paper import mhat_experiment as paper_tune
     from armimp_jax.presets import perturbation_peak
 
     settings = dataclasses.replace(TINY, base_seed=7)
