@@ -30,8 +30,7 @@ import pathlib
 import sys
 import time
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _cli import Z95, Parser, error_line  # noqa: E402
+from armimp_jax.study.cli import Z95, Parser, error_line
 
 PROG = "design_experiment"
 

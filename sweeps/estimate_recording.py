@@ -66,8 +66,7 @@ import pathlib
 import sys
 import time
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _cli import Parser, error_line  # noqa: E402
+from armimp_jax.study.cli import Parser, error_line
 
 PROG = "estimate_recording"
 # the Welch route's options (study.estimate_recording.ROUTE_DEFAULTS, then --friction); the model route takes none

@@ -208,7 +208,7 @@ def test_no_import_cycle():
 
 def test_no_general_layer_imports_paper():
     for parts in MODULES:
-        if _floor_of(parts[0]) != "paper":
+        if _floor_of(parts[0]) not in ("paper", "bench"):  # the benchmarks sit above the paper
             assert not any(t[:1] == ("paper",) for t in imports(parts)), parts
 
 

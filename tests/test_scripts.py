@@ -12,7 +12,7 @@ import time
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-SCRIPTS = sorted(p for p in (ROOT / "sweeps").glob("*.py") if not p.name.startswith("_"))
+SCRIPTS = sorted((ROOT / "sweeps").glob("*.py"))
 HELP_LIMIT_S = 3.0  # importing JAX alone takes longer than this on a loaded 2-core host
 
 
@@ -37,16 +37,24 @@ def test_an_unknown_option_gets_one_line_under_the_script_s_own_name(name):
     assert proc.stderr.strip().splitlines() == [f"{name}: error: unrecognized arguments: --bogus"]
 
 
-@pytest.mark.parametrize("name", ["sweep", "friction_threshold", "reproduce_paper", "tune_mhat"])
-def test_study_scripts_use_the_public_library_and_load_no_file_by_path(name):
-    """They import the library's public modules (no ``armimp_jax._private``) and each other as
-    modules of the scripts' folder (no ``importlib`` loading by path)."""
-    tree = ast.parse((ROOT / "sweeps" / f"{name}.py").read_text())
+@pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: p.name)
+def test_scripts_are_shells_on_the_public_library(script):
+    """A script imports the library's public modules (no ``armimp_jax._private``), no other
+    script (nothing from its own folder, nothing on ``sys.path`` it put there) and loads no
+    file by path (no ``importlib``)."""
+    tree = ast.parse(script.read_text())
     imported = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
     imported += [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
     private = [m for m in imported if m.startswith("armimp_jax.") and any(p.startswith("_") for p in m.split(".")[1:])]
     assert not private, private
     assert not any(m.startswith("importlib") for m in imported), imported
+    siblings = {p.stem for p in (ROOT / "sweeps").glob("*.py")}
+    assert not [m for m in imported if m.split(".")[0] in siblings], imported
+    assert "sys.path" not in script.read_text()
+
+
+def test_the_scripts_are_at_most_2500_lines():
+    assert sum(len(p.read_text().splitlines()) for p in SCRIPTS) <= 2500
 
 
 def test_numba_baseline_without_numba(tmp_path):

@@ -8,7 +8,7 @@ import json
 import statistics
 import sys
 
-from _bench_run import run_children
+from .timing import run_children
 
 SETUPS = ("library", "configured", "plain")  # the set-ups --library-path compares, a child each
 LIBRARY_BATCH = 24  # trials of --library-path

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from _bench_run import markdown_head, markdown_table
-
 import armimp_jax as aj
+
+from .timing import markdown_head, markdown_table
 
 
 def markdown_unrolling(rows, seconds, substeps, repeats):
