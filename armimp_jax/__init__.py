@@ -5,14 +5,13 @@ controller and a friction law of your own: ``AbstractController``, ``AbstractFri
 The general simulator is at the top level (``make_trial``, ``simulate``, ``estimate``,
 ``accuracy``); the paper's presets and study are in ``armimp_jax.paper``.
 
-Float64 is required: call ``jax.config.update("jax_enable_x64", True)`` before use
-(the library never switches it on for you, and its entry points refuse to run without it).
+Float64 is required: call ``aj.runtime.configure()`` at program start, before any JAX
+computation (float64, one CPU device per core, XLA:CPU's fast loops; see
+``armimp_jax.runtime``), or at least ``jax.config.update("jax_enable_x64", True)``: the
+library never switches it on for you, and its entry points refuse to run without it.
 
-Importing ``armimp_jax`` does not import JAX: each public name is loaded on first use, so a
-script's ``--help`` answers at once. When the first of the package's JAX modules loads, and
-no JAX backend has started yet, ``runtime.apply_cpu_defaults`` asks for one CPU device per
-core, sets two XLA:CPU code-generation options and lets devices wait for each other at
-collectives (see ``armimp_jax.runtime``).
+Importing ``armimp_jax`` does not import JAX and changes no setting of JAX's: each public
+name is loaded on first use, so a script's ``--help`` answers at once.
 """
 
 from __future__ import annotations

@@ -32,7 +32,6 @@ Writes ``DIR/convergence.json`` (every number) and ``DIR/convergence.md`` (the t
 from __future__ import annotations
 
 import argparse
-import os
 import pathlib
 import sys
 
@@ -89,7 +88,6 @@ def parse(argv):
 
 def main(argv=None):
     args = parse(argv)
-    os.environ["ARMIMP_JAX_XLA_DEFAULTS"] = "0"  # configure() below sets code generation
     from armimp_jax import runtime
 
     n_devices = runtime.configure(compilation_cache=False)  # compile times are measured

@@ -11,7 +11,7 @@ alternating with its own runs, and reports the paired ratio. The gradients use
     python sweeps/bench_gradient.py [--seconds 50] [--substeps 100] [--repeats 3]
 
 The script sets XLA's code generation itself (``configure``), so it opts out of the
-options that importing ``armimp_jax`` adds (``ARMIMP_JAX_XLA_DEFAULTS=0``): ``--no-hoist``
+options (importing ``armimp_jax`` sets none): ``--no-hoist``
 and ``--unroll-loops`` then really leave them off.
 
 ``--training-batch`` also times one gradient of ``tune_mhat.py``'s default training batch
@@ -32,12 +32,7 @@ excluded and reported, ``block_until_ready``, the three alternated, median of re
 from __future__ import annotations
 
 import argparse
-import os
 import pathlib
-
-# configure() in each child sets code generation: keep the import-time options out of it
-# (the children inherit this). No JAX backend starts on import, so configure() still applies.
-os.environ["ARMIMP_JAX_XLA_DEFAULTS"] = "0"
 
 # aj.Numerics.CHECKPOINTS and aj.RK4.KERNELS, spelled out so that --help needs no JAX (checked in the children)
 CHECKPOINTS = ("period", "substep")

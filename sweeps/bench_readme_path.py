@@ -1,11 +1,12 @@
-"""Benchmark: the README's path against an entry point's set-up, and the numba reference.
+"""Benchmark: the README's path against plain XLA, and the numba reference.
 
 Three child processes, alternating, each timing 24 IMBIC trials (5 s, the four arms and
 seven friction levels cycled, RK4 at 100 substeps: the issue's workload) through
-``aj.simulate_batch``: ``readme`` (float64 switched on, nothing configured: what the README
-shows), ``configured`` (after ``aj.runtime.configure()``) and, with numba installed,
-``numba`` (``sweeps/numba_baseline.py`` on one thread). Compile excluded (the first call),
-``block_until_ready``, median of ``--repeats`` calls per process, ratios from one run.
+``aj.simulate_batch``: ``readme`` (``aj.runtime.configure()``, what the README shows),
+``plain`` (float64 switched on, nothing configured: plain XLA, since importing the package
+sets nothing) and, with numba installed, ``numba`` (``sweeps/numba_baseline.py`` on one
+thread). Compile excluded (the first call), ``block_until_ready``, median of ``--repeats``
+calls per process, ratios from one run.
 
     python sweeps/bench_readme_path.py [--repeats 5] [--rounds 2]
 """

@@ -9,9 +9,8 @@ Prints Markdown tables and writes them (and JSON) under ``--out``.
 
     python sweeps/bench_simulate.py [--repeats 3] [--quick] [--no-numba] [--no-wide-vectors]
 
-The script sets XLA's code generation itself (``configure``), so it opts out of the
-options that importing ``armimp_jax`` adds (``ARMIMP_JAX_XLA_DEFAULTS=0``): ``--unroll-loops``
-then really leaves LLVM's loop unrolling on. What it measures is ``armimp_jax.bench.simulate``.
+The script sets XLA's code generation itself (``configure``; importing ``armimp_jax`` sets
+none), so ``--unroll-loops`` really leaves LLVM's loop unrolling on. What it measures is ``armimp_jax.bench.simulate``.
 
 ``--compare-unrolling`` instead times the simulation with and without LLVM's unrolling of
 XLA:CPU's loops over the batch (an XLA option, fixed per process): two child processes,
@@ -25,11 +24,11 @@ behind ``aj.MAX_PER_DEVICE``).
 
 ``--library-path`` instead (and the default run, as an extra table) times one device
 running 24 IMBIC trials (5 s, 100 substeps) the way a library user would,
-``aj.simulate_batch(trials, f_delta, numerics=...)`` in a process that only switches
-float64 on (the XLA:CPU options that importing ``armimp_jax`` adds), against the same
-call after ``runtime.configure(host_devices=1)`` (an entry point's set-up) and in a
-process with ``ARMIMP_JAX_XLA_DEFAULTS=0`` (plain XLA): three child processes, compile
-excluded, alternating run by run, median of repeats.
+``aj.simulate_batch(trials, f_delta, numerics=...)`` after ``aj.runtime.configure()`` (the
+README's set-up, on one device: ``ARMIMP_JAX_CPU_DEVICES=1``), against the same call after
+``runtime.configure(host_devices=1)`` (an entry point's set-up) and in a process that only
+switches float64 on (plain XLA: importing ``armimp_jax`` sets no option): three child
+processes, compile excluded, alternating run by run, median of repeats.
 """
 
 from __future__ import annotations
@@ -73,23 +72,19 @@ ARGS = parser().parse_args() if __name__ == "__main__" else None
 CALLER_ENV = dict(os.environ)
 CALLER_XLA_FLAGS = CALLER_ENV.get("XLA_FLAGS", "")
 SETUP = ARGS.library_child if ARGS is not None else None
-if SETUP is None:
-    # configure() below sets code generation: keep the import-time options out of it.
-    os.environ["ARMIMP_JAX_XLA_DEFAULTS"] = "0"
-
 from armimp_jax import runtime  # noqa: E402
 
 # configure() must run before JAX starts: hence the options parsed above, before any JAX import.
-if SETUP in ("library", "plain"):
+if SETUP == "plain":
     import jax
 
     import armimp_jax
 
-    # A library user's first use of the package (it loads the package's JAX modules, and
-    # with them the import-time defaults) comes before JAX starts: touch it here too.
-    armimp_jax.simulate  # noqa: B018
-    jax.config.update("jax_enable_x64", True)  # all a library user does
+    armimp_jax.simulate  # noqa: B018  (loading the package's JAX modules sets no option)
+    jax.config.update("jax_enable_x64", True)
     N_DEVICES = jax.device_count()
+elif SETUP == "library":
+    N_DEVICES = runtime.configure(compilation_cache=False)  # the README's set-up (compile times measured)
 elif SETUP == "configured":
     N_DEVICES = runtime.configure(host_devices=1, compilation_cache=False)
 else:
