@@ -165,12 +165,10 @@ def check_options(args, config, records) -> tuple[int, str]:
 
 def main(argv=None) -> int:
     args = parse(argv)
-    import jax  # after the arguments: --help stays fast
+    from armimp_jax import runtime  # after the arguments: --help stays fast
 
-    jax.config.update("jax_enable_x64", True)
-    from armimp_jax import runtime
-
-    runtime.use_compilation_cache(runtime.compilation_cache_dir())  # a second run loads, not compiles
+    runtime.configure()  # float64, the devices, XLA:CPU's options, the compilation cache
+    import jax
     import numpy as np
     from tqdm import tqdm
 

@@ -139,13 +139,11 @@ def fail(message: str) -> int:
 
 
 def start_jax() -> None:
-    """Float64 and the compilation cache, after the arguments (--help stays fast)."""
-    import jax
-
-    jax.config.update("jax_enable_x64", True)
+    """The set-up (float64, the devices, XLA:CPU's options, the compilation cache), after the
+    arguments (--help stays fast)."""
     from armimp_jax import runtime
 
-    runtime.use_compilation_cache(runtime.compilation_cache_dir())  # a second run loads, not compiles
+    runtime.configure()
 
 
 def load(args, recording) -> tuple[dict, dict]:
