@@ -89,6 +89,9 @@ _EXPORTS = {
     "Limits": "._identification.limits",
     "Design": "._identification.monte_carlo_design",
     "design": "._identification.design",
+    "CramerRao": "._identification.design",
+    "MonteCarlo": "._identification.design",
+    "Auto": "._identification.design",
     "record_for": "._identification.design",
     "BoundDesign": "._identification.bound_design",
     "limited_signal": "._identification.limits",
@@ -152,6 +155,9 @@ if TYPE_CHECKING:  # what static tools and editors see
     from ._identification.bound import crlb as crlb
     from ._identification.bound import fisher_information as fisher_information
     from ._identification.bound_design import BoundDesign as BoundDesign
+    from ._identification.design import Auto as Auto
+    from ._identification.design import CramerRao as CramerRao
+    from ._identification.design import MonteCarlo as MonteCarlo
     from ._identification.design import design as design
     from ._identification.design import record_for as record_for
     from ._identification.identify import Identification as Identification

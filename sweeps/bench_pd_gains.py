@@ -12,7 +12,7 @@ second record. Reported per gain pair: each arm's drift under the person's force
 (``aj.drift``), the largest relative SE of the M, B, K diagonals per arm and which, and the
 minutes for +-10% at 95% on all of them (one over the square root of the length). Through
 stick-slip no Cramér-Rao bound holds, so ``predict_se`` (identify's own SEs, by Monte Carlo)
-is the criterion, as in ``aj.design(method="monte_carlo")``. Saves strict JSON (``--out``)
+is the criterion, as in ``aj.design(method=aj.MonteCarlo())``. Saves strict JSON (``--out``)
 with the settings and the package version.
 
     python sweeps/bench_pd_gains.py --gains 250:4,100:4,50:4,250:1,250:12,600:1 --out pd_gains.json

@@ -59,13 +59,17 @@ def describe(trials, family, limits, options) -> str:
     """The one line said before the design starts."""
     candidates = family if isinstance(family, list) else [family]
     what = type(candidates[0]).__name__ + (f" ({len(candidates)} candidate starts)" if len(candidates) > 1 else "")
+    method = options["method"]
+    bound = method if method.name == "bound" else getattr(method, "bound", None)
+    monte_carlo = method if method.name == "monte_carlo" else getattr(method, "monte_carlo", None)
     how = {
         "bound": "on the Cramér-Rao bound",
-        "monte_carlo": f"of {options['draws']} noise draws per arm",
-        "auto": f"on the bound where the loops are near-linear, else of {options['draws']} noise draws per arm",
-    }[options["method"]]
-    gains = " and the controller's gains" if options["controller"] else ""
-    rounds = options.get("calibrate", 0)
+        "monte_carlo": f"of {getattr(monte_carlo, 'draws', 0)} noise draws per arm",
+        "auto": f"on the bound where the loops are near-linear, else of {getattr(monte_carlo, 'draws', 0)} noise "
+        "draws per arm",
+    }[method.name]
+    gains = " and the controller's gains" if bound is not None and bound.controller else ""
+    rounds = bound.calibrate if bound is not None else 0
     calibrated = f", then {rounds} round(s) of {options['steps']} calibrated through the friction" if rounds else ""
     return (
         f"designing {what}{gains} for {len(trials)} arm(s), {limits.record:g} s records, {options['steps']} steps {how}"
@@ -101,7 +105,9 @@ def paper_reference(aj, jax, result, trials, limits, options) -> list:
     signal = aj.PaperNoise(limits.peak_force).signal(jax.random.key(2024), result.signal.shape[0])
     if isinstance(result, aj.BoundDesign):
         return [aj.crlb(t, signal, free=free, check=False) for t in trials]
-    return [aj.predict_se(t, signal, free=free, draws=options["predict_draws"]) for t in trials]
+    method = options["method"]
+    draws = (method if method.name == "monte_carlo" else method.monte_carlo).predict_draws
+    return [aj.predict_se(t, signal, free=free, draws=draws) for t in trials]
 
 
 def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:

@@ -96,8 +96,10 @@ def test_bad_families_and_limits_are_one_line_errors():
     with pytest.raises(ValueError, match=r"robust_over\[1\] must share the trial's controller type.*IMBIC"):
         imbic = aj.make_trial(aj.IMBIC(), arm=paper.arm(2), friction=aj.LuGre(0.3, 0.45), **NOISE)
         aj.design(_trial(), fam, free=ARM, limits=limits, robust_over=[_trial(), imbic])
-    with pytest.raises(ValueError, match="design: draws must be an integer >= 8, got 4"):
-        aj.design(_trial(), fam, free=ARM, limits=limits, draws=4)
+    with pytest.raises(ValueError, match="MonteCarlo: draws must be an integer >= 8, got 4"):
+        aj.MonteCarlo(draws=4)
+    with pytest.raises(ValueError, match=r"design: method must be aj.CramerRao\(...\), aj.MonteCarlo\(...\)"):
+        aj.design(_trial(), fam, free=ARM, limits=limits, method="bound")
     with pytest.raises(ValueError, match=r"no frequency of a 3 s record \(spacing 0.333333 Hz\) lies in the band"):
         aj.ShapedNoise(knots=[1.1, 1.2], shape=np.ones((2, 2)), rms=1.0).signal(jax.random.key(0), 3000)
     with pytest.raises(ValueError, match="record_for: target must map entry labels to relative SEs"):
@@ -174,7 +176,14 @@ def test_a_short_design_lowers_the_criterion_within_the_limits():
     targets = [f"arm.{n}[{i},{i}]" for n in ("mass", "damping", "stiffness") for i in (0, 1)]
     bursts = aj.ShapedNoise(knots=np.linspace(0.5, 15.0, 6), shape=np.ones((2, 6)), rms=1.0, duty=0.25, burst=1.0)
     d = aj.design(
-        trials[0], [fam, bursts], free=ARM, limits=limits, targets=targets, robust_over=trials, steps=6, draws=8
+        trials[0],
+        [fam, bursts],
+        free=ARM,
+        limits=limits,
+        targets=targets,
+        robust_over=trials,
+        steps=6,
+        method=aj.MonteCarlo(draws=8),
     )
     assert len(d.trace) == 6 and len(d.before) == len(d.after) == 2
     # the start is the candidate the prediction rates best, its prediction the one design reports
@@ -312,15 +321,15 @@ def test_the_shipped_design_configs_build_the_must_shows_limits():
         trials, family, limits, options = dx.build_design(dx.read_design_config(path), where=str(path))
         assert len(trials) == 4 and all(isinstance(t.controller, kind) for t in trials)
         assert (limits.rms_force, limits.peak_force, limits.peak_displacement) == (0.66, 2.25, 0.010)
-        assert (options["method"], options["controller"]) == (method, controller)
+        assert options["method"].name == method
+        assert (method == "bound" and options["method"].controller) == controller
     assert (limits.drift, limits.min_stiffness) == (None, 0.0)  # PD: the gains are fixed
     # PD without friction (the reference the PD case is set against): its gains designed on the bound
     path = ROOT / "sweeps" / "configs" / "design_pd_frictionless.toml"
     trials, _, limits, options = dx.build_design(dx.read_design_config(path), where=str(path))
     assert all(isinstance(t.controller, aj.PD) and np.all(np.asarray(t.friction.tau_c) == 0.0) for t in trials)
-    assert (options["method"], options["controller"], limits.drift, limits.min_stiffness) == (
-        "bound",
-        True,
+    assert (options["method"], limits.drift, limits.min_stiffness) == (
+        aj.CramerRao(controller=True, calibrate=0, precision=0.1, draws=64),
         0.003,
         50.0,
     )

@@ -16,6 +16,7 @@ import numpy as np
 
 import armimp_jax as aj
 from armimp_jax import paper
+from armimp_jax._identification.criterion import record_minutes
 from armimp_jax.study import coverage as cov
 from armimp_jax.study import design_check as dc
 from armimp_jax.study import design_experiment as dx
@@ -68,7 +69,7 @@ def run_design(trials, limits, knots, a, name):
         targets=TARGETS,
         robust_over=trials,
         steps=a.steps,
-        draws=a.draws,
+        method=aj.MonteCarlo(draws=a.draws),
         learning_rate=a.learning_rate,
         progress=progress,
     )
@@ -186,7 +187,7 @@ def one_pair(kp: float, kv: float, a) -> dict:
         rms_force=np.sqrt(np.mean(signal**2, axis=0)).tolist(),
         peak_force=np.abs(signal).max(axis=0).tolist(),
         worst=worst,
-        minutes=a.record / 60.0 * (largest / (a.precision / Z95)) ** 2,
+        minutes=record_minutes(a.record, largest, a.precision),
     )
 
 

@@ -18,8 +18,8 @@ import math
 
 import jax
 import numpy as np
-import scipy.stats
 
+from .._identification.criterion import record_minutes
 from .._identification.identify import identify
 from .._identification.indirect import IDENTIFY_NUMERICS
 from .._identification.layout import make_layout, natural, pack
@@ -45,7 +45,7 @@ def predicted_record(doc: dict, *, design_record: float, precision: float) -> fl
         minutes = max(r.get("predicted_minutes", r["minutes_after"]) for r in rows)
     else:
         worst = max(max(r["relative_se_after"].values()) for r in rows)
-        minutes = design_record / 60.0 * (worst * scipy.stats.norm.ppf(0.975) / precision) ** 2
+        minutes = record_minutes(design_record, worst, precision)
     return float(max(math.ceil(60.0 * minutes - 1e-9), design_record))
 
 

@@ -24,7 +24,7 @@ from matplotlib.figure import Figure  # no pyplot: no global figure state
 from .._identification.bound import has_friction
 from .._identification.bound_design import BoundDesign
 from .._identification.criterion import default_targets, relative_se
-from .._identification.design import AGGREGATES, CRITERIA, METHODS
+from .._identification.design import AGGREGATES, CRITERIA, METHODS, Auto, CramerRao, MonteCarlo
 from .._identification.layout import make_layout, parameter_units
 from .._identification.limits import Limits
 from .._model.families import ShapedNoise, multisine
@@ -148,18 +148,27 @@ def build_design(config: dict, *, where: str = "config") -> tuple:
         targets=d["targets"] or None,
         criterion=d["criterion"],
         aggregate=d["aggregate"],
-        method=d["method"],
-        controller=d["controller"] == "design",
-        calibrate=d["calibrate"],
-        precision=float(d["precision"]),
+        method=design_method(d),
         robust_over=trials,
         steps=d["steps"],
         learning_rate=float(d["learning_rate"]),
-        draws=d["draws"],
-        predict_draws=d["predict_draws"],
         key=jax.random.key(d["seed"]),
     )
     return trials, make_family(config["family"]), make_limits(config["limits"]), options
+
+
+def design_method(d: dict):
+    """The method object of a config's ``[design]`` section: ``CramerRao`` (``method = "bound"``:
+    ``controller``, ``calibrate``, ``precision``, its calibrations' ``predict_draws``),
+    ``MonteCarlo`` (``"monte_carlo"``: ``draws``, ``predict_draws``) or ``Auto`` of both."""
+    bound = CramerRao(
+        controller=d["controller"] == "design",
+        calibrate=d["calibrate"],
+        precision=float(d["precision"]),
+        draws=d["predict_draws"],
+    )
+    monte_carlo = MonteCarlo(draws=d["draws"], predict_draws=d["predict_draws"])
+    return {"bound": bound, "monte_carlo": monte_carlo, "auto": Auto(bound, monte_carlo)}[d["method"]]
 
 
 def _validation_row(v, se, relative_value, predicted: dict, labels, scale: float) -> dict:
