@@ -1,6 +1,6 @@
 """Design the perturbation of an impedance experiment within a patient's limits, and check it.
 
-    python sweeps/design_experiment.py CONFIG.toml --out DIR [--validate SEEDS [--validate-record predicted]]
+    python sweeps/design_experiment.py CONFIG.toml --out DIR [--record predicted|design|SECONDS] [--validate SEEDS]
 
 CONFIG.toml names the robot, controller, sensors, the person's own force and the friction
 (as the model route of estimate_recording.py), the arm to design for ([arm], or the
@@ -11,16 +11,18 @@ parameters, the target entries, the criterion). Keys, units and defaults:
 docs/experiment_design.md; an example: sweeps/configs/design_example.toml.
 
 Writes DIR/perturbation.csv (f_delta_x, f_delta_y [N], one row per 1 ms: what the robot's
-software loads), DIR/perturbation.npz, DIR/design.json (settings, limits met, predicted SEs
-before and after, the optimisation trace, the check) and DIR/spectrum.png, DIR/se.png,
-DIR/trace.png. With --validate SEEDS (or [validate] seeds) it simulates and identifies
-SEEDS recordings per arm under new noise with the designed perturbation and reports the
-spread of the estimates against the predicted SEs; --validate-record predicted (or
-[validate] record) runs it at the record the design's minutes predict (the family's signal at
-that length, within the same limits, written as DIR/perturbation_checked.csv), where the
-spread should meet the precision asked. A bound's minutes leave the joints' friction out:
-calibrate ([design] calibrate) before trusting them through friction. Every bad config gets one line on
-stderr and exit status 2, before any computation.
+software loads) at the record --record names: by default the one the design's own minutes
+predict for its precision (rounded up to a second, never below [limits] record), or the
+design's own record, or SECONDS (the family's signal at that length, within the same
+limits). DIR/design.json holds every number at that signal, on the designed controller (the
+bound of each arm, the minutes, predict_se's through the friction where calibrated, the
+limits met), with the settings, the start and the optimisation trace; DIR/perturbation.npz,
+DIR/spectrum.png, DIR/se.png, DIR/trace.png (and minutes.png) beside it. With --validate
+SEEDS (or [validate] seeds) it simulates and identifies SEEDS recordings per arm under new
+noise with that signal and reports the spread of the estimates against the predicted SEs.
+A bound's minutes leave the joints' friction out: calibrate ([design] calibrate) before
+trusting them through friction. Every bad config gets one line on stderr and exit status 2,
+before any computation.
 """
 
 from __future__ import annotations
@@ -39,15 +41,23 @@ def parse(argv):
     ap = Parser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("config", type=pathlib.Path, help="TOML config (see above)")
     ap.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR", help="output folder (created)")
-    ap.add_argument("--validate", type=int, metavar="SEEDS", help="Monte Carlo check: recordings per arm")
     ap.add_argument(
-        "--validate-record",
-        metavar="{design,predicted}",
-        help="the check's record: the design's (default) or the one its minutes predict",
+        "--record",
+        default="predicted",
+        metavar="{predicted,design,SECONDS}",
+        help="the written signal's record: the one the design predicts (default), its own, or SECONDS",
     )
+    ap.add_argument("--validate", type=int, metavar="SEEDS", help="Monte Carlo check: recordings per arm")
     args = ap.parse_args(argv)
     if args.validate is not None and args.validate < 0:
         ap.error(f"--validate must be >= 0 recordings, got {args.validate}")
+    if args.record not in ("predicted", "design"):
+        try:
+            args.record = float(args.record)
+        except ValueError:
+            ap.error(f"--record must be predicted, design or a number of seconds, got {args.record!r}")
+        if not args.record >= 2.0:
+            ap.error(f"--record must be >= 2 s, got {args.record:g}")
     return args
 
 
@@ -122,9 +132,9 @@ def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:
         p = config["design"]["precision"]
         print(f"controller: {result.controller}")
         print(
-            f"minutes for +-{p:.0%} at 95% on every target, per arm: start "
-            f"{np.round(result.start_minutes, 2).tolist()}, designed {np.round(result.minutes, 2).tolist()}; "
-            f"drift {1e3 * result.achieved['drift']:.3f} mm"
+            f"minutes for +-{p:.0%} at 95% on every target, per arm ({', '.join(r['label'] for r in doc['trials'])}): "
+            f"start {np.round(result.start_minutes, 2).tolist()}, designed {np.round(result.minutes, 2).tolist()} (at "
+            f"the {doc['record_s']:g} s signal written); drift {1e3 * result.achieved['drift']:.3f} mm"
         )
         from armimp_jax.study.design_experiment import friction_note
 
@@ -142,7 +152,7 @@ def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:
         v, p = doc["validation"], config["design"]["precision"]
         print(
             f"checked at a {v['record_s']:g} s record: RMS {np.round(v['rms_force'], 4).tolist()} N, peak "
-            f"{np.round(v['peak_force'], 4).tolist()} N; the predictions scaled to it (asked: +-{p:.0%} at 95%)"
+            f"{np.round(v['peak_force'], 4).tolist()} N; the predictions made there (asked: +-{p:.0%} at 95%)"
         )
     for k, row in enumerate(doc["trials"]):
         if "validation" in row:
@@ -150,23 +160,30 @@ def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:
             spread, predicted = check["relative_spread"], check["relative_se_predicted"]
             worst = max(spread, key=spread.get)
             print(
-                f"arm {k + 1}: largest relative spread {spread[worst]:.4g} ({worst}) / largest predicted "
+                f"{row['label']}: largest relative spread {spread[worst]:.4g} ({worst}) / largest predicted "
                 f"{max(predicted.values()):.4g} = {spread[worst] / max(predicted.values()):.2f}; +-"
                 f"{Z95 * spread[worst]:.1%} at 95% ({check['converged']} of {check['recordings']} recordings "
                 "converged)"
             )
 
 
-def check_options(args, config, records) -> tuple[int, str]:
-    """The check's recordings per arm and its record (the command line over the config); a
-    ``ValueError`` for an unknown record, or a record given on the command line for no check."""
-    seeds = config["validate"]["seeds"] if args.validate is None else args.validate
-    at = config["validate"]["record"] if args.validate_record is None else args.validate_record
-    if at not in records:
-        raise ValueError(f"--validate-record must be one of {', '.join(map(repr, records))}, got {at!r}")
-    if args.validate_record is not None and not seeds:
-        raise ValueError(f"--validate-record {at} sets the check's record, but no check runs: add --validate SEEDS")
-    return seeds, at
+def targets_of(dx, options) -> list[str]:
+    """The target labels of ``options`` (the config's, or the default ones)."""
+    from armimp_jax.study.design_experiment import default_targets, make_layout
+
+    layout = make_layout(options["free"])
+    return list(options["targets"] or [layout.labels()[i] for i in default_targets(layout)])
+
+
+def written_record(dc, dx, result, trials, settings, options, asked, design_record, precision) -> float:
+    """The record [s] the design is written at: ``asked`` seconds, the design's own, or the one
+    its answer predicts for ``precision`` (``dc.predicted_record``)."""
+    if asked == "design":
+        return design_record
+    if asked != "predicted":
+        return float(asked)
+    doc = dx.result_dict(result, trials, settings=settings, free=options["free"], targets=options["targets"])
+    return dc.predicted_record(doc, design_record=design_record, precision=precision)
 
 
 def main(argv=None) -> int:
@@ -185,7 +202,6 @@ def main(argv=None) -> int:
     try:
         config = dx.read_design_config(args.config)
         trials, family, limits, options = dx.build_design(config, where=str(args.config))
-        seeds, at = check_options(args, config, dx.VALIDATE_RECORDS)
     except ValueError as err:  # ConfigError included
         return fail(str(err))
     start = time.perf_counter()
@@ -194,12 +210,30 @@ def main(argv=None) -> int:
         result = run_design(aj, trials, family, limits, options)
     except ValueError as err:
         return fail(str(err))
-    paper = paper_reference(aj, jax, result, trials, limits, options)
     if isinstance(result, aj.BoundDesign):
         trials = result.trials  # with the designed controller
-    settings = dict(config_path=str(args.config), config=config, validate_seeds=seeds, validate_record=at)
+    seeds = config["validate"]["seeds"] if args.validate is None else args.validate
+    settings = dict(config_path=str(args.config), config=config, validate_seeds=seeds, record=args.record)
+    precision = config["design"]["precision"]
+    try:  # the signal at the record asked, and every number there
+        record = written_record(dc, dx, result, trials, settings, options, args.record, limits.record, precision)
+        signal = dc.validation_signal(result, limits, record, trials=trials, key=options["key"])
+    except ValueError as err:  # the family or the limits at that length
+        return fail(str(err))
+    print(f"writing the design at a {record:g} s record ({args.record})", flush=True)
+    result = dc.at_record(
+        result,
+        signal,
+        trials,
+        free=options["free"],
+        targets=targets_of(dx, options),
+        precision=precision,
+        draws=config["design"]["predict_draws"],
+        key=options["key"],
+    )
+    paper = paper_reference(aj, jax, result, trials, limits, options)
 
-    def write(validation, checked=None):
+    def write(validation):
         doc = dx.result_dict(
             result,
             trials,
@@ -208,28 +242,18 @@ def main(argv=None) -> int:
             targets=options["targets"],
             validation=validation,
             paper=paper,
-            validation_signal=checked,
         )
-        return doc, dx.write_results(args.out, result, trials, limits, doc=doc, checked=checked)
+        return doc, dx.write_results(args.out, result, trials, limits, doc=doc)
 
     # the design is written before the (long) validation, which then rewrites it: a failed or
     # interrupted check loses no design
     doc, paths = write(None)
     if seeds:
-        precision = config["design"]["precision"]
-        predicted = at == "predicted"
-        record = (
-            dc.predicted_record(doc, design_record=limits.record, precision=precision) if predicted else limits.record
-        )
-        print(f"validating at a {record:g} s record ({at}): {seeds} recordings per arm", flush=True)
-        try:
-            signal = dc.validation_signal(result, limits, record, trials=trials, key=options["key"])
-        except ValueError as err:  # the family or the limits at that length
-            return fail(f"{err} (the design, unvalidated, is in {args.out})")
+        print(f"validating at the {record:g} s record: {seeds} recordings per arm", flush=True)
         vbar = tqdm(total=seeds * len(trials), unit="fit", desc="validating")
         try:
             validation = dc.validate(
-                signal,
+                result.signal,
                 trials,
                 options["free"],
                 seeds=seeds,
@@ -240,7 +264,7 @@ def main(argv=None) -> int:
             vbar.close()
             return fail(f"{err} (the design, unvalidated, is in {args.out})")
         vbar.close()
-        doc, paths = write(validation, signal)
+        doc, paths = write(validation)
     print_summary(np, result, doc, config, limits, on_bound=isinstance(result, aj.BoundDesign))
     print(f"{time.perf_counter() - start:.0f} s; wrote " + ", ".join(p.name for p in paths))
     return 0
