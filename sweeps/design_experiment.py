@@ -141,6 +141,7 @@ def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:
         note = friction_note(result)
         if note:
             print(note)
+    print(f"routes: the model route, or the classical route at {doc['routes']['classical']}")
     worst_paper = max(max(row["relative_se_paper"].values()) for row in doc["trials"])
     print(f"the paper's perturbation at the same peak: {worst_paper:.4g}")
     print(

@@ -31,6 +31,7 @@ from .._model.families import ShapedNoise, multisine
 from ..presets import arm as paper_arm
 from .config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
 from .design_check import truth
+from .estimate_recording import SPARSE_SHARE, input_bins, route_settings
 from .figures import save_figure
 from .results import atomic_write_json, atomic_write_npz, atomic_write_text, package_version
 
@@ -284,6 +285,7 @@ def result_dict(result, trials, *, settings: dict, free, targets, validation=Non
         "trace": result.trace,
         "family": dict(type=type(result.family).__name__, **_family_arrays(result.family)),
         "trials": rows,
+        "routes": routes(signal, 1.0 / trials[0].period),
         "time_s": result.time_s,
     }
     if validation is not None:
@@ -300,6 +302,22 @@ def result_dict(result, trials, *, settings: dict, free, targets, validation=Non
     else:
         doc.update(improved=result.improved, skipped_steps=result.skipped, start_criteria=result.start_criteria)
     return doc
+
+
+def routes(signal, fs: float) -> dict:
+    """Which routes of ``estimate_recording.py`` the written ``signal`` serves: the model route
+    always; the classical (Welch) route over every bin where the signal fills the band, else
+    only at the bins that hold its lines (``--lines``: a multisine's), with their share."""
+    welch, _, _ = route_settings(np.shape(signal)[0], fs=fs)
+    holds, share = input_bins(signal, welch)
+    if share >= SPARSE_SHARE:
+        classical = "every Welch bin: estimate_recording.py RECORDING"
+    else:
+        classical = (
+            f"only the {int(holds.sum())} Welch bins that hold its lines ({share:.0%} of the band's): "
+            "estimate_recording.py RECORDING --lines (over every bin it cannot tell)"
+        )
+    return dict(model="estimate_recording.py RECORDING --model CONFIG", classical=classical, bins_share=share)
 
 
 def designed_controller(config_controller: dict, record: dict, trial) -> dict:
