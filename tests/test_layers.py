@@ -135,7 +135,7 @@ after the table
 
 def test_imports_resolve_to_modules():
     assert ("_model", "timing") in imports(("_simulate",))
-    assert ("runtime",) in imports(("_checks",))
+    assert ("_identification", "criterion") in imports(("_identification", "bound"))
     assert ("_identification", "layout") in imports(("_identification", "design"))
 
 

@@ -301,11 +301,14 @@ def _assemble(
     if _worst(after, entries, ratios) > _worst(before, entries, ratios):  # never worse than its start
         designed, looped, f, after, minutes = family, start_trials, f0, before, start_minutes
     drift = max(float(linear.drift(t)) for t in looped)
+    peak = max(float(_peak_displacement(t, jnp.asarray(f))[0]) for t in looped)
     achieved = dict(
         rms_force=np.sqrt(np.mean(f**2, axis=0)).tolist(),
         peak_force=np.max(np.abs(f), axis=0).tolist(),
-        peak_displacement=max(float(_peak_displacement(t, jnp.asarray(f))[0]) for t in looped),
+        peak_displacement=peak,
         drift=drift,
+        # the limit holds on the noise-free simulation; the person's own force moves the hand too
+        peak_displacement_plus_3_drift=peak + 3.0 * drift,
     )
     return BoundDesign(
         family=replace_unchecked(designed, rms=np.sqrt(np.mean(f**2, axis=0))),

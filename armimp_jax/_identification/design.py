@@ -39,6 +39,7 @@ from . import layout as lay
 from .bound import is_near_linear, silent_readings
 from .bound_design import BoundDesign, design_calibrated
 from .criterion import DesignPlan, _targets, relative_se
+from .identify import MIN_SAMPLES
 from .limits import DISPLACEMENT_TOLERANCE, Limits, _limited_signal, _peak_displacement
 from .monte_carlo_design import Design, design_monte_carlo
 from .predict import STATISTICS, check_signal, predict_se
@@ -357,7 +358,7 @@ def record_for(
     seconds = f.shape[0] * period
     need = {t: seconds * (given[t] / float(target[t])) ** 2 for t in target}
     record_s = max(need.values())
-    n = max(int(math.ceil(record_s / period)), 1000)
+    n = max(int(math.ceil(record_s / period)), MIN_SAMPLES)
     if n * period > CHECK_LIMIT_S:  # the check would simulate every draw over that record
         return {**need, "record_s": n * period, "check": None, "statistic": statistic}
     longer = np.resize(f, (n, 2))  # repeats the perturbation (or cuts it)

@@ -88,6 +88,8 @@ def at_record(result, signal, trials, *, free, targets, precision: float, draws:
         peak_force=np.max(np.abs(signal), axis=0).tolist(),
         peak_displacement=max(float(_peak_displacement(t, jnp.asarray(signal))[0]) for t in trials),
     )
+    if "drift" in achieved:
+        achieved["peak_displacement_plus_3_drift"] = achieved["peak_displacement"] + 3.0 * achieved["drift"]
     if not isinstance(result, BoundDesign):
         after = [predict_se(t, signal, free=free, draws=draws, key=key) for t in trials]
         return result._replace(signal=signal, after=after, achieved=achieved)
