@@ -228,9 +228,9 @@ BAD_DESIGN_CONFIGS = {
         ('"arm.mass[0,0]", "arm.mass[1,1]"', '"arm.mass[0,0]", "arm.mass[2,2]"'),
         r"unknown target 'arm.mass\[2,2\]'",
     ),
-    "unknown validation record": (
-        ("seeds = 0 ", 'record = "longest"\nseeds = 0 '),
-        r"\[validate\] record must be one of 'design', 'predicted', got 'longest'",
+    "a validation record (the record written is --record's)": (
+        ("seeds = 0 ", 'record = "predicted"\nseeds = 0 '),
+        r"\[validate\] unknown key 'record'; allowed: seeds, draws",
     ),
 }
 
@@ -396,7 +396,8 @@ def test_a_bound_design_writes_the_controller_and_the_minutes(tmp_path, capsys):
     check = doc["validation"]
     record = check["record_s"]
     assert record == doc["record_s"] and f"checked at a {record:g} s" in captured.out
-    assert abs(record - 60 * doc["predicted_minutes"]) <= 0.2 * record + 1.0 or record == 3.0
+    # the record the design-record answer predicts; the answer made there says it suffices
+    assert 60 * doc["predicted_minutes"] <= 1.25 * record
     assert np.all(np.asarray(check["rms_force"]) <= 0.66 * (1 + 1e-12))
     assert np.all(np.asarray(check["peak_force"]) <= 2.25 * (1 + 1e-12))
     assert not (out / "perturbation_checked.csv").exists()
