@@ -36,7 +36,7 @@ from .._solver.numerics import SWEEP_NUMERICS, Numerics, named_solver
 from . import distributed, engine
 from .console import Console
 from .figures import plot_summary
-from .metrics import estimate_arrays
+from .metrics import estimate_arrays, trial_row
 from .points import (
     build_trial,
     default_x,
@@ -45,7 +45,6 @@ from .points import (
     n_samples,
     normalize_point,
     parse_set,
-    point_arm,
     point_columns,
     point_welch,
     read_toml,
@@ -55,7 +54,7 @@ from .points import (
 from .results import ResultsError, atomic_write_json, describe_difference, read_json, settings_key, stamped, to_jsonable
 from .runfolder import StudyRun, warn_stderr
 from .stats import seed_stats
-from .tables import ELEMENTS, METRIC_COLUMNS, summary_frame, trial_columns, trials_frame, write_table
+from .tables import METRIC_COLUMNS, summary_frame, trial_columns, trials_frame, write_table
 
 # --- run settings ---------------------------------------------------------------------------
 
@@ -230,43 +229,7 @@ def resumed(out, config=None, sets=(), shortcuts: Mapping | None = None, run: Ma
     return engine.resumed(SweepSettings, out, change)
 
 
-# --- per-trial metrics ------------------------------------------------------------------------
-
-
-def _cells(prefix: str, a) -> dict:
-    a = np.asarray(a, dtype=float).reshape(-1)
-    return {f"{prefix}_{e}": float(v) for e, v in zip(ELEMENTS, a, strict=True)}
-
-
-def trial_row(point: Mapping, outcome_i: Mapping, fit_i: Mapping) -> dict:
-    """The scalar columns of one trial's table row (``METRIC_COLUMNS`` plus ``diverged``, ``diverged_at``).
-
-    ``coh_min`` is the minimum over ``0 < f <= fmax`` of the four multiple coherences (both
-    position outputs and both force outputs): the weakest of the spectra ``Z = T R^-1``
-    is built from. ``rel_error`` is ``phi_T`` over the mean largest singular value of the
-    arm's true impedance.
-    """
-    f = outcome_i["f"]
-    zt = np.asarray(point_arm(point).impedance(f))
-    scale = float(np.mean(np.linalg.svd(zt, compute_uv=False)[:, 0]))
-    cx, cf = np.asarray(outcome_i["coh_multiple_x"]), np.asarray(outcome_i["coh_multiple_fh"])
-    row = dict(phi_T=float(outcome_i["phi_T"]), **_cells("phi", outcome_i["phi_ij"]))
-    row["rel_error"] = row["phi_T"] / scale
-    row["coh_min"] = float(min(cx.min(), cf.min()))
-    for name, c in (("x", cx), ("fh", cf)):
-        for j in range(2):
-            row[f"coh_{name}{j + 1}_min"] = float(c[:, j].min())
-            row[f"coh_{name}{j + 1}_median"] = float(np.median(c[:, j]))
-    row["input_coherence_max"] = float(outcome_i["input_coherence"])
-    for p, field in (("M", "mass"), ("B", "damping"), ("K", "stiffness")):
-        row |= _cells(p, fit_i[field])
-        row |= {k + "_se": v for k, v in _cells(p, fit_i[field + "_se"]).items()}
-    row |= _cells("vaf", fit_i["vaf"])
-    row["vaf_overall"] = float(fit_i["vaf_overall"])
-    row = {k: row[k] for k in METRIC_COLUMNS}
-    row["diverged"] = bool(outcome_i["diverged"])
-    row["diverged_at"] = int(outcome_i["diverged_at"])
-    return row
+# --- per-trial fits ---------------------------------------------------------------------------
 
 
 @functools.partial(jax.jit, static_argnames="acquisition")
