@@ -311,10 +311,12 @@ def numerics_check(settings: SweepSettings, rows: list[dict], sample: int, *, me
     by_group: dict[tuple, list] = {}
     for r in sorted(rows, key=lambda r: (r["point_index"], r["seed"])):
         by_group.setdefault(static_group(settings.points[r["point_index"]]), []).append(r)
-    errors, diverged, checked = [], 0, 0
+    picked = []
     for group in by_group.values():
         idx = np.unique(np.linspace(0, len(group) - 1, min(sample, len(group))).round().astype(int))
-        pick = [group[j] for j in idx]
+        picked += [group[j] for j in idx]
+
+    def check(pick):  # one static group's sample, one batch
         built = settings.build([(r["point_index"], r["seed"]) for r in pick], signals)
         phi = np.array([math.nan if r["diverged"] else r["phi_T"] for r in pick])
         res = check_numerics(
@@ -327,9 +329,12 @@ def numerics_check(settings: SweepSettings, rows: list[dict], sample: int, *, me
             keys=built.keys,
             mesh=mesh,
         )
-        errors += [float(e) for e in res.rel_error if math.isfinite(e)]
-        diverged += res.diverged
-        checked += len(pick)
+        return [(float(e), res.diverged if k == 0 else 0) for k, e in enumerate(res.rel_error)]
+
+    group = lambda r: static_group(settings.points[r["point_index"]])  # noqa: E731
+    checked_rows = engine.map_batches(picked, group, max(sample, 1), check)
+    errors = [e for e, _ in checked_rows if math.isfinite(e)]
+    diverged, checked = sum(d for _, d in checked_rows), len(picked)
     return dict(
         sample_per_group=sample,
         trials_checked=checked,
