@@ -130,7 +130,7 @@ def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:
     )
     if on_bound:
         p = config["design"]["precision"]
-        print(f"controller: {result.controller}")
+        print(f"controller (each arm resolves the rest itself): {doc['controller']}")
         print(
             f"minutes for +-{p:.0%} at 95% on every target, per arm ({', '.join(r['label'] for r in doc['trials'])}): "
             f"start {np.round(result.start_minutes, 2).tolist()}, designed {np.round(result.minutes, 2).tolist()} (at "
@@ -143,7 +143,11 @@ def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:
             print(note)
     print(f"routes: the model route, or the classical route at {doc['routes']['classical']}")
     worst_paper = max(max(row["relative_se_paper"].values()) for row in doc["trials"])
-    print(f"the paper's perturbation at the same peak: {worst_paper:.4g}")
+    worst = max(max(row["relative_se_after"].values()) for row in doc["trials"])
+    print(
+        f"at the {doc['record_s']:g} s signal written, largest {what}: designed {worst:.4g}, the paper's "
+        f"perturbation at the same peak and length {worst_paper:.4g}"
+    )
     print(
         f"limits met: RMS {np.round(result.achieved['rms_force'], 4).tolist()} N, peak "
         f"{np.round(result.achieved['peak_force'], 4).tolist()} N, displacement "
