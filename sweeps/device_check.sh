@@ -17,7 +17,7 @@ check() {  # check NAME [ENV=VALUE ...]: one process of the check, its JSON to O
   local name="$1"; shift
   env "$@" "$PY" -c '
 import sys, armimp_jax as aj
-aj.runtime.configure(compilation_cache=False)  # the first call is measured with its compilation
+aj.runtime.configure()  # the first call compiles (or loads from the compilation cache)
 from armimp_jax.bench import device
 args = sys.argv[2:]
 repeats = int(args[args.index("--repeats") + 1]) if "--repeats" in args else 3
@@ -26,7 +26,7 @@ device.run(sys.argv[1], repeats=repeats, only=only)
 ' "$OUT_DIR/$name.json" $ARGS
 }
 start=$(date +%s)
-check cpu JAX_PLATFORMS=cpu
+check cpu JAX_PLATFORMS=cpu  # the CPU's run beside the device's (DEVICE_CHECK_ARGS="--repeats 1" keeps it short)
 if "$PY" -c 'import jax, sys; sys.exit(0 if jax.default_backend() != "cpu" else 1)' 2>/dev/null; then
   check device
 else
