@@ -16,12 +16,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import runtime
-
-# Every JAX module of the package imports this one first: the place to set up XLA:CPU
-# (devices, code generation) before any backend can start, once per process.
-runtime.apply_cpu_defaults()
-
 
 def require_x64(where: str) -> None:
     """Raise if float64 is off: the physics (stiff LuGre bristles, 1e-5 s steps) needs it."""

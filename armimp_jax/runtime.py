@@ -1,21 +1,19 @@
 """Entry-point set-up: float64, one XLA device per CPU core, and XLA:CPU code-generation flags.
 
-What importing ``armimp_jax`` does, and when: if no JAX backend has started yet,
-``apply_cpu_defaults`` (1) asks JAX for one CPU device per core (``jax_num_cpu_devices``),
+Importing ``armimp_jax`` changes no setting of JAX's and no XLA flag. ``configure`` is the
+set-up, called once at program start, before the first JAX computation, by every script
+and by the README's library example: it (1) switches float64 on; (2) asks JAX for one CPU
+device per core (``jax_num_cpu_devices``; ``ARMIMP_JAX_CPU_DEVICES`` chooses another count),
 because one jitted computation runs on one core of XLA:CPU and ``simulate_batch``, the
-sweeps and the tests shard their batches over the devices they find; (2) adds two
-XLA:CPU code-generation options that XLA refuses as per-compilation options (they live in
+sweeps and the tests shard their batches over the devices they find; (3) adds two XLA:CPU
+code-generation options that XLA refuses as per-compilation options (they live in
 ``xla_backend_extra_options``, a map that ``jax.jit(compiler_options=...)`` cannot set), so
-the environment is the only place for them; and (3) lets the devices wait for each other at
-a collective for a day instead of XLA:CPU's 40 s, after which it aborts the process.
-Nothing else changes: single computations still run on the first device, and a caller's own
-settings win (a device count already set in
-``XLA_FLAGS`` or ``jax_num_cpu_devices``, options already in ``XLA_FLAGS``). If a backend has
-already started, importing changes nothing. Opt out with ``ARMIMP_JAX_CPU_DEVICES=1`` (or
-any count) for the devices and ``ARMIMP_JAX_XLA_DEFAULTS=0`` for all three. Scripts call
-``configure`` once at start (float64, devices, code generation, SIMD width, and JAX's
-persistent compilation cache in ``compilation_cache_dir()``, so a second run of a script
-loads its compiled programs instead of compiling them again).
+the environment is the only place for them, and 512-bit vectors on AVX-512 hosts; (4) lets
+the devices wait for each other at a collective for a day instead of XLA:CPU's 40 s, after
+which it aborts the process; and (5) keeps JAX's compiled programs in
+``compilation_cache_dir()``, so a second run loads them instead of compiling them again.
+A caller's own settings win (a device count already set in ``XLA_FLAGS``, options already
+in ``XLA_FLAGS``); single computations still run on the first device.
 """
 
 from __future__ import annotations
@@ -77,21 +75,6 @@ def use_compilation_cache(path: str | None) -> str | None:
     return jax.config.jax_compilation_cache_dir
 
 
-def apply_cpu_defaults() -> bool:
-    """Add the small-loop and no-unrolling XLA:CPU options to ``XLA_FLAGS`` if no JAX backend
-    has started yet (and ``ARMIMP_JAX_XLA_DEFAULTS`` is not ``0``); options already there win.
-    They change code generation only (results may move in their last bits: FMA contraction).
-    Returns whether they are in effect for this process."""
-    if os.environ.get("ARMIMP_JAX_XLA_DEFAULTS", "1") == "0":
-        return False
-    if not backend_started():
-        _add_extra_option(*_LOOP_OPTION)
-        _add_extra_option(*_NO_UNROLL_OPTION)
-        _add_collective_timeouts()
-        _default_cpu_devices()
-    return cpu_defaults_active()
-
-
 def backend_started() -> bool:
     """Whether a JAX backend has started in this process (imports JAX).
 
@@ -115,7 +98,7 @@ def _add_collective_timeouts() -> None:
 
 
 def default_cpu_devices() -> int:
-    """The CPU device count importing ``armimp_jax`` asks for: ``ARMIMP_JAX_CPU_DEVICES`` if
+    """The CPU device count ``configure`` asks for by default: ``ARMIMP_JAX_CPU_DEVICES`` if
     set (a whole number >= 1), else one per core (``os.cpu_count()``)."""
     text = os.environ.get("ARMIMP_JAX_CPU_DEVICES")
     if text is None:
@@ -123,20 +106,6 @@ def default_cpu_devices() -> int:
     if not text.strip().isdigit() or int(text) < 1:
         raise ValueError(f"ARMIMP_JAX_CPU_DEVICES must be a whole number >= 1, got {text!r}")
     return int(text)
-
-
-def _default_cpu_devices() -> None:
-    """One CPU device per core unless the caller chose a count (before the backend starts)."""
-    import jax
-
-    if _FLAG in os.environ.get("XLA_FLAGS", "") or jax.config.jax_num_cpu_devices != -1:
-        return
-    jax.config.update("jax_num_cpu_devices", default_cpu_devices())
-
-
-def cpu_defaults_active() -> bool:
-    """Whether ``XLA_FLAGS`` holds the small-loop option (read when the CPU backend started)."""
-    return _LOOP_OPTION[0] in os.environ.get("XLA_FLAGS", "")
 
 
 def vector_lanes() -> int:
@@ -186,8 +155,9 @@ def configure(
     """Switch float64 on, set XLA:CPU code generation, and optionally split the CPU into devices.
 
     One jitted computation runs on one core of XLA:CPU; ``host_devices`` devices let a
-    sharded batch use that many cores (see ``armimp_jax._batch.make_mesh``). ``0`` (default) means one
-    per core (``os.cpu_count()``), ``None`` leaves the platform alone.
+    sharded batch use that many cores (see ``armimp_jax._batch.make_mesh``). ``0`` (default) means
+    ``default_cpu_devices()`` (one per core unless ``ARMIMP_JAX_CPU_DEVICES`` says otherwise),
+    ``None`` leaves the platform alone.
     ``hoist_small_loops`` adds the XLA:CPU option that compiles the inner RK4 loop into
     one kernel. ``unroll_loops=False`` adds the option that stops LLVM unrolling the
     short per-fusion loops over the batch inside that kernel (faster at small per-device
@@ -210,7 +180,7 @@ def configure(
     if (not hoist_small_loops and _LOOP_OPTION[0] in present) or (unroll_loops and _NO_UNROLL_OPTION[0] in present):
         warnings.warn(
             "configure(hoist_small_loops=False / unroll_loops=True) cannot take out XLA:CPU options already in "
-            "XLA_FLAGS (importing armimp_jax adds them); set ARMIMP_JAX_XLA_DEFAULTS=0 before the import",
+            "XLA_FLAGS (an earlier configure, or the caller, put them there)",
             stacklevel=2,
         )
     if vector_width == "auto":
@@ -225,7 +195,7 @@ def configure(
         _add_extra_option(*_NO_UNROLL_OPTION)
     _add_collective_timeouts()
     if host_devices is not None:
-        n = host_devices or os.cpu_count() or 1
+        n = host_devices or default_cpu_devices()
         if _FLAG in os.environ.get("XLA_FLAGS", ""):
             pass  # the caller's own count wins
         elif not backend_started():

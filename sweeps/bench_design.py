@@ -21,10 +21,9 @@ from __future__ import annotations
 import sys
 import time
 
-from _cli import Parser, bench_noise, fail, parse_cases
+from armimp_jax.study.cli import Parser, fail, parse_cases, script
 
-TARGETS = [f"arm.{n}[{i},{i}]" for n in ("mass", "damping", "stiffness") for i in (0, 1)]
-FREE = ("arm.mass", "arm.damping", "arm.stiffness")
+PROG = "bench_design"
 
 
 def parse(argv):
@@ -58,154 +57,24 @@ def parse(argv):
     return a
 
 
-def criterion(dx, preds, trials):
-    """The largest relative SE over the targets and the trials, and per trial per target."""
-    per = [dx.relative_se(pred, t, free=FREE, targets=TARGETS) for pred, t in zip(preds, trials)]
-    return max(max(r.values()) for r in per), per
-
-
-def make_case(aj, np, jax, controller, tau_c, a):
-    """``(trials, paper_signal, limits, knots)`` of one case: the four arms, the paper's level-1
-    perturbation (key 2024), the limits at its RMS and peak, and the ShapedNoise knots [Hz]."""
-    from armimp_jax import paper
-
-    trials = [
-        aj.make_trial(
-            aj.PD() if controller == "pd" else aj.IMBIC(),
-            arm=paper.arm(loc),
-            friction=aj.LuGre(tau_c, 1.5 * tau_c),
-            **bench_noise(aj),
-        )
-        for loc in (1, 2, 3, 4)
-    ]
-    n = int(round(a.record * 1000))
-    paper_signal = np.asarray(aj.PaperNoise(paper.perturbation_peak(1)).signal(jax.random.key(2024), n))
-    rms = np.sqrt(np.mean(paper_signal**2, axis=0))
-    limits = aj.Limits(rms_force=tuple(rms), peak_force=2.25, record=a.record, peak_displacement=a.displacement)
-    return trials, paper_signal, limits, np.geomspace(a.low, 15.0, a.knots)
-
-
-def run_design(aj, np, trials, limits, knots, a, name):
-    """``aj.design`` from one flat ShapedNoise start per ``--duty``, printing each step."""
-    starts = [aj.ShapedNoise(knots, np.ones((2, a.knots)), 1.0, duty=d, burst=a.burst) for d in a.duty]
-    t0 = time.perf_counter()
-
-    def progress(step, steps, value):
-        print(f"  {name}: step {step}/{steps}, criterion {value:.4g} ({time.perf_counter() - t0:.0f} s)")
-
-    return aj.design(
-        trials[0],
-        starts,
-        free=FREE,
-        limits=limits,
-        targets=TARGETS,
-        robust_over=trials,
-        steps=a.steps,
-        draws=a.draws,
-        learning_rate=a.learning_rate,
-        progress=progress,
-    )
-
-
-def compare(aj, np, jax, dx, result, trials, paper_signal, limits, knots, a) -> dict:
-    """``{signal: (criterion, per trial per target)}`` predicted for the paper's perturbation,
-    the flat continuous noise, the design's start and the design, all on the same draws (key 0)."""
-    flat = aj.ShapedNoise(knots, np.ones((2, a.knots)), 1.0)
-    flat_signal = aj.limited_signal(flat, limits, key=jax.random.split(jax.random.key(0))[0], trials=trials)
-    signals = dict(paper=paper_signal, flat=flat_signal, start=result.start_signal, designed=result.signal)
-    return {
-        k: criterion(dx, [aj.predict_se(t, s, free=FREE, draws=64) for t in trials], trials) for k, s in signals.items()
-    }
-
-
-def monte_carlo(dc, result, trials, predicted, a) -> dict:
-    """``--seeds`` recordings per arm with the designed signal, each identified from the truth:
-    the relative spread per target against the predicted relative SE."""
-    crit_after, per_after = predicted
-    labels = list(result.before[0].labels)
-    check = dc.validate(result.signal, trials, FREE, seeds=a.seeds)
-    spread_rel, ratios = [], []
-    for k, (t, v) in enumerate(zip(trials, check)):
-        truth = dc.truth(t, FREE)
-        row = {}
-        for lab in TARGETS:
-            row[lab] = float(v["spread"][labels.index(lab)] / abs(truth[labels.index(lab)]))
-            ratios.append(row[lab] / per_after[k][lab])
-        spread_rel.append(row)
-    achieved_crit = max(max(r.values()) for r in spread_rel)
-    print(
-        f"  Monte Carlo ({a.seeds} per arm): largest relative spread {achieved_crit:.4g} against predicted "
-        f"{crit_after:.4g} ({achieved_crit / crit_after:.2f}); spread / predicted SE per target and arm "
-        f"{min(ratios):.2f}-{max(ratios):.2f}",
-        flush=True,
-    )
-    return dict(
-        seeds=a.seeds,
-        recordings=[v["recordings"] for v in check],
-        diverged=[v["diverged"] for v in check],
-        converged=[v["converged"] for v in check],
-        relative_spread=spread_rel,
-        spread_over_predicted=ratios,
-        criterion_achieved=achieved_crit,
-        achieved_over_predicted=achieved_crit / crit_after,
-    )
-
-
-def run_case(aj, np, jax, controller, tau_c, a):
-    """One case: the design, its comparison with the other signals and (``--seeds``) its check."""
-    from armimp_jax.study import design_check as dc
-    from armimp_jax.study import design_experiment as dx
-
-    trials, paper_signal, limits, knots = make_case(aj, np, jax, controller, tau_c, a)
-    result = run_design(aj, np, trials, limits, knots, a, f"{controller} {tau_c:g}")
-    crit = compare(aj, np, jax, dx, result, trials, paper_signal, limits, knots, a)
-    out = dict(
-        controller=controller,
-        tau_c=tau_c,
-        paper_rms_force=np.asarray(limits.rms_force).tolist(),
-        criterion={k: c for k, (c, _) in crit.items()},
-        start_duty=result.start_family.duty,
-        start_criteria=dict(zip([str(d) for d in a.duty], result.start_criteria)),
-        paper_over_designed=crit["paper"][0] / crit["designed"][0],
-        relative_se={k: per for k, (_, per) in crit.items()},
-        achieved=result.achieved,
-        design_time_s=result.time_s,
-        improved=result.improved,
-        skipped_steps=result.skipped,
-        trace=result.trace,
-        shape=np.asarray(result.family.shape).tolist(),
-        knots=np.asarray(result.family.knots).tolist(),
-    )
-    print(
-        f"{controller} {tau_c:g} N m: largest relative SE, paper {crit['paper'][0]:.4g}, flat continuous "
-        f"{crit['flat'][0]:.4g}, start (duty {result.start_family.duty:g}; candidates {result.start_criteria}) "
-        f"{crit['start'][0]:.4g}, designed {crit['designed'][0]:.4g} ({out['paper_over_designed']:.2f}x; improved "
-        f"on the start: {result.improved}); design {result.time_s:.0f} s; achieved {result.achieved}",
-        flush=True,
-    )
-    if a.seeds:
-        out["validation"] = monte_carlo(dc, result, trials, crit["designed"], a)
-    return out
-
-
+@script(PROG)
 def main(argv=None):
     a = parse(sys.argv[1:] if argv is None else argv)
-    import jax
+    from armimp_jax.runtime import configure
 
-    jax.config.update("jax_enable_x64", True)
-    import numpy as np
-
-    import armimp_jax as aj
-    from armimp_jax.study import atomic_write_json, stamped
+    configure()
+    from armimp_jax.bench import design
+    from armimp_jax.study.results import atomic_write_json, stamped
 
     t0 = time.perf_counter()
     settings = {k: v for k, v in vars(a).items() if k != "out"}
     rows = []
     for c, t in a.cases:  # saved after each case
-        rows.append(run_case(aj, np, jax, c, t, a))
+        rows.append(design.design_case(c, t, a))
         atomic_write_json(a.out, dict(settings=stamped(settings), cases=rows, elapsed_s=time.perf_counter() - t0))
     print(f"total {time.perf_counter() - t0:.0f} s")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

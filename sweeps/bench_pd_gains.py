@@ -12,7 +12,7 @@ second record. Reported per gain pair: each arm's drift under the person's force
 (``aj.drift``), the largest relative SE of the M, B, K diagonals per arm and which, and the
 minutes for +-10% at 95% on all of them (one over the square root of the length). Through
 stick-slip no Cramér-Rao bound holds, so ``predict_se`` (identify's own SEs, by Monte Carlo)
-is the criterion, as in ``aj.design(method="monte_carlo")``. Saves strict JSON (``--out``)
+is the criterion, as in ``aj.design(method=aj.MonteCarlo())``. Saves strict JSON (``--out``)
 with the settings and the package version.
 
     python sweeps/bench_pd_gains.py --gains 250:4,100:4,50:4,250:1,250:12,600:1 --out pd_gains.json
@@ -23,10 +23,9 @@ from __future__ import annotations
 import sys
 import time
 
-from _cli import Z95, Parser, bench_noise, fail
+from armimp_jax.study.cli import Parser, fail, script
 
-TARGETS = [f"arm.{n}[{i},{i}]" for n in ("mass", "damping", "stiffness") for i in (0, 1)]
-FREE = ("arm.mass", "arm.damping", "arm.stiffness")
+PROG = "bench_pd_gains"
 
 
 def parse(argv):
@@ -59,57 +58,20 @@ def parse(argv):
     return a
 
 
-def one_pair(aj, np, jax, kp: float, kv: float, a) -> dict:
-    """The drift, the limited signal's RMS and peak, and per arm the largest relative SE."""
-    from armimp_jax import paper
-    from armimp_jax.study import design_experiment as dx
-
-    control = aj.PD(kp=kp * np.eye(2), kv=kv * np.eye(2))
-    trials = [
-        aj.make_trial(control, arm=paper.arm(loc), friction=aj.LuGre(a.tau_c, 1.5 * a.tau_c), **bench_noise(aj))
-        for loc in a.arms
-    ]
-    n = int(round(a.record * 1000))
-    level1 = np.asarray(aj.PaperNoise(paper.perturbation_peak(1)).signal(jax.random.key(2024), n))
-    limits = aj.Limits(
-        rms_force=tuple(np.sqrt(np.mean(level1**2, axis=0))),
-        peak_force=2.25,
-        record=a.record,
-        peak_displacement=a.displacement,
-    )
-    knots = np.geomspace(a.low, a.high, a.knots)
-    family = aj.ShapedNoise(knots, np.ones((2, a.knots)), 1.0, duty=a.duty, burst=a.burst)
-    signal = np.asarray(aj.limited_signal(family, limits, key=jax.random.key(0), trials=trials))
-    worst = []
-    for t in trials:
-        rel = dx.relative_se(aj.predict_se(t, signal, free=FREE, draws=a.draws), t, free=FREE, targets=TARGETS)
-        label = max(rel, key=rel.get)
-        worst.append(dict(relative_se=float(rel[label]), entry=label))
-    largest = max(w["relative_se"] for w in worst)
-    return dict(
-        kp=kp,
-        kv=kv,
-        drift_mm=[1e3 * float(aj.drift(t)) for t in trials],
-        rms_force=np.sqrt(np.mean(signal**2, axis=0)).tolist(),
-        peak_force=np.abs(signal).max(axis=0).tolist(),
-        worst=worst,
-        minutes=a.record / 60.0 * (largest / (a.precision / Z95)) ** 2,
-    )
-
-
+@script(PROG)
 def main(argv=None):
     a = parse(sys.argv[1:] if argv is None else argv)
-    import jax
+    from armimp_jax.runtime import configure
 
-    jax.config.update("jax_enable_x64", True)
+    configure()
     import numpy as np
 
-    import armimp_jax as aj
-    from armimp_jax.study import atomic_write_json, stamped
+    from armimp_jax.bench import design
+    from armimp_jax.study.results import atomic_write_json, stamped
 
     rows, t0 = [], time.perf_counter()
     for kp, kv in a.gains:
-        row = one_pair(aj, np, jax, kp, kv, a)
+        row = design.one_pair(kp, kv, a)
         rows.append(row)
         per_arm = ", ".join(f"{w['relative_se']:.3f} ({w['entry']})" for w in row["worst"])
         print(

@@ -1,6 +1,6 @@
 """Design the perturbation of an impedance experiment within a patient's limits, and check it.
 
-    python sweeps/design_experiment.py CONFIG.toml --out DIR [--validate SEEDS [--validate-record predicted]]
+    python sweeps/design_experiment.py CONFIG.toml --out DIR [--record predicted|design|SECONDS] [--validate SEEDS]
 
 CONFIG.toml names the robot, controller, sensors, the person's own force and the friction
 (as the model route of estimate_recording.py), the arm to design for ([arm], or the
@@ -11,16 +11,18 @@ parameters, the target entries, the criterion). Keys, units and defaults:
 docs/experiment_design.md; an example: sweeps/configs/design_example.toml.
 
 Writes DIR/perturbation.csv (f_delta_x, f_delta_y [N], one row per 1 ms: what the robot's
-software loads), DIR/perturbation.npz, DIR/design.json (settings, limits met, predicted SEs
-before and after, the optimisation trace, the check) and DIR/spectrum.png, DIR/se.png,
-DIR/trace.png. With --validate SEEDS (or [validate] seeds) it simulates and identifies
-SEEDS recordings per arm under new noise with the designed perturbation and reports the
-spread of the estimates against the predicted SEs; --validate-record predicted (or
-[validate] record) runs it at the record the design's minutes predict (the family's signal at
-that length, within the same limits, written as DIR/perturbation_checked.csv), where the
-spread should meet the precision asked. A bound's minutes leave the joints' friction out:
-calibrate ([design] calibrate) before trusting them through friction. Every bad config gets one line on
-stderr and exit status 2, before any computation.
+software loads) at the record --record names: by default the one the design's own minutes
+predict for its precision (rounded up to a second, never below [limits] record), or the
+design's own record, or SECONDS (the family's signal at that length, within the same
+limits). DIR/design.json holds every number at that signal, on the designed controller (the
+bound of each arm, the minutes, predict_se's through the friction where calibrated, the
+limits met), with the settings, the start and the optimisation trace; DIR/perturbation.npz,
+DIR/spectrum.png, DIR/se.png, DIR/trace.png (and minutes.png) beside it. With --validate
+SEEDS (or [validate] seeds) it simulates and identifies SEEDS recordings per arm under new
+noise with that signal and reports the spread of the estimates against the predicted SEs.
+A bound's minutes leave the joints' friction out: calibrate ([design] calibrate) before
+trusting them through friction. Every bad config gets one line on stderr and exit status 2,
+before any computation.
 """
 
 from __future__ import annotations
@@ -30,8 +32,7 @@ import pathlib
 import sys
 import time
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _cli import Z95, Parser, error_line  # noqa: E402
+from armimp_jax.study.cli import Z95, Parser, error_line
 
 PROG = "design_experiment"
 
@@ -40,15 +41,23 @@ def parse(argv):
     ap = Parser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("config", type=pathlib.Path, help="TOML config (see above)")
     ap.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR", help="output folder (created)")
-    ap.add_argument("--validate", type=int, metavar="SEEDS", help="Monte Carlo check: recordings per arm")
     ap.add_argument(
-        "--validate-record",
-        metavar="{design,predicted}",
-        help="the check's record: the design's (default) or the one its minutes predict",
+        "--record",
+        default="predicted",
+        metavar="{predicted,design,SECONDS}",
+        help="the written signal's record: the one the design predicts (default), its own, or SECONDS",
     )
+    ap.add_argument("--validate", type=int, metavar="SEEDS", help="Monte Carlo check: recordings per arm")
     args = ap.parse_args(argv)
     if args.validate is not None and args.validate < 0:
         ap.error(f"--validate must be >= 0 recordings, got {args.validate}")
+    if args.record not in ("predicted", "design"):
+        try:
+            args.record = float(args.record)
+        except ValueError:
+            ap.error(f"--record must be predicted, design or a number of seconds, got {args.record!r}")
+        if not args.record >= 2.0:
+            ap.error(f"--record must be >= 2 s, got {args.record:g}")
     return args
 
 
@@ -60,13 +69,17 @@ def describe(trials, family, limits, options) -> str:
     """The one line said before the design starts."""
     candidates = family if isinstance(family, list) else [family]
     what = type(candidates[0]).__name__ + (f" ({len(candidates)} candidate starts)" if len(candidates) > 1 else "")
+    method = options["method"]
+    bound = method if method.name == "bound" else getattr(method, "bound", None)
+    monte_carlo = method if method.name == "monte_carlo" else getattr(method, "monte_carlo", None)
     how = {
         "bound": "on the Cramér-Rao bound",
-        "monte_carlo": f"of {options['draws']} noise draws per arm",
-        "auto": f"on the bound where the loops are near-linear, else of {options['draws']} noise draws per arm",
-    }[options["method"]]
-    gains = " and the controller's gains" if options["controller"] else ""
-    rounds = options.get("calibrate", 0)
+        "monte_carlo": f"of {getattr(monte_carlo, 'draws', 0)} noise draws per arm",
+        "auto": f"on the bound where the loops are near-linear, else of {getattr(monte_carlo, 'draws', 0)} noise "
+        "draws per arm",
+    }[method.name]
+    gains = " and the controller's gains" if bound is not None and bound.controller else ""
+    rounds = bound.calibrate if bound is not None else 0
     calibrated = f", then {rounds} round(s) of {options['steps']} calibrated through the friction" if rounds else ""
     return (
         f"designing {what}{gains} for {len(trials)} arm(s), {limits.record:g} s records, {options['steps']} steps {how}"
@@ -102,7 +115,9 @@ def paper_reference(aj, jax, result, trials, limits, options) -> list:
     signal = aj.PaperNoise(limits.peak_force).signal(jax.random.key(2024), result.signal.shape[0])
     if isinstance(result, aj.BoundDesign):
         return [aj.crlb(t, signal, free=free, check=False) for t in trials]
-    return [aj.predict_se(t, signal, free=free, draws=options["predict_draws"]) for t in trials]
+    method = options["method"]
+    draws = (method if method.name == "monte_carlo" else method.monte_carlo).predict_draws
+    return [aj.predict_se(t, signal, free=free, draws=draws) for t in trials]
 
 
 def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:
@@ -115,29 +130,40 @@ def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:
     )
     if on_bound:
         p = config["design"]["precision"]
-        print(f"controller: {result.controller}")
+        print(f"controller (each arm resolves the rest itself): {doc['controller']}")
         print(
-            f"minutes for +-{p:.0%} at 95% on every target, per arm: start "
-            f"{np.round(result.start_minutes, 2).tolist()}, designed {np.round(result.minutes, 2).tolist()}; "
-            f"drift {1e3 * result.achieved['drift']:.3f} mm"
+            f"minutes for +-{p:.0%} at 95% on every target, per arm ({', '.join(r['label'] for r in doc['trials'])}): "
+            f"start {np.round(result.start_minutes, 2).tolist()}, designed {np.round(result.minutes, 2).tolist()} (at "
+            f"the {doc['record_s']:g} s signal written); drift {1e3 * result.achieved['drift']:.3f} mm"
         )
         from armimp_jax.study.design_experiment import friction_note
 
         note = friction_note(result)
         if note:
             print(note)
+    print(f"routes: the model route, or the classical route at {doc['routes']['classical']}")
     worst_paper = max(max(row["relative_se_paper"].values()) for row in doc["trials"])
-    print(f"the paper's perturbation at the same peak: {worst_paper:.4g}")
+    worst = max(max(row["relative_se_after"].values()) for row in doc["trials"])
+    print(
+        f"at the {doc['record_s']:g} s signal written, largest {what}: designed {worst:.4g}, the paper's "
+        f"perturbation at the same peak and length {worst_paper:.4g}"
+    )
     print(
         f"limits met: RMS {np.round(result.achieved['rms_force'], 4).tolist()} N, peak "
         f"{np.round(result.achieved['peak_force'], 4).tolist()} N, displacement "
-        f"{1e3 * result.achieved['peak_displacement']:.3f} mm"
+        f"{1e3 * result.achieved['peak_displacement']:.3f} mm (noise-free)"
+        + (
+            f"; with the person's own force about {1e3 * result.achieved['peak_displacement_plus_3_drift']:.3f} mm "
+            "(plus three RMS drifts)"
+            if "peak_displacement_plus_3_drift" in result.achieved
+            else ""
+        )
     )
     if "validation" in doc:
         v, p = doc["validation"], config["design"]["precision"]
         print(
             f"checked at a {v['record_s']:g} s record: RMS {np.round(v['rms_force'], 4).tolist()} N, peak "
-            f"{np.round(v['peak_force'], 4).tolist()} N; the predictions scaled to it (asked: +-{p:.0%} at 95%)"
+            f"{np.round(v['peak_force'], 4).tolist()} N; the predictions made there (asked: +-{p:.0%} at 95%)"
         )
     for k, row in enumerate(doc["trials"]):
         if "validation" in row:
@@ -145,33 +171,58 @@ def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:
             spread, predicted = check["relative_spread"], check["relative_se_predicted"]
             worst = max(spread, key=spread.get)
             print(
-                f"arm {k + 1}: largest relative spread {spread[worst]:.4g} ({worst}) / largest predicted "
+                f"{row['label']}: largest relative spread {spread[worst]:.4g} ({worst}) / largest predicted "
                 f"{max(predicted.values()):.4g} = {spread[worst] / max(predicted.values()):.2f}; +-"
                 f"{Z95 * spread[worst]:.1%} at 95% ({check['converged']} of {check['recordings']} recordings "
                 "converged)"
             )
 
 
-def check_options(args, config, records) -> tuple[int, str]:
-    """The check's recordings per arm and its record (the command line over the config); a
-    ``ValueError`` for an unknown record, or a record given on the command line for no check."""
-    seeds = config["validate"]["seeds"] if args.validate is None else args.validate
-    at = config["validate"]["record"] if args.validate_record is None else args.validate_record
-    if at not in records:
-        raise ValueError(f"--validate-record must be one of {', '.join(map(repr, records))}, got {at!r}")
-    if args.validate_record is not None and not seeds:
-        raise ValueError(f"--validate-record {at} sets the check's record, but no check runs: add --validate SEEDS")
-    return seeds, at
+def targets_of(dx, options) -> list[str]:
+    """The target labels of ``options`` (the config's, or the default ones)."""
+    from armimp_jax.study.design_experiment import default_targets, make_layout
+
+    layout = make_layout(options["free"])
+    return list(options["targets"] or [layout.labels()[i] for i in default_targets(layout)])
+
+
+def written_record(dc, dx, result, trials, settings, options, asked, design_record, precision) -> float:
+    """The record [s] the design is written at: ``asked`` seconds, the design's own, or the one
+    its answer predicts for ``precision`` (``dc.predicted_record``)."""
+    if asked == "design":
+        return design_record
+    if asked != "predicted":
+        return float(asked)
+    doc = dx.result_dict(result, trials, settings=settings, free=options["free"], targets=options["targets"])
+    return dc.predicted_record(doc, design_record=design_record, precision=precision)
+
+
+def at_written_record(dc, dx, result, trials, limits, settings, options, config, asked):
+    """``(result at the record written, that record [s])``: the signal at the record asked
+    (``written_record``), every number of the design recomputed there (``dc.at_record``)."""
+    precision = config["design"]["precision"]
+    record = written_record(dc, dx, result, trials, settings, options, asked, limits.record, precision)
+    signal = dc.validation_signal(result, limits, record, trials=trials, key=options["key"])
+    print(f"writing the design at a {record:g} s record ({asked})", flush=True)
+    at = dc.at_record(
+        result,
+        signal,
+        trials,
+        free=options["free"],
+        targets=targets_of(dx, options),
+        precision=precision,
+        draws=config["design"]["predict_draws"],
+        key=options["key"],
+    )
+    return at, record
 
 
 def main(argv=None) -> int:
     args = parse(argv)
-    import jax  # after the arguments: --help stays fast
+    from armimp_jax import runtime  # after the arguments: --help stays fast
 
-    jax.config.update("jax_enable_x64", True)
-    from armimp_jax import runtime
-
-    runtime.use_compilation_cache(runtime.compilation_cache_dir())  # a second run loads, not compiles
+    runtime.configure()  # float64, the devices, XLA:CPU's options, the compilation cache
+    import jax
     import numpy as np
     from tqdm import tqdm
 
@@ -182,7 +233,6 @@ def main(argv=None) -> int:
     try:
         config = dx.read_design_config(args.config)
         trials, family, limits, options = dx.build_design(config, where=str(args.config))
-        seeds, at = check_options(args, config, dx.VALIDATE_RECORDS)
     except ValueError as err:  # ConfigError included
         return fail(str(err))
     start = time.perf_counter()
@@ -191,12 +241,17 @@ def main(argv=None) -> int:
         result = run_design(aj, trials, family, limits, options)
     except ValueError as err:
         return fail(str(err))
-    paper = paper_reference(aj, jax, result, trials, limits, options)
     if isinstance(result, aj.BoundDesign):
         trials = result.trials  # with the designed controller
-    settings = dict(config_path=str(args.config), config=config, validate_seeds=seeds, validate_record=at)
+    seeds = config["validate"]["seeds"] if args.validate is None else args.validate
+    settings = dict(config_path=str(args.config), config=config, validate_seeds=seeds, record=args.record)
+    try:  # the signal at the record asked, and every number there
+        result, record = at_written_record(dc, dx, result, trials, limits, settings, options, config, args.record)
+    except ValueError as err:  # the family or the limits at that length
+        return fail(str(err))
+    paper = paper_reference(aj, jax, result, trials, limits, options)
 
-    def write(validation, checked=None):
+    def write(validation):
         doc = dx.result_dict(
             result,
             trials,
@@ -205,28 +260,18 @@ def main(argv=None) -> int:
             targets=options["targets"],
             validation=validation,
             paper=paper,
-            validation_signal=checked,
         )
-        return doc, dx.write_results(args.out, result, trials, limits, doc=doc, checked=checked)
+        return doc, dx.write_results(args.out, result, trials, limits, doc=doc)
 
     # the design is written before the (long) validation, which then rewrites it: a failed or
     # interrupted check loses no design
     doc, paths = write(None)
     if seeds:
-        precision = config["design"]["precision"]
-        predicted = at == "predicted"
-        record = (
-            dc.predicted_record(doc, design_record=limits.record, precision=precision) if predicted else limits.record
-        )
-        print(f"validating at a {record:g} s record ({at}): {seeds} recordings per arm", flush=True)
-        try:
-            signal = dc.validation_signal(result, limits, record, trials=trials, key=options["key"])
-        except ValueError as err:  # the family or the limits at that length
-            return fail(f"{err} (the design, unvalidated, is in {args.out})")
+        print(f"validating at the {record:g} s record: {seeds} recordings per arm", flush=True)
         vbar = tqdm(total=seeds * len(trials), unit="fit", desc="validating")
         try:
             validation = dc.validate(
-                signal,
+                result.signal,
                 trials,
                 options["free"],
                 seeds=seeds,
@@ -237,7 +282,7 @@ def main(argv=None) -> int:
             vbar.close()
             return fail(f"{err} (the design, unvalidated, is in {args.out})")
         vbar.close()
-        doc, paths = write(validation, signal)
+        doc, paths = write(validation)
     print_summary(np, result, doc, config, limits, on_bound=isinstance(result, aj.BoundDesign))
     print(f"{time.perf_counter() - start:.0f} s; wrote " + ", ".join(p.name for p in paths))
     return 0

@@ -66,8 +66,7 @@ import pathlib
 import sys
 import time
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _cli import Parser, error_line  # noqa: E402
+from armimp_jax.study.cli import Parser, error_line
 
 PROG = "estimate_recording"
 # the Welch route's options (study.estimate_recording.ROUTE_DEFAULTS, then --friction); the model route takes none
@@ -119,6 +118,11 @@ def parse(argv):
         ap.add_argument(f"--{name}", choices=allowed, help=f"{text} (default {allowed[0]})")
     ap.add_argument("--period", type=float, metavar="S", help="hold period [s] of --acquisition instant (default 1/fs)")
     ap.add_argument(
+        "--lines",
+        action="store_true",
+        help="fit only the bins that hold the perturbation on both axes (a multisine's lines, e.g. a designed one)",
+    )
+    ap.add_argument(
         "--friction",
         type=float,
         metavar="N_M",
@@ -128,6 +132,7 @@ def parse(argv):
     )
     args = ap.parse_args(argv)
     given = [f"--{k}" for k in WELCH_OPTIONS if getattr(args, k) is not None]
+    given += ["--lines"] if args.lines else []
     if args.model is not None and given:
         ap.error(f"--model takes its settings from the config; not with the Welch route's {', '.join(given)}")
     if args.friction is not None and not args.friction >= 0:
@@ -140,13 +145,11 @@ def fail(message: str) -> int:
 
 
 def start_jax() -> None:
-    """Float64 and the compilation cache, after the arguments (--help stays fast)."""
-    import jax
-
-    jax.config.update("jax_enable_x64", True)
+    """The set-up (float64, the devices, XLA:CPU's options, the compilation cache), after the
+    arguments (--help stays fast)."""
     from armimp_jax import runtime
 
-    runtime.use_compilation_cache(runtime.compilation_cache_dir())  # a second run loads, not compiles
+    runtime.configure()
 
 
 def load(args, recording) -> tuple[dict, dict]:
@@ -178,7 +181,11 @@ def main(argv=None) -> int:
     except ValueError as err:  # RecordingError included
         return fail(str(err))
     start = time.perf_counter()
-    est, fit = estimate_recording.analyse(rec, **welch, **fit_settings)
+    _, share = estimate_recording.input_bins(rec["f_delta"], welch)
+    try:
+        est, fit = estimate_recording.analyse(rec, **welch, **fit_settings, lines=args.lines)
+    except ValueError as err:
+        return fail(str(err))
     acquisition = fit_settings["acquisition"]
     # friction not given: unknown, so the record's stick-slip decides (the report's first line says so)
     warnings = aj.fit_warnings(fit, est, acquisition=acquisition, friction=args.friction)
@@ -186,6 +193,7 @@ def main(argv=None) -> int:
         recording=str(args.recording), columns=columns, **estimate_recording.settings_record(welch, fit_settings)
     )
     settings["friction_n_m"] = args.friction
+    settings["lines"] = args.lines
     f = est.f
     record = dict(
         n_samples=n,
@@ -198,13 +206,19 @@ def main(argv=None) -> int:
     )
     try:
         paths = estimate_recording.write_results(
-            args.out, est, fit, settings=settings, record=record, warnings=warnings
+            args.out, est, fit, settings=settings, record=record, warnings=warnings, share=share, lines=args.lines
         )
     except OSError as err:
         return fail(f"cannot write to {args.out}: {err.strerror or err}")
     print(f"{n} samples, {n_seg} segments, {f.shape[0]} bins in (0, {welch['fmax']:g}] Hz")
     report = recording_report.welch_report(
-        est, fit, acquisition=acquisition, warnings=warnings, friction_given=args.friction is not None
+        est,
+        fit,
+        acquisition=acquisition,
+        warnings=warnings,
+        friction_given=args.friction is not None,
+        share=share,
+        lines=args.lines,
     )
     print("\n".join(report))
     print(f"wrote {', '.join(str(p) for p in paths)} in {time.perf_counter() - start:.1f} s")

@@ -2,7 +2,7 @@
 
     python sweeps/explain_claims.py              # the study of docs/claims_explained.md (about 9 min on 2 cores)
     python sweeps/explain_claims.py --quick      # a smoke run: 6 s records, 1024-sample segments, 2 seeds
-    python sweeps/explain_claims.py --out FILE   # where the Markdown goes (default results/claims_explained.md)
+    python sweeps/explain_claims.py --out DIR    # the run folder (default results/claims-explained[-quick])
 
 Each experiment changes one assumption of the reproduction and keeps the rest (the paper's
 arms, friction levels, gains, perturbation filter and Table 4 Welch settings; seed ``s``
@@ -27,370 +27,55 @@ seeds 0-2 are the reproduction's trials):
 
 Every trial runs with ``aj.SWEEP_NUMERICS`` (ARK3, 20 substeps; at friction levels 1 and 2
 its phi_T agrees with the paper's RK4 at 100 substeps to about 1e-6, which seeds 0-2 of
-experiment B show against the reproduction's report). Prints each table and writes them
-as one Markdown section to ``--out``, with the wall time.
+experiment B show against the reproduction's report). Writes DIR/claims_explained.md (one
+Markdown section, with the wall time) and prints it; DIR also holds the run (``run.json``,
+one checked record per trial), so an interrupted study resumes with the same command.
 """
 
 from __future__ import annotations
 
-import argparse
 import pathlib
 import sys
-import time
+
+from armimp_jax.study.cli import Parser, fail, script
 
 PROG = "explain_claims"
-HERE = pathlib.Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-import _cli as cli  # noqa: E402
-from _claims_lab import FULL, PAPER_PEAKS, QUICK, SIGMA1_LOW, SLIDE_RATE, Lab, Run, Setup, ci, pm, span, table  # noqa: E402
 
 
 def parse(argv):
-    ap = cli.Parser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="6 s / 12 s records, 1024 / 2048-sample segments, 2 seeds")
-    ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/claims_explained.md"))
+    ap = Parser(prog=PROG, description=__doc__)
+    ap.add_argument("--quick", action="store_true", help="6 s / 12 s records, 1024 / 4096-sample segments, 2 seeds")
+    ap.add_argument("--out", type=pathlib.Path, help="run folder (default results/claims-explained[-quick])")
     ap.add_argument("--batch-size", type=int, default=24, help="trials per vmapped batch (does not change results)")
     ap.add_argument("--only", default="ABCDE", help="experiments to run, e.g. 'BE' (default ABCDE)")
     args = ap.parse_args(argv)
     if args.batch_size < 1:
-        cli.fail(f"--batch-size must be >= 1, got {args.batch_size}", PROG)
+        fail(f"--batch-size must be >= 1, got {args.batch_size}", PROG)
     bad = set(args.only) - set("ABCDE")
     if bad or not args.only:
-        cli.fail(f"--only takes letters of ABCDE, got {args.only!r}", PROG)
+        fail(f"--only takes letters of ABCDE, got {args.only!r}", PROG)
+    if args.out is None:
+        args.out = pathlib.Path("results/claims-explained" + ("-quick" if args.quick else ""))
     return args
 
 
-class Study:
-    """The five experiments; each runs its trials on ``lab`` and emits one Markdown table."""
-
-    def __init__(self, setup: Setup, lab: Lab):
-        self.s, self.lab = setup, lab
-        self.lines: list[str] = []
-
-    def emit(self, title: str, intro: str, lines: list[str]):
-        block = [f"### {title}", "", intro, "", *lines, ""]
-        print("\n".join(block), flush=True)
-        self.lines += block
-
-    # A -------------------------------------------------------------------------------------
-    def coherence_below_2hz(self):
-        s = self.s
-        seeds = range(s.seeds_b)
-        runs = [Run("pd", 1, sd, t, level=fr) for fr in (1, 2) for t in (s.short, s.long) for sd in seeds]
-        runs += [Run("pd", 1, sd, s.short, level=2, sigma1=SIGMA1_LOW) for sd in seeds]
-        res = self.lab.run(runs, {s.short: [s.nperseg], s.long: [s.nperseg, s.fine]})
-        rows = []
-        for fr in (1, 2):
-            cases = [
-                (s.short, s.nperseg, None, "Table 4"),
-                (s.long, s.nperseg, None, "4x the segments"),
-                (s.long, s.fine, None, "4x the resolution"),
-            ]
-            if fr == 2:
-                cases.append((s.short, s.nperseg, SIGMA1_LOW, f"Table 4, sigma1 = {SIGMA1_LOW:g} N m s/rad"))
-            for t, seg, sigma1, what in cases:
-                ms = [
-                    m
-                    for r, m in zip(runs, res)
-                    if r.level == fr and r.seconds == t and r.sigma1 == sigma1 and not m["diverged"]
-                ]
-                v = [m[f"w{seg}"]["coh_multiple_x_min_low"] for m in ms]
-                freqs = sorted(m[f"w{seg}"]["coh_min_low_f"] for m in ms)
-                rows.append(
-                    [
-                        fr,
-                        f"{t:g} s, {seg} ({what})",
-                        len(v),
-                        pm(v),
-                        span(v),
-                        f"{sum(x <= 0.5 for x in v)}/{len(v)}",
-                        f"{freqs[len(freqs) // 2]:.2f}",
-                        pm([m["slide"] for m in ms], ".2f"),
-                        pm([m["load_p95"] for m in ms], ".2f"),
-                    ]
-                )
-        self.emit(
-            "A. Claim (b): the minimum multiple coherence below 2 Hz (PD, location 1, perturbation 1)",
-            f"Seeds 0-{s.seeds_b - 1}; rule (b) asks <= 0.5 at every friction level and perturbation. "
-            "`f of min`: the median over seeds of the bin where the minimum falls; `sliding`: share of "
-            f"samples in which a joint turns faster than {SLIDE_RATE} rad/s; `bristle load p95`: 95th percentile "
-            "of max over joints of sigma0 |z| / tau_s (LuGre's bristles act as a linear spring near 0, break away "
-            "at 1 and carry tau_c / tau_s = 0.67 while sliding).",
-            table(
-                [
-                    "friction",
-                    "record, segment",
-                    "seeds",
-                    "min coherence < 2 Hz",
-                    "range",
-                    "seeds <= 0.5",
-                    "f of min [Hz]",
-                    "sliding",
-                    "bristle load p95",
-                ],
-                rows,
-            ),
-        )
-
-    # B -------------------------------------------------------------------------------------
-    def perturbation_size(self):
-        s = self.s
-        peaks = (2.25, 3.0, 3.75, 4.5, 6.0, 9.0)
-        runs = [
-            Run("pd", 1, sd, s.short, level=fr, peak=p, acquisition=acq)
-            for acq in ("instant", "interval_mean")
-            for fr in (1, 2)
-            for p in peaks
-            for sd in range(s.seeds)
-        ]
-        runs += [
-            Run("pd", 1, sd, s.short, level=0, acquisition=a)
-            for a in ("instant", "interval_mean")
-            for sd in range(s.seeds)
-        ]
-        res = self.lab.run(runs, {s.short: [s.nperseg]})
-        w = f"w{s.nperseg}"
-        by = {(r.acquisition, r.level, r.peak, r.seed): m for r, m in zip(runs, res) if not m["diverged"]}
-        rows = []
-        for acq in ("instant", "interval_mean"):
-            base0 = [by[(acq, 0, PAPER_PEAKS[1], sd)][w]["phi_T"] for sd in range(s.seeds) if (acq, 0, 2.25, sd) in by]
-            for fr in (1, 2):
-                for p in peaks:
-                    ms = [(sd, by[(acq, fr, p, sd)]) for sd in range(s.seeds) if (acq, fr, p, sd) in by]
-                    ratio = [
-                        m[w]["phi_T"] / by[(acq, fr, 2.25, sd)][w]["phi_T"] for sd, m in ms if (acq, fr, 2.25, sd) in by
-                    ]
-                    label = {v: f" (level {k})" for k, v in PAPER_PEAKS.items()}.get(p, "")
-                    rows.append(
-                        [
-                            acq.replace("_", " "),
-                            fr,
-                            f"{p:g}{label}",
-                            pm([m[w]["phi_T"] for _, m in ms], ".0f"),
-                            pm(ratio, ".2f"),
-                            f"{ci([m[w]['phi_T'] for _, m in ms])[0] / ci(base0)[0]:.1f}",
-                            pm([m[w]["phase_error_deg"] for _, m in ms], ".1f"),
-                            pm([m["slide"] for _, m in ms], ".2f"),
-                            pm([m["load_p95"] for _, m in ms], ".2f"),
-                            pm([m["over_stiction"] for _, m in ms], ".3f"),
-                        ]
-                    )
-        seeds0 = [by[("instant", 1, p, sd)][w]["phi_T"] for p in (2.25, 4.5) for sd in range(s.seeds)]
-        self.emit(
-            "B. Claims (b) and (c): the perturbation's size against stiction (PD, location 1)",
-            f"Seeds 0-{s.seeds - 1}, {s.short:g} s records. `/ peak 2.25 N`: phi_T over its value at level 1, "
-            "seed by seed; `/ no friction`: over the frictionless phi_T with the same acquisition (rule (b) "
-            "asks >= 5); phase error: rule (b) asks >= 20 deg; `torque > stiction`: share of samples in "
-            "which the perturbation's own joint torque J(q0)^T F_Delta exceeds the stiction torque at a joint. "
-            "Instant-sample phi_T at friction 1, peaks 2.25 and 4.5 N, seeds in order (compare the "
-            "reproduction's per-trial records): " + ", ".join(f"{v:.1f}" for v in seeds0) + ".",
-            table(
-                [
-                    "acquisition",
-                    "friction",
-                    "peak [N]",
-                    "phi_T [N/m]",
-                    "/ peak 2.25 N",
-                    "/ no friction",
-                    "phase error [deg]",
-                    "sliding",
-                    "bristle load p95",
-                    "torque > stiction",
-                ],
-                rows,
-            ),
-        )
-
-    # C -------------------------------------------------------------------------------------
-    def friction_size(self):
-        s = self.s
-        taus = (1.0, 1.5, 2.0, 3.0, 4.0)
-        runs = [
-            Run("pd", 1, sd, s.short, tau_c=tc, peak=PAPER_PEAKS[lv])
-            for tc in taus
-            for lv in (1, 3)
-            for sd in range(s.seeds)
-        ]
-        res = self.lab.run(runs, {s.short: [s.nperseg]})
-        w = f"w{s.nperseg}"
-        by = {(r.tau_c, r.peak, r.seed): m for r, m in zip(runs, res) if not m["diverged"]}
-        rows = []
-        for tc in taus:
-            one = [by.get((tc, PAPER_PEAKS[1], sd)) for sd in range(s.seeds)]
-            three = [by.get((tc, PAPER_PEAKS[3], sd)) for sd in range(s.seeds)]
-            pairs = [(a, b) for a, b in zip(one, three) if a and b]
-            rows.append(
-                [
-                    f"{tc:g}" + {1.0: " (level 1)", 4.0: " (level 2)"}.get(tc, ""),
-                    f"{1.5 * tc:g}",
-                    pm([b[w]["phi_T"] / a[w]["phi_T"] for a, b in pairs], ".2f"),
-                    pm([a["slide"] for a, _ in pairs], ".2f") + " / " + pm([b["slide"] for _, b in pairs], ".2f"),
-                    pm([a["load_p95"] for a, _ in pairs], ".2f") + " / " + pm([b["load_p95"] for _, b in pairs], ".2f"),
-                    pm([a["over_stiction"] for a, _ in pairs], ".3f")
-                    + " / "
-                    + pm([b["over_stiction"] for _, b in pairs], ".3f"),
-                ]
-            )
-        self.emit(
-            "C. Claim (c): the Coulomb torque between the paper's levels (PD, location 1)",
-            f"Seeds 0-{s.seeds - 1}, {s.short:g} s records, the paper's bristle and viscous parameters, "
-            "stiction 1.5x Coulomb. Rule (c) asks phi_T(level 3) / phi_T(level 1) >= 2/3 at each friction "
-            "level. Sliding, bristle load and torque share as in A and B, at perturbation level 1 / level 3.",
-            table(
-                [
-                    "tau_c [N m]",
-                    "tau_s [N m]",
-                    "phi_T(level 3) / phi_T(level 1)",
-                    "sliding, level 1 / 3",
-                    "bristle load p95, level 1 / 3",
-                    "torque > stiction, level 1 / 3",
-                ],
-                rows,
-            ),
-        )
-
-    # D -------------------------------------------------------------------------------------
-    def frictionless_dip(self):
-        s = self.s
-        seeds = range(min(2, s.seeds))
-        runs = [Run("imbic", loc, sd, t, level=0) for loc in (1, 2, 3, 4) for t in (s.short, s.long) for sd in seeds]
-        res = self.lab.run(runs, {s.short: [s.nperseg], s.long: [s.nperseg, 2 * s.nperseg, 4 * s.nperseg]})
-        rows = []
-        for loc in (1, 2, 3, 4):
-            cells = []
-            for t, seg in ((s.short, s.nperseg), (s.long, s.nperseg), (s.long, 2 * s.nperseg), (s.long, 4 * s.nperseg)):
-                ms = [m[f"w{seg}"] for r, m in zip(runs, res) if r.location == loc and r.seconds == t]
-                cells.append(f"{pm([m['coh_min'] for m in ms])} at {span([m['coh_min_f'] for m in ms])} Hz")
-            rows.append([loc, *cells])
-        segs = lambda t, seg: int((t * 1000 - seg) // (seg // 4) + 1)  # noqa: E731
-        head = [
-            f"{t:g} s, {seg} ({segs(t, seg)} segments, {1000 / seg:.3f} Hz)"
-            for t, seg in ((s.short, s.nperseg), (s.long, s.nperseg), (s.long, 2 * s.nperseg), (s.long, 4 * s.nperseg))
-        ]
-        self.emit(
-            "D. Claim (d) without friction: the coherence dip against the Welch settings (IMBIC, no friction)",
-            f"Seeds 0-{len(seeds) - 1}; the minimum multiple coherence of x over 0-15 Hz and the bins where it "
-            "falls. Without friction the plant is linear and noise-free, so a coherence below 1 is the "
-            "estimator's own bias; 75% overlap throughout.",
-            table(["location", *head], rows),
-        )
-
-    # E -------------------------------------------------------------------------------------
-    IMBIC_CONFIGS = (
-        ("Mhat 0.25 I kg (the reproduction)", dict()),
-        ("Mhat 0.1 I kg", dict(mhat=0.1)),
-        ("Mhat 0.5 I kg", dict(mhat=0.5)),
-        ("Mhat 1.0 I kg", dict(mhat=1.0)),
-        ("acceleration from positions", dict(accel="position")),
-        ("interval-mean acquisition", dict(acquisition="interval_mean")),
-    )
-    IMBIC_LONG = (  # with long records and fine segments
-        IMBIC_CONFIGS[0],
-        IMBIC_CONFIGS[2],
-        IMBIC_CONFIGS[3],
-        ("Mhat 1.0 I kg, interval-mean acquisition", dict(mhat=1.0, acquisition="interval_mean")),
-    )
-
-    def imbic_settings(self):
-        s = self.s
-        runs, tags = [], []
-        for configs, seconds, seeds in (
-            (self.IMBIC_CONFIGS, s.short, s.seeds),
-            (self.IMBIC_LONG, s.long, min(2, s.seeds)),
-        ):
-            for tag, kw in configs:
-                for loc in (1, 2, 3, 4):
-                    for fr in (0, 1, 2):
-                        for sd in range(seeds):
-                            runs.append(Run("imbic", loc, sd, seconds, level=fr, **kw))
-                            tags.append((tag, seconds))
-        res = self.lab.run(runs, {s.short: [s.nperseg], s.long: [s.fine]})
-        cases = [(tag, s.short, s.nperseg) for tag, _ in self.IMBIC_CONFIGS]
-        cases += [(tag, s.long, s.fine) for tag, _ in self.IMBIC_LONG]
-        rows = [
-            self._imbic_row(tag, t, seg, [(r, m) for r, m, tg in zip(runs, res, tags) if tg == (tag, t)])
-            for tag, t, seg in cases
-        ]
-        self.emit(
-            "E. Claims (d) and (e): IMBIC's settings and the acquisition (4 locations x 3 friction levels)",
-            f"Seeds 0-{s.seeds - 1} at {s.short:g} s (0-{min(2, s.seeds) - 1} at {s.long:g} s); the reproduction's "
-            "rules on the condition means: (d) lowest minimum multiple coherence of x over 0-15 Hz > 0.9 (and "
-            "where it falls), (e) largest IMBIC phi_T / frictionless phi_T <= 2 at friction 1-2.",
-            table(
-                [
-                    "IMBIC setting",
-                    "record, segment",
-                    "(d) lowest min coherence",
-                    "(d) rule",
-                    "lowest median",
-                    "(e) largest phi_T ratio",
-                    "(e) rule",
-                    "largest frictionless phi_T [N/m]",
-                    "diverged",
-                ],
-                rows,
-            ),
-        )
-
-    @staticmethod
-    def _imbic_row(tag: str, t: float, seg: int, results: list) -> list:
-        """One row of table E from the ``(Run, metrics)`` of one IMBIC setting and record."""
-        cond: dict = {}
-        for r, m in results:
-            if not m["diverged"]:
-                cond.setdefault((r.location, r.level), []).append(m[f"w{seg}"])
-        names = ("coh_min", "coh_multiple_x_median", "phi_T")
-        mean = {k: {n: ci([m[n] for m in v])[0] for n in names} for k, v in cond.items()}
-        worst_min = min(mean, key=lambda k: mean[k]["coh_min"])
-        worst_med = min(mean[k]["coh_multiple_x_median"] for k in mean)
-        ratios = {
-            (loc, fr): mean[(loc, fr)]["phi_T"] / mean[(loc, 0)]["phi_T"]
-            for (loc, fr) in mean
-            if fr > 0 and (loc, 0) in mean
-        }
-        worst_ratio = max(ratios, key=ratios.get)
-        f_at = [m["coh_min_f"] for m in cond[worst_min]]
-        return [
-            tag,
-            f"{t:g} s, {seg}",
-            f"{mean[worst_min]['coh_min']:.3f} (L{worst_min[0]}, F{worst_min[1]}, {span(f_at, '.1f')} Hz)",
-            "holds" if mean[worst_min]["coh_min"] > 0.9 else "fails",
-            f"{worst_med:.3f}",
-            f"{ratios[worst_ratio]:.2f} (L{worst_ratio[0]}, F{worst_ratio[1]})",
-            "holds" if ratios[worst_ratio] <= 2.0 else "fails",
-            f"{max(mean[(loc, 0)]['phi_T'] for loc in (1, 2, 3, 4) if (loc, 0) in mean):.0f}",
-            sum(1 for _, m in results if m["diverged"]),
-        ]
-
-
-def main(argv=None):
+@script(PROG)
+def main(argv=None) -> int:
     args = parse(argv)
-    setup = QUICK if args.quick else FULL
-    start = time.perf_counter()
-    lab = Lab(args.batch_size)
-    study = Study(setup, lab)
-    steps = dict(
-        A=study.coherence_below_2hz,
-        B=study.perturbation_size,
-        C=study.friction_size,
-        D=study.frictionless_dip,
-        E=study.imbic_settings,
-    )
-    for letter in args.only:
-        steps[letter]()
-    wall = time.perf_counter() - start
-    from armimp_jax.study.results import atomic_write_text
+    from armimp_jax.runtime import configure
 
-    head = [
-        "## Experiments (generated by `python sweeps/explain_claims.py" + (" --quick" if args.quick else "") + "`)",
-        "",
-        f"{lab.trials} trials, {wall / 60:.1f} min wall time; means ± the 95% t-interval over seeds.",
-        "",
-    ]
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(args.out, "\n".join(head + study.lines))
-    print(f"{lab.trials} trials in {wall:.0f} s: {args.out}")
+    configure()
+    from armimp_jax.paper import explain
+    from armimp_jax.study.console import Console
+
+    console = Console()
+    settings = explain.ExplainSettings(quick=args.quick, only=args.only)
+    outcome = explain.explain(settings, args.out, batch_size=args.batch_size, console=console, warn=console.warn(PROG))
+    path, lines = outcome.finished
+    print("\n".join(lines))
+    print(f"{len(outcome.computed)} trial(s) run now, {len(outcome.done)} found on disk: {path}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

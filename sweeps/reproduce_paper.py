@@ -19,17 +19,13 @@ process computes its shards of every batch and process 0 alone writes DIR.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
-import itertools
 import pathlib
-import statistics
 import sys
 import time
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _cli import Parser, distributed_options  # noqa: E402
-from _cli import fail as cli_fail  # noqa: E402
+from armimp_jax.study.cli import Parser, distributed_options, script
+from armimp_jax.study.cli import fail as cli_fail
 
 PROG = "reproduce_paper"
 DEFAULT_SEEDS = 3  # keep equal to armimp_jax.paper.reproduce.DEFAULT_SEEDS (read here before importing jax)
@@ -56,7 +52,7 @@ def fail(message: str):
 
 
 def parse(argv):
-    ap = Parser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = Parser(prog=PROG, description=__doc__)
     ap.add_argument("--quick", action="store_true", default=None, help="6 s records, 10 substeps, 1024-sample segments")
     ap.add_argument("--seeds", type=int, help=f"perturbation seeds per condition (default {DEFAULT_SEEDS})")
     ap.add_argument("--base-seed", type=int, help="seed of the PRNG the perturbations are folded from (default 0)")
@@ -114,108 +110,6 @@ def check_args(args) -> None:
         fail("--replot runs in one process: drop --coordinator, --num-processes, --process-id and --auto-cluster")
 
 
-def _clock(seconds: float) -> str:
-    return f"{int(seconds // 60)}:{int(seconds % 60):02d}"
-
-
-class ProgressBar:
-    """The run's progress on one line of ``stream``, then its finishing steps, one line each.
-
-    The ETA leaves compilation out: it counts the rate over the chunks that did not start a
-    batch (a batch's first chunk also compiles it, after the previous batch's estimation),
-    plus the measured cost of each batch start for the batches still to come; until a
-    steady rate is known it says "compiling". The bar ends at 100% with every trial.
-    """
-
-    def __init__(self, trials_total: int, batches: list[int], per_trial: int, stream=sys.stderr):
-        self.stream, self.trials_total, self.per_trial = stream, trials_total, per_trial
-        self.ends = [per_trial * v for v in itertools.accumulate(batches)]
-        self.total = per_trial * trials_total
-        self.start = time.monotonic()
-        self.last_draw = -1.0
-        self.prev = None  # (time, done, trials_done) of the previous call
-        self.steady_s = self.steady_work = 0.0  # time and trial samples of chunks that did not start a batch
-        self.starts: list[float] = []  # measured extra cost of starting a batch (estimation, compilation)
-
-    def begin(self) -> None:
-        first = f" ({self.ends[0] // self.per_trial} trials)" if self.ends else ""
-        self._draw(0, 0, f"compiling the first batch{first}...", force=True)
-
-    def _rate(self):
-        return self.steady_work / self.steady_s if self.steady_s > 0 and self.steady_work > 0 else None
-
-    def __call__(self, p: dict) -> None:
-        now = time.monotonic()
-        done, trials = p["done"], p["trials_done"]
-        rate = self._rate()
-        if self.prev is not None:
-            t_prev, done_prev, trials_prev = self.prev
-            if trials == trials_prev:
-                self.steady_s += now - t_prev
-                self.steady_work += done - done_prev
-            elif rate is not None:  # a batch started: what it cost beyond its simulation
-                self.starts.append(max(0.0, now - t_prev - (done - done_prev) / rate))
-        self.prev = (now, done, trials)
-        rate = self._rate()
-        batch = sum(1 for e in self.ends if e <= done)  # batches whose simulation is over
-        if done >= self.total:
-            status = "simulated; estimating the last batch..."
-        elif done in self.ends:
-            status = f"estimating batch {batch}/{len(self.ends)}, then compiling the next..."
-        elif rate is None:  # the first chunk (and compilation) is over; the rate needs one more
-            status = "ETA after the next chunk"
-        else:
-            per_start = statistics.fmean(self.starts) if self.starts else 0.0
-            eta = (self.total - done) / rate + per_start * max(0, len(self.ends) - batch - 1)
-            status = f"ETA {_clock(eta)}"
-        self._draw(done, trials, status, force=done in self.ends or done >= self.total)
-
-    def _draw(self, done, trials, status, *, force=False) -> None:
-        now = time.monotonic()
-        if not force and now - self.last_draw < 0.5:
-            return
-        self.last_draw = now
-        frac = min(1.0, done / self.total) if self.total else 1.0
-        bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
-        self.stream.write(
-            f"\r[{bar}] {100 * frac:5.1f}%  trials {trials}/{self.trials_total}  "
-            f"elapsed {_clock(now - self.start)}  {status:<50s}"
-        )
-        self.stream.flush()
-
-    def end(self, trials_done: int) -> None:
-        """The last line of the bar: every trial simulated, estimated and saved."""
-        self._draw(self.total, trials_done, "done", force=True)
-        self.stream.write("\n")
-        self.stream.flush()
-
-
-def step(name: str, fn, stream=sys.stderr):
-    """Run ``fn()``, one finishing step, saying what it is and how long it took."""
-    stream.write(f"{name}...")
-    stream.flush()
-    t0 = time.perf_counter()
-    result = fn()
-    stream.write(f" {time.perf_counter() - t0:.1f} s\n")
-    stream.flush()
-    return result
-
-
-def warn(message: str) -> None:
-    sys.stderr.write(f"{PROG}: warning: {message}\n")
-
-
-def finish(repro, plots, report, out, start: float):
-    """Aggregate, plot and write the report; the run's recorded wall time gains everything
-    this command did since ``start`` (``time.perf_counter()`` when it began), the report's
-    writing aside."""
-    results, arrays = step("aggregating", lambda: repro.aggregate(out, warn=warn))
-    figures = step("plotting", lambda: plots.all_figures(results, arrays, out))
-    repro.record_wall_time(out, results, time.perf_counter() - start)
-    path = step("writing the report", lambda: report.write_report(results, out, figures))
-    return results, path
-
-
 def settings_for(args, repro):
     """``(settings, out)``: from the command line, or for ``--resume`` from the run's
     ``run.json`` (options given as well must agree with it)."""
@@ -225,12 +119,12 @@ def settings_for(args, repro):
         return repro.ReproSettings(**asked), out
     from armimp_jax.study import engine
 
-    saved = engine.saved_settings(repro.ReproSettings, args.resume)
-    engine.check_resume(args.resume, saved, dataclasses.replace(saved, **asked))
+    saved = engine.resumed(repro.ReproSettings, args.resume, lambda saved: dataclasses.replace(saved, **asked))
     return saved, args.resume
 
 
-def main(argv=None):
+@script(PROG)
+def main(argv=None) -> int:
     start = time.perf_counter()  # the recorded wall time covers the whole command
     args = parse(argv)
     check_args(args)
@@ -240,57 +134,35 @@ def main(argv=None):
     from armimp_jax.runtime import configure
 
     configure()
-    from armimp_jax.paper import plots, report
     from armimp_jax.paper import reproduce as repro
-    from armimp_jax.study import engine
+    from armimp_jax.study.console import Console
 
+    console = Console()
     if args.replot:
-        with engine.run_folder(repro.ReproSettings, args.replot).lock():
-            results, arrays = repro.load_results(args.replot)
-            figures = step("plotting", lambda: plots.all_figures(results, arrays, args.replot))
-            path = step("writing the report", lambda: report.write_report(results, args.replot, figures))
-            print(f"redrew {len(figures)} figures and {path}")
+        figures, path = repro.replot(args.replot, console=console)
+        print(f"redrew {len(figures)} figures and {path}")
         return 0
     settings, out = settings_for(args, repro)
-    settings.validate()
-    writer = distributed.is_writer()
-    # the writer holds the lock and reads the folder; every process gets its list of trials to run
-    with engine.open_study(settings, out, resume=args.resume is not None, warn=warn) as (done, todo):
-        if writer:
-            print(
-                f"{len(settings.conditions)} conditions x {settings.seeds} seed(s), {settings.seconds:g} s records, "
-                f"{settings.substeps} substeps -> {out} ({len(done)} trials on disk, {len(todo)} to run)",
-                flush=True,
-            )
-        bar = None
-        if writer and todo:
-            sizes = [len(b) for b in engine.batches(todo, settings.group, args.batch_size)]
-            bar = ProgressBar(len(todo), sizes, settings.n_samples)
-            bar.begin()
-        try:
-            computed = repro.run_reproduction(
-                settings,
-                out,
-                batch_size=args.batch_size,
-                chunk_seconds=min(5.0, settings.seconds),
-                progress=bar,
-                warn=lambda _: None,  # the scan above named every record that failed its check
-            )
-        except KeyboardInterrupt:
-            if not writer:
-                raise
-            sys.stderr.write("\ninterrupted: finished trials are saved\n")
-            _, path = finish(repro, plots, report, out, start)
-            print(f"partial report: {path}\nresume with: python sweeps/reproduce_paper.py --resume {out}")
-            return 130
-        if not writer:
-            import jax
+    outcome = repro.reproduce(
+        settings,
+        out,
+        resume=args.resume is not None,
+        batch_size=args.batch_size,
+        console=console,
+        warn=console.warn(PROG),
+        started=start,
+    )
+    if not distributed.is_writer():
+        import jax
 
-            print(f"process {jax.process_index()}: computed its shards of {len(todo)} trial(s); process 0 writes {out}")
-            return 0
-        if bar is not None:
-            bar.end(len(computed))
-        results, path = finish(repro, plots, report, out, start)
+        shards = f"computed its shards of {len(outcome.todo)} trial(s)"
+        print(f"process {jax.process_index()}: {shards}; process 0 writes {out}")
+        return 0
+    results, path = outcome.finished
+    if outcome.interrupted:
+        sys.stderr.write("\ninterrupted: finished trials are saved\n")
+        print(f"partial report: {path}\nresume with: python sweeps/reproduce_paper.py --resume {out}")
+        return 130
     for c in results["claims"]:
         print(f"  ({c['key']}) {c['verdict']:10s} {c['ours']}\n      {'':10s} {c['robustness']}")
     if results["diverged"]:
@@ -302,7 +174,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    try:
-        sys.exit(main())
-    except ValueError as err:  # bad settings and ResultsError: one line, no traceback
-        fail(str(err))
+    sys.exit(main())

@@ -20,25 +20,19 @@ holds one sweep: the same command reuses its finished trials; other settings are
 
 from __future__ import annotations
 
-import argparse
-import dataclasses
 import pathlib
 import sys
+import time
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _cli import METHODS, Parser, distributed_options, run_sweep  # noqa: E402
-from _cli import fail as cli_fail  # noqa: E402
+from armimp_jax.study.cli import METHODS, Parser, distributed_options, fail, script
 
 PROG = "sweep"
 SHORTCUTS = ("seconds", "nperseg", "noverlap", "mhat")  # options that set one value of a point setting
+RUN_OPTIONS = ("seeds", "base_seed", "method", "substeps")
 
 
-def fail(message: str, prog: str = PROG):
-    cli_fail(message, prog)
-
-
-def parser(prog: str = PROG, description: str | None = __doc__) -> Parser:
-    ap = Parser(prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+def parse(argv):
+    ap = Parser(prog=PROG, description=__doc__)
     ap.add_argument("--set", action="append", default=[], metavar="NAME=V1,V2", help="sweep (or fix) a setting")
     ap.add_argument("--config", type=pathlib.Path, metavar="TOML", help="grid and points from a TOML file")
     ap.add_argument("--seconds", type=float, help="record length [s] (default 50)")
@@ -54,109 +48,58 @@ def parser(prog: str = PROG, description: str | None = __doc__) -> Parser:
     ap.add_argument("--x", metavar="NAME", help="setting on the figure's x axis (default: the first swept number)")
     ap.add_argument("--out", type=pathlib.Path, help="output folder")
     ap.add_argument("--resume", type=pathlib.Path, metavar="DIR", help="finish the sweep in DIR with its own settings")
-    return ap
-
-
-def check_args(args, prog: str = PROG) -> None:
-    """Checks that need no simulation (before JAX is imported)."""
+    distributed_options().add_arguments(ap)
+    args = ap.parse_args(argv)
     if (args.out is None) == (args.resume is None):
-        fail("give one of --out DIR and --resume DIR", prog)
+        fail("give one of --out DIR and --resume DIR", PROG)
     if args.resume is not None and not args.resume.is_dir():
-        fail(f"--resume {args.resume}: no such folder", prog)
+        fail(f"--resume {args.resume}: no such folder", PROG)
     for name in ("batch_size", "seeds", "substeps"):
         v = getattr(args, name, None)
         if v is not None and v < 1:
-            fail(f"--{name.replace('_', '-')} must be >= 1, got {v}", prog)
+            fail(f"--{name.replace('_', '-')} must be >= 1, got {v}", PROG)
     if args.check < 0:
-        fail(f"--check must be >= 0, got {args.check}", prog)
+        fail(f"--check must be >= 0, got {args.check}", PROG)
     if args.base_seed is not None and args.base_seed < 0:
-        fail(f"--base-seed must be >= 0, got {args.base_seed}", prog)
-
-
-def run_options(args, toml_run: dict) -> dict:
-    """``SweepSettings`` keyword arguments other than the points (command line over TOML)."""
-    out = {k: v for k, v in toml_run.items()}
-    for name in ("seeds", "base_seed", "method", "substeps"):
-        if getattr(args, name) is not None:
-            out[name] = getattr(args, name)
-    return out
-
-
-def requested(args):
-    """``SweepSettings`` from the command line and ``--config``."""
-    from armimp_jax.study import points as pts
-    from armimp_jax.study.sweep import SweepSettings
-
-    grid, points, run = pts.read_toml(args.config) if args.config else ({}, None, {})
-    cli = pts.parse_set(args.set)
-    both = sorted(set(cli) & set(grid))
-    if both:
-        raise ValueError(f"setting(s) {', '.join(both)} given both in --set and in {args.config}")
-    grid = dict(grid) | cli
-    for name in SHORTCUTS:
-        value = getattr(args, name)
-        if value is not None:
-            if name in grid:
-                raise ValueError(f"--{name} and --set {name} (or the TOML grid) both given")
-            grid[name] = [value]
-    return SweepSettings(tuple(pts.expand(grid, points)), **run_options(args, run))
-
-
-def settings_for(args):
-    """``(settings, out)``; for ``--resume`` the saved settings (options given must agree)."""
-    from armimp_jax.study import engine
-    from armimp_jax.study.points import normalize_point
-    from armimp_jax.study.sweep import SweepSettings
-
-    if args.resume is None:
-        return requested(args), args.out
-    saved = engine.saved_settings(SweepSettings, args.resume)
-    if args.set or args.config:
-        wanted = requested(args)
-    else:  # options given with --resume apply to every saved point
-        given = {k: getattr(args, k) for k in SHORTCUTS if getattr(args, k) is not None}
-        points = tuple(normalize_point(dict(p) | given) for p in saved.points)
-        wanted = dataclasses.replace(saved, points=points, **run_options(args, {}))
-    engine.check_resume(args.resume, saved, wanted)
-    return saved, args.resume
-
-
-def run(args, *, prog: str = PROG, quiet: bool = False):
-    """Run (or resume) a sweep from parsed options; returns ``(summary, out)`` (in a
-    ``jax.distributed`` job, the processes other than 0 get only ``computed``)."""
-    settings, out = settings_for(args)
-    result = run_sweep(settings, out, prog=prog, batch_size=args.batch_size, check=args.check, x=args.x, quiet=quiet)
-    return result, out
-
-
-def main(argv=None):
-    ap = parser()
-    distributed = distributed_options()
-    distributed.add_arguments(ap)
-    args = ap.parse_args(argv)
-    check_args(args)
+        fail(f"--base-seed must be >= 0, got {args.base_seed}", PROG)
     try:
-        distributed.check_arguments(args)
+        distributed_options().check_arguments(args)
     except ValueError as err:
-        fail(str(err))
+        fail(str(err), PROG)
+    return args
+
+
+@script(PROG)
+def main(argv=None) -> int:
+    args = parse(argv)
+    distributed = distributed_options()
     distributed.initialize(args)  # before the backend starts (configure starts it)
     from armimp_jax.runtime import configure
 
     configure()
-    try:
-        result, _ = run(args)
-    except ValueError as err:  # bad settings and ResultsError: one line, no traceback
-        fail(str(err))
+    from armimp_jax.study import sweep
+    from armimp_jax.study.console import Console
+
+    given = dict(
+        config=args.config,
+        sets=args.set,
+        shortcuts={k: getattr(args, k) for k in SHORTCUTS if getattr(args, k) is not None},
+        run={k: getattr(args, k) for k in RUN_OPTIONS if getattr(args, k) is not None},
+    )
+    out = args.out or args.resume
+    settings = sweep.requested(**given) if args.resume is None else sweep.resumed(args.resume, **given)
+    console = Console()
+    start = time.perf_counter()
+    result = sweep.run_sweep(
+        settings, out, batch_size=args.batch_size, check=args.check, x=args.x, console=console, warn=console.warn(PROG)
+    )
     if not distributed.is_writer():
-        print(f"{PROG}: process {jax_process_index()} done; process 0 wrote the results")
+        import jax
+
+        print(f"{PROG}: process {jax.process_index()} done; process 0 wrote the results")
         return 0
+    print("\n".join(sweep.summary_lines(result, out, time.perf_counter() - start)))
     return 0 if result["complete"] else 1
-
-
-def jax_process_index() -> int:
-    import jax
-
-    return jax.process_index()
 
 
 if __name__ == "__main__":

@@ -14,6 +14,9 @@ os.environ.setdefault("ARMIMP_JAX_CACHE_DIR", str(pathlib.Path(__file__).resolve
 
 from armimp_jax import runtime  # noqa: E402  (after the cache folder is chosen)
 
+# The suite's set-up, explicit (importing armimp_jax sets none): one device per core (the
+# sharded tests), XLA:CPU's small-loop kernel without LLVM unrolling, XLA's own vector width.
+runtime.configure(vector_width=None, compilation_cache=False)
 runtime.use_compilation_cache(runtime.compilation_cache_dir())
 
 # The suite runs file by file on two workers (``--dist loadfile``: a module's fixtures and

@@ -44,10 +44,8 @@ ENTRY_POINT = {}
 
 @functools.cache
 def _run_sharded_cached(n_devices, configure_items):
-    options = dict(configure_items)
-    # "plain": no armimp_jax code-generation option at all, neither import's nor configure's
-    plain = options == PLAIN_XLA
-    env = dict(os.environ, XLA_FLAGS="", ARMIMP_JAX_XLA_DEFAULTS="0" if plain else "1")
+    # "plain": no armimp_jax code-generation option at all (importing the package sets none)
+    env = dict(os.environ, XLA_FLAGS="")
     proc = subprocess.run(
         [sys.executable, "-c", SHARDED, str(n_devices), json.dumps(dict(configure_items))],
         capture_output=True,

@@ -1,19 +1,13 @@
-"""The helpers the benchmark and study scripts share (sweeps/_cli.py, sweeps/_bench_run.py):
-solver names held to the library's, ``--cases`` parsing, round-robin timing, Markdown tables."""
-
-import pathlib
-import sys
+"""What the scripts share (armimp_jax.study.cli) and the benchmarks' timing helpers
+(armimp_jax.bench.timing): solver names held to the library's, ``--cases`` parsing,
+round-robin timing, Markdown tables."""
 
 import jax.numpy as jnp
 import pytest
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "sweeps"))
-
-import _bench_run  # noqa: E402
-import _cli  # noqa: E402
-
-from armimp_jax._solver.numerics import METHODS, named_solver  # noqa: E402
+from armimp_jax._solver.numerics import METHODS, named_solver
+from armimp_jax.bench import timing as _bench_run
+from armimp_jax.study import cli as _cli
 
 
 def test_the_scripts_solver_names_are_the_library_s():

@@ -102,8 +102,7 @@ def test_a_designed_experiment_meets_every_limit_exactly():
         _family(),
         free=ARM,
         limits=dataclasses.replace(LIMITS, record=2.0),
-        method="bound",
-        controller=True,
+        method=aj.CramerRao(controller=True),
         steps=2,
         key=jax.random.key(1),
     )
@@ -117,7 +116,7 @@ def test_a_designed_experiment_meets_every_limit_exactly():
     assert c["type"] == "imbic" and set(c) == {"type", "mhat", "k_rd", "b_rd", "m_rd"}
     assert np.all(np.diag(c["k_rd"]) >= 50.0) and np.all(np.diag(c["b_rd"]) >= 2.0)
     assert res.bounds[0].spectral_radius < 1.0
-    assert res.minutes[0] == pytest.approx(res.bounds[0].record_for(0.1) / 60)
+    assert res.minutes[0] == pytest.approx(res.bounds[0].record_for(0.1) / 60, rel=1e-14)
     assert res.criterion_after <= res.criterion_before
     # the controller record rebuilds the designed controller
     rebuilt = aj.IMBIC(**{k: np.asarray(v) for k, v in c.items() if k != "type"})
@@ -127,11 +126,12 @@ def test_a_designed_experiment_meets_every_limit_exactly():
 def test_bad_controllers_and_limits_are_one_line_errors():
     trial = _trial()
     unstable = _trial(aj.IMBIC(b_rd=np.eye(2) * 5e3))
+    bound = aj.CramerRao(controller=True)
     with pytest.raises(ValueError, match="unstable for robust_over"):
-        aj.design(unstable, _family(), free=ARM, limits=LIMITS, method="bound", controller=True, steps=1)
+        aj.design(unstable, _family(), free=ARM, limits=LIMITS, method=bound, steps=1)
     tight = dataclasses.replace(LIMITS, drift=1e-6)
     with pytest.raises(ValueError, match="no controller within the limits"):
-        aj.design(trial, _family(), free=ARM, limits=tight, method="bound", controller=True, steps=1)
+        aj.design(trial, _family(), free=ARM, limits=tight, method=bound, steps=1)
     with pytest.raises(ValueError, match="Limits: drift"):
         aj.Limits(0.66, 2.25, 3.0, drift=-1.0)
     with pytest.raises(ValueError, match="Limits: min_stiffness"):
@@ -140,15 +140,17 @@ def test_bad_controllers_and_limits_are_one_line_errors():
     with pytest.raises(
         ValueError, match=r"the controller lets the hand drift \d\.\d\d mm RMS .* above the drift limit 3 mm"
     ):
-        aj.design(soft, _family(), free=ARM, limits=LIMITS, method="bound", steps=1)
-    with pytest.raises(ValueError, match="controller=True designs the gains on the Cramér-Rao bound"):
-        aj.design(trial, _family(), free=ARM, limits=LIMITS, method="monte_carlo", controller=True, steps=1)
-    with pytest.raises(ValueError, match="method='bound' covers the arm's matrices"):
-        aj.design(trial, _family(), free=(*ARM, "friction.tau_c"), limits=LIMITS, method="bound", steps=1)
-    with pytest.raises(ValueError, match="design: calibrate must be an integer >= 0, got -1"):
-        aj.design(trial, _family(), free=ARM, limits=LIMITS, method="bound", calibrate=-1, steps=1)
-    with pytest.raises(ValueError, match="calibrate .* weighs the bound; the Monte Carlo criterion has none"):
-        aj.design(trial, _family(), free=ARM, limits=LIMITS, method="monte_carlo", calibrate=1, steps=1)
+        aj.design(soft, _family(), free=ARM, limits=LIMITS, method=aj.CramerRao(), steps=1)
+    with pytest.raises(ValueError, match="the bound \\(CramerRao\\) covers the arm's matrices"):
+        aj.design(trial, _family(), free=(*ARM, "friction.tau_c"), limits=LIMITS, method=aj.CramerRao(), steps=1)
+    with pytest.raises(ValueError, match="CramerRao: calibrate must be an integer >= 0, got -1"):
+        aj.CramerRao(calibrate=-1)
+    with pytest.raises(ValueError, match="CramerRao: precision must lie in"):
+        aj.CramerRao(precision=0.0)
+    # a displacement limit no level of the signal meets: refused before any step
+    small = dataclasses.replace(LIMITS, peak_displacement=1e-7)
+    with pytest.raises(ValueError, match="displacement stays above peak_displacement 1e-07 m"):
+        aj.design(trial, _family(), free=ARM, limits=small, method=bound, steps=40)
 
 
 @pytest.mark.slow  # about 70 s: predict_se through the friction at the design, twice
@@ -158,9 +160,9 @@ def test_a_calibrated_design_weighs_the_bound_by_the_friction_and_predicts_its_m
     ``predict_se``'s (the bound times the ratios) by the bound's square-root law."""
     trial = aj.make_trial(aj.IMBIC(), arm=paper.arm(2), friction=aj.LuGre(1.0, 1.5), **NOISE)
     limits = dataclasses.replace(LIMITS, record=2.0)
-    kw = dict(free=ARM, limits=limits, method="bound", controller=True, steps=2, key=jax.random.key(1))
-    plain = aj.design(trial, _family(), **kw)
-    res = aj.design(trial, _family(), calibrate=1, predict_draws=16, **kw)
+    kw = dict(free=ARM, limits=limits, steps=2, key=jax.random.key(1))
+    plain = aj.design(trial, _family(), method=aj.CramerRao(controller=True), **kw)
+    res = aj.design(trial, _family(), method=aj.CramerRao(controller=True, calibrate=1, draws=16), **kw)
     assert plain.predicted_minutes is None and plain.friction_ratio is None
     assert max(plain.minutes) < max(plain.start_minutes)  # the first round moved: the start fields are its
     assert len(res.trace) == 4 and res.trace[:2] == plain.trace

@@ -1,5 +1,5 @@
-"""armimp_jax.study.engine: one run-trials engine (run folder, batches, progress, resume) for
-every study, tested on a toy specification whose batches simulate nothing."""
+"""armimp_jax.study.engine: one engine (run folder, lock, resume, batches, progress, finish)
+for every study, tested on a toy specification whose batches simulate nothing."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import pytest
 
 from armimp_jax.study import engine
 from armimp_jax.study.results import ResultsError, describe_difference, load_record, stamped
+from armimp_jax.study.runfolder import StudyRun
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,8 +55,10 @@ class Toy:
     def samples(self, t):
         return self.sizes[t[0]]
 
-    def batch_runner(self):
-        def run(batch, *, mesh, chunk_samples, progress):
+    def runner(self, context):
+        chunk_samples = context.chunk_samples
+
+        def run(batch, progress):
             LOG.append(list(batch))
             n, b = self.samples(batch[0]), len(batch)
             for done in range(chunk_samples, n + chunk_samples, chunk_samples):  # in trial samples, like simulate_batch
@@ -75,8 +78,8 @@ LOG: list = []
 
 
 def run(spec, out, **kw):
-    with engine.open_study(spec, out, warn=kw.pop("warn", lambda _: None)) as (done, todo):
-        return done, engine.run_trials(spec, out, todo, chunk_seconds=0.01, **kw)
+    outcome = engine.run(spec, out, warn=kw.pop("warn", lambda _: None), chunk_seconds=0.01, **kw)
+    return outcome.done, outcome.computed
 
 
 def test_batches_are_equal_per_group_and_never_mix():
@@ -96,7 +99,7 @@ def test_resume_loses_nothing_and_runs_each_trial_once(tmp_path):
     assert done == [] and len(first) == 6  # the six 30-sample trials, as two batches of 3
     assert all(len({spec.group(t) for t in b}) == 1 for b in LOG)  # no batch mixes groups
     warnings = []
-    torn = engine.record_path(tmp_path, first[0])
+    torn = StudyRun.of(spec, tmp_path).record_path(first[0])
     torn.write_bytes(torn.read_bytes()[:100])  # a record cut short is named and recomputed
     done, second = run(spec, tmp_path, batch_size=3, warn=warnings.append)
     assert len(done) == 5 and first[0] in second and not set(first[1:]) & set(second)
@@ -105,7 +108,7 @@ def test_resume_loses_nothing_and_runs_each_trial_once(tmp_path):
     assert all(len({spec.group(t) for t in b}) == 1 for b in LOG)
     done, third = run(spec, tmp_path, batch_size=2)
     assert third == [] and len(done) == 8
-    rec = load_record(engine.record_path(tmp_path, "t2-s1"), settings=spec.trial_record((2, 1))[1])
+    rec = load_record(StudyRun.of(spec, tmp_path).record_path("t2-s1"), settings=spec.trial_record((2, 1))[1])
     assert rec.meta["value"] == 21 and rec.meta["batch_size"] == 2 and rec.meta["batch_wall_s"] >= 0
     assert list(rec.meta) == ["id", "batch_size", "value", "batch_wall_s"]  # a spec's placement is kept
     np.testing.assert_array_equal(rec.arrays["x"], [21.0] * 3)
@@ -116,10 +119,10 @@ def test_a_run_with_other_settings_is_refused_and_foreign_records_are_recomputed
     other = Toy(scale=2.0)
     with pytest.raises(ResultsError, match=r"holds a toy run with scale=1 \(you asked 2\)"):
         run(other, tmp_path)
-    saved = engine.saved_settings(Toy, tmp_path)
+    saved = engine.resumed(Toy, tmp_path)
     assert saved == Toy()
     with pytest.raises(ResultsError, match="--resume"):
-        engine.check_resume(tmp_path, saved, other)
+        engine.resumed(Toy, tmp_path, lambda s: other)
     # records written under other trial settings are not taken for this run's
     (tmp_path / "run.json").unlink()
     warnings = []
@@ -127,7 +130,8 @@ def test_a_run_with_other_settings_is_refused_and_foreign_records_are_recomputed
     assert done == [] and len(computed) == 8 and len(warnings) == 8
     with pytest.raises(ValueError, match="scale must be > 0"):
         run(Toy(scale=-1.0), tmp_path / "bad")
-    assert engine.add_wall_time(other, tmp_path, 1.5) == 1.5 and engine.add_wall_time(Toy, tmp_path, 2.0) == 3.5
+    assert StudyRun.of(other, tmp_path).add_wall_time(1.5) == 1.5
+    assert StudyRun.of(Toy, tmp_path).add_wall_time(2.0) == 3.5
 
 
 def test_progress_counts_samples_and_trials_and_leaves_compilation_out(tmp_path):

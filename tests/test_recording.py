@@ -434,10 +434,47 @@ def test_verdict_reads_lack_of_fit_and_vaf_together():
         fit(7.8, 0.47)
     )  # the newcomer's kind: a low VAF, a lack-of-fit ratio about 1
     assert headline.startswith("no evidence against the model at this noise") and "noisy estimate" in headline
-    assert "the low VAF means noise, not a misfit" in why
+    assert "the person's own force below 2 Hz included, is much of Z" in why
+    # a perturbation in few bins (a multisine's lines): the classical route cannot tell, and says why
+    headline, why = estimate_recording.verdict(fit(4.8, 0.5), share=0.09)
+    assert headline.startswith("the classical route cannot tell from these bins") and "9%" in headline
+    assert "the person's own force (below 2 Hz)" in why and "--lines" in why and "--model" in why
+    headline, _ = estimate_recording.verdict(fit(99.0, 0.5), share=0.09, lines=True)
+    assert headline.startswith("the model describes Z (the 9% of the bins that hold the perturbation's lines)")
     assert estimate_recording.verdict(fit(99.7, 0.85))[0].startswith(
         "the model describes Z within the estimate's noise"
     )
     for vaf in (99.7, 7.8):  # a significant lack of fit is a misfit, whatever the VAF
         assert estimate_recording.verdict(fit(vaf, 1e-6))[0].startswith("the model does not describe Z")
     assert estimate_recording.verdict(fit(50.0, float("nan")))[0] == "no lack-of-fit test"
+
+
+def test_the_classical_route_on_a_designed_multisine_says_why_and_fits_at_its_lines():
+    """A lab's day: one 48 s recording of IMBIC with 1 N m of Coulomb friction, the person's own
+    force and the design's kind of signal (16 log-spaced multisine lines, 0.66 N RMS, 2.25 N
+    peak). Fitted over every Welch bin the classical route cannot tell (its lines fill few
+    bins: the rest are the person's force and noise) and says so; fitted at the bins that hold
+    the lines (--lines), every diagonal of M, B, K lies in its 95% interval."""
+    arm = paper.arm(2)
+    noise = dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(0.3, 2.0))
+    trial = aj.make_trial(aj.IMBIC(), arm=arm, friction=aj.LuGre(1.0, 1.5), **noise)
+    family = aj.multisine(np.geomspace(0.1, 15.0, 16), 1.0, offset=0.5)
+    limits = aj.Limits(rms_force=0.66, peak_force=2.25, record=48.0)
+    f = np.asarray(aj.limited_signal(family, limits, key=jax.random.key(0)))
+    sim = jax.jit(aj.simulate, static_argnames="numerics")(
+        trial, f, key=jax.random.key(7), numerics=aj.IDENTIFY_NUMERICS
+    )
+    rec = dict(f_delta=f, x=np.asarray(sim.x), fh=np.asarray(sim.fh))
+    welch, _, _ = estimate_recording.route_settings(f.shape[0], fs=1000.0)
+    holds, share = estimate_recording.input_bins(f, welch)
+    assert share < estimate_recording.SPARSE_SHARE, (share, holds.sum())
+    _, every = estimate_recording.analyse(rec, fs=1000.0)
+    headline, why = estimate_recording.verdict(every, share=share)
+    assert headline.startswith("the classical route cannot tell") and "person's own force (below 2 Hz)" in why
+    _, at_lines = estimate_recording.analyse(rec, fs=1000.0, lines=True)
+    assert float(at_lines.vaf_overall) > 90.0
+    for name in ("mass", "damping", "stiffness"):
+        low, high = at_lines.interval(name)
+        true = np.asarray(getattr(arm, name))
+        for i in (0, 1):
+            assert low[i, i] <= true[i, i] <= high[i, i], (name, i, low[i, i], high[i, i], true[i, i])

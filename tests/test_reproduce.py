@@ -31,6 +31,7 @@ from armimp_jax.paper.claims import (
 from armimp_jax.presets._paper import arm
 from armimp_jax.study import engine
 from armimp_jax.study import results as res
+from armimp_jax.study.runfolder import StudyRun
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "reproduce_paper.py"
@@ -180,16 +181,15 @@ def test_the_tables_are_tidy_dataframes_and_csv_files_of_the_results(quick_run):
 def test_every_study_draws_one_signal_per_seed():
     """Common random numbers: the reproduction, the tuner and a sweep give seed s the same
     perturbation shape (scaled to the peak); another seed changes it."""
-    from armimp_jax.paper import tune as paper_tune
+    from armimp_jax.paper import mhat_experiment as paper_tune
     from armimp_jax.presets import perturbation_peak
-    from armimp_jax.study import sweep
 
     settings = dataclasses.replace(TINY, base_seed=7)
     signals, _, attempt = repro.draw_perturbations(settings, 3, [1, 3])
     assert attempt == 0
     n = settings.n_samples
     tuner = paper_tune.seed_perturbations(7, [3], n, level=1)[0]
-    swept = sweep._Perturbations(7)(3, n, perturbation_peak(1))
+    swept = engine.Perturbations(7)(3, n, perturbation_peak(1))
     np.testing.assert_array_equal(signals[1], tuner)
     np.testing.assert_array_equal(signals[1], swept)
     np.testing.assert_allclose(signals[3], signals[1] * 4.5 / 2.25, rtol=1e-12)  # one shape, two peaks
@@ -233,7 +233,7 @@ def test_rerun_with_other_settings_is_refused_and_changes_nothing(quick_run):
 
 def test_a_folder_in_use_by_another_run_is_refused_at_once(tmp_path):
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from armimp_jax.study.results import RunLock\n"
+        [sys.executable, "-c", "import sys; from armimp_jax.study.runfolder import RunLock\n"
          "with RunLock(sys.argv[1]):\n    print('held', flush=True); sys.stdin.read()", str(tmp_path)],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
@@ -252,7 +252,7 @@ def test_resume_finishes_exactly_the_recorded_run_and_refuses_other_options(tmp_
     # The defects: a 4-condition run resumed into 21; "--frictions 0" resumed was marked
     # complete with trials missing; --resume ignored conflicting options.
     settings = dataclasses.replace(TINY, locations=(1,), frictions=(0,), perturbations=(1,))
-    first = repro.run_reproduction(settings, tmp_path, batch_size=3, stop_after_batches=1)
+    first = engine.run(settings, tmp_path, batch_size=3, stop_after_batches=1).computed
     assert len(first) == 1  # "interrupted" after the PD batch
 
     def resumed(*options):
@@ -270,7 +270,7 @@ def test_resume_finishes_exactly_the_recorded_run_and_refuses_other_options(tmp_
     saved, out = resumed()
     results, _ = repro.aggregate(out)
     assert not results["complete"] and results["missing"] == ["imbic-L1-F0-P1-S0"]
-    assert repro.run_reproduction(saved, out) == ["imbic-L1-F0-P1-S0"]  # exactly the run's missing trial
+    assert engine.run(saved, out).computed == ["imbic-L1-F0-P1-S0"]  # exactly the run's missing trial
     results, _ = repro.aggregate(out)
     assert results["complete"] and results["missing"] == [] and len(results["trials"]) == 2
 
@@ -278,10 +278,10 @@ def test_resume_finishes_exactly_the_recorded_run_and_refuses_other_options(tmp_
 def test_resume_computes_only_missing_trials_with_identical_numbers(tmp_path):
     settings = dataclasses.replace(TINY, locations=(1, 2), perturbations=(1,))
     full, part = tmp_path / "full", tmp_path / "part"
-    all_ids = repro.run_reproduction(settings, full, batch_size=3)
-    first = repro.run_reproduction(settings, part, batch_size=3, stop_after_batches=1)
+    all_ids = engine.run(settings, full, batch_size=3).computed
+    first = engine.run(settings, part, batch_size=3, stop_after_batches=1).computed
     assert 0 < len(first) < len(all_ids)  # "interrupted" after one batch
-    second = repro.run_reproduction(settings, part, batch_size=3)
+    second = engine.run(settings, part, batch_size=3).computed
     assert sorted(first + second) == sorted(all_ids) and not set(first) & set(second)
     for c in settings.conditions:
         a = res.load_record(repro.trial_path(full, c, 0), settings=settings.trial_settings(c, 0))
@@ -298,7 +298,7 @@ def test_resume_computes_only_missing_trials_with_identical_numbers(tmp_path):
     entries["Z"] = entries["Z"] * 1.01
     np.savez(altered, **entries)
     warnings = []
-    again = repro.run_reproduction(settings, part, batch_size=3, warn=warnings.append)
+    again = engine.run(settings, part, batch_size=3, warn=warnings.append).computed
     assert sorted(again) == sorted([trial_id(pd0, 0), trial_id(im0, 0)])
     assert len(warnings) == 2
     assert any(str(torn) in w and "truncated" in w for w in warnings)
@@ -309,12 +309,15 @@ def test_resume_computes_only_missing_trials_with_identical_numbers(tmp_path):
 
 
 def test_prepare_refuses_a_folder_holding_other_settings(tmp_path):
-    engine.prepare(TINY, tmp_path, resume=False)
-    engine.prepare(TINY, tmp_path, resume=True)  # the same settings: fine
+    def prepare(settings, out, resume):
+        StudyRun.of(settings, out).prepare(settings.run_settings(), resume=resume, describe=settings.describe)
+
+    prepare(TINY, tmp_path, resume=False)
+    prepare(TINY, tmp_path, resume=True)  # the same settings: fine
     with pytest.raises(res.ResultsError, match=r"holds a run with seconds=2.2 \(you asked 3\)"):
-        engine.prepare(dataclasses.replace(TINY, seconds=3.0), tmp_path, resume=False)
+        prepare(dataclasses.replace(TINY, seconds=3.0), tmp_path, resume=False)
     with pytest.raises(res.ResultsError, match="no run to resume"):
-        engine.prepare(TINY, tmp_path / "empty", resume=True)
+        prepare(TINY, tmp_path / "empty", resume=True)
 
 
 def test_trial_keys_depend_on_what_changes_their_numbers():
@@ -418,7 +421,7 @@ def _write_trial(out, settings, cond, seed, metrics, *, diverged=False):
 
 def test_diverged_trials_are_counted_shown_and_left_out_of_means_and_claims(tmp_path):
     settings = dataclasses.replace(TINY, seeds=3, locations=(1, 2, 3, 4), perturbations=(1, 3))
-    engine.prepare(settings, tmp_path, resume=False)
+    StudyRun.of(settings, tmp_path).prepare(settings.run_settings(), extra=settings.run_extra())
     for c in settings.conditions:
         for s in range(3):
             phi = (200.0 if c.friction == 0 else 3000.0) + 10 * s if c.experiment == "pd" else 200.0 + 5 * s

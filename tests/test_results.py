@@ -13,6 +13,7 @@ import pytest
 
 from armimp_jax import __version__
 from armimp_jax.study import results as res
+from armimp_jax.study.runfolder import RunLock
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -182,10 +183,10 @@ def _restore(path, data):
 
 def test_run_lock_is_exclusive_reentrant_and_released(tmp_path):
     folder = tmp_path / "run"
-    with res.RunLock(folder) as lock:
+    with RunLock(folder) as lock:
         info = json.loads((folder / ".lock").read_text())
         assert info["pid"] == os.getpid() and info["host"] == socket.gethostname()
-        with res.RunLock(folder):  # the holder may take it again
+        with RunLock(folder):  # the holder may take it again
             pass
         assert (folder / ".lock").exists() and lock.holder()["pid"] == os.getpid()
     assert not (folder / ".lock").exists()
@@ -200,7 +201,7 @@ def _fake_lock(folder, pid, host=None):
 def test_run_lock_refuses_a_folder_held_by_a_live_process(tmp_path):
     _fake_lock(tmp_path, os.getppid())  # the test runner's parent: alive
     with pytest.raises(res.ResultsError) as err:
-        with res.RunLock(tmp_path):
+        with RunLock(tmp_path):
             pass
     assert f"{tmp_path} is in use by another run: pid {os.getppid()} on {socket.gethostname()}" in str(err.value)
     assert "\n" not in str(err.value)
@@ -211,17 +212,17 @@ def test_run_lock_takes_over_a_lock_of_a_dead_process_but_not_of_another_host(tm
     gone = subprocess.Popen([sys.executable, "-c", "pass"])
     gone.wait()
     _fake_lock(tmp_path / "a", gone.pid)
-    with res.RunLock(tmp_path / "a"):
+    with RunLock(tmp_path / "a"):
         assert json.loads((tmp_path / "a" / ".lock").read_text())["pid"] == os.getpid()
     _fake_lock(tmp_path / "b", os.getpid(), host="elsewhere.example")
     with pytest.raises(res.ResultsError, match="pid .* on elsewhere.example .* delete the lock file"):
-        with res.RunLock(tmp_path / "b"):
+        with RunLock(tmp_path / "b"):
             pass
 
 
 HOLD = """
 import sys
-from armimp_jax.study.results import RunLock
+from armimp_jax.study.runfolder import RunLock
 with RunLock(sys.argv[1]):
     print("held", flush=True)
     sys.stdin.read()
@@ -235,12 +236,12 @@ def test_run_lock_held_by_another_process_and_freed_when_it_ends(tmp_path):
     try:
         assert holder.stdout.readline().strip() == "held"
         with pytest.raises(res.ResultsError, match=f"in use by another run: pid {holder.pid} "):
-            with res.RunLock(tmp_path):
+            with RunLock(tmp_path):
                 pass
     finally:
         holder.communicate("")
     assert holder.returncode == 0 and not (tmp_path / ".lock").exists()
     start = time.perf_counter()
-    with res.RunLock(tmp_path):
+    with RunLock(tmp_path):
         pass
     assert time.perf_counter() - start < 1.0

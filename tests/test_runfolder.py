@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from armimp_jax.study import results as res
-from armimp_jax.study.runfolder import RUN_FILE, RunFolder, open_run, trial_status
+from armimp_jax.study.runfolder import RUN_FILE, StudyRun
 
 SETTINGS = dict(seconds=6.0, welch=dict(nperseg=1024), frictions=[0, 1])
 
 
 def folder(path, **kw):
-    return RunFolder(path, kind="test", format=3, **kw)
+    return StudyRun(path, kind="test", format=3, **kw)
 
 
 def test_prepare_writes_run_json_once_and_goes_on_with_the_same_settings(tmp_path):
@@ -50,9 +50,9 @@ def test_run_json_of_another_study_format_or_edited_settings_is_refused(tmp_path
     f = folder(tmp_path)
     f.prepare(SETTINGS)
     with pytest.raises(res.ResultsError, match=r"not the run.json of a run .*kind 'test', format 3; expected 'other'"):
-        RunFolder(tmp_path, kind="other", format=3).read()
+        StudyRun(tmp_path, kind="other", format=3).read()
     with pytest.raises(res.ResultsError, match="format 3; expected 'test', format 4"):
-        RunFolder(tmp_path, kind="test", format=4).read()
+        StudyRun(tmp_path, kind="test", format=4).read()
     run = json.loads(f.run_file.read_text())
     f.run_file.write_text(json.dumps(run | dict(settings=dict(run["settings"], seconds=7.0))))
     with pytest.raises(res.ResultsError, match="its settings were edited after the run"):
@@ -72,23 +72,25 @@ def test_update_changes_what_a_run_adds_never_its_settings(tmp_path):
         f.update(settings={})
 
 
-def test_trial_status_and_open_run(tmp_path):
+def test_status_save_and_open(tmp_path):
     f = folder(tmp_path)
-    trials = [(s, tmp_path / "trials" / f"t{s}.npz", dict(SETTINGS, seed=s)) for s in range(3)]
-    with open_run(f, SETTINGS, trials) as (done, todo):
+    trials = [(s, f"t{s}", dict(SETTINGS, seed=s)) for s in range(3)]
+    with f.open(SETTINGS, trials) as (done, todo):
         assert (done, todo) == ([], [0, 1, 2])
         assert (tmp_path / ".lock").exists()  # held for as long as the run goes on
-        for s, path, settings in trials[:2]:
-            res.save_record(path, settings=settings, arrays=dict(x=np.full(3, s)))
+        for s, record_id, settings in trials[:2]:
+            f.save(record_id, settings=settings, arrays=dict(x=np.full(3, s)))
     assert not (tmp_path / ".lock").exists()
-    trials[1][1].write_bytes(trials[1][1].read_bytes()[:100])  # torn
+    torn = f.record_path("t1")
+    assert torn == tmp_path / "trials" / "t1.npz"
+    torn.write_bytes(torn.read_bytes()[:100])
     warnings = []
-    records, todo = trial_status(trials, warn=warnings.append, note="left out")
+    records, todo = f.status(trials, warn=warnings.append, note="left out")
     assert list(records) == [0] and todo == [1, 2]
-    assert len(warnings) == 1 and str(trials[1][1]) in warnings[0] and warnings[0].endswith("; left out")
+    assert len(warnings) == 1 and str(torn) in warnings[0] and warnings[0].endswith("; left out")
     np.testing.assert_array_equal(records[0].arrays["x"], [0, 0, 0])
-    with open_run(f, SETTINGS, trials, resume=True, warn=lambda _: None) as (done, todo):
+    with f.open(SETTINGS, trials, resume=True, warn=lambda _: None) as (done, todo):
         assert (done, todo) == ([0], [1, 2])
     with pytest.raises(res.ResultsError, match="holds a run with seconds=6"):
-        with open_run(f, dict(SETTINGS, seconds=9.0), trials):
+        with f.open(dict(SETTINGS, seconds=9.0), trials):
             pass

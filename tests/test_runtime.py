@@ -48,19 +48,23 @@ def _devices_after_import(
     return out.stdout.strip() or out.stderr.strip().splitlines()[-1]
 
 
-def test_loading_the_library_asks_for_one_cpu_device_per_core_unless_the_caller_chose():
+def test_importing_the_library_changes_nothing_and_configure_sets_up():
+    """No XLA flag and no setting of JAX's changes at import (nor when the package's JAX
+    modules load); ``configure`` asks for one CPU device per core unless the caller chose."""
     cores = os.cpu_count() or 1
     # importing the package alone imports no JAX (a script's --help stays fast)
     assert _devices_after_import({}, "import sys, armimp_jax; print('jax' in sys.modules)") == "False"
-    assert _devices_after_import({}) == str(cores)
-    assert _devices_after_import({"ARMIMP_JAX_CPU_DEVICES": "1"}) == "1"
-    assert _devices_after_import({"XLA_FLAGS": "--xla_force_host_platform_device_count=3"}) == "3"
-    # a backend that already started is left alone
-    assert (
-        _devices_after_import({}, "import jax; jax.devices(); import armimp_jax.paper; print(jax.device_count())")
-        == "1"
+    unchanged = (
+        "import os, armimp_jax as aj, jax; aj.simulate; print(jax.device_count(), repr(os.environ.get('XLA_FLAGS')))"
     )
-    assert _devices_after_import({"ARMIMP_JAX_CPU_DEVICES": "two"}) == (
+    assert _devices_after_import({}, unchanged) == "1 None"
+    configured = (
+        "import armimp_jax as aj, jax; aj.runtime.configure(); print(jax.device_count(), jax.config.jax_enable_x64)"
+    )
+    assert _devices_after_import({}, configured) == f"{cores} True"
+    assert _devices_after_import({"ARMIMP_JAX_CPU_DEVICES": "1"}, configured) == "1 True"
+    assert _devices_after_import({"XLA_FLAGS": "--xla_force_host_platform_device_count=3"}, configured) == "3 True"
+    assert _devices_after_import({"ARMIMP_JAX_CPU_DEVICES": "two"}, configured) == (
         "ValueError: ARMIMP_JAX_CPU_DEVICES must be a whole number >= 1, got 'two'"
     )
 

@@ -2,7 +2,6 @@
 imported), and numba_baseline.py says what it needs when numba is missing."""
 
 import ast
-import importlib.util
 import io
 import os
 import pathlib
@@ -13,7 +12,7 @@ import time
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-SCRIPTS = sorted(p for p in (ROOT / "sweeps").glob("*.py") if not p.name.startswith("_"))  # _cli.py: a module
+SCRIPTS = sorted((ROOT / "sweeps").glob("*.py"))
 HELP_LIMIT_S = 3.0  # importing JAX alone takes longer than this on a loaded 2-core host
 
 
@@ -38,16 +37,24 @@ def test_an_unknown_option_gets_one_line_under_the_script_s_own_name(name):
     assert proc.stderr.strip().splitlines() == [f"{name}: error: unrecognized arguments: --bogus"]
 
 
-@pytest.mark.parametrize("name", ["sweep", "friction_threshold", "reproduce_paper", "tune_mhat", "_cli"])
-def test_study_scripts_use_the_public_library_and_load_no_file_by_path(name):
-    """They import the library's public modules (no ``armimp_jax._private``) and each other as
-    modules of the scripts' folder (no ``importlib`` loading by path)."""
-    tree = ast.parse((ROOT / "sweeps" / f"{name}.py").read_text())
+@pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: p.name)
+def test_scripts_are_shells_on_the_public_library(script):
+    """A script imports the library's public modules (no ``armimp_jax._private``), no other
+    script (nothing from its own folder, nothing on ``sys.path`` it put there) and loads no
+    file by path (no ``importlib``)."""
+    tree = ast.parse(script.read_text())
     imported = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
     imported += [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
     private = [m for m in imported if m.startswith("armimp_jax.") and any(p.startswith("_") for p in m.split(".")[1:])]
     assert not private, private
     assert not any(m.startswith("importlib") for m in imported), imported
+    siblings = {p.stem for p in (ROOT / "sweeps").glob("*.py")}
+    assert not [m for m in imported if m.split(".")[0] in siblings], imported
+    assert "sys.path" not in script.read_text()
+
+
+def test_the_scripts_are_at_most_2500_lines():
+    assert sum(len(p.read_text().splitlines()) for p in SCRIPTS) <= 2500
 
 
 def test_numba_baseline_without_numba(tmp_path):
@@ -62,18 +69,17 @@ def test_numba_baseline_without_numba(tmp_path):
     assert proc.stderr.strip().splitlines() == ["numba_baseline: error: needs numba (pip install -e '.[bench]')"]
 
 
-def test_reproduce_progress_bar_leaves_compilation_out_and_ends_at_100(monkeypatch):
+def test_the_progress_bar_leaves_compilation_out_and_ends_at_100(monkeypatch):
     """Two batches of 2 trials, 3 chunks each: the first chunk of a batch (compilation) is
     left out of the rate, chunk ends that finish a batch say what runs next, and the bar
     ends at 100% with every trial."""
-    spec = importlib.util.spec_from_file_location("reproduce_paper_bar", ROOT / "sweeps" / "reproduce_paper.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    from armimp_jax.study import console
+
     clock = [0.0]
-    monkeypatch.setattr(script.time, "monotonic", lambda: clock[0])
+    monkeypatch.setattr(console.time, "monotonic", lambda: clock[0])
     stream = io.StringIO()
     per_trial = 30
-    bar = script.ProgressBar(4, [2, 2], per_trial, stream=stream)
+    bar = console.ProgressBar([(2, 2 * per_trial), (2, 2 * per_trial)], stream=stream)
     bar.begin()
     total = 4 * per_trial
     # (time, substeps done, trials done): 10 s to compile, then 1 s per chunk of 20 substeps
@@ -93,4 +99,6 @@ def test_reproduce_progress_bar_leaves_compilation_out_and_ends_at_100(monkeypat
     clock[0] = 30
     bar.end(4)
     last = stream.getvalue().rstrip("\n").rsplit("\r", 1)[-1]
-    assert "100.0%" in last and "trials 4/4" in last and "done" in last
+    assert "100.0%" in last and "trials saved 4/4" in last and "done" in last
+    # simulated to the end while the last batch is estimated: saved trials say so
+    assert "100.0% simulated" in lines[5] and "trials saved 2/4" in lines[5]

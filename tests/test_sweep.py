@@ -224,7 +224,7 @@ def test_a_damaged_record_is_named_and_recomputed(tiny, tmp_path, capsys):
 
 def test_a_folder_in_use_is_refused_at_once(tmp_path, main, capsys):
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time; from armimp_jax.study.results import RunLock\n"
+        [sys.executable, "-c", "import sys, time; from armimp_jax.study.runfolder import RunLock\n"
          f"with RunLock({str(tmp_path)!r}):\n    print('held', flush=True); time.sleep(60)"],
         stdout=subprocess.PIPE, text=True,
     )  # fmt: skip

@@ -20,9 +20,11 @@ import armimp_jax as aj
 from armimp_jax import Welch
 from armimp_jax import paper as presets
 from armimp_jax._batch import make_mesh
-from armimp_jax.paper import tune as paper_tune
+from armimp_jax.paper import mhat_experiment as paper_tune
+from armimp_jax.study import engine
 from armimp_jax.study import results as res
-from armimp_jax.study import tune
+from armimp_jax.study import tuning as tune
+from armimp_jax.study.runfolder import StudyRun
 
 WELCH = Welch(512, 384)
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -175,9 +177,8 @@ from armimp_jax.runtime import configure
 configure(host_devices=3)
 import jax, numpy as np
 from armimp_jax import Welch
-from armimp_jax.study import tune
-from armimp_jax.study import results as res
-from armimp_jax.paper import tune as paper_tune
+from armimp_jax.study import tuning as tune
+from armimp_jax.paper import mhat_experiment as paper_tune
 params, f_delta = paper_tune.training_batch((0, 2), (1,), (0,), seconds=1.6)
 NUM = paper_tune.training_numerics(4)
 vg = tune.value_and_grad_fn(parameterisation="diagonal", welch=Welch(512, 384), mode="reverse", numerics=NUM)
@@ -281,12 +282,13 @@ def test_tune_script_quick_produces_its_outputs(tmp_path):
     assert proc.returncode == 0, proc.stderr
     mhat = np.array(strict_loads((tmp_path / "mhat.json").read_text())["mhat"])
     assert mhat.shape == (2, 2) and np.all(np.linalg.eigvalsh(mhat) > 0)
-    for name in ("loss_curve.png", "comparison.md", "comparison.json", "tune_state.npz"):
+    for name in ("loss_curve.png", "comparison.md", "comparison.json", "trials/iteration-0002.npz"):
         assert (tmp_path / name).stat().st_size > 0, name
     assert strict_loads((tmp_path / "comparison.json").read_text())["best"] in ("tuned", "0.25 I")
     assert "| tuned |" in (tmp_path / "comparison.md").read_text()
-    state = res.load_record(tmp_path / "tune_state.npz")
-    assert state.settings["tuner"]["parameterisation"] == "diagonal" and state.meta["options"]["quick"]
+    state = res.load_record(tmp_path / "trials" / "iteration-0002.npz")
+    assert state.settings["tuner"]["parameterisation"] == "diagonal" and state.settings["iteration"] == 2
+    assert strict_loads((tmp_path / "run.json").read_text())["options"]["quick"]
     # two host devices (runtime.configure keeps a count that is set): 8 training trials span both
     assert '"event": "training batch", "trials": 8, "devices": 2' in proc.stdout
 
@@ -399,9 +401,12 @@ def _run_tune_script(*args):
 
 def test_script_resume_refuses_other_settings_and_a_torn_state_in_one_line(tmp_path, script):
     options = script.DEFAULTS | dict(quick=True)
-    config, *_, settings = script.setup(options, tune, paper_tune, Welch)
-    script.run_folder(tmp_path).prepare(settings, extra=dict(options=options))  # what a run leaves
-    tune.save_state(tmp_path / script.STATE, _fake_state(), settings, meta=dict(options=options))
+    spec = paper_tune.Tuning(options)
+    study = StudyRun.of(spec, tmp_path)
+    study.prepare(spec.run_settings(), extra=spec.run_extra())  # what a run leaves
+    for i in (0, 1):
+        arrays, meta = tune.state_arrays(_fake_state())
+        study.save(*spec.trial_record(i)[:1], settings=spec.trial_record(i)[1], arrays=arrays, meta=meta)
     proc = _run_tune_script("--resume", str(tmp_path), "--parameterisation", "full")
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
     assert proc.stderr.startswith(f"tune_mhat: error: --resume {tmp_path}: that run has tuner.parameterisation=")
@@ -410,10 +415,20 @@ def test_script_resume_refuses_other_settings_and_a_torn_state_in_one_line(tmp_p
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
     assert f"{tmp_path} holds a tuning run with tuner.parameterisation=diagonal (you asked full)" in proc.stderr
     assert f"(--resume {tmp_path})" in proc.stderr
-    data = (tmp_path / script.STATE).read_bytes()
-    (tmp_path / script.STATE).write_bytes(data[:100])
-    proc = _run_tune_script("--resume", str(tmp_path))
-    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
-    assert (
-        f"{tmp_path / script.STATE}: unreadable, truncated" in proc.stderr and "delete it to start over" in proc.stderr
-    )
+
+
+def test_a_tuning_run_resumes_from_its_last_record_to_the_same_numbers(tmp_path, script):
+    """An interrupted run (its first iterations recorded) goes on from the last record, and a
+    torn record is named and its iteration run again: the same gain as one run through."""
+    options = script.DEFAULTS | dict(quick=True, iterations=2, compare=[0.25])
+    whole = paper_tune.tune_mhat(paper_tune.Tuning(options), tmp_path / "whole")
+    part = paper_tune.Tuning(options)
+    first = engine.run(part, tmp_path / "part", batch_size=1, stop_after_batches=2)
+    assert first.computed == ["iteration-0000", "iteration-0001"]
+    torn = StudyRun.of(part, tmp_path / "part").record_path("iteration-0001")
+    torn.write_bytes(torn.read_bytes()[:100])
+    warnings = []
+    second = engine.run(part, tmp_path / "part", batch_size=1, warn=warnings.append)
+    assert second.computed == ["iteration-0001", "iteration-0002"] and len(warnings) == 1 and str(torn) in warnings[0]
+    last = part.state(StudyRun.of(part, tmp_path / "part"), 2)
+    np.testing.assert_array_equal(np.asarray(tune.mhat_from_theta(last.theta, "diagonal")), whole.finished[0])

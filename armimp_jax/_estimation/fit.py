@@ -294,6 +294,7 @@ def _general_fit(z, f, w, acquisition, period, se, error, diagnostics) -> Impeda
     theta, _ = _solve_elements(x, wts, y * jnp.conj(phase))
     model = (x @ theta.T) * phase  # (F, 4): the recorded Z as fitted
     r = y - model
+    fitted = (wts > 0).astype(r.real.dtype)  # the VAF of the bins fitted (all, unless a weight is 0)
     jac, normal, gk = _sensitivities(x, v, wts, phase, model, delay)
     spectral = None if error is None else _spectral_covariance(gk, error)
     if se == "residual":
@@ -310,8 +311,9 @@ def _general_fit(z, f, w, acquisition, period, se, error, diagnostics) -> Impeda
         mass_se=sd_e[..., 1] / w0**2,
         damping_se=sd_e[..., 2] / w0,
         stiffness_se=sd_e[..., 0],
-        vaf=100.0 * (1.0 - jnp.sum(jnp.abs(r) ** 2, axis=0) / jnp.sum(jnp.abs(y) ** 2, axis=0)).reshape(2, 2),
-        vaf_overall=100.0 * (1.0 - jnp.sum(jnp.abs(r) ** 2) / jnp.sum(jnp.abs(y) ** 2)),
+        vaf=100.0
+        * (1.0 - jnp.sum(fitted * jnp.abs(r) ** 2, axis=0) / jnp.sum(fitted * jnp.abs(y) ** 2, axis=0)).reshape(2, 2),
+        vaf_overall=100.0 * (1.0 - jnp.sum(fitted * jnp.abs(r) ** 2) / jnp.sum(fitted * jnp.abs(y) ** 2)),
         dof=dof,
         **_no_delay_no_test(),
         diagnostics=diagnostics,

@@ -28,7 +28,6 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.stats
 
 from .._checks import as_float64, require_x64
 from .._estimation.welch import check_finite
@@ -37,6 +36,7 @@ from .._pytree import replace_unchecked
 from .._simulate import Trial, simulate
 from . import kalman, linear
 from . import layout as lay
+from .criterion import record_seconds
 from .indirect import IDENTIFY_NUMERICS
 
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
@@ -51,19 +51,28 @@ def check_bound_inputs(trial: Trial, f, free, symmetric, where: str):
     """The layout of ``free`` (arm matrices only) and ``f`` as float64 ``(N, 2)``; one-line errors."""
     if not isinstance(trial, Trial):
         raise ValueError(f"{where}: trial must be a Trial (from make_trial), got {type(trial).__name__}")
-    free = (free,) if isinstance(free, str) else tuple(free)
-    other = [n for n in free if n not in lay.ARM_PARAMETERS]
-    if other:
-        raise ValueError(
-            f"{where}: the bound covers the arm's matrices ({', '.join(lay.ARM_PARAMETERS)}), not {other}: friction "
-            "is outside the linearised loop"
-        )
-    layout = lay.make_layout(free, symmetric, where=where)
+    layout = _bound_layout(free, symmetric, where)
     f = as_float64("f", f, where=where)
     if f.ndim != 2 or f.shape[1] != 2 or f.shape[0] < 8:
         raise ValueError(f"{where}: f must have shape (N, 2) with N >= 8 samples, got {f.shape}")
     check_finite("f", f, where=where)
     return layout, f
+
+
+def _bound_layout(free, symmetric, where: str) -> lay.Layout:
+    """The layout of the bound's free parameters (the arm's matrices); one line naming the
+    function asked and the parameters it takes otherwise."""
+    free = (free,) if isinstance(free, str) else tuple(free)
+    other = [n for n in free if n not in lay.ARM_PARAMETERS]
+    unknown = [n for n in other if n not in lay.parameter_units(None)]
+    if unknown:
+        raise ValueError(f"{where}: unknown parameter {unknown[0]!r}; the bound's: {', '.join(lay.ARM_PARAMETERS)}")
+    if other:
+        raise ValueError(
+            f"{where}: the bound covers the arm's matrices ({', '.join(lay.ARM_PARAMETERS)}), not {other}: friction "
+            "is outside the linearised loop"
+        )
+    return lay.make_layout(free, symmetric, where=where)
 
 
 def response_derivative(layout: lay.Layout, trial: Trial, p, f):
@@ -85,7 +94,7 @@ def fisher_information(trial: Trial, f, *, free=ARM, symmetric=()):
     Pure JAX (one jitted program) and single-trial: ``jax.grad`` flows to ``f`` and to every
     float of ``trial``; ``jax.vmap`` batches trials. The loop must be stable (``crlb`` checks
     it)."""
-    return _fisher(lay.make_layout(free, symmetric), trial, f)
+    return _fisher(_bound_layout(free, symmetric, "fisher_information"), trial, f)
 
 
 @functools.partial(jax.jit, static_argnames="layout")
@@ -134,10 +143,10 @@ class Bound:
         """Seconds of recording for ``+- precision`` (relative) at ``level`` on every entry named
         in ``entries`` (default: the diagonals of the free matrices): the bound falls as one over
         the square root of the record length when the perturbation goes on with the same
-        statistics."""
-        z = scipy.stats.norm.ppf(0.5 + level / 2)
+        statistics (``criterion.record_seconds``: a precision or a level outside (0, 1) is
+        refused in one line)."""
         worst = max(self.relative(entries).values())
-        return self.seconds * (z * worst / precision) ** 2
+        return record_seconds(self.seconds, worst, precision, level=level, where="Bound.record_for")
 
     def relative(self, entries=None) -> dict:
         """``{label: relative SE bound}`` of ``entries`` (default: the diagonals of the free

@@ -33,14 +33,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-import scipy.stats
 
 from .._pytree import replace_unchecked
 from . import controller_design as cd
 from . import layout as lay
 from . import linear
 from .bound import _fisher, crlb
-from .criterion import DesignPlan, _aggregate, relative_se
+from .criterion import DesignPlan, _aggregate, record_minutes, relative_se
 from .limits import _displacement_gain, _limited_signal, _peak_displacement
 from .predict import predict_se
 
@@ -110,7 +109,10 @@ def _objective(z, offsets, family, trials, layout, idx, limits, aggregate, key, 
 
 def _bounds(trials, f, free, precision, entries):
     bounds = [crlb(t, f, free=free) for t in trials]
-    minutes = [b.record_for(precision, entries=entries) / 60 if b.near_linear else float("nan") for b in bounds]
+    minutes = [
+        record_minutes(b.seconds, max(b.relative(entries).values()), precision) if b.near_linear else float("nan")
+        for b in bounds
+    ]
     return bounds, minutes
 
 
@@ -257,14 +259,13 @@ def design_calibrated(
         result.bounds, result.trials, result.signal, plan.free, entries, draws=draws, key=final_key
     )
     seconds = result.signal.shape[0] * plan.trials[0].period
-    z95 = scipy.stats.norm.ppf(0.975)  # as Bound.record_for's minutes: +-precision at 95%
     return result._replace(
         start_signal=first.start_signal,
         start_bounds=first.start_bounds,
         start_minutes=first.start_minutes,
         criterion_before=first.criterion_before,
         trace=trace,
-        predicted_minutes=[seconds * (z95 * float(np.max(p)) / precision) ** 2 / 60 for p in predicted],
+        predicted_minutes=[record_minutes(seconds, float(np.max(p)), precision) for p in predicted],
         friction_ratio=predicted / bound,
         time_s=time.perf_counter() - t_start,
     )
@@ -300,11 +301,14 @@ def _assemble(
     if _worst(after, entries, ratios) > _worst(before, entries, ratios):  # never worse than its start
         designed, looped, f, after, minutes = family, start_trials, f0, before, start_minutes
     drift = max(float(linear.drift(t)) for t in looped)
+    peak = max(float(_peak_displacement(t, jnp.asarray(f))[0]) for t in looped)
     achieved = dict(
         rms_force=np.sqrt(np.mean(f**2, axis=0)).tolist(),
         peak_force=np.max(np.abs(f), axis=0).tolist(),
-        peak_displacement=max(float(_peak_displacement(t, jnp.asarray(f))[0]) for t in looped),
+        peak_displacement=peak,
         drift=drift,
+        # the limit holds on the noise-free simulation; the person's own force moves the hand too
+        peak_displacement_plus_3_drift=peak + 3.0 * drift,
     )
     return BoundDesign(
         family=replace_unchecked(designed, rms=np.sqrt(np.mean(f**2, axis=0))),

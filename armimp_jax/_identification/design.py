@@ -12,16 +12,21 @@ set of trials (the patient's arm is what is unknown):
 - ``criterion="d_optimal"``: the log-determinant of the targets' covariance in relative
   units (the volume of the confidence region).
 
-Two methods predict the standard errors: the Cramér-Rao bound of the loop linearised about
-rest (``bound_design.py``: deterministic, exact in its gradient, for near-linear loops; it
-can design the controller's gains too), and ``predict.py``'s Monte Carlo prediction through
-the friction-aware closed loop (``monte_carlo_design.py``). Both honour the limits by
-construction (``limits.py``). This module checks the inputs and chooses the method.
+Two methods predict the standard errors, each an object holding its own options (passed as
+``design(..., method=...)``): ``CramerRao`` (the bound of the loop linearised about rest,
+``bound_design.py``: deterministic, exact in its gradient, for near-linear loops; it can
+design the controller's gains too and calibrate itself through the friction) and
+``MonteCarlo`` (``predict.py``'s prediction through the friction-aware closed loop,
+``monte_carlo_design.py``); ``Auto`` (the default) takes the first where it holds, else the
+second. Both honour the limits by construction (``limits.py``). This module checks the
+inputs and chooses the method.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from typing import ClassVar
 
 import jax
 import numpy as np
@@ -34,14 +39,79 @@ from . import layout as lay
 from .bound import is_near_linear, silent_readings
 from .bound_design import BoundDesign, design_calibrated
 from .criterion import DesignPlan, _targets, relative_se
-from .limits import Limits, _limited_signal
+from .identify import MIN_SAMPLES
+from .limits import DISPLACEMENT_TOLERANCE, Limits, _limited_signal, _peak_displacement
 from .monte_carlo_design import Design, design_monte_carlo
 from .predict import STATISTICS, check_signal, predict_se
 
 CRITERIA = ("max_relative_se", "d_optimal")
-METHODS = ("auto", "bound", "monte_carlo")
+METHODS = ("auto", "bound", "monte_carlo")  # the methods' names (configs, design.json)
 AGGREGATES = ("worst", "mean")
 CHECK_LIMIT_S = 3600.0  # [s] record_for predicts again at its answer only up to an hour
+
+
+def _count(where: str, name: str, value, low: int) -> None:
+    if isinstance(value, bool) or not (isinstance(value, (int, np.integer)) and value >= low):
+        raise ValueError(f"{where}: {name} must be an integer >= {low}, got {value!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class CramerRao:
+    """Design on the Cramér-Rao bound (``bound_design.py``): deterministic and exact in its
+    gradient, for near-linear loops (IMBIC, PD without friction).
+
+    Args:
+        controller: also design the controller's diagonal stiffness and damping (IMBIC's
+            ``k_rd``, ``b_rd``; PD's ``kp``, ``kv``) within the limits.
+        calibrate: rounds through the friction (0: the bound alone): ``predict_se`` over the
+            bound per arm and target weighs the bound in a further round; the answer adds
+            ``predicted_minutes``.
+        precision: the relative half-width at 95% the minutes are reported for.
+        draws: noise draws of each calibration's ``predict_se``."""
+
+    controller: bool = False
+    calibrate: int = 0
+    precision: float = 0.1
+    draws: int = 64
+    name: ClassVar[str] = "bound"
+
+    def __post_init__(self):
+        _count("CramerRao", "calibrate", self.calibrate, 0)
+        _count("CramerRao", "draws", self.draws, 8)
+        if not isinstance(self.controller, bool):
+            raise ValueError(f"CramerRao: controller must be True or False, got {self.controller!r}")
+        if not (isinstance(self.precision, (int, float)) and 0 < self.precision < 1):
+            raise ValueError(
+                f"CramerRao: precision must lie in (0, 1) (relative half-width at 95%), got {self.precision!r}"
+            )
+
+
+@dataclasses.dataclass(frozen=True)
+class MonteCarlo:
+    """Design on ``identify``'s predicted SEs over noise draws through the friction-aware closed
+    loop (``monte_carlo_design.py``): any loop, any free parameters and criterion.
+
+    Args:
+        draws: noise draws per trial per step (new ones every step).
+        predict_draws: draws of the final ``predict_se`` before and after."""
+
+    draws: int = 16
+    predict_draws: int = 64
+    name: ClassVar[str] = "monte_carlo"
+
+    def __post_init__(self):
+        _count("MonteCarlo", "draws", self.draws, 8)
+        _count("MonteCarlo", "predict_draws", self.predict_draws, 8)
+
+
+@dataclasses.dataclass(frozen=True)
+class Auto:
+    """``bound`` (a ``CramerRao``) where it covers the free parameters and the criterion and
+    every arm's loop is near-linear under the starting signal, else ``monte_carlo``."""
+
+    bound: CramerRao = CramerRao()
+    monte_carlo: MonteCarlo = MonteCarlo()
+    name: ClassVar[str] = "auto"
 
 
 def _designable(family):
@@ -52,7 +122,7 @@ def _designable(family):
 
 
 def _check_design(
-    trial, family, free, limits, targets, criterion, robust_over, aggregate, counts, learning_rate, precision
+    trial, family, free, limits, targets, criterion, robust_over, aggregate, steps, learning_rate, method
 ):
     """``(candidates, layout, target indices, trials)``; one-line errors for bad inputs."""
     if not isinstance(trial, Trial):
@@ -89,13 +159,13 @@ def _check_design(
                 f"{type(t.controller).__name__}/{t.acquisition}/{t.period} s against "
                 f"{type(trial.controller).__name__}/{trial.acquisition}/{trial.period} s"
             )
-    for name, (v, low) in counts.items():
-        if not (isinstance(v, (int, np.integer)) and v >= low):
-            raise ValueError(f"design: {name} must be an integer >= {low}, got {v!r}")
+    _count("design", "steps", steps, 1)
     if not (isinstance(learning_rate, (int, float)) and 0 < learning_rate < 10):
         raise ValueError(f"design: learning_rate must lie in (0, 10) (a step in log amplitude), got {learning_rate!r}")
-    if not 0 < precision < 1:
-        raise ValueError(f"design: precision must lie in (0, 1) (relative half-width at 95%), got {precision!r}")
+    if not isinstance(method, (CramerRao, MonteCarlo, Auto)):
+        raise ValueError(
+            f"design: method must be aj.CramerRao(...), aj.MonteCarlo(...) or aj.Auto(...), got {method!r}"
+        )
     return candidates, layout, idx, trials
 
 
@@ -111,37 +181,37 @@ def _check_fixed_drift(trials, limit):
         )
 
 
-def _choose_method(method, controller, trials, candidates, layout, criterion, limits, key):
-    """``"bound"`` or ``"monte_carlo"``: ``"auto"`` takes the bound when it covers the free
-    parameters and the criterion, and every arm's loop is near-linear under the starting signal."""
-    if method not in METHODS:
-        raise ValueError(f"design: unknown method {method!r}; allowed: {', '.join(METHODS)}")
+def _choose_method(method, trials, candidates, layout, criterion, limits, key):
+    """The ``CramerRao`` or ``MonteCarlo`` that runs: ``Auto`` takes its bound when the bound
+    covers the free parameters and the criterion, and every arm's loop is near-linear under
+    the starting signal; one-line errors for a method that cannot run here."""
     covered = all(n in lay.ARM_PARAMETERS for n in layout.names) and criterion == "max_relative_se"
-    silent = [(i, silent_readings(t)) for i, t in enumerate(trials)] if method == "bound" else []
-    silent = [(i, names) for i, names in silent if names]
-    if silent:
-        raise ValueError(
-            f"design: method='bound' needs reading noise on every recorded channel; robust_over[{silent[0][0]}] "
-            f"records {', '.join(silent[0][1])} without any (acquisition {trials[silent[0][0]].acquisition!r}): "
-            "use method='monte_carlo'"
-        )
-    if method == "bound" and not covered:
-        raise ValueError(
-            "design: method='bound' covers the arm's matrices with criterion='max_relative_se'; got free "
-            f"{list(layout.names)}, criterion {criterion!r}"
-        )
-    if method == "auto":
+    if isinstance(method, CramerRao):
+        silent = [(i, names) for i, names in ((i, silent_readings(t)) for i, t in enumerate(trials)) if names]
+        if silent:
+            k, names = silent[0]
+            raise ValueError(
+                f"design: the bound (CramerRao) needs reading noise on every recorded channel; robust_over[{k}] "
+                f"records {', '.join(names)} without any (acquisition {trials[k].acquisition!r}): use aj.MonteCarlo()"
+            )
+        if not covered:
+            raise ValueError(
+                "design: the bound (CramerRao) covers the arm's matrices with criterion='max_relative_se'; got free "
+                f"{list(layout.names)}, criterion {criterion!r}"
+            )
+    if isinstance(method, Auto):
         near = False
         if covered and len(candidates) == 1:
             n = limits.n_samples(trials[0].period)
             f = _limited_signal(candidates[0], jax.random.split(key)[0], n, limits, trials[0].period)
             near = all(not silent_readings(t) and is_near_linear(t, f) for t in trials)
-        method = "bound" if near else "monte_carlo"
-    if controller and method != "bound":
-        raise ValueError(
-            "design: controller=True designs the gains on the Cramér-Rao bound, which needs near-linear loops "
-            "(IMBIC, or PD without friction) and one starting family; through stick-slip set the gains yourself"
-        )
+        if not near and (method.bound.controller or method.bound.calibrate):
+            wanted = "the controller's gains" if method.bound.controller else "a calibration"
+            raise ValueError(
+                f"design: {wanted} needs the bound, which needs near-linear loops (IMBIC, or PD without friction) "
+                "and one starting family; through stick-slip set the gains yourself (aj.MonteCarlo())"
+            )
+        method = method.bound if near else method.monte_carlo
     return method
 
 
@@ -155,19 +225,14 @@ def design(
     criterion: str = "max_relative_se",
     robust_over=None,
     aggregate: str = "worst",
-    method: str = "auto",
-    controller: bool = False,
-    calibrate: int = 0,
-    precision: float = 0.1,
+    method: CramerRao | MonteCarlo | Auto = Auto(),
     steps: int = 40,
     learning_rate: float = 0.15,
-    draws: int = 16,
-    predict_draws: int = 64,
     key=None,
     progress=None,
 ) -> Design | BoundDesign:
-    """Design the experiment: the ``family``'s spectrum (and, with ``controller=True``, the
-    controller's gains) that minimises ``criterion`` within ``limits``.
+    """Design the experiment: the ``family``'s spectrum (and, with ``CramerRao(controller=True)``,
+    the controller's gains) that minimises ``criterion`` within ``limits``.
 
     Args:
         trial: the planned experiment (robot, controller, friction, sensors' and voluntary
@@ -186,56 +251,65 @@ def design(
         robust_over: trials to design for at once (e.g. one per arm the patient may have);
             default ``[trial]``. Each must share ``trial``'s controller type and acquisition.
         aggregate: ``"worst"`` (min-max) or ``"mean"`` over ``robust_over``.
-        method: ``"bound"`` (the Cramér-Rao bound: deterministic and exact in its gradient,
-            for near-linear loops: ``bound_design.py``), ``"monte_carlo"`` (``identify``'s
-            predicted SEs over noise draws through the friction), or ``"auto"`` (default): the
-            bound where it covers the free parameters and every arm's loop is near-linear.
-        controller: also design the controller's diagonal stiffness and damping (IMBIC's
-            ``k_rd``, ``b_rd``; PD's ``kp``, ``kv``) within ``limits`` (bound method only).
-        calibrate: rounds through the friction (bound method; 0: the bound alone): ``predict_se``
-            over the bound per arm and target weighs the bound in a further round; the answer
-            adds ``predicted_minutes`` (``predict_se``'s, ``predict_draws`` draws).
-        precision: the relative half-width at 95% the minutes are reported for (bound method).
+        method: ``CramerRao(...)`` (the bound: deterministic and exact in its gradient, for
+            near-linear loops; with its options ``controller``, ``calibrate``, ``precision``,
+            ``draws``), ``MonteCarlo(...)`` (``identify``'s predicted SEs over noise draws
+            through the friction; ``draws``, ``predict_draws``), or ``Auto(...)`` (default):
+            the bound where it covers the free parameters and every arm's loop is near-linear.
         steps, learning_rate: Adam steps on the log of ``shape`` (and of the gains).
-        draws: noise draws per trial per step (new ones every step; Monte Carlo method).
-        predict_draws: draws of the final ``predict_se`` before and after (Monte Carlo method), or
-            of each calibration's (bound method).
         key: ``jax.random`` key (default ``key(0)``): the family's own noise and every draw.
         progress: ``None`` or a callable ``progress(step, steps, value)`` called after each step.
 
     Returns a ``Design`` (Monte Carlo) or a ``BoundDesign`` (bound). One-line ``ValueError``
     before any long computation for an unknown parameter or target, a family with frequencies
     at or above the control rate's Nyquist frequency (checked by the family), limits no signal
-    or controller can meet, or a starting controller whose loop is unstable.
+    or controller can meet (a displacement limit no level of the starting signal meets, on
+    every arm's full simulation, included), or a starting controller whose loop is unstable.
     """
     require_x64("design")
-    counts = {"steps": (steps, 1), "draws": (draws, 8), "predict_draws": (predict_draws, 8)}
-    counts["calibrate"] = (calibrate, 0)  # rounds
     candidates, layout, idx, trials = _check_design(
-        trial, family, free, limits, targets, criterion, robust_over, aggregate, counts, learning_rate, precision
+        trial, family, free, limits, targets, criterion, robust_over, aggregate, steps, learning_rate, method
     )
     key = jax.random.key(0) if key is None else key
-    if limits.drift is not None and not controller:
+    designs_controller = isinstance(method, CramerRao | Auto) and (
+        method.controller if isinstance(method, CramerRao) else method.bound.controller
+    )
+    if limits.drift is not None and not designs_controller:
         _check_fixed_drift(trials, limits.drift)
+    _check_displacement(candidates, key, limits, trials)
     plan = DesignPlan(trials, free, layout, idx, limits, criterion, aggregate, steps, learning_rate, key, progress)
-    chosen = _choose_method(method, controller, trials, candidates, layout, criterion, limits, key)
-    if chosen == "bound":
+    chosen = _choose_method(method, trials, candidates, layout, criterion, limits, key)
+    if isinstance(chosen, CramerRao):
         return design_calibrated(
-            plan, candidates[0], design_gains=controller, precision=precision, rounds=calibrate, draws=predict_draws
+            plan,
+            candidates[0],
+            design_gains=chosen.controller,
+            precision=chosen.precision,
+            rounds=chosen.calibrate,
+            draws=chosen.draws,
         )
-    _check_calibrate(calibrate, chosen)
-    return design_monte_carlo(plan, candidates, draws=draws, predict_draws=predict_draws)
+    return design_monte_carlo(plan, candidates, draws=chosen.draws, predict_draws=chosen.predict_draws)
 
 
-def _check_calibrate(calibrate: int, method: str) -> None:
-    """Calibration rounds (a count ``_check_design`` checked) refused in one line where the
-    criterion has no bound to weigh (the Monte Carlo one: asked for, or chosen by ``"auto"``
-    through stick-slip)."""
-    if calibrate and method == "monte_carlo":
-        raise ValueError(
-            f"design: calibrate ({calibrate} rounds) weighs the bound; the Monte Carlo criterion has none "
-            "(method 'monte_carlo', or 'auto' through stick-slip)"
-        )
+def _check_displacement(candidates, key, limits: Limits, trials) -> None:
+    """A displacement limit that no level of the starting signal meets (on every arm's full
+    noise-free simulation, at ``DISPLACEMENT_TOLERANCE`` of the force limits) is refused in one
+    line before any design step."""
+    if limits.peak_displacement is None:
+        return
+    if not all(linear.spectral_radius(linear.linearise(t)) < 1.0 for t in trials):
+        return  # an unstable loop: the controller's own check says so, in its words
+    n = limits.n_samples(trials[0].period)
+    fam_key = jax.random.split(key)[0]
+    smallest = DISPLACEMENT_TOLERANCE
+    for fam in candidates:
+        f = _limited_signal(fam, fam_key, n, limits, trials[0].period, smallest)
+        peaks = [float(_peak_displacement(t, f)[0]) for t in trials]
+        if max(peaks) > limits.peak_displacement:
+            raise ValueError(
+                f"design: the hand's displacement stays above peak_displacement {limits.peak_displacement} m even at "
+                f"{smallest:g} of the force limits ({1e3 * max(peaks):.3g} mm); raise it or lower the force limits"
+            )
 
 
 def record_for(
@@ -284,7 +358,7 @@ def record_for(
     seconds = f.shape[0] * period
     need = {t: seconds * (given[t] / float(target[t])) ** 2 for t in target}
     record_s = max(need.values())
-    n = max(int(math.ceil(record_s / period)), 1000)
+    n = max(int(math.ceil(record_s / period)), MIN_SAMPLES)
     if n * period > CHECK_LIMIT_S:  # the check would simulate every draw over that record
         return {**need, "record_s": n * period, "check": None, "statistic": statistic}
     longer = np.resize(f, (n, 2))  # repeats the perturbation (or cuts it)

@@ -57,7 +57,7 @@ from .pool import Recording
 from .predict import check_sampling
 from .result import Identification, assemble, predict_jit
 
-MIN_SAMPLES = 1000
+MIN_SAMPLES = 1024  # the Welch statistic's least at 1 kHz (4 segments of 256 samples: 3 bins to 15 Hz)
 CHANNELS = ("x1", "x2", "fh1", "fh2")
 
 
@@ -259,10 +259,9 @@ def identify(
     while not state.done:
         state = search.step(problem, state, max_steps)
         report(state)
-    statistic = ", ".join(dict.fromkeys(names))
     part_of = {r: t for t, members in enumerate(groups) for r in members}
     recorded = [(part_of[i], r.x, r.fh) for i, r in enumerate(recordings)]
-    return assemble(problem, state, pool, recorded, statistic, t_start, forward_s[0])
+    return assemble(problem, state, pool, recorded, ", ".join(dict.fromkeys(names)), t_start, forward_s[0])
 
 
 def _parts(recordings, pool: pl.Pool, groups, p, statistic, numerics, key, draws, jacobian_draws):

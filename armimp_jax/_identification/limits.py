@@ -26,8 +26,9 @@ CLIP_ITERATIONS = 40  # clip-and-rescale passes of the peak limit: a few for Gau
 class Limits:
     """What a clinician allows: ``rms_force`` and ``peak_force`` [N] per axis of the
     perturbation ``F_Delta`` (scalars or ``(2,)``), ``peak_displacement`` [m] of the hand
-    from its rest position in the noise-free simulation (``None``: no limit), and the record
-    length ``record`` [s]. For a design of the controller too: ``drift`` [m], the largest RMS
+    from its rest position in the noise-free simulation (``None``: no limit; the person's own
+    force moves the hand further: a design reports that peak plus three RMS drifts), and the
+    record length ``record`` [s]. For a design of the controller too: ``drift`` [m], the largest RMS
     length of the hand's displacement under the person's own force (``None``: no limit), and
     ``min_stiffness`` [N/m] and ``min_damping`` [N s/m], the least diagonal desired stiffness
     and damping (IMBIC's ``k_rd``, ``b_rd``; PD's ``kp``, ``kv``)."""

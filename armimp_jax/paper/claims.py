@@ -32,7 +32,10 @@ import jax
 import numpy as np
 
 from .._estimation.fit import fit_impedance
+from .._estimation.welch import Welch
 from ..presets import arm
+from ..presets._tables import FRICTION_LEVELS
+from ..study.points import normalize_point
 from ..study.stats import CI_LEVEL as CI_LEVEL
 from ..study.stats import mean_ci
 from ._judges import CLAIM_RULES as CLAIM_RULES
@@ -59,6 +62,36 @@ class Condition:
     def label(self) -> str:
         acq = "" if self.acquisition == "instant" else "-mean"
         return f"{self.experiment}-L{self.location}-F{self.friction}-P{self.perturbation}{acq}"
+
+    def point(self, *, mhat: float = 0.25, seconds: float = 50.0, welch: Welch | None = None) -> dict:
+        """The condition as the one trial description, a normalized sweep point
+        (``study.points``): the paper's controller (IMBIC's ``mhat`` [kg] times the identity),
+        arm location, friction level (its LuGre parameters), perturbation level and
+        acquisition, a record of ``seconds`` [s] and the ``welch`` settings (default
+        Table 4's). ``points.build_trial`` of it is ``presets.trial``'s trial, leaf for leaf."""
+        w = Welch() if welch is None else welch
+        return normalize_point(
+            dict(
+                controller=self.controller,
+                arm=self.location,
+                perturbation_level=self.perturbation,
+                acquisition=self.acquisition,
+                seconds=seconds,
+                nperseg=w.nperseg,
+                noverlap=w.noverlap,
+                fmax=w.fmax,
+                **(dict(mhat=mhat) if self.controller == "imbic" else {}),
+                **friction_point(self.friction),
+            )
+        )
+
+
+def friction_point(level: int) -> dict:
+    """The point settings of the paper's friction level 0-2 (Table 1): the Coulomb torque, the
+    stiction as its ratio (1.5 at levels 1 and 2), the bristle, viscous and Stribeck parameters."""
+    p = FRICTION_LEVELS[level]
+    ratio = p.tau_s / p.tau_c if p.tau_c > 0 else 1.5
+    return dict(tau_c=p.tau_c, stiction_ratio=ratio, sigma0=p.sigma0, sigma1=p.sigma1, sigma2=p.sigma2, v_s=p.v_s)
 
 
 def paper_conditions(

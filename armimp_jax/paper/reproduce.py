@@ -14,10 +14,12 @@ A run folder holds one run (``study.engine``, ``study.runfolder``, ``docs/result
 - ``conditions.csv``, ``claims.csv``, ``fits.csv`` (and ``.parquet``): the aggregate's tidy
   tables (``paper.tables``), also as pandas DataFrames from ``load_tables``.
 
-``run_reproduction`` runs every trial whose record is missing or fails its check on the
-study engine (``study.engine.open_study`` and ``run_trials``: the folder's lock, a run with
+``ReproSettings`` is a specification of the study engine: ``engine.run(settings, out)``
+runs every trial whose record is missing or fails its check (the folder's lock, a run with
 other settings refused, batches grouped by controller and acquisition, every record
-written as soon as its batch finishes, so an interrupted run keeps every finished batch).
+written as soon as its batch finishes, so an interrupted run keeps every finished batch);
+``reproduce`` does that and then, under the same lock, aggregates, draws and writes the
+report (``finish``).
 
 Seeds (``study.seeds``): trial seed ``s`` draws its perturbation from
 ``fold_in(PRNGKey(base_seed), s)`` (attempt ``a > 0``, if input coherence is capped, from
@@ -38,20 +40,22 @@ from __future__ import annotations
 import dataclasses
 import pathlib
 import platform
+import time
 from collections.abc import Callable
 
 import jax
 import numpy as np
 import pandas as pd
 
-from .._batch import assess_batch, simulate_batch
 from .._estimation.estimate import input_coherence
 from .._estimation.welch import Welch
 from .._simulate import stack_trials
 from .._solver.numerics import PAPER_NUMERICS, Numerics
-from ..presets import arm, perturbation_peak, trial
+from ..presets import arm, perturbation_peak
 from ..study import engine
+from ..study.console import Console
 from ..study.metrics import ESTIMATE_FIELDS, estimate_arrays, trial_metrics
+from ..study.points import build_trial
 from ..study.results import (
     ResultsError,
     atomic_write_json,
@@ -64,8 +68,7 @@ from ..study.results import (
     stamped,
     to_jsonable,
 )
-from ..study.runfolder import warn_stderr
-from ..study.seeds import seed_perturbation
+from ..study.runfolder import StudyRun, warn_stderr
 from ..study.tables import write_table
 from .claims import (
     Condition,
@@ -84,7 +87,7 @@ LEVELS = dict(location=(1, 2, 3, 4), friction=(0, 1, 2), perturbation=(1, 2, 3))
 
 
 @dataclasses.dataclass(frozen=True)
-class ReproSettings:
+class ReproSettings(engine.SimulationSpec):
     """Everything that fixes the numbers of a reproduction run, the condition set included.
 
     Record length ``seconds`` [s], RK4 ``substeps`` per 1 ms period, Welch segment and
@@ -213,22 +216,59 @@ class ReproSettings:
     def samples(self, t: tuple[Condition, int]) -> int:
         return self.n_samples
 
-    def batch_runner(self) -> Callable:
-        return _BatchRunner(self)
+    def build(self, batch, signals: engine.Perturbations) -> engine.Simulation:
+        """The trials of a batch of ``(Condition, seed)`` (each condition's point, ``Condition.point``)
+        and their perturbations (``draw_perturbations``), on the paper's RK4, assessed with the
+        run's Welch settings."""
+        params = stack_trials([build_trial(self.point(c)) for c, _ in batch])
+        f_delta = np.stack([self.draw(s, signals)[0][c.perturbation] for c, s in batch])
+        return engine.Simulation(params, f_delta, self.numerics, welch=self.welch)
+
+    def measure(self, batch, built, sim, outcome) -> list[tuple[dict, dict]]:
+        """Per trial ``(arrays, meta)``: the estimate's arrays, and its metrics
+        (``study.metrics.trial_metrics``) with the condition, seed and perturbation draw."""
+        signals = built.signals
+        out = []
+        for i, (c, s) in enumerate(batch):
+            est = estimate_arrays(outcome.estimate, i)
+            meta = dict(
+                id=trial_id(c, s),
+                condition=dataclasses.asdict(c),
+                seed=s,
+                perturbation_attempt=self.draw(s, signals)[2],
+                input_coherence_max=self.draw(s, signals)[1],
+                diverged=bool(sim.diverged[i]),
+                diverged_at=int(sim.diverged_at[i]),
+                batch_wall_s=None,  # the engine's (placed here: the records' field order)
+                batch_size=None,
+                metrics=trial_metrics(est["f"], est["Z"], est, arm(c.location)),
+            )
+            out.append((est, meta))
+        return out
+
+    def point(self, cond: Condition) -> dict:
+        """The point (``study.points``) of a condition at this run's settings."""
+        return cond.point(mhat=self.mhat, seconds=self.seconds, welch=self.welch)
+
+    def draw(self, seed: int, signals: engine.Perturbations) -> tuple:
+        """``draw_perturbations`` of ``seed`` over the run's levels, drawn once per run."""
+        levels = sorted({c.perturbation for c in self.conditions})  # IMBIC runs at level 1 whatever PD's
+        return signals.keep(("levels", seed), lambda: draw_perturbations(self, seed, levels, signals))
 
 
 QUICK = ReproSettings(seconds=6.0, substeps=10, nperseg=1024, noverlap=768)
 
 
-def draw_perturbations(settings: ReproSettings, seed: int, levels) -> tuple[dict, float, int]:
+def draw_perturbations(
+    settings: ReproSettings, seed: int, levels, signals: engine.Perturbations | None = None
+) -> tuple[dict, float, int]:
     """Perturbations of one seed for each level, the input coherence and the attempt used
-    (``study.seeds``: attempt ``a > 0`` redraws from the seed's key folded with ``a``)."""
+    (``study.seeds``: attempt ``a > 0`` redraws from the seed's key folded with ``a``), from
+    ``signals`` (a run's cache; default a new one)."""
     w = settings.welch
+    signals = engine.Perturbations(settings.base_seed) if signals is None else signals
     for attempt in range(100):
-        sig = {
-            lv: seed_perturbation(settings.base_seed, seed, settings.n_samples, perturbation_peak(lv), redraw=attempt)
-            for lv in levels
-        }
+        sig = {lv: signals(seed, settings.n_samples, perturbation_peak(lv), redraw=attempt) for lv in levels}
         coh = float(input_coherence(sig[levels[0]], fs=w.fs, nperseg=w.nperseg, noverlap=w.noverlap, fmax=w.fmax))
         if settings.max_input_coherence is None or coh < settings.max_input_coherence:
             return sig, coh, attempt
@@ -258,88 +298,11 @@ def versions() -> dict:
 
 def trial_path(out, cond: Condition, seed: int) -> pathlib.Path:
     """Where the record of trial ``(cond, seed)`` lives in run folder ``out``."""
-    return engine.record_path(out, trial_id(cond, seed))
+    return StudyRun.of(ReproSettings, out).record_path(trial_id(cond, seed))
 
 
-class _BatchRunner:
-    """Runs batches of ``(Condition, seed)`` for the engine; draws each seed's perturbations
-    once per run."""
-
-    def __init__(self, settings: ReproSettings):
-        self.settings = settings
-        self.levels = sorted({c.perturbation for c in settings.conditions})  # IMBIC runs at level 1 whatever PD's
-        self.cache: dict[int, tuple] = {}
-
-    def signals(self, seed: int) -> tuple:
-        if seed not in self.cache:
-            self.cache[seed] = draw_perturbations(self.settings, seed, self.levels)
-        return self.cache[seed]
-
-    def __call__(self, batch, *, mesh, chunk_samples: int, progress=None) -> list[tuple[dict, dict]]:
-        st = self.settings
-        mhat = st.mhat * np.eye(2)
-        params = stack_trials(
-            [trial(c.controller, c.friction, c.location, mhat=mhat, acquisition=c.acquisition) for c, _ in batch]
-        )
-        f_delta = np.stack([self.signals(s)[0][c.perturbation] for c, s in batch])
-        sim = simulate_batch(
-            params, f_delta, numerics=st.numerics, mesh=mesh, chunk_samples=chunk_samples, progress=progress
-        )
-        outcome = assess_batch(params, f_delta, sim, st.welch, mesh=mesh)
-        out = []
-        for i, (c, s) in enumerate(batch):
-            est = estimate_arrays(outcome.estimate, i)
-            _, coh, attempt = self.signals(s)
-            meta = dict(
-                id=trial_id(c, s),
-                condition=dataclasses.asdict(c),
-                seed=s,
-                perturbation_attempt=attempt,
-                input_coherence_max=coh,
-                diverged=bool(sim.diverged[i]),
-                diverged_at=int(sim.diverged_at[i]),
-                batch_wall_s=None,  # the engine's (placed here: the records' field order)
-                batch_size=None,
-                metrics=trial_metrics(est["f"], est["Z"], est, arm(c.location)),
-            )
-            out.append((est, meta))
-        return out
-
-
-def run_reproduction(
-    settings: ReproSettings,
-    out,
-    *,
-    batch_size: int = 48,
-    chunk_seconds: float = 5.0,
-    progress: Callable[[dict], None] | None = None,
-    stop_after_batches: int | None = None,
-    warn: Callable[[str], None] = warn_stderr,
-) -> list[str]:
-    """Simulate, estimate and score every trial of ``settings`` that has no valid record in
-    ``out``; returns the ids computed now.
-
-    Runs on the study engine (``study.engine.open_study``: the writer holds ``out``'s
-    ``RunLock`` throughout, a folder holding another run is refused; ``run_trials``).
-    ``progress`` receives the engine's dict (``done``/``total`` trial samples,
-    ``trials_done``, ``trials_total``, ``elapsed_s``, ``eta_s``) after every chunk.
-    ``stop_after_batches`` stops early (used to test resuming). ``warn`` receives one line
-    per trial record that failed its check.
-
-    In a ``jax.distributed`` job (``armimp_jax.study.distributed``) call it in every process with
-    the same arguments: each process computes its shards of every batch, and only process
-    0 writes the trial records.
-    """
-    with engine.open_study(settings, out, warn=warn) as (_, todo):
-        return engine.run_trials(
-            settings,
-            out,
-            todo,
-            batch_size=batch_size,
-            chunk_seconds=chunk_seconds,
-            progress=progress,
-            stop_after_batches=stop_after_batches,
-        )
+def _study(out) -> StudyRun:
+    return out if isinstance(out, StudyRun) else StudyRun.of(ReproSettings, out)
 
 
 def load_trials(
@@ -347,7 +310,7 @@ def load_trials(
 ) -> tuple[list[dict], dict, list[str]]:
     """The run's trials that pass their check: metadata list, ``{id: arrays}``, and the ids
     of the trials that are missing or failed (the latter named in a warning)."""
-    records, missing = engine.trial_status(settings, out, warn=warn, note="left out")
+    records, missing = engine.records(settings, _study(out), warn=warn, note="left out")
     metas = [rec.meta for rec in records.values()]
     arrays = {rec.meta["id"]: rec.arrays for rec in records.values()}
     return metas, arrays, [trial_id(c, s) for c, s in missing]
@@ -368,19 +331,21 @@ def add_fits(metas: list[dict], arrays: dict) -> None:
 
 
 def aggregate(out, *, warn: Callable[[str], None] = warn_stderr) -> tuple[dict, dict]:
-    """Write ``results.json`` and ``results.npz`` from the run's valid trial records, and the
-    tables ``conditions.csv``, ``claims.csv`` and ``fits.csv`` (``result_tables``; also as
-    ``.parquet`` when ``pyarrow`` is importable); return the results dict and the per-trial
-    arrays (as ``load_results`` would read them back).
+    """Write ``results.json`` and ``results.npz`` from the valid trial records of the run in
+    ``out`` (a ``StudyRun`` or a folder), and the tables ``conditions.csv``, ``claims.csv``
+    and ``fits.csv`` (``result_tables``; also as ``.parquet`` when ``pyarrow`` is
+    importable); return the results dict and the per-trial arrays (as ``load_results``
+    would read them back).
 
     ``complete`` is true when every trial of the run's condition set and seeds is there;
     ``diverged`` lists the trials left out of the means and claims.
     """
-    folder = engine.run_folder(ReproSettings, out)
-    with folder.lock():
-        run = folder.read()
-        settings = ReproSettings.from_saved(run["settings"], where=str(folder.run_file))
-        metas, arrays, missing = load_trials(out, settings, warn=warn)
+    study = _study(out)
+    out = study.path
+    with study.lock():
+        run = study.read()
+        settings = ReproSettings.from_saved(run["settings"], where=str(study.run_file))
+        metas, arrays, missing = load_trials(study, settings, warn=warn)
         add_fits(metas, arrays)
         summary = condition_summary(metas)
         claims = [dataclasses.asdict(c) for c in evaluate_claims(summary, seed_summaries(metas))]
@@ -436,11 +401,10 @@ def record_wall_time(out, results: dict, seconds: float) -> dict:
     """Add ``seconds`` (a session's whole work: simulation, aggregation, figures) to the run's
     ``wall_s`` in ``run.json`` and put the total into ``results`` and ``results.json`` (what
     the report prints); returns ``results``."""
-    out = pathlib.Path(out)
-    folder = engine.run_folder(ReproSettings, out)
-    with folder.lock():
-        results["wall_s"] = engine.add_wall_time(ReproSettings, out, seconds)
-        atomic_write_json(out / "results.json", results)
+    study = _study(out)
+    with study.lock():
+        results["wall_s"] = study.add_wall_time(seconds)
+        atomic_write_json(study.path / "results.json", results)
     return results
 
 
@@ -448,3 +412,70 @@ def load_tables(out) -> dict[str, pd.DataFrame]:
     """The tidy tables (``paper.tables.result_tables``) of the aggregated run in folder ``out``,
     from its checked ``results.json`` and ``results.npz`` (``load_results``)."""
     return result_tables(load_results(pathlib.Path(out))[0])
+
+
+# --- the whole reproduction -----------------------------------------------------------------
+
+
+def reproduce(
+    settings: ReproSettings,
+    out,
+    *,
+    resume: bool = False,
+    batch_size: int = 48,
+    console: Console | None = None,
+    warn: Callable[[str], None] = warn_stderr,
+    started: float | None = None,
+) -> engine.Outcome:
+    """The reproduction end to end, on the study engine: ``engine.run`` (only the trials
+    without a valid record; Ctrl-C keeps every finished batch), then, with the folder still
+    locked, ``aggregate``, the figures (``plots.all_figures``), the wall time (everything
+    since ``started``, a ``time.perf_counter()``, or since this call) and ``REPORT.md``.
+    ``Outcome.finished`` is ``(results, report path)`` (in the writing process; an
+    interrupted run gets a partial report). ``console`` says what happens (default quiet)."""
+    from . import plots, report
+
+    started = time.perf_counter() if started is None else started
+    console = Console(quiet=True) if console is None else console
+
+    def header(on_disk: int, to_run: int) -> str:
+        return (
+            f"{len(settings.conditions)} conditions x {settings.seeds} seed(s), {settings.seconds:g} s records, "
+            f"{settings.substeps} substeps -> {out} ({on_disk} trials on disk, {to_run} to run)"
+        )
+
+    def finish(run: StudyRun, outcome: engine.Outcome):
+        console.end(len(outcome.computed))
+        # the folder's scan named every record that failed its check
+        results, arrays = console.step("aggregating", lambda: aggregate(run, warn=lambda _: None))
+        figures = console.step("plotting", lambda: plots.all_figures(results, arrays, run.path))
+        record_wall_time(run, results, time.perf_counter() - started)
+        path = console.step("writing the report", lambda: report.write_report(results, run.path, figures))
+        return results, path
+
+    return engine.run(
+        settings,
+        out,
+        resume=resume,
+        batch_size=batch_size,
+        chunk_seconds=min(5.0, settings.seconds),
+        progress=console.progress,
+        on_start=console.starter(header),
+        finish=finish,
+        interruptible=True,
+        warn=warn,
+    )
+
+
+def replot(out, *, console: Console | None = None) -> tuple[list, pathlib.Path]:
+    """Redraw the figures and ``REPORT.md`` of the finished run in ``out`` from its saved
+    results (``load_results``), under its lock; returns ``(figures, report path)``."""
+    from . import plots, report
+
+    console = Console(quiet=True) if console is None else console
+    study = StudyRun.of(ReproSettings, out)
+    with study.lock():
+        results, arrays = load_results(study.path)
+        figures = console.step("plotting", lambda: plots.all_figures(results, arrays, study.path))
+        path = console.step("writing the report", lambda: report.write_report(results, study.path, figures))
+    return figures, path

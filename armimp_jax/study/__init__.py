@@ -2,29 +2,33 @@
 statistics, tidy tables, figures, recordings, sweeps, many-host runs and gradient tuning.
 Files live here and above; nothing below this layer reads or writes one.
 
-The modules, one job each: ``points`` (a sweep's settings, grids, TOML and ``--set``),
-``runfolder`` (one run per folder: ``run.json``, refusals, the lock, trial status),
-``engine`` (the one run-trials engine: run folder, batches, progress, resume), ``metrics``
-(the saved estimate fields, ``trial_metrics``), ``results`` (keys, checked records, atomic
-strict-JSON and npz writes), ``stats`` (``mean_ci``, the bootstrap and bootstrap
-thresholds), ``seeds`` (common random numbers), ``tables`` (pandas tables, CSV and
-Parquet), ``figures`` (``save_figure``), ``sweep`` (the sweep's specification and
-``run_sweep``), ``distributed`` (many processes), ``recording`` (measured data in),
-``estimate_recording`` (the Welch route for measured data), ``recording_figures`` and
-``recording_report`` (both routes' figures and text), ``config`` (the one trial schema:
-TOML configs and sweep points), ``identify_recording`` (the model route for measured data:
-its config, ``identify``, its results on disk), ``design_experiment`` (experiment design's
-config and its files), ``design_check`` (the design's Monte Carlo check: its record, its
-signal, the spread of ``identify``) and ``tune``.
+The modules, one job each: ``engine`` (the one engine of every study: ``engine.run`` owns the
+run folder, the lock, resume, the perturbation cache, the batch loop and progress; a study is
+a specification), ``runfolder`` (the run folder as a handle, ``StudyRun``: ``run.json``,
+refusals, the lock, the trial records), ``console`` (what a study says on the terminal: the
+progress bar, the finishing steps), ``cli`` (what the scripts share: the parser, one-line
+errors; no JAX), ``points`` (the one trial description: a sweep's settings, grids, TOML and
+``--set``), ``config`` (TOML configs, read into the same schema), ``metrics`` (the saved
+estimate fields, ``trial_metrics``), ``results`` (keys, checked records, atomic strict-JSON
+and npz writes), ``stats`` (``mean_ci``, the bootstrap and bootstrap thresholds), ``seeds``
+(common random numbers), ``tables`` (pandas tables, CSV and Parquet), ``figures``
+(``save_figure``), ``sweep`` (the sweep's specification and ``run_sweep``), ``threshold``
+(the friction threshold: a sweep, its analysis, figure and report), ``coverage`` (repeated
+recordings identified: the coverage and efficiency studies' specification), ``distributed``
+(many processes), ``recording`` (measured data in), ``estimate_recording`` (the Welch route
+for measured data), ``recording_figures`` and ``recording_report`` (both routes' figures and
+text), ``identify_recording`` (the model route for measured data: its config, ``identify``,
+its results on disk), ``design_experiment`` (experiment design's config and its files),
+``design_check`` (the record a design is written at, its numbers there, its Monte Carlo
+check) and ``tuning`` (the tuner, and its state on disk).
 
-The names below are imported on first use (so ``armimp_jax.study.distributed``'s option
-helpers stay importable without JAX).
+The names below (one list, ``_EXPORTS``) are imported on first use (so
+``armimp_jax.study.distributed``'s option helpers and ``cli`` stay importable without JAX).
 """
 
 from __future__ import annotations
 
 import importlib
-from typing import TYPE_CHECKING
 
 _EXPORTS = {
     "CI_LEVEL": "stats",
@@ -33,11 +37,9 @@ _EXPORTS = {
     "seed_stats": "stats",
     "first_crossing": "stats",
     "bootstrap_crossing": "stats",
-    "RunFolder": "runfolder",
-    "open_run": "runfolder",
-    "trial_status": "runfolder",
+    "StudyRun": "runfolder",
+    "RunLock": "runfolder",
     "ResultsError": "results",
-    "RunLock": "results",
     "atomic_write_json": "results",
     "read_json": "results",
     "stamped": "results",
@@ -59,6 +61,10 @@ _EXPORTS = {
     "read_toml": "points",
     "SweepSettings": "sweep",
     "run_sweep": "sweep",
+    "run": "engine",
+    "Spec": "engine",
+    "SimulationSpec": "engine",
+    "Perturbations": "engine",
     "load_sweep": "sweep",
     "load_summary": "sweep",
 }
@@ -76,40 +82,3 @@ def __getattr__(name: str):
 
 def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_EXPORTS))
-
-
-if TYPE_CHECKING:
-    from .figures import save_figure as save_figure
-    from .identify_recording import IdentifyConfigError as IdentifyConfigError
-    from .identify_recording import read_identify_config as read_identify_config
-    from .points import POINT_DEFAULTS as POINT_DEFAULTS
-    from .points import build_trial as build_trial
-    from .points import expand as expand
-    from .points import known_settings as known_settings
-    from .points import normalize_point as normalize_point
-    from .points import parse_set as parse_set
-    from .points import read_toml as read_toml
-    from .results import ResultsError as ResultsError
-    from .results import RunLock as RunLock
-    from .results import atomic_write_json as atomic_write_json
-    from .results import load_record as load_record
-    from .results import read_json as read_json
-    from .results import save_record as save_record
-    from .results import settings_key as settings_key
-    from .results import stamped as stamped
-    from .runfolder import RunFolder as RunFolder
-    from .runfolder import open_run as open_run
-    from .runfolder import trial_status as trial_status
-    from .seeds import perturbation_key as perturbation_key
-    from .stats import CI_LEVEL as CI_LEVEL
-    from .stats import MeanCI as MeanCI
-    from .stats import bootstrap_crossing as bootstrap_crossing
-    from .stats import first_crossing as first_crossing
-    from .stats import mean_ci as mean_ci
-    from .stats import seed_stats as seed_stats
-    from .sweep import SweepSettings as SweepSettings
-    from .sweep import load_summary as load_summary
-    from .sweep import load_sweep as load_sweep
-    from .sweep import run_sweep as run_sweep
-    from .tables import read_table as read_table
-    from .tables import write_table as write_table

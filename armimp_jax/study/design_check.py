@@ -1,10 +1,15 @@
-"""The Monte Carlo check of a designed experiment: the record it runs at, the signal, the
-spread of ``identify``'s estimates over new noise, and what the predictions become there.
+"""The record a designed experiment is written at, its numbers there, and its Monte Carlo
+check: the spread of ``identify``'s estimates over new noise against the predictions.
 
-- ``predicted_record(doc, ...)``: the record [s] the design's own answer names;
-- ``validation_signal(result, limits, record, ...)``: the designed perturbation at that record,
+- ``predicted_record(doc, ...)``: the record [s] the design's own answer names (what the
+  design script writes by default);
+- ``validation_signal(result, limits, record, ...)``: the designed perturbation at a record,
   within the same limits;
-- ``checked_scale(design_signal, checked_signal)``: the factor on the predicted SEs there;
+- ``at_record(result, signal, ...)``: the design's answer at that signal: the Cramér-Rao bound
+  (and, calibrated, ``predict_se``) of every arm with the designed controller, the minutes,
+  the limits achieved; so every number ``design.json`` holds is what ``crlb`` or
+  ``predict_se`` gives on the controller and the signal written;
+- ``checked_scale(design_signal, checked_signal)``: the factor on predicted SEs at another signal;
 - ``validate(signal, trials, free, seeds=...)``: simulate and identify under new noise;
 - ``truth(trial, free)``: the values the estimates are scored against.
 
@@ -17,13 +22,17 @@ import dataclasses
 import math
 
 import jax
+import jax.numpy as jnp
 import numpy as np
-import scipy.stats
 
+from .._identification.bound import crlb
+from .._identification.bound_design import BoundDesign, friction_ratios
+from .._identification.criterion import record_minutes
 from .._identification.identify import identify
 from .._identification.indirect import IDENTIFY_NUMERICS
 from .._identification.layout import make_layout, natural, pack
-from .._identification.limits import Limits, limited_signal
+from .._identification.limits import Limits, _peak_displacement, limited_signal
+from .._identification.predict import predict_se
 from .._simulate import simulate
 
 
@@ -45,7 +54,7 @@ def predicted_record(doc: dict, *, design_record: float, precision: float) -> fl
         minutes = max(r.get("predicted_minutes", r["minutes_after"]) for r in rows)
     else:
         worst = max(max(r["relative_se_after"].values()) for r in rows)
-        minutes = design_record / 60.0 * (worst * scipy.stats.norm.ppf(0.975) / precision) ** 2
+        minutes = record_minutes(design_record, worst, precision)
     return float(max(math.ceil(60.0 * minutes - 1e-9), design_record))
 
 
@@ -58,6 +67,45 @@ def validation_signal(result, limits: Limits, record: float, *, trials, key) -> 
         return np.asarray(result.signal)
     longer = dataclasses.replace(limits, record=record)
     return limited_signal(result.family, longer, key=jax.random.split(key)[0], trials=trials)
+
+
+def at_record(result, signal, trials, *, free, targets, precision: float, draws: int, key):
+    """``result`` (a ``BoundDesign`` or a Monte Carlo ``Design`` of ``trials``, the designed
+    controller's) with its signal replaced by ``signal`` ``(N, 2)`` [N] and every number
+    recomputed there: the force and the noise-free displacement achieved; a bound design's
+    ``bounds`` (``crlb``) and ``minutes`` (``record_minutes`` at ``precision``) and, where it
+    was calibrated, ``predict_se``'s (``draws`` draws from ``key``: ``friction_ratio``,
+    ``predicted_minutes``); a Monte Carlo design's ``after`` (``predict_se``). The start's
+    numbers (``start_*``, ``before``) and the optimisation's (``trace``, ``criterion_*``) stay
+    the design record's. ``result`` itself where ``signal`` is its own."""
+    signal = np.asarray(signal)
+    if signal.shape == np.shape(result.signal) and np.array_equal(signal, result.signal):
+        return result
+    seconds = signal.shape[0] * trials[0].period
+    achieved = dict(
+        result.achieved,
+        rms_force=np.sqrt(np.mean(signal**2, axis=0)).tolist(),
+        peak_force=np.max(np.abs(signal), axis=0).tolist(),
+        peak_displacement=max(float(_peak_displacement(t, jnp.asarray(signal))[0]) for t in trials),
+    )
+    if "drift" in achieved:
+        achieved["peak_displacement_plus_3_drift"] = achieved["peak_displacement"] + 3.0 * achieved["drift"]
+    if not isinstance(result, BoundDesign):
+        after = [predict_se(t, signal, free=free, draws=draws, key=key) for t in trials]
+        return result._replace(signal=signal, after=after, achieved=achieved)
+    bounds = [crlb(t, signal, free=free) for t in trials]
+    minutes = [
+        record_minutes(seconds, max(b.relative(targets).values()), precision) if b.near_linear else float("nan")
+        for b in bounds
+    ]
+    out = result._replace(signal=signal, bounds=bounds, minutes=minutes, achieved=achieved)
+    if result.predicted_minutes is None:
+        return out
+    bound, predicted = friction_ratios(bounds, trials, signal, free, targets, draws=draws, key=key)
+    return out._replace(
+        friction_ratio=predicted / bound,
+        predicted_minutes=[record_minutes(seconds, float(np.max(p)), precision) for p in predicted],
+    )
 
 
 def checked_scale(design_signal, checked_signal) -> float:

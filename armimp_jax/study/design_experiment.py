@@ -24,19 +24,20 @@ from matplotlib.figure import Figure  # no pyplot: no global figure state
 from .._identification.bound import has_friction
 from .._identification.bound_design import BoundDesign
 from .._identification.criterion import default_targets, relative_se
-from .._identification.design import AGGREGATES, CRITERIA, METHODS
+from .._identification.design import AGGREGATES, CRITERIA, METHODS, Auto, CramerRao, MonteCarlo
 from .._identification.layout import make_layout, parameter_units
 from .._identification.limits import Limits
 from .._model.families import ShapedNoise, multisine
 from ..presets import arm as paper_arm
 from .config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
-from .design_check import checked_scale, truth
+from .design_check import truth
+from .estimate_recording import SPARSE_SHARE, input_bins, route_settings
 from .figures import save_figure
 from .results import atomic_write_json, atomic_write_npz, atomic_write_text, package_version
 
 FAMILIES = ("shaped_noise", "multisine")
 # the record the Monte Carlo check runs at: the design's own, or the one its minutes predict
-VALIDATE_RECORDS = ("design", "predicted")
+WRITE_RECORDS = ("predicted", "design")  # or a number of seconds
 SECTIONS = {
     **{k: v for k, v in TRIAL_SECTIONS.items()},
     "family": {
@@ -73,7 +74,7 @@ SECTIONS = {
         "predict_draws": ("int", 8, 64),
         "seed": ("int", 0, 0),
     },
-    "validate": {"seeds": ("int", 0, 0), "draws": ("int", 8, 32), "record": ("text", VALIDATE_RECORDS, "design")},
+    "validate": {"seeds": ("int", 0, 0), "draws": ("int", 8, 32)},
 }
 REQUIRED_SECTIONS = ("controller", "friction", "limits", "design")
 
@@ -148,18 +149,27 @@ def build_design(config: dict, *, where: str = "config") -> tuple:
         targets=d["targets"] or None,
         criterion=d["criterion"],
         aggregate=d["aggregate"],
-        method=d["method"],
-        controller=d["controller"] == "design",
-        calibrate=d["calibrate"],
-        precision=float(d["precision"]),
+        method=design_method(d),
         robust_over=trials,
         steps=d["steps"],
         learning_rate=float(d["learning_rate"]),
-        draws=d["draws"],
-        predict_draws=d["predict_draws"],
         key=jax.random.key(d["seed"]),
     )
     return trials, make_family(config["family"]), make_limits(config["limits"]), options
+
+
+def design_method(d: dict):
+    """The method object of a config's ``[design]`` section: ``CramerRao`` (``method = "bound"``:
+    ``controller``, ``calibrate``, ``precision``, its calibrations' ``predict_draws``),
+    ``MonteCarlo`` (``"monte_carlo"``: ``draws``, ``predict_draws``) or ``Auto`` of both."""
+    bound = CramerRao(
+        controller=d["controller"] == "design",
+        calibrate=d["calibrate"],
+        precision=float(d["precision"]),
+        draws=d["predict_draws"],
+    )
+    monte_carlo = MonteCarlo(draws=d["draws"], predict_draws=d["predict_draws"])
+    return {"bound": bound, "monte_carlo": monte_carlo, "auto": Auto(bound, monte_carlo)}[d["method"]]
 
 
 def _validation_row(v, se, relative_value, predicted: dict, labels, scale: float) -> dict:
@@ -245,28 +255,28 @@ def _predicted_rows(result, trials, free, targets, paper):
     return rows
 
 
-def result_dict(
-    result, trials, *, settings: dict, free, targets, validation=None, paper=None, validation_signal=None
-) -> dict:
+def result_dict(result, trials, *, settings: dict, free, targets, validation=None, paper=None) -> dict:
     """What ``design.json`` holds (before strict JSON conversion), for a ``Design`` (Monte Carlo)
-    or a ``BoundDesign``: the latter adds the ``controller`` and the minutes per arm. With a
-    ``validation`` run on ``validation_signal`` (``(N, 2)`` [N]; default the design's own), the
-    predicted SEs it is set against are those at that signal (``checked_scale``), and
-    ``"validation"`` records the record, RMS and peak it ran at."""
+    or a ``BoundDesign`` at the signal it writes (``design_check.at_record``): the latter adds
+    the ``controller`` (the config's with the designed gains: what ``make_trial`` takes for
+    every arm) and the minutes per arm. With a ``validation`` (the Monte Carlo check on that
+    signal), each arm's spread against the predicted SEs, and ``"validation"`` the record,
+    RMS and peak it ran at."""
     labels = make_layout(free).labels()
     targets = list(targets or [labels[i] for i in default_targets(make_layout(free))])
     on_bound = isinstance(result, BoundDesign)
     rows = _bound_rows(result, targets, paper) if on_bound else _predicted_rows(result, trials, free, targets, paper)
-    checked = np.asarray(result.signal if validation_signal is None else validation_signal)
-    scale = checked_scale(result.signal, checked)
+    signal = np.asarray(result.signal)
     for k, row in enumerate(rows):
+        row["label"] = arm_labels(settings, len(rows))[k]
         if validation is not None:  # per target against predict_se's through the friction where calibrated
             predicted = row.get("relative_se_predicted", row["relative_se_after"])
             value = np.abs(truth(trials[k], free))
-            row["validation"] = _validation_row(validation[k], row["se_after"] * scale, value, predicted, labels, scale)
+            row["validation"] = _validation_row(validation[k], row["se_after"], value, predicted, labels, 1.0)
     doc = {
         "settings": {**settings, "armimp_jax": package_version()},
         "method": "bound" if on_bound else "monte_carlo",
+        "record_s": signal.shape[0] * trials[0].period,
         "labels": labels,
         "targets": targets,
         "criterion_before": result.criterion_before,
@@ -275,21 +285,58 @@ def result_dict(
         "trace": result.trace,
         "family": dict(type=type(result.family).__name__, **_family_arrays(result.family)),
         "trials": rows,
+        "routes": routes(signal, 1.0 / trials[0].period),
         "time_s": result.time_s,
     }
     if validation is not None:
         doc["validation"] = dict(
-            record_s=checked.shape[0] * trials[0].period,
-            rms_force=np.sqrt(np.mean(checked**2, axis=0)),
-            peak_force=np.abs(checked).max(axis=0),
+            record_s=doc["record_s"],
+            rms_force=np.sqrt(np.mean(signal**2, axis=0)),
+            peak_force=np.abs(signal).max(axis=0),
         )
     if on_bound:
-        doc.update(controller=result.controller, minutes=max(result.minutes), start_minutes=max(result.start_minutes))
+        controller = designed_controller(settings["config"]["controller"], result.controller, trials[0])
+        doc.update(controller=controller, minutes=max(result.minutes), start_minutes=max(result.start_minutes))
         if result.predicted_minutes is not None:
             doc.update(predicted_minutes=max(result.predicted_minutes))
     else:
         doc.update(improved=result.improved, skipped_steps=result.skipped, start_criteria=result.start_criteria)
     return doc
+
+
+def routes(signal, fs: float) -> dict:
+    """Which routes of ``estimate_recording.py`` the written ``signal`` serves: the model route
+    always; the classical (Welch) route over every bin where the signal fills the band, else
+    only at the bins that hold its lines (``--lines``: a multisine's), with their share."""
+    welch, _, _ = route_settings(np.shape(signal)[0], fs=fs)
+    holds, share = input_bins(signal, welch)
+    if share >= SPARSE_SHARE:
+        classical = "every Welch bin: estimate_recording.py RECORDING"
+    else:
+        classical = (
+            f"only the {int(holds.sum())} Welch bins that hold its lines ({share:.0%} of the band's): "
+            "estimate_recording.py RECORDING --lines (over every bin it cannot tell)"
+        )
+    return dict(model="estimate_recording.py RECORDING --model CONFIG", classical=classical, bins_share=share)
+
+
+def designed_controller(config_controller: dict, record: dict, trial) -> dict:
+    """The controller to build every arm's trial with: the config's ``[controller]`` with the
+    designed gains (the kind's ``DESIGN_GAINS``) over it. What the kind resolves per arm at
+    ``make_trial`` (IMBIC's desired inertia ``M_x(q0)``) stays unresolved, as the config had it:
+    one arm's resolved value would give every other arm another loop."""
+    gains = type(trial.controller).DESIGN_GAINS or ()
+    given = {k: v for k, v in config_controller.items() if k != "type" and v is not None}
+    return {"type": record["type"], **given} | {g: record[g] for g in gains}
+
+
+def arm_labels(settings: dict, n: int) -> list[str]:
+    """What every figure, table and line calls the design's arms: "arm at location L" for the
+    paper's arms of ``[design] robust``, else "the [arm] section's arm"."""
+    robust = settings.get("config", {}).get("design", {}).get("robust") or []
+    if len(robust) == n:
+        return [f"arm at location {loc}" for loc in robust]
+    return ["the [arm] section's arm"] if n == 1 else [f"arm {k + 1}" for k in range(n)]
 
 
 def _family_arrays(family) -> dict:
@@ -300,10 +347,10 @@ def spectrum_figure(fs, start, designed, limits_band=None):
     """Amplitude spectra [N] of the start and the designed signal, per axis."""
     fig = Figure(figsize=(12, 4.5), layout="constrained")
     axes = fig.subplots(1, 2, sharey=True)
-    freq = np.fft.rfftfreq(start.shape[0], 1.0 / fs)
-    band = freq <= (40.0 if limits_band is None else limits_band)
     for k, ax in enumerate(axes):
         for sig, label, style in ((start, "start", ":"), (designed, "designed", "-")):
+            freq = np.fft.rfftfreq(sig.shape[0], 1.0 / fs)  # the start may be of another length
+            band = freq <= (40.0 if limits_band is None else limits_band)
             amp = 2.0 * np.abs(np.fft.rfft(sig[:, k])) / sig.shape[0]
             ax.semilogy(freq[band][1:], amp[band][1:], style, lw=0.8, label=label)
         top = max(np.max(2.0 * np.abs(np.fft.rfft(sig[:, k])) / sig.shape[0]) for sig in (start, designed))
@@ -320,8 +367,6 @@ def se_figure(doc: dict):
     start against design (and the paper's perturbation), per trial: bars from zero."""
     targets = doc["targets"]
     trials = doc["trials"]
-    robust = doc["settings"].get("config", {}).get("design", {}).get("robust") or []
-    names = [f"the paper's arm at location {loc}" for loc in robust] if len(robust) == len(trials) else None
     fig = Figure(figsize=(max(7.0, 1.2 * len(targets) + 3), 3.2 * len(trials)), layout="constrained")
     axes = np.atleast_1d(fig.subplots(len(trials), 1, sharex=True))
     x = np.arange(len(targets))
@@ -333,14 +378,14 @@ def se_figure(doc: dict):
         for j, (key, label) in enumerate(kinds):
             ax.bar(x + (j - (len(kinds) - 1) / 2) * width, [row[key][t] for t in targets], width, label=label)
         ax.set_ylabel("bound on SE / |value|" if doc.get("method") == "bound" else "predicted SE / |value|")
-        ax.set_title(names[k] if names else f"trial {k + 1}", fontsize=10)
+        ax.set_title(row["label"], fontsize=10)
         ax.set_ylim(bottom=0.0)
     axes[0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     axes[-1].set_xticks(x, targets, rotation=30, ha="right", fontsize=8)
     return fig
 
 
-def trace_figure(fs, signal, limits: Limits, trace):
+def trace_figure(fs, signal, limits: Limits, trace, *, on_bound: bool = False):
     """The designed F_Delta per axis against time with the peak and RMS limits drawn, and the
     criterion over the optimisation steps."""
     fig = Figure(figsize=(12, 7), layout="constrained")
@@ -360,7 +405,8 @@ def trace_figure(fs, signal, limits: Limits, trace):
     axes[1].set_xlabel("time [s]")
     axes[2].plot(np.arange(1, len(trace) + 1), trace, "o-", ms=3)
     axes[2].set_xlabel("optimisation step")
-    axes[2].set_ylabel("criterion (that step's draws)")
+    # the bound's criterion is deterministic; the Monte Carlo one is of that step's noise draws
+    axes[2].set_ylabel("criterion (the bound)" if on_bound else "criterion (that step's draws)")
     axes[2].set_ylim(bottom=0.0)
     return fig
 
@@ -379,7 +425,7 @@ def minutes_figure(doc: dict, precision: float):
     for j, (key, label) in enumerate(bars):
         drawn = ax.bar(x + (j - (len(bars) - 1) / 2) * width, [r[key] for r in rows], width, label=label)
         ax.bar_label(drawn, fmt="%.2g", fontsize=7)  # the short bars' values, which the axis squashes
-    ax.set_xticks(x, [f"arm {k + 1}" for k in x])
+    ax.set_xticks(x, [r["label"] for r in rows], fontsize=8)
     ax.set_ylabel("minutes of recording")
     ax.set_title(f"minutes for +-{precision:.0%} at 95% on every target", fontsize=10)
     ax.set_ylim(bottom=0.0)
@@ -387,20 +433,16 @@ def minutes_figure(doc: dict, precision: float):
     return fig
 
 
-def write_results(out_dir, result, trials, limits: Limits, *, doc: dict, checked=None) -> list[pathlib.Path]:
-    """``perturbation.csv`` (header ``f_delta_x,f_delta_y``, one row per 1 ms sample [N]),
-    ``perturbation.npz``, ``design.json`` (``doc``, strict JSON) and ``spectrum.png``,
-    ``se.png``, ``trace.png`` (and, for a ``BoundDesign``, ``minutes.png``) under ``out_dir``,
-    each atomically; returns their paths. A ``checked`` signal ``(N, 2)`` [N] of another length
-    (the Monte Carlo check's, ``validation_signal``) is written beside them as
-    ``perturbation_checked.csv``: what a lab plays for a session of that length."""
+def write_results(out_dir, result, trials, limits: Limits, *, doc: dict) -> list[pathlib.Path]:
+    """``perturbation.csv`` (header ``f_delta_x,f_delta_y``, one row per 1 ms sample [N]: the
+    signal at the record written, what the robot's software loads), ``perturbation.npz``,
+    ``design.json`` (``doc``, strict JSON) and ``spectrum.png``, ``se.png``, ``trace.png`` (and,
+    for a ``BoundDesign``, ``minutes.png``) under ``out_dir``, each atomically; returns their
+    paths."""
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     fs = 1.0 / trials[0].period
     csv = _write_csv(out_dir / "perturbation.csv", result.signal)
-    extra = []
-    if checked is not None and np.shape(checked) != np.shape(result.signal):
-        extra.append(_write_csv(out_dir / "perturbation_checked.csv", checked))
     npz = atomic_write_npz(
         out_dir / "perturbation.npz", f_delta=result.signal, fs_hz=fs, **_family_arrays(result.family)
     )
@@ -409,11 +451,11 @@ def write_results(out_dir, result, trials, limits: Limits, *, doc: dict, checked
     figures = {
         "spectrum.png": spectrum_figure(fs, result.start_signal, result.signal),
         "se.png": se_figure(doc),
-        "trace.png": trace_figure(fs, result.signal, limits, result.trace),
+        "trace.png": trace_figure(fs, result.signal, limits, result.trace, on_bound=isinstance(result, BoundDesign)),
     }
     if isinstance(result, BoundDesign):
         figures["minutes.png"] = minutes_figure(doc, doc["settings"]["config"]["design"]["precision"])
-    return [csv, *extra, npz, json_path] + [save_figure(fig, out_dir / name) for name, fig in figures.items()]
+    return [csv, npz, json_path] + [save_figure(fig, out_dir / name) for name, fig in figures.items()]
 
 
 def _write_csv(path, signal) -> pathlib.Path:

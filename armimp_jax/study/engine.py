@@ -1,54 +1,97 @@
-"""The run-trials engine of every study: run folder, batches, progress and resume, written once.
+"""The one engine of every study: ``run(spec, out)`` owns the run folder, the lock, resume,
+the perturbation cache, the batch loop, progress and the records.
 
 A study is a *specification* (``Spec``): a frozen settings object that names its run
-folder's kind, lists its trials, says which of them may share a compiled batch and runs
-one batch. The sweep (``study.sweep.SweepSettings``) and the paper reproduction
-(``paper.reproduce.ReproSettings``) are specifications; the claim explanations
-(``sweeps/explain_claims.py``), which keep no folder, use ``batches`` and ``map_batches``.
+folder's kind, lists its trials, says which of them may share a compiled batch, and how to
+build and measure a batch (``runner``). The sweep (``study.sweep.SweepSettings``), the
+friction threshold (``study.threshold``), the paper reproduction
+(``paper.reproduce.ReproSettings``), the claim explanations (``paper.explain``), the tuner
+(``paper.mhat_experiment``) and the benchmarks' resumable runs (``study.coverage``) are
+specifications; none has a loop, a cache or a resume of its own.
 
-- ``run_folder``, ``saved_settings``, ``check_resume``, ``add_wall_time``: the study's run
-  folder (``study.runfolder``: ``run.json`` checked, refused in one line when it holds
-  another run).
-- ``trial_status``: which trial records pass their check under their trial's settings.
-- ``open_study``: the start of a run (lock, ``run.json``, the trials still to run), in
-  every process of a ``jax.distributed`` job.
-- ``run_trials``: the trials to run, in equal batches per group, each saved as a checked
-  record as soon as its batch finishes (so an interrupted run keeps every finished
-  batch), with a progress report after every chunk.
+- ``run``: open (or resume) the run in ``out`` (``StudyRun.open``: the lock, ``run.json``
+  written or checked, the trials without a valid record), run those trials in ``batches``
+  and save each as a checked record as soon as its batch finishes (an interrupted run keeps
+  every finished batch), report progress after every chunk, then call ``finish`` with the
+  ``StudyRun`` while the lock is still held.
+- ``SimulationSpec``: the runner of a study whose batch is one ``simulate_batch`` (and
+  ``assess_batch``): it supplies ``build`` (the stacked trials and their perturbations) and
+  ``measure`` (the records).
+- ``Perturbations``: the perturbation cache of a run (``study.seeds``: common random numbers).
+- ``records``: the checked records of a finished (or partial) run, for the collectors.
+- ``batches``, ``map_batches``: the batch split, also for studies that keep no folder.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
-import pathlib
 import time
 from collections.abc import Callable, Hashable, Mapping, Sequence
-from typing import Any, ClassVar, Protocol
+from typing import Any, ClassVar, NamedTuple, Protocol
 
-from .._batch import make_mesh
+import numpy as np
+
 from . import distributed
-from .results import Record, save_record
-from .runfolder import Describe, RunFolder, open_run, warn_stderr
-from .runfolder import trial_status as _record_status
+from .results import Record
+from .runfolder import StudyRun, warn_stderr
+from .seeds import seed_perturbation, sensor_noise_key
 
-RECORDS = "trials"  # the run folder's subfolder of trial records
 # What the engine adds to every record's meta (a spec may place the keys, e.g. as None,
 # to fix their position in the record).
 BATCH_FIELDS = ("batch_wall_s", "batch_size")
 
-# run(batch, mesh=..., chunk_samples=..., progress=...) -> per trial (arrays, meta), in order
-BatchRunner = Callable[..., list[tuple[Mapping, Mapping]]]
+
+class Perturbations:
+    """The perturbations of a run's seeds, each drawn once (``study.seeds``): seed ``s`` from
+    ``fold_in(PRNGKey(base_seed), s)`` (``redraw`` > 0 folds the attempt in once more), at
+    ``n`` samples scaled to ``peak`` [N] per axis; ``noise_key`` is the seed's sensor-noise key."""
+
+    def __init__(self, base_seed: int = 0):
+        self.base_seed = base_seed
+        self.cache: dict = {}
+        self.derived: dict = {}
+
+    def __call__(self, seed: int, n: int, peak, *, redraw: int = 0) -> np.ndarray:
+        key = (seed, n, tuple(np.ravel(np.asarray(peak, dtype=float)).tolist()), redraw)
+        if key not in self.cache:
+            self.cache[key] = seed_perturbation(self.base_seed, seed, n, peak, redraw=redraw)
+        return self.cache[key]
+
+    def noise_key(self, seed: int) -> np.ndarray:
+        return sensor_noise_key(self.base_seed, seed)
+
+    def keep(self, key: Hashable, make: Callable[[], Any]) -> Any:
+        """What ``make()`` derives from the run's signals (a seed's draws over levels, their
+        coherence), made once per run under ``key``."""
+        if key not in self.derived:
+            self.derived[key] = make()
+        return self.derived[key]
+
+
+class Context(NamedTuple):
+    """What a batch runner gets once per run: the ``StudyRun`` (its earlier records), the
+    device ``mesh``, the ``chunk_samples`` of progress reports and the ``signals`` cache."""
+
+    run: StudyRun
+    mesh: Any
+    chunk_samples: int
+    signals: Perturbations
+
+
+# runner(batch, progress) -> per trial (arrays, meta), in order; progress: simulate_batch's chunk callback
+BatchRunner = Callable[[list, Callable], list[tuple[Mapping, Mapping]]]
 
 
 class Spec(Protocol):
     """What the engine needs of a study's settings.
 
-    ``KIND``, ``FORMAT`` and ``NOUN`` name its run folder (``RunFolder``). A *trial* is any
+    ``KIND``, ``FORMAT`` and ``NOUN`` name its run folder (``StudyRun``). A *trial* is any
     hashable value (``(point index, seed)``, ``(Condition, seed)``) listed by ``trials()`` in
     run order; ``trial_record(trial)`` gives its record's file stem and the settings that
     fix its numbers; ``group(trial)`` what must agree within one compiled batch;
-    ``samples(trial)`` its record length [samples]; ``batch_runner()`` a fresh function
-    that runs one batch (caches such as drawn perturbations live for one run).
+    ``samples(trial)`` its record length [samples] (the progress); ``runner(context)`` a
+    function that runs one batch. ``base_seed`` (if any) seeds the run's ``Perturbations``.
     """
 
     KIND: ClassVar[str]
@@ -63,89 +106,48 @@ class Spec(Protocol):
     def trial_record(self, trial: Hashable) -> tuple[str, dict]: ...
     def group(self, trial: Hashable) -> Hashable: ...
     def samples(self, trial: Hashable) -> int: ...
-    def batch_runner(self) -> BatchRunner: ...
+    def runner(self, context: Context) -> BatchRunner: ...
 
 
-# --- the run folder ---------------------------------------------------------------------------
+class Simulation(NamedTuple):
+    """One batch as ``simulate_batch`` takes it: the stacked ``trials``, ``f_delta`` ``(B, N,
+    2)`` [N], the ``numerics``, the sensor-noise ``keys`` (``None``: none drawn), the
+    ``welch`` settings of ``assess_batch`` (``None``: the spec estimates for itself) and the
+    run's ``signals`` (for ``measure``)."""
+
+    trials: Any
+    f_delta: np.ndarray
+    numerics: Any
+    keys: np.ndarray | None = None
+    welch: Any = None
+    signals: Perturbations | None = None
 
 
-def run_folder(spec: Spec | type, out) -> RunFolder:
-    """The run folder ``out`` of a study of ``spec``'s kind (``study.runfolder``)."""
-    return RunFolder(out, kind=spec.KIND, format=spec.FORMAT, noun=spec.NOUN)
+class SimulationSpec:
+    """The runner of a study whose batch is one ``simulate_batch``: the spec supplies
+    ``build(batch, signals) -> Simulation`` and ``measure(batch, simulation, sim, outcome)
+    -> [(arrays, meta), ...]`` (``outcome``: ``assess_batch``'s, or ``None`` without ``welch``)."""
 
+    def runner(self, context: Context) -> BatchRunner:
+        from .._batch import assess_batch, simulate_batch
 
-def saved_settings(cls: type, out):
-    """The settings (a ``cls``) of the run in ``out``, checked, to resume it."""
-    folder = run_folder(cls, out)
-    return cls.from_saved(folder.saved_settings(), where=str(folder.run_file))
+        def run(batch, progress):
+            built = self.build(batch, context.signals)._replace(signals=context.signals)
+            sim = simulate_batch(
+                built.trials,
+                built.f_delta,
+                keys=built.keys,
+                numerics=built.numerics,
+                mesh=context.mesh,
+                chunk_samples=context.chunk_samples,
+                progress=progress,
+            )
+            outcome = None
+            if built.welch is not None:
+                outcome = assess_batch(built.trials, built.f_delta, sim, built.welch, mesh=context.mesh)
+            return self.measure(batch, built, sim, outcome)
 
-
-def check_resume(out, saved: Spec, wanted: Spec) -> None:
-    """Refuse (one line) options given with ``--resume out`` that change the run there:
-    ``wanted`` is the ``saved`` run with those options applied."""
-    run_folder(saved, out).check_resume(saved.run_settings(), wanted.run_settings(), describe=saved.describe)
-
-
-def prepare(spec: Spec, out, *, resume: bool = False) -> dict:
-    """Create ``out`` and write ``run.json`` for ``spec``, or check that the run there has its
-    settings (another run is refused in one line naming the differences; so is ``resume``
-    on a folder with no run); returns ``run.json``. ``open_study`` does this under the lock."""
-    return run_folder(spec, out).prepare(
-        spec.run_settings(), resume=resume, describe=spec.describe, extra=spec.run_extra()
-    )
-
-
-def add_wall_time(spec: Spec | type, out, seconds: float) -> float:
-    """Add ``seconds`` to the run's ``wall_s`` in ``run.json``; returns the new total [s]."""
-    folder = run_folder(spec, out)
-    total = (folder.read().get("wall_s") or 0.0) + seconds
-    folder.update(wall_s=total)
-    return total
-
-
-def record_path(out, record_id: str) -> pathlib.Path:
-    """Where the record of trial ``record_id`` lives in run folder ``out``."""
-    return pathlib.Path(out) / RECORDS / f"{record_id}.npz"
-
-
-def trial_list(spec: Spec, out) -> list[tuple[Hashable, pathlib.Path, dict]]:
-    """``(trial, record path, trial settings)`` of every trial of ``spec``, in run order."""
-    rows = []
-    for trial in spec.trials():
-        record_id, settings = spec.trial_record(trial)
-        rows.append((trial, record_path(out, record_id), settings))
-    return rows
-
-
-def trial_status(
-    spec: Spec, out, *, warn: Callable[[str], None] = warn_stderr, note: str = "recomputing it"
-) -> tuple[dict[Hashable, Record], list]:
-    """``(records, todo)``: ``{trial: Record}`` of the trials whose record passes its check,
-    and the trials still to run, in order; every other existing record is named in a
-    warning (``"<why>; <note>"``)."""
-    return _record_status(trial_list(spec, out), warn=warn, note=note)
-
-
-def open_study(spec: Spec, out, *, resume: bool = False, warn: Callable[[str], None] = warn_stderr):
-    """Context manager that starts (or resumes) the run of ``spec`` in ``out`` and yields
-    ``(done, todo)`` lists of trials (``study.runfolder.open_run``).
-
-    Validates ``spec`` first. The writing process (``distributed.is_writer()``) holds
-    ``out``'s ``RunLock`` until the block ends and writes or checks ``run.json`` (a folder
-    holding another run is refused in one line; so is ``resume`` on a folder with no run).
-    In a ``jax.distributed`` job every process gets process 0's lists, so all run the same
-    batches in the same order, and a refusal is raised in every process."""
-    spec.validate()
-    describe: Describe = spec.describe
-    return open_run(
-        run_folder(spec, out),
-        spec.run_settings(),
-        trial_list(spec, out),
-        resume=resume,
-        describe=describe,
-        extra=spec.run_extra(),
-        warn=warn,
-    )
+        return run
 
 
 # --- batches ----------------------------------------------------------------------------------
@@ -167,7 +169,7 @@ def batches(items: Sequence, group: Callable[[Any], Hashable], batch_size: int) 
 
 def map_batches(items: Sequence, group: Callable[[Any], Hashable], batch_size: int, run: Callable) -> list:
     """``run(batch)`` (a list of per-item results) over the ``batches`` of ``items``; the
-    results in the order of ``items``."""
+    results in the order of ``items`` (for work that keeps no run folder)."""
     out: list = [None] * len(items)
     for batch in batches(range(len(items)), lambda i: group(items[i]), batch_size):
         for i, result in zip(batch, run([items[i] for i in batch]), strict=True):
@@ -184,7 +186,8 @@ class Progress:
     ``eta_s``). The ETA's rate comes from the chunks that compiled nothing: the first
     chunk of a batch with a shape not seen before pays for compilation (NaN until a chunk
     has run without compiling). Estimating and saving a batch count towards the rate
-    (they are part of every trial's cost)."""
+    (they are part of every trial's cost). A batch that reports no chunk (a study that
+    does not simulate in chunks) is reported once, when it ends."""
 
     def __init__(self, total: int, trials_total: int, report: Callable[[dict], None] | None):
         self.total, self.trials_total, self.report = total, trials_total, report
@@ -193,11 +196,13 @@ class Progress:
         self.fresh_s = 0.0
         self.fresh_samples = 0
         self.shapes: set = set()
+        self.reported = False
 
     def batch(self, shape: Hashable) -> Callable:
         """The chunk callback of the next batch (``simulate_batch(progress=...)``)."""
         base, compiling = self.done, [shape not in self.shapes]
         self.shapes.add(shape)
+        self.reported = False
 
         def on_chunk(done, _total, _elapsed):
             now = time.perf_counter()
@@ -205,11 +210,21 @@ class Progress:
                 self.fresh_s += now - self.last
                 self.fresh_samples += base + done - self.done
             compiling[0] = False
-            self.last, self.done = now, base + done
+            self.last, self.done, self.reported = now, base + done, True
             if self.report is not None:
                 self.report(self._state(now))
 
         return on_chunk
+
+    def end_batch(self, samples: int, trials: int) -> None:
+        """A batch of ``trials`` trials and ``samples`` trial samples is over."""
+        self.trials += trials
+        if not self.reported:
+            now = time.perf_counter()
+            self.done += samples
+            self.last = now
+            if self.report is not None:
+                self.report(self._state(now))
 
     def _state(self, now: float) -> dict:
         rate = self.fresh_samples / self.fresh_s if self.fresh_s > 0 else math.nan
@@ -226,38 +241,117 @@ class Progress:
 # --- running ----------------------------------------------------------------------------------
 
 
-def run_trials(
+@dataclasses.dataclass
+class Outcome:
+    """What ``run`` did: the ``StudyRun``, the trials found ``done`` and those ``todo`` at the
+    start, the record ids ``computed`` now (in order), whether it was ``interrupted``, and
+    what ``finish`` returned (``None`` in the processes that do not write)."""
+
+    run: StudyRun
+    done: list
+    todo: list
+    computed: list[str]
+    interrupted: bool = False
+    finished: Any = None
+
+
+def resumed(cls: type, out, change: Callable[[Any], Spec] | None = None):
+    """The settings (a ``cls``, by its ``from_saved``) of the run in ``out``, to resume it;
+    ``change(saved)`` gives the settings with the options given on the command line, which
+    must not change the run (one line naming the difference otherwise)."""
+    study = StudyRun.of(cls, out)
+    saved = cls.from_saved(study.saved_settings(), where=str(study.run_file))
+    if change is not None:
+        study.check_resume(saved.run_settings(), change(saved).run_settings(), describe=saved.describe)
+    return saved
+
+
+def _trial_rows(spec: Spec) -> list[tuple[Hashable, str, dict]]:
+    return [(t, *spec.trial_record(t)) for t in spec.trials()]
+
+
+def records(
+    spec: Spec, out: StudyRun | Any, *, warn: Callable[[str], None] = warn_stderr, note: str = "left out"
+) -> tuple[dict[Hashable, Record], list]:
+    """``(records, missing)``: ``{trial: Record}`` of ``spec``'s trials whose record in ``out``
+    (a ``StudyRun`` or a folder) passes its check, and the trials without one, in order;
+    every other existing record is named in a warning (``"<why>; <note>"``)."""
+    study = out if isinstance(out, StudyRun) else StudyRun.of(spec, out)
+    return study.status(_trial_rows(spec), warn=warn, note=note)
+
+
+def run(
     spec: Spec,
     out,
-    todo: Sequence,
     *,
+    resume: bool = False,
     batch_size: int = 64,
     chunk_seconds: float = 5.0,
     progress: Callable[[dict], None] | None = None,
+    on_start: Callable[[int, list[tuple[int, int]]], None] | None = None,
+    finish: Callable[[StudyRun, Outcome], Any] | None = None,
+    interruptible: bool = False,
+    warn: Callable[[str], None] = warn_stderr,
     stop_after_batches: int | None = None,
-) -> list[str]:
-    """Run the ``todo`` trials of ``spec`` in ``batches`` and save each as a checked record
-    in ``out`` as soon as its batch finishes (only the writing process writes); returns
-    the record ids computed, in order.
+) -> Outcome:
+    """Run (or resume) the study ``spec`` in folder ``out``; returns its ``Outcome``.
 
+    Validates ``spec``, then opens the run (``StudyRun.open``: the writing process holds the
+    folder's lock until the end, a folder holding another run is refused in one line, and so
+    is ``resume`` on a folder with no run; a damaged or foreign record is named through
+    ``warn`` and run again). The trials without a valid record run in ``batches`` of at most
+    ``batch_size`` per ``spec.group``; each trial is saved as a checked record as soon as
+    its batch finishes (only the writing process writes; the engine adds ``batch_wall_s``
+    [s] and ``batch_size`` to every record's meta).
+
+    ``on_start(trials on disk, batches)`` is called once the folder is checked, before any
+    computation (``batches``: ``(trials, trial samples)`` of each batch to run, in order);
     ``progress`` receives ``Progress``'s dict after every chunk of ``chunk_seconds`` of
-    record. ``stop_after_batches`` stops early (to test resuming). The engine sets
-    ``batch_wall_s`` [s] and ``batch_size`` in every record's meta."""
-    mesh = make_mesh()
-    run = spec.batch_runner()
-    tracker = Progress(sum(spec.samples(t) for t in todo), len(todo), progress)
-    computed = []
-    for b_index, batch in enumerate(batches(todo, spec.group, batch_size)):
-        if stop_after_batches is not None and b_index >= stop_after_batches:
+    record; ``finish(run, outcome)``, called by the writing process
+    with the lock still held, writes what the study makes of its records (its return is
+    ``Outcome.finished``). With ``interruptible``, Ctrl-C stops the batches and ``finish``
+    still runs (``Outcome.interrupted``). ``stop_after_batches`` stops early (to test
+    resuming). In a ``jax.distributed`` job call it in every process with the same arguments.
+    """
+    spec.validate()
+    study = StudyRun.of(spec, out)
+    writer = distributed.is_writer()
+    settings, rows = spec.run_settings(), _trial_rows(spec)
+    opened = study.open(settings, rows, resume=resume, describe=spec.describe, extra=spec.run_extra(), warn=warn)
+    with opened as (done, todo):
+        plan = batches(todo, spec.group, batch_size)
+        if on_start is not None and writer:
+            on_start(len(done), [(len(b), sum(spec.samples(t) for t in b)) for b in plan])
+        outcome = Outcome(study, done, todo, [])
+        try:
+            _run_batches(spec, study, plan, outcome, chunk_seconds, progress, stop_after_batches)
+        except KeyboardInterrupt:
+            if not (interruptible and writer):
+                raise
+            outcome.interrupted = True
+        if finish is not None and writer:
+            outcome.finished = finish(study, outcome)
+    return outcome
+
+
+def _run_batches(spec, study, plan, outcome, chunk_seconds, progress, stop_after_batches) -> None:
+    from .._batch import make_mesh
+
+    signals = Perturbations(getattr(spec, "base_seed", 0))
+    context = Context(study, make_mesh(), max(1, int(chunk_seconds * 1000)), signals)
+    runner = spec.runner(context)
+    tracker = Progress(sum(spec.samples(t) for b in plan for t in b), sum(len(b) for b in plan), progress)
+    writer = distributed.is_writer()
+    for index, batch in enumerate(plan):
+        if stop_after_batches is not None and index >= stop_after_batches:
             break
         shape = getattr(spec, "compile_key", lambda b: (spec.group(b[0]), len(b)))(batch)
         t0 = time.perf_counter()
-        results = run(batch, mesh=mesh, chunk_samples=max(1, int(chunk_seconds * 1000)), progress=tracker.batch(shape))
+        results = runner(batch, tracker.batch(shape))
         batch_info = dict(batch_wall_s=time.perf_counter() - t0, batch_size=len(batch))
         for trial, (arrays, meta) in zip(batch, results, strict=True):
             record_id, settings = spec.trial_record(trial)
-            if distributed.is_writer():  # every process holds every result (gathered); one writes
-                save_record(record_path(out, record_id), settings=settings, arrays=arrays, meta=dict(meta) | batch_info)
-            computed.append(record_id)
-        tracker.trials += len(batch)
-    return computed
+            if writer:  # every process holds every result (gathered); one writes
+                study.save(record_id, settings=settings, arrays=arrays, meta=dict(meta) | batch_info)
+            outcome.computed.append(record_id)
+        tracker.end_batch(sum(spec.samples(t) for t in batch), len(batch))

@@ -4,9 +4,13 @@ its settings, the estimate and fit, the verdict on them, the results on disk.
 - ``ROUTE_DEFAULTS``, ``route_settings``: the route's options and what a record decides
   (Welch segments that follow the record, ``welch_segments``; a fitted force-channel delay;
   spectral SEs); ``settings_record``: them as the results record them.
-- ``analyse``: ``estimate`` then ``fit_impedance`` on a loaded recording (``study.recording``).
-- ``verdict``: the lack-of-fit test and the VAF read together, in words; ``intervals``,
-  ``coherence_summary``: what the report and the JSON hold.
+- ``analyse``: ``estimate`` then ``fit_impedance`` on a loaded recording (``study.recording``);
+  with ``lines``, the fit weighs only the bins that hold the perturbation's power on both axes
+  (``input_bins``: a multisine's lines), where ``Z`` is the arm's.
+- ``verdict``: the lack-of-fit test, the VAF and where the perturbation has its power read
+  together, in words (a perturbation in few bins, a multisine's lines: the bins between hold
+  the person's own force and the noise, and a fit over every bin says nothing of the arm);
+  ``intervals``, ``coherence_summary``: what the report and the JSON hold.
 - ``write_results``: ``estimate.json`` (strict: non-finite numbers become ``null``),
   ``estimate.npz``, ``bode.png`` and ``coherence.png`` (``study.recording_figures``), each
   written atomically (``study.results.atomic_write_*``, ``study.figures.save_figure``).
@@ -111,19 +115,47 @@ def settings_record(welch: dict, fit: dict) -> dict:
     )
 
 
-def analyse(rec: dict, *, fs: float, **options):
+def analyse(rec: dict, *, fs: float, lines: bool = False, **options):
     """Estimate ``Z`` (``estimate``, with its error model) and fit ``M, B, K``
     (``fit_impedance``) for a loaded recording sampled at ``fs`` [Hz], with the Welch route's
     ``options`` (``route_settings``; the defaults: segments that follow the record, a fitted
-    delay, spectral SEs); returns ``(Estimate, ImpedanceFit)``. Needs float64 switched on;
-    ``window`` must be a name or tuple."""
+    delay, spectral SEs); returns ``(Estimate, ImpedanceFit)``. With ``lines``, only the bins
+    that hold the perturbation on both axes are fitted (``input_bins``). Needs float64
+    switched on; ``window`` must be a name or tuple."""
     from .._estimation.fit import fit_impedance
 
     welch, fit, _ = route_settings(rec["x"].shape[0], fs=fs, **options)
     # Each is one compiled program per record shape and settings, shared with any other caller
     # of the same shapes (a wrapping jit would compile the pair again for every call).
     est = estimate(rec["f_delta"], rec["x"], rec["fh"], **welch, errors=True)
+    if lines:
+        holds, _ = input_bins(rec["f_delta"], welch)
+        if holds.sum() < 3:
+            raise ValueError(f"--lines: only {int(holds.sum())} bins hold the perturbation on both axes; need 3")
+        fit = dict(fit, weights=holds.astype(float))
     return est, fit_impedance(est, **fit)
+
+
+LINE_POWER = 1e-3  # of the largest bin's: a bin below this holds none of the perturbation's power
+SPARSE_SHARE = 0.5  # a perturbation in fewer of the band's bins than this share: lines, not a spectrum
+
+
+def input_bins(f_delta, welch: dict) -> tuple[np.ndarray, float]:
+    """``(holds, share)``: which of the estimate's bins (``0 < f <= fmax``) hold the perturbation
+    on both axes (its power above ``LINE_POWER`` of the largest bin's, per axis), and their
+    share of the band's bins. A broadband perturbation fills the band; a multisine's lines
+    fill a few bins (``SPARSE_SHARE``)."""
+    import scipy.signal
+
+    f_delta = np.asarray(f_delta, dtype=float)
+    nfft = welch["nperseg"] if welch.get("nfft") is None else welch["nfft"]
+    window = welch.get("window", "hann")
+    kw = dict(fs=welch["fs"], window=window, nperseg=welch["nperseg"], noverlap=welch["noverlap"], nfft=nfft)
+    freqs, p = scipy.signal.welch(f_delta, axis=0, detrend=False, **kw)
+    band = (freqs > 0) & (freqs <= welch["fmax"])
+    p = p[band]
+    holds = np.all(p > LINE_POWER * p.max(axis=0), axis=1)
+    return holds, float(holds.mean())
 
 
 PARAMETERS = (("mass", "kg"), ("damping", "N s/m"), ("stiffness", "N/m"))
@@ -142,37 +174,55 @@ def intervals(fit, level: float = 0.95) -> dict:
 NOISY_VAF = 90.0  # [%] with no lack of fit, a VAF below this: the estimate's noise is much of Z
 
 
-def verdict(fit) -> tuple[str, str]:
-    """Whether the fitted model describes the estimate of ``Z``, reading the lack-of-fit test and
-    the VAF together: ``(headline, explanation)`` (the headline titles ``bode.png``).
+def verdict(fit, *, share: float | None = None, lines: bool = False) -> tuple[str, str]:
+    """Whether the fitted model describes the estimate of ``Z``, reading the lack-of-fit test,
+    the VAF and where the perturbation has its power (``share``: of the band's bins that hold
+    it on both axes, ``input_bins``) together: ``(headline, explanation)`` (the headline titles
+    ``bode.png``).
 
     The lack-of-fit ratio compares the residuals with what the estimate's own noise predicts;
     VAF is the share of ``Z``'s variance the model accounts for. A passing test with a low VAF
-    is no contradiction: the residual is noise, and the noise is most of ``Z``."""
+    is no contradiction: the residual is noise, and the noise is most of ``Z``. But a
+    perturbation in a few bins (a multisine's lines) leaves every other bin to the person's
+    own force (below 2 Hz) and the sensors' noise: ``Z`` there is not the arm's, and a fit over
+    every bin cannot tell (``lines``: only the bins that hold it were fitted)."""
     vaf = float(np.asarray(fit.vaf_overall))
     p = float(np.asarray(fit.lack_of_fit_p_overall))
+    if share is not None and share < SPARSE_SHARE and not lines:
+        return (
+            f"the classical route cannot tell from these bins: the perturbation is in {share:.0%} of them",
+            "its power sits in a few Welch bins (a multisine's lines); the bins between hold the person's own "
+            "force (below 2 Hz) and the sensors' noise, not a response to the perturbation, so a fit over every bin "
+            f"describes them (VAF {vaf:.1f} %): fit the bins that hold the lines (--lines), or use the model route "
+            "(--model)",
+        )
+    where = f" (the {share:.0%} of the bins that hold the perturbation's lines)" if lines and share is not None else ""
     if np.isnan(p):
         return "no lack-of-fit test", "without the estimate's error model, noise and misfit cannot be told apart"
     if p < LACK_OF_FIT_ALPHA:
         return (
-            f"the model does not describe Z (lack of fit, p = {p:.2g})",
+            f"the model does not describe Z{where} (lack of fit, p = {p:.2g})",
             "the residuals exceed the estimate's noise, so M, B, K and their intervals describe a wrong model",
         )
     if vaf >= NOISY_VAF:
         return (
-            f"the model describes Z within the estimate's noise (no lack of fit, p = {p:.2g})",
+            f"the model describes Z{where} within the estimate's noise (no lack of fit, p = {p:.2g})",
             f"it accounts for {vaf:.1f} % of Z's variance, and the rest is what the estimate's noise predicts",
         )
     return (
-        f"no evidence against the model at this noise (no lack of fit, p = {p:.2g}), but a noisy estimate",
-        f"what the model leaves of Z (VAF {vaf:.1f} %) is what the estimate's own noise predicts, so the low "
-        "VAF means noise, not a misfit; the intervals are wide (a longer record or a larger perturbation narrows them)",
+        f"no evidence against the model at this noise{where} (no lack of fit, p = {p:.2g}), but a noisy estimate",
+        f"what the model leaves of Z (VAF {vaf:.1f} %) is what the estimate's own noise predicts: the noise, "
+        "the person's own force below 2 Hz included, is much of Z; the intervals are wide (a longer record or a "
+        "larger perturbation narrows them)",
     )
 
 
-def write_results(out_dir, est, fit, *, settings: dict, record: dict, warnings: list[str]) -> list[pathlib.Path]:
+def write_results(
+    out_dir, est, fit, *, settings: dict, record: dict, warnings: list[str], share=None, lines: bool = False
+) -> list[pathlib.Path]:
     """Write ``estimate.json``, ``estimate.npz``, ``bode.png`` and ``coherence.png`` under
-    ``out_dir`` (each atomically); returns their paths."""
+    ``out_dir`` (each atomically); returns their paths. ``share`` and ``lines`` are the
+    ``verdict``'s (where the perturbation has its power; only its bins fitted)."""
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     acq = dict(acquisition=settings.get("acquisition", "plain"), period=settings.get("period_s", 1e-3))
@@ -208,6 +258,8 @@ def write_results(out_dir, est, fit, *, settings: dict, record: dict, warnings: 
         },
         "vaf": {"overall": np.asarray(fit.vaf_overall), "per_element": np.asarray(fit.vaf)},
         "coherence": coherence_summary(est),
+        "perturbation_bins_share": share,
+        "verdict": dict(zip(("headline", "explanation"), verdict(fit, share=share, lines=lines), strict=True)),
         "warnings": list(warnings),
     }
     est_arrays = {k: v for k, v in est._asdict().items() if k != "error"}
@@ -217,17 +269,20 @@ def write_results(out_dir, est, fit, *, settings: dict, record: dict, warnings: 
     return [
         json_path,
         atomic_write_npz(out_dir / "estimate.npz", **est_arrays, **errors, Z_fit=z_fit),
-        save_figure(bode_figure(est.f, est.Z, z_fit, title=_bode_title(fit, acq["acquisition"])), out_dir / "bode.png"),
+        save_figure(
+            bode_figure(est.f, est.Z, z_fit, title=_bode_title(fit, acq["acquisition"], share, lines)),
+            out_dir / "bode.png",
+        ),
         save_figure(coherence_figure(est), out_dir / "coherence.png"),
     ]
 
 
-def _bode_title(fit, acquisition: str) -> str:
+def _bode_title(fit, acquisition: str, share=None, lines: bool = False) -> str:
     """``bode.png``'s title: what is drawn, then the VAF and the ``verdict``'s headline."""
     vaf = float(np.asarray(fit.vaf_overall))
     return (
         f"Z: Welch estimate and fitted model (acquisition {acquisition!r}); the estimate's phase within 180 deg "
-        f"of the model's\nVAF {vaf:.1f} %: {verdict(fit)[0]}"
+        f"of the model's\nVAF {vaf:.1f} %: {verdict(fit, share=share, lines=lines)[0]}"
     )
 
 

@@ -134,7 +134,13 @@ def trust_warnings(res, rec: dict) -> list[str]:
         )
     vaf = np.concatenate([res.vaf_position, res.vaf_force])
     poor = [f"{c} {v:.1f} %" for c, v in zip(CHANNELS, vaf, strict=True) if not v >= VAF_MIN]
-    if poor:
+    if poor and getattr(res.trial, "voluntary", None) is not None:
+        out.append(
+            f"the model accounts for little of {', '.join(poor)} (VAF below {VAF_MIN:g} %): the person's own "
+            "force ([voluntary]), which no model of the perturbation's response explains, is much of it; if "
+            "the whiteness and the intervals hold, the fit is sound (else check the config and the frame)"
+        )
+    elif poor:
         out.append(
             f"the model accounts for little of {', '.join(poor)} (VAF below {VAF_MIN:g} %): a poor fit; "
             "check the config (robot, controller gains, acquisition) and the recording's frame and signs"

@@ -17,6 +17,7 @@ value lists and/or a list of points into the normalized, de-duplicated points of
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 import math
@@ -79,6 +80,16 @@ def kind_settings(setting: str, kind: str) -> dict:
     return KIND_SETTINGS[setting][1](kind, where=setting).point_parameters()
 
 
+def kind_options(setting: str, kind: str) -> dict:
+    """``{name: (default, allowed words)}`` of the text options of that kind (IMBIC's
+    ``accel_estimate``): a point names one only where it departs from its default, so a
+    point that names none is the one it always was."""
+    cls = KIND_SETTINGS[setting][1](kind, where=setting)
+    return {
+        p.name: (p.default, p.unit) for p in cls.parameters().values() if p.shape is None and isinstance(p.default, str)
+    }
+
+
 def known_settings() -> dict:
     """``{name: (default, unit)}`` of every setting a point may name: ``POINT_DEFAULTS`` and the
     settings of every registered kind (a name two kinds share appears once, with the first's
@@ -86,7 +97,7 @@ def known_settings() -> dict:
     out = {k: (v, POINT_UNITS.get(k)) for k, v in POINT_DEFAULTS.items()}
     for setting, (registry, _) in KIND_SETTINGS.items():
         for kind in registry.names():
-            for name, spec in kind_settings(setting, kind).items():
+            for name, spec in (kind_settings(setting, kind) | kind_options(setting, kind)).items():
                 out.setdefault(name, spec)
     return out
 
@@ -94,7 +105,7 @@ def known_settings() -> dict:
 def setting_unit(name: str) -> str | None:
     """The unit of a point setting (``None``: unitless or unknown)."""
     unit = known_settings().get(name, (None, None))[1]
-    return None if unit in (None, "-") else unit
+    return unit if isinstance(unit, str) and unit != "-" else None
 
 
 def _number(name: str, value, *, minimum: float | None = None, exclusive: bool = False, integer: bool = False):
@@ -142,6 +153,10 @@ def _kind(setting: str, p: Mapping) -> dict:
     out: dict[str, Any] = {setting: kind}
     for name, (default, _) in kind_settings(setting, kind).items():
         out[name] = _kind_value(name, p.get(name, default), default)
+    for name, (default, words) in kind_options(setting, kind).items():
+        if p.get(name, default) != default:
+            check_choice(name, p[name], words)
+            out[name] = p[name]
     return out
 
 
@@ -237,7 +252,9 @@ def point_parts(point: Mapping) -> tuple:
     for setting in KIND_SETTINGS:
         kind = point[setting]
         values = {n: point[n] for n in kind_settings(setting, kind)}
-        out.append(KIND_SETTINGS[setting][1](kind).from_point(values))
+        part = KIND_SETTINGS[setting][1](kind).from_point(values)
+        options = {n: point[n] for n in kind_options(setting, kind) if n in point}
+        out.append(dataclasses.replace(part, **options) if options else part)
     return tuple(out)
 
 
@@ -261,8 +278,9 @@ def build_trial(point: Mapping) -> Trial:
 
 
 def static_group(point: Mapping) -> tuple:
-    """What must agree within one compiled batch: controller and friction kinds, acquisition,
-    encoder on/off, record length and Welch settings."""
+    """What must agree within one compiled batch: controller and friction kinds (and their
+    text options), acquisition, encoder on/off, record length and Welch settings."""
+    options = tuple((n, point[n]) for s in KIND_SETTINGS for n in kind_options(s, point[s]) if n in point)
     return (
         point["controller"],
         point["friction"],
@@ -270,6 +288,7 @@ def static_group(point: Mapping) -> tuple:
         point["encoder_counts"] is not None,
         n_samples(point),
         point_welch(point),
+        *options,
     )
 
 

@@ -49,7 +49,9 @@ def _coherence_lines(est) -> list[str]:
     return lines
 
 
-def welch_report(est, fit, *, acquisition: str, warnings: list[str], friction_given: bool = True) -> list[str]:
+def welch_report(
+    est, fit, *, acquisition: str, warnings: list[str], friction_given: bool = True, share=None, lines: bool = False
+) -> list[str]:
     """What the Welch route prints: the acquisition (and, for instant or delayed force samples
     without ``--friction``, that the robot's friction is read from the record), the 95% intervals per
     element, the fitted delay, VAF and the lack-of-fit test with their ``verdict``, the
@@ -59,15 +61,18 @@ def welch_report(est, fit, *, acquisition: str, warnings: list[str], friction_gi
         " (robot friction unknown: stick-slip read from the record; --friction N_M if you know it)" if assumed else ""
     )
     lof, p = float(np.asarray(fit.lack_of_fit_overall)), float(np.asarray(fit.lack_of_fit_p_overall))
-    lines = [header, *_interval_lines(fit, acquisition)]
-    lines.append(f"VAF {float(np.asarray(fit.vaf_overall)):.2f} % (the share of Z's variance the model accounts for)")
-    lines.append(
+    out = [header, *_interval_lines(fit, acquisition)]
+    out.append(f"VAF {float(np.asarray(fit.vaf_overall)):.2f} % (the share of Z's variance the model accounts for)")
+    out.append(
         f"lack of fit: residuals / the estimate's predicted noise {lof:.3g} (about 1 when the residuals are "
         f"noise alone), p = {p:.3g}"
     )
-    lines.append("verdict: {}: {}".format(*verdict(fit)))
-    lines += _coherence_lines(est)
-    return lines + ([f"WARNING: {w}" for w in warnings] or ["no warnings"])
+    if share is not None:
+        fitted = "only those bins fitted (--lines)" if lines else "every bin fitted"
+        out.append(f"the perturbation holds {share:.0%} of the band's bins on both axes; {fitted}")
+    out.append("verdict: {}: {}".format(*verdict(fit, share=share, lines=lines)))
+    out += _coherence_lines(est)
+    return out + ([f"WARNING: {w}" for w in warnings] or ["no warnings"])
 
 
 def model_report(res, classical, warnings: list[str]) -> list[str]:

@@ -15,19 +15,15 @@ its key equals the key of the settings asked for now. The pieces:
 - ``save_record`` / ``load_record``: one ``.npz`` file holding named arrays, the settings,
   their key, free metadata, and a SHA-256 digest of all of it; ``load_record`` names the
   file and says what is wrong when it is truncated, altered, or made with other settings.
-- ``RunLock``: one process at a time per output folder (an exclusive lock file naming the
-  holder's pid, host and start time; a lock left by a dead process on this host is taken
-  over).
-
 Every refusal is a ``ResultsError`` (a ``ValueError``) with a one-line message.
-See ``docs/results.md`` for how the reproduction uses them.
+The run folder that holds them, with its lock, is ``study.runfolder``'s ``StudyRun``;
+``docs/results.md`` says how the studies use them.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import datetime
 import hashlib
 import importlib.metadata
 import io
@@ -36,7 +32,6 @@ import math
 import os
 import pathlib
 import secrets
-import socket
 import zipfile
 from collections.abc import Mapping
 from typing import Any, NamedTuple
@@ -324,147 +319,3 @@ def load_record(path: pathlib.Path | str, *, settings: Mapping | None = None) ->
             f"{path}: made with other settings: {describe_difference(header['settings'], stamped(settings))}"
         )
     return Record(header["settings"], header["key"], header["meta"], arrays)
-
-
-# --- one run per folder -------------------------------------------------------------------
-
-LOCK_NAME = ".lock"
-_HELD: dict[pathlib.Path, list] = {}  # lock path -> [token, depth] for locks this process holds
-
-
-def _process_start(pid: int) -> str | None:
-    """The kernel's start time of ``pid`` (Linux: field 22 of /proc/<pid>/stat), to tell a
-    reused pid from the original holder; ``None`` where unknown."""
-    try:
-        stat = pathlib.Path(f"/proc/{pid}/stat").read_text()
-        return stat.rsplit(")", 1)[1].split()[19]
-    except (OSError, IndexError):
-        return None
-
-
-def _alive(pid: int, started: str | None) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        pass  # exists, owned by someone else
-    except OverflowError:
-        return False
-    now = _process_start(pid)
-    return started is None or now is None or now == started
-
-
-class RunLock:
-    """Exclusive use of an output folder by one process (a context manager, re-entrant in
-    the process that holds it).
-
-    Entering creates ``folder/.lock`` with ``O_CREAT | O_EXCL`` holding the pid, host, start
-    time and a random token; leaving removes it. If the file exists, its holder is named in
-    a ``ResultsError``, unless the holder is a process on this host that is gone (a crash or
-    ``kill -9``), in which case the lock is taken over. A lock held from another host is
-    never taken over: remove the file by hand once that run is known to be dead.
-    """
-
-    def __init__(self, folder: pathlib.Path | str):
-        self.folder = pathlib.Path(folder)
-        self.path = self.folder / LOCK_NAME
-
-    def _info(self, token: str) -> dict:
-        return dict(
-            pid=os.getpid(),
-            host=socket.gethostname(),
-            started=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-            process_start=_process_start(os.getpid()),
-            token=token,
-        )
-
-    def _read(self) -> dict | None:
-        try:
-            info = json.loads(self.path.read_text())
-            return info if isinstance(info, dict) and "pid" in info else None
-        except (OSError, ValueError):
-            return None
-
-    def holder(self) -> dict | None:
-        """The lock file's contents (pid, host, started), or ``None`` if the folder is free."""
-        return self._read()
-
-    def __enter__(self) -> RunLock:
-        try:
-            self.folder.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise ResultsError(f"output folder {self.folder} cannot be created: {_one_line(err)}") from None
-        self.path = (self.folder / LOCK_NAME).resolve()
-        if self.path in _HELD:
-            _HELD[self.path][1] += 1
-            return self
-        token = secrets.token_hex(8)
-        for _ in range(5):
-            try:
-                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-            except FileExistsError:
-                self._check_holder()
-                continue
-            except OSError as err:
-                raise ResultsError(f"output folder {self.folder} is not writable: {_one_line(err)}") from None
-            with os.fdopen(fd, "w") as fh:
-                fh.write(json.dumps(self._info(token)))
-                fh.flush()
-                os.fsync(fh.fileno())
-            _HELD[self.path] = [token, 1]
-            return self
-        raise ResultsError(f"{self.folder}: could not take the lock file {self.path} (another run keeps taking it)")
-
-    def _check_holder(self) -> None:
-        info = self._read()
-        if info is None:
-            # being written this instant, or damaged: a damaged one older than a minute is stale
-            try:
-                age = datetime.datetime.now().timestamp() - self.path.stat().st_mtime
-            except FileNotFoundError:
-                return
-            if age < 60:
-                raise ResultsError(f"{self.folder} is in use by another run (lock file {self.path} being written)")
-            self._break(None)
-            return
-        here = info.get("host") == socket.gethostname()
-        if here and not _alive(int(info["pid"]), info.get("process_start")):
-            self._break(info)
-            return
-        raise ResultsError(
-            f"{self.folder} is in use by another run: pid {info['pid']} on {info.get('host', '?')} since "
-            f"{info.get('started', '?')} (lock file {self.path}); wait for it to finish"
-            + ("" if here else ", or delete the lock file if that run is dead")
-        )
-
-    def _break(self, stale: dict | None) -> None:
-        # Move the stale file aside atomically, then check it was the one we judged stale:
-        # if another process took the lock over in between, put its file back.
-        aside = self.path.with_name(f"{LOCK_NAME}.stale.{os.getpid()}.{secrets.token_hex(4)}")
-        try:
-            os.rename(self.path, aside)
-        except FileNotFoundError:
-            return
-        try:
-            moved = json.loads(aside.read_text())
-        except (OSError, ValueError):
-            moved = None
-        if stale is not None and moved != stale:
-            with contextlib.suppress(OSError):
-                os.link(aside, self.path)
-        with contextlib.suppress(OSError):
-            aside.unlink()
-
-    def __exit__(self, *exc) -> None:
-        held = _HELD.get(self.path)
-        if held is None:
-            return
-        held[1] -= 1
-        if held[1] > 0:
-            return
-        del _HELD[self.path]
-        info = self._read()
-        if info is not None and info.get("token") == held[0]:
-            with contextlib.suppress(FileNotFoundError):
-                self.path.unlink()

@@ -2,14 +2,14 @@
 
 The points (``study.points``: ``POINT_DEFAULTS``, ``normalize_point``, ``expand``,
 ``read_toml``, ``parse_set``) and ``SweepSettings`` fix a run. ``SweepSettings`` is a
-specification of the run-trials engine (``study.engine``): ``run_sweep`` runs every
-``(point, seed)`` that has no valid record in the output folder (batched by static
-structure, sharded over the devices, in chunks for progress), saves one checked record
-per trial (``study.results``), then writes the tidy table ``trials.csv`` (one row per
-trial, ``trial_row``), ``summary.csv``/``summary.json`` (per point over seeds: mean,
-standard deviation, 95% t-interval, count of diverged trials, which are left out of
-every statistic; ``study.stats``) and a figure of ``phi_T`` against the swept quantity
-(``study.figures``). ``docs/sweeps.md`` describes the files. ``load_sweep`` and
+specification of the study engine (``study.engine``): ``run_sweep`` hands it to
+``engine.run``, which runs every ``(point, seed)`` that has no valid record in the output
+folder (batched by static structure, sharded over the devices, in chunks for progress) and
+saves one checked record per trial (``study.results``); ``write_outputs`` then writes
+the tidy table ``trials.csv`` (one row per trial, ``trial_row``), ``summary.csv`` and
+``summary.json`` (per point over seeds: mean, standard deviation, 95% t-interval, count
+of diverged trials, which are left out of every statistic; ``study.stats``) and a figure
+of ``phi_T`` against the swept quantity (``study.figures``). ``docs/sweeps.md`` describes the files. ``load_sweep`` and
 ``load_summary`` give the tables as pandas DataFrames from the checked records.
 
 Seeds (``study.seeds``): trial seed ``s`` draws its perturbation from
@@ -23,48 +23,48 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import pathlib
 from collections.abc import Callable, Mapping
 
 import jax
 import numpy as np
 import pandas as pd
 
-from .._batch import assess_batch, check_numerics, simulate_batch
+from .._batch import check_numerics
 from .._estimation.fit import fit_impedance
 from .._simulate import stack_trials
 from .._solver.numerics import SWEEP_NUMERICS, Numerics, named_solver
 from . import distributed, engine
+from .console import Console
 from .figures import plot_summary
-from .metrics import estimate_arrays
+from .metrics import estimate_arrays, trial_row
 from .points import (
     build_trial,
     default_x,
+    expand,
     known_settings,
     n_samples,
     normalize_point,
-    point_arm,
+    parse_set,
     point_columns,
     point_welch,
+    read_toml,
     static_group,
     swept_settings,
 )
-from .points import expand as expand  # sweeps/friction_threshold.py builds its points here
 from .results import ResultsError, atomic_write_json, describe_difference, read_json, settings_key, stamped, to_jsonable
-from .runfolder import warn_stderr
-from .seeds import seed_perturbation, sensor_noise_key
+from .runfolder import StudyRun, warn_stderr
 from .stats import seed_stats
-from .tables import ELEMENTS, METRIC_COLUMNS, summary_frame, trial_columns, trials_frame, write_table
+from .tables import METRIC_COLUMNS, summary_frame, trial_columns, trials_frame, write_table
 
 # --- run settings ---------------------------------------------------------------------------
 
 
 @dataclasses.dataclass(frozen=True)
-class SweepSettings:
+class SweepSettings(engine.SimulationSpec):
     """Everything that fixes a sweep's numbers: its normalized ``points`` (``expand``), the
     number of ``seeds`` per point from ``base_seed``, and the integration ``method`` and
     ``substeps`` per 1 ms period (default ``SWEEP_NUMERICS``). A specification of the
-    run-trials engine (``study.engine.Spec``): a trial is ``(point index, seed)``."""
+    study engine (``study.engine.Spec``): a trial is ``(point index, seed)``."""
 
     KIND = "sweep"
     FORMAT = 1  # layout of a sweep's run.json
@@ -154,9 +154,37 @@ class SweepSettings:
         """A batch's compiled shape: its group, size and whether it draws sensor noise."""
         return self.group(batch[0]), len(batch), any(_noisy(self.points[i]) for i, _ in batch)
 
-    def batch_runner(self) -> Callable:
-        signals = _Perturbations(self.base_seed)
-        return functools.partial(run_batch, self, signals=signals)
+    def build(self, batch, signals: engine.Perturbations) -> engine.Simulation:
+        """The stacked trials of a batch of ``(point index, seed)`` sharing a ``static_group``,
+        their perturbations and (if a point draws any) their sensor-noise keys."""
+        points = [self.points[i] for i, _ in batch]
+        n = n_samples(points[0])
+        f_delta = np.stack([signals(s, n, p["peak"]) for p, (_, s) in zip(points, batch, strict=True)])
+        keys = np.stack([signals.noise_key(s) for _, s in batch]) if any(_noisy(p) for p in points) else None
+        params = stack_trials([build_trial(p) for p in points])
+        return engine.Simulation(params, f_delta, self.numerics, keys, point_welch(points[0]))
+
+    def measure(self, batch, built, sim, outcome) -> list[tuple[dict, dict]]:
+        """Per trial ``(arrays, meta)``: the estimate's arrays with the fit, and the record's
+        meta (id, point index, seed, the ``trial_row`` metrics)."""
+        points = [self.points[i] for i, _ in batch]
+        fits = jax.tree.map(np.asarray, _vfit(outcome.estimate, acquisition=points[0]["acquisition"]))
+        out = []
+        for j, ((i, s), point) in enumerate(zip(batch, points, strict=True)):
+            est = estimate_arrays(outcome.estimate, j)
+            out_j = dict(
+                est,
+                phi_T=outcome.phi_T[j],
+                phi_ij=outcome.phi_ij[j],
+                input_coherence=outcome.input_coherence[j],
+                diverged=sim.diverged[j],
+                diverged_at=sim.diverged_at[j],
+            )
+            # the fit's numbers; its diagnostics restate the estimate's fields, which are saved already
+            fit_j = {k: v[j] for k, v in fits._asdict().items() if k != "diagnostics"}
+            meta = dict(id=trial_id(point, s), point_index=i, seed=s, metrics=trial_row(point, out_j, fit_j))
+            out.append((est | {f"fit_{k}": v for k, v in fit_j.items()}, meta))
+        return out
 
 
 def trial_id(point: Mapping, seed: int) -> str:
@@ -166,46 +194,42 @@ def trial_id(point: Mapping, seed: int) -> str:
 
 def saved_settings(out) -> SweepSettings:
     """The settings of the sweep in ``out`` (to resume it)."""
-    return engine.saved_settings(SweepSettings, out)
+    return engine.resumed(SweepSettings, out)
 
 
-# --- per-trial metrics ------------------------------------------------------------------------
+def requested(config=None, sets=(), shortcuts: Mapping | None = None, run: Mapping | None = None) -> SweepSettings:
+    """The sweep a command line asks for: the grid and points of the TOML file ``config``
+    (``read_toml``), the ``--set`` options ``sets`` (``parse_set``), ``shortcuts`` (one value of
+    a point setting each, e.g. ``seconds``) and ``run`` options (``seeds``, ``base_seed``,
+    ``method``, ``substeps``: over the TOML's ``[run]``). A setting given twice is refused."""
+    grid, points, toml_run = read_toml(config) if config else ({}, None, {})
+    cli = parse_set(sets)
+    both = sorted(set(cli) & set(grid))
+    if both:
+        raise ValueError(f"setting(s) {', '.join(both)} given both in --set and in {config}")
+    grid = dict(grid) | cli
+    for name, value in (shortcuts or {}).items():
+        if name in grid:
+            raise ValueError(f"--{name} and --set {name} (or the TOML grid) both given")
+        grid[name] = [value]
+    return SweepSettings(tuple(expand(grid, points)), **(dict(toml_run) | dict(run or {})))
 
 
-def _cells(prefix: str, a) -> dict:
-    a = np.asarray(a, dtype=float).reshape(-1)
-    return {f"{prefix}_{e}": float(v) for e, v in zip(ELEMENTS, a, strict=True)}
+def resumed(out, config=None, sets=(), shortcuts: Mapping | None = None, run: Mapping | None = None) -> SweepSettings:
+    """The settings of the sweep in ``out``, to finish it; options given as well (as
+    ``requested``'s; shortcuts and run options apply to every saved point) must agree with
+    them (one line naming the difference otherwise)."""
+
+    def change(saved: SweepSettings) -> SweepSettings:
+        if sets or config:
+            return requested(config, sets, shortcuts, run)
+        points = tuple(normalize_point(dict(p) | dict(shortcuts or {})) for p in saved.points)
+        return dataclasses.replace(saved, points=points, **dict(run or {}))
+
+    return engine.resumed(SweepSettings, out, change)
 
 
-def trial_row(point: Mapping, outcome_i: Mapping, fit_i: Mapping) -> dict:
-    """The scalar columns of one trial's table row (``METRIC_COLUMNS`` plus ``diverged``, ``diverged_at``).
-
-    ``coh_min`` is the minimum over ``0 < f <= fmax`` of the four multiple coherences (both
-    position outputs and both force outputs): the weakest of the spectra ``Z = T R^-1``
-    is built from. ``rel_error`` is ``phi_T`` over the mean largest singular value of the
-    arm's true impedance.
-    """
-    f = outcome_i["f"]
-    zt = np.asarray(point_arm(point).impedance(f))
-    scale = float(np.mean(np.linalg.svd(zt, compute_uv=False)[:, 0]))
-    cx, cf = np.asarray(outcome_i["coh_multiple_x"]), np.asarray(outcome_i["coh_multiple_fh"])
-    row = dict(phi_T=float(outcome_i["phi_T"]), **_cells("phi", outcome_i["phi_ij"]))
-    row["rel_error"] = row["phi_T"] / scale
-    row["coh_min"] = float(min(cx.min(), cf.min()))
-    for name, c in (("x", cx), ("fh", cf)):
-        for j in range(2):
-            row[f"coh_{name}{j + 1}_min"] = float(c[:, j].min())
-            row[f"coh_{name}{j + 1}_median"] = float(np.median(c[:, j]))
-    row["input_coherence_max"] = float(outcome_i["input_coherence"])
-    for p, field in (("M", "mass"), ("B", "damping"), ("K", "stiffness")):
-        row |= _cells(p, fit_i[field])
-        row |= {k + "_se": v for k, v in _cells(p, fit_i[field + "_se"]).items()}
-    row |= _cells("vaf", fit_i["vaf"])
-    row["vaf_overall"] = float(fit_i["vaf_overall"])
-    row = {k: row[k] for k in METRIC_COLUMNS}
-    row["diverged"] = bool(outcome_i["diverged"])
-    row["diverged_at"] = int(outcome_i["diverged_at"])
-    return row
+# --- per-trial fits ---------------------------------------------------------------------------
 
 
 @functools.partial(jax.jit, static_argnames="acquisition")
@@ -218,63 +242,8 @@ def _vfit(estimates, *, acquisition: str):
 # --- running ----------------------------------------------------------------------------------
 
 
-@dataclasses.dataclass
-class _Perturbations:
-    """The perturbations of a sweep's seeds, drawn once per (seed, length, peak)."""
-
-    base_seed: int
-    cache: dict = dataclasses.field(default_factory=dict)
-
-    def noise_key(self, seed: int) -> np.ndarray:
-        return sensor_noise_key(self.base_seed, seed)
-
-    def __call__(self, seed: int, n: int, peak) -> np.ndarray:
-        k = (seed, n, tuple(peak))
-        if k not in self.cache:
-            self.cache[k] = seed_perturbation(self.base_seed, seed, n, peak)
-        return self.cache[k]
-
-
 def _noisy(point) -> bool:
     return point["force_noise"] > 0 or point["velocity_noise"] > 0
-
-
-def run_batch(settings: SweepSettings, batch, *, signals: _Perturbations, mesh, chunk_samples: int, progress=None):
-    """Simulate and assess one batch of ``(point index, seed)`` sharing a ``static_group``;
-    returns per trial ``(arrays, meta)``: the estimate's arrays with the fit, and the
-    record's meta (id, point index, seed, the ``trial_row`` metrics)."""
-    points = [settings.points[i] for i, _ in batch]
-    n = n_samples(points[0])
-    params = stack_trials([build_trial(p) for p in points])
-    f_delta = np.stack([signals(s, n, p["peak"]) for p, (_, s) in zip(points, batch, strict=True)])
-    keys = np.stack([signals.noise_key(s) for _, s in batch]) if any(_noisy(p) for p in points) else None
-    sim = simulate_batch(
-        params,
-        f_delta,
-        keys=keys,
-        numerics=settings.numerics,
-        mesh=mesh,
-        chunk_samples=chunk_samples,
-        progress=progress,
-    )
-    outcome = assess_batch(params, f_delta, sim, point_welch(points[0]), mesh=mesh)
-    fits = jax.tree.map(np.asarray, _vfit(outcome.estimate, acquisition=points[0]["acquisition"]))
-    out = []
-    for j, ((i, s), point) in enumerate(zip(batch, points, strict=True)):
-        est = estimate_arrays(outcome.estimate, j)
-        out_j = dict(
-            est,
-            phi_T=outcome.phi_T[j],
-            phi_ij=outcome.phi_ij[j],
-            input_coherence=outcome.input_coherence[j],
-            diverged=sim.diverged[j],
-            diverged_at=sim.diverged_at[j],
-        )
-        # the fit's numbers; its diagnostics restate the estimate's fields, which are saved already
-        fit_j = {k: v[j] for k, v in fits._asdict().items() if k != "diagnostics"}
-        meta = dict(id=trial_id(point, s), point_index=i, seed=s, metrics=trial_row(point, out_j, fit_j))
-        out.append((est | {f"fit_{k}": v for k, v in fit_j.items()}, meta))
-    return out
 
 
 # --- tables and statistics -------------------------------------------------------------------
@@ -305,9 +274,10 @@ def summarize(settings: SweepSettings, rows: list[dict]) -> list[dict]:
 
 
 def collect(settings: SweepSettings, out, *, warn: Callable[[str], None] = warn_stderr) -> tuple[list[dict], list]:
-    """The rows of every trial with a valid record (``point_index``, ``seed``, point columns,
-    numerics, metrics), and the ``(point index, seed)`` pairs missing."""
-    records, missing = engine.trial_status(settings, out, warn=warn)
+    """The rows of every trial with a valid record in ``out`` (a ``StudyRun`` or a folder:
+    ``point_index``, ``seed``, point columns, numerics, metrics), and the ``(point index,
+    seed)`` pairs missing."""
+    records, missing = engine.records(settings, out, warn=warn, note="recomputing it")
     rows = []
     num = dict(method=settings.method, substeps=settings.substeps)
     for (i, s), rec in sorted(records.items()):
@@ -337,33 +307,34 @@ def load_summary(out, *, warn: Callable[[str], None] = warn_stderr) -> pd.DataFr
 def numerics_check(settings: SweepSettings, rows: list[dict], sample: int, *, mesh=None) -> dict:
     """Re-run ``sample`` trials of each static group (spread over it) at 4x the substeps
     (``check_numerics``) and report the observed relative ``phi_T`` error."""
-    signals = _Perturbations(settings.base_seed)
+    signals = engine.Perturbations(settings.base_seed)
     by_group: dict[tuple, list] = {}
     for r in sorted(rows, key=lambda r: (r["point_index"], r["seed"])):
         by_group.setdefault(static_group(settings.points[r["point_index"]]), []).append(r)
-    errors, diverged, checked = [], 0, 0
+    picked = []
     for group in by_group.values():
         idx = np.unique(np.linspace(0, len(group) - 1, min(sample, len(group))).round().astype(int))
-        pick = [group[j] for j in idx]
-        points = [settings.points[r["point_index"]] for r in pick]
-        params = stack_trials([build_trial(p) for p in points])
-        n = n_samples(points[0])
-        f_delta = np.stack([signals(r["seed"], n, p["peak"]) for r, p in zip(pick, points, strict=True)])
-        keys = np.stack([signals.noise_key(r["seed"]) for r in pick]) if any(_noisy(p) for p in points) else None
+        picked += [group[j] for j in idx]
+
+    def check(pick):  # one static group's sample, one batch
+        built = settings.build([(r["point_index"], r["seed"]) for r in pick], signals)
         phi = np.array([math.nan if r["diverged"] else r["phi_T"] for r in pick])
         res = check_numerics(
-            params,
-            f_delta,
-            numerics=settings.numerics,
+            built.trials,
+            built.f_delta,
+            numerics=built.numerics,
             sample=len(pick),
             phi_T=phi,
-            welch=point_welch(points[0]),
-            keys=keys,
+            welch=built.welch,
+            keys=built.keys,
             mesh=mesh,
         )
-        errors += [float(e) for e in res.rel_error if math.isfinite(e)]
-        diverged += res.diverged
-        checked += len(pick)
+        return [(float(e), res.diverged if k == 0 else 0) for k, e in enumerate(res.rel_error)]
+
+    group = lambda r: static_group(settings.points[r["point_index"]])  # noqa: E731
+    checked_rows = engine.map_batches(picked, group, max(sample, 1), check)
+    errors = [e for e, _ in checked_rows if math.isfinite(e)]
+    diverged, checked = sum(d for _, d in checked_rows), len(picked)
     return dict(
         sample_per_group=sample,
         trials_checked=checked,
@@ -374,24 +345,23 @@ def numerics_check(settings: SweepSettings, rows: list[dict], sample: int, *, me
 
 
 def write_outputs(
-    settings: SweepSettings, out, *, check: dict | None = None, x: str | None = None, warn=warn_stderr
+    settings: SweepSettings, run: StudyRun, *, check: dict | None = None, x: str | None = None, warn=warn_stderr
 ) -> dict:
     """Write ``trials.csv``, ``summary.csv`` (and ``.parquet`` of both when ``pyarrow`` is
-    importable), ``summary.json`` and the figure from the valid trial records in ``out``;
+    importable), ``summary.json`` and the figure from the valid trial records of ``run``;
     returns the ``summary.json`` contents."""
-    out = pathlib.Path(out)
-    rows, missing = collect(settings, out, warn=warn)
+    rows, missing = collect(settings, run, warn=warn)
     numerics = dict(method=settings.method, substeps=settings.substeps)
-    write_table(trials_frame(rows, trial_columns(settings.points)), out / "trials.csv")
+    write_table(trials_frame(rows, trial_columns(settings.points)), run.path / "trials.csv")
     summary = summarize(settings, rows)
-    write_table(summary_frame(summary, numerics), out / "summary.csv")
+    write_table(summary_frame(summary, numerics), run.path / "summary.csv")
     x = x or default_x(list(settings.points))
-    figure = plot_summary(summary, out / f"{x or 'conditions'}.png", x=x) if rows else None
-    run = engine.run_folder(settings, out).read()
+    figure = plot_summary(summary, run.path / f"{x or 'conditions'}.png", x=x) if rows else None
+    saved = run.read()
     if check is None:  # keep the check of an earlier call on this run, if any
         try:
-            previous = read_json(out / "summary.json")
-            if isinstance(previous, dict) and previous.get("key") == run["key"]:
+            previous = read_json(run.path / "summary.json")
+            if isinstance(previous, dict) and previous.get("key") == saved["key"]:
                 check = previous.get("numerics_check")
         except ResultsError:
             pass
@@ -399,8 +369,8 @@ def write_outputs(
         dict(
             kind="sweep",
             format=settings.FORMAT,
-            settings=run["settings"],
-            key=run["key"],
+            settings=saved["settings"],
+            key=saved["key"],
             complete=not missing,
             trials_expected=len(settings.points) * settings.seeds,
             trials=len(rows),
@@ -412,7 +382,7 @@ def write_outputs(
             conditions=summary,
         )
     )
-    atomic_write_json(out / "summary.json", result)
+    atomic_write_json(run.path / "summary.json", result)
     return result
 
 
@@ -420,53 +390,77 @@ def run_sweep(
     settings: SweepSettings,
     out,
     *,
+    resume: bool = False,
     batch_size: int = 64,
     chunk_seconds: float = 5.0,
     check: int = 0,
     x: str | None = None,
-    progress: Callable[[dict], None] | None = None,
+    console: Console | None = None,
     stop_after_batches: int | None = None,
     warn: Callable[[str], None] = warn_stderr,
-    on_start: Callable[[int, int], None] | None = None,
 ) -> dict:
-    """Run a sweep in folder ``out`` (created if needed) and write its tables and figure.
+    """Run a sweep in folder ``out`` (created if needed) on the study engine (``engine.run``)
+    and write its tables and figure (``write_outputs``).
 
-    Holds ``out``'s ``RunLock`` throughout; a folder holding a sweep with other settings
-    is refused (one line naming the differences); trials with a valid record are reused,
-    others (missing, truncated, altered, foreign: named in a warning) are computed.
-    ``check`` > 0 re-runs that many trials per static group at 4x the substeps and puts
-    the observed maximum relative ``phi_T`` error into ``summary.json``. Returns the
-    ``summary.json`` contents plus ``computed`` (ids of the trials run now). ``on_start``
-    is called as ``on_start(trials_on_disk, trials_to_run)`` once the folder is checked,
-    before any computation (by process 0 only, in a ``jax.distributed`` job).
+    Holds ``out``'s lock throughout; a folder holding a sweep with other settings is refused
+    (one line naming the differences); trials with a valid record are reused, others
+    (missing, truncated, altered, foreign: named in a warning) are computed. ``check`` > 0
+    re-runs that many trials per static group at 4x the substeps and puts the observed
+    maximum relative ``phi_T`` error into ``summary.json``. Returns the ``summary.json``
+    contents plus ``computed`` (ids of the trials run now; in a ``jax.distributed`` job the
+    processes other than 0 get only ``computed``). ``console`` (``study.console``) says what
+    runs where and shows the progress (default quiet).
     """
     settings.validate()
     if x is not None and x not in known_settings():
         raise ValueError(f"cannot plot against {x!r}: not a setting; known: {', '.join(known_settings())}")
     if batch_size < 1:
         raise ValueError(f"batch_size must be >= 1, got {batch_size}")
-    out = pathlib.Path(out)
     if check > 0 and distributed.is_distributed():
         raise ValueError("check re-runs trials on one process: run it without the distributed options")
-    # In a jax.distributed job only process 0 touches the folder; every process gets its
-    # list of trials to run, so all run the same batches in the same order.
-    with engine.open_study(settings, out, warn=warn) as (done, todo):
-        if on_start is not None and distributed.is_writer():
-            on_start(len(done), len(todo))
-        computed = engine.run_trials(
-            settings,
-            out,
-            todo,
-            batch_size=batch_size,
-            chunk_seconds=chunk_seconds,
-            progress=progress,
-            stop_after_batches=stop_after_batches,
+
+    console = Console(quiet=True) if console is None else console
+
+    def header(on_disk: int, to_run: int) -> str:
+        return (
+            f"{len(settings.points)} point(s) x {settings.seeds} seed(s), {settings.method} with "
+            f"{settings.substeps} substeps -> {out} ({on_disk} trials on disk, {to_run} to run)"
         )
-        if not distributed.is_writer():
-            return dict(computed=computed)
+
+    def finish(run: StudyRun, outcome) -> dict:
+        console.end(len(outcome.computed))
         report = None
         if check > 0:
-            rows, _ = collect(settings, out, warn=lambda _: None)
+            rows, _ = collect(settings, run, warn=lambda _: None)
             report = numerics_check(settings, rows, check) if rows else None
-        result = write_outputs(settings, out, check=report, x=x, warn=lambda _: None)
-    return result | dict(computed=computed)
+        return write_outputs(settings, run, check=report, x=x, warn=lambda _: None)
+
+    outcome = engine.run(
+        settings,
+        out,
+        resume=resume,
+        batch_size=batch_size,
+        chunk_seconds=chunk_seconds,
+        progress=console.progress,
+        on_start=console.starter(header),
+        finish=finish,
+        warn=warn,
+        stop_after_batches=stop_after_batches,
+    )
+    return (outcome.finished or {}) | dict(computed=outcome.computed)
+
+
+def summary_lines(result: dict, out, seconds: float) -> list[str]:
+    """What a script says when a sweep is done: the trials run, the diverged ones, the files,
+    and the numerics check if one ran."""
+    lines = [
+        f"done in {seconds:.1f} s: {len(result['computed'])} trial(s) run, {len(result['diverged'])} diverged (left "
+        f"out of the summary); {out}/trials.csv, summary.csv, {result['figure']}"
+    ]
+    chk = result.get("numerics_check")
+    if chk:
+        lines.append(
+            f"numerics check: {chk['trials_checked']} trial(s) at {chk['refined_substeps']} substeps, "
+            f"max relative phi_T error {chk['max_rel_error']}"
+        )
+    return lines

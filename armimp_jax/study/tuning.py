@@ -1,9 +1,10 @@
-"""Saving and resuming a tuning run: ``save_state`` writes a ``TuneState`` atomically as one
-checked record together with the settings that produced it (``config_settings`` plus the
-caller's description of the training batch), and ``load_state`` refuses a file that is
-torn, altered, or was saved with other settings. The tuning itself (parameterisation,
-loss, gradients, the optimiser loop) is pure JAX in ``armimp_jax._identification.tune``,
-re-exported here; the paper's experiment is ``armimp_jax.paper.tune``.
+"""The tuner on disk: a ``TuneState`` as one checked record (``state_arrays``; ``save_state``
+writes it atomically with the settings that produced it, ``config_settings`` plus the
+caller's description of the training batch; ``load_state`` refuses a file that is torn,
+altered, or was saved with other settings). The tuning itself (parameterisation, loss,
+gradients, the optimiser's steps) is pure JAX in ``armimp_jax._identification.tuner``,
+re-exported here; the paper's experiment, a specification of the study engine with one
+record per iteration, is ``armimp_jax.paper.mhat_experiment``.
 """
 
 from __future__ import annotations
@@ -15,18 +16,22 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from .._identification.tune import (
+from .._identification.tuner import (
     MAX_START_SHRINKS,
     PARAMETERISATIONS,
     History,
     LossAux,
+    Trainer,
     TuneConfig,
     TuneState,
     batch_loss,
     config_settings,
+    make_trainer,
     mhat_from_theta,
     n_parameters,
     place_batch,
+    start_state,
+    step_state,
     theta_from_mhat,
     trial_loss,
     tune,
@@ -40,27 +45,31 @@ __all__ = [
     "PARAMETERISATIONS",
     "History",
     "LossAux",
+    "Trainer",
     "TuneConfig",
     "TuneState",
     "batch_loss",
     "config_settings",
+    "make_trainer",
     "mhat_from_theta",
     "n_parameters",
     "place_batch",
+    "start_state",
+    "step_state",
     "theta_from_mhat",
     "trial_loss",
     "tune",
     "value_and_grad_fn",
     "with_mhat",
+    "state_arrays",
+    "state_from_arrays",
     "save_state",
     "load_state",
 ]
 
 
-def save_state(path: pathlib.Path, state: TuneState, settings: dict, *, meta: dict | None = None) -> str:
-    """Save ``state`` atomically as one checked record (``armimp_jax.study.results``) with the
-    ``settings`` that produced it (``config_settings`` plus the caller's description of the
-    training problem); returns their key. ``meta``: further JSON-able notes."""
+def state_arrays(state: TuneState) -> dict:
+    """``state`` as the named arrays of a record, and the notes of its meta."""
     arrays = dict(
         theta=np.asarray(state.theta),
         grad=np.asarray(state.grad),
@@ -71,16 +80,27 @@ def save_state(path: pathlib.Path, state: TuneState, settings: dict, *, meta: di
         **{f"opt_state.{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(state.opt_state))},
         **{f"history.{k}": v for k, v in state.history._asdict().items()},
     )
-    notes = dict(iteration=state.iteration, value=state.value, rejected=state.rejected) | dict(meta or {})
-    return save_record(path, settings=settings, arrays=arrays, meta=notes)
+    return arrays, dict(iteration=state.iteration, value=state.value, rejected=state.rejected)
+
+
+def save_state(path: pathlib.Path, state: TuneState, settings: dict, *, meta: dict | None = None) -> str:
+    """Save ``state`` atomically as one checked record (``armimp_jax.study.results``) with the
+    ``settings`` that produced it (``config_settings`` plus the caller's description of the
+    training problem); returns their key. ``meta``: further JSON-able notes."""
+    arrays, notes = state_arrays(state)
+    return save_record(path, settings=settings, arrays=arrays, meta=notes | dict(meta or {}))
 
 
 def load_state(path: pathlib.Path, settings: dict, config: TuneConfig) -> TuneState:
     """The ``TuneState`` saved in ``path``, checked: a ``ResultsError`` names the file when it
     is missing, truncated or altered, or was saved with other ``settings`` (the message
     lists the differences)."""
-    rec = load_record(path, settings=settings)
-    a = rec.arrays
+    return state_from_arrays(load_record(path, settings=settings).arrays, config, where=str(path))
+
+
+def state_from_arrays(a: dict, config: TuneConfig, *, where: str) -> TuneState:
+    """The ``TuneState`` of a record's arrays (``state_arrays``); a ``ResultsError`` naming
+    ``where`` when they hold another optimiser's state."""
     try:
         theta = jnp.asarray(a["theta"])
         template = optax.adam(config.learning_rate).init(theta)
@@ -100,4 +120,4 @@ def load_state(path: pathlib.Path, settings: dict, config: TuneConfig) -> TuneSt
             history=history,
         )
     except KeyError as err:
-        raise ResultsError(f"{path}: not a tuning state of this config ({err.args[0]})") from None
+        raise ResultsError(f"{where}: not a tuning state of this config ({err.args[0]})") from None

@@ -1,6 +1,6 @@
 """Gradient-based tuning of a controller gain (IMBIC's ``Mhat``): parameterisation, loss,
 gradients, and an optimiser loop with a divergence guard. The paper's experiment (its
-training and held-out batches) is ``armimp_jax.paper.tune``.
+training and held-out batches) is ``armimp_jax.paper.mhat_experiment``.
 
 ``phi_T`` is differentiated through the whole pipeline (RK4 scan -> Welch -> ``Z`` ->
 ``phi_T``) with respect to ``Mhat``. ``Mhat`` is parameterised so it is always symmetric
@@ -19,11 +19,14 @@ and are sharded over the devices (``place_batch``: one per core after ``runtime.
 ``tune`` runs optax with a divergence guard: a step that lands on an ``Mhat`` whose
 simulation diverges (flag, NaN or inf) is rejected, the step size is halved, and the
 rejection is logged; an unstable *start* is shrunk towards small ``Mhat`` (which
-time-delay estimation tolerates) until it is stable.
+time-delay estimation tolerates) until it is stable. Its pieces are the optimiser's
+``make_trainer`` (what a run holds fixed), ``start_state`` and ``step_state`` (one step, the
+guard included): ``tune`` drives them in memory, the study engine one iteration per record
+(``paper.mhat_experiment``).
 
 The run's state is a ``TuneState`` (a NamedTuple pytree: ``theta``, Adam's state, the
 gradient, counters, and a ``History`` of arrays). Pure JAX, no files: saving and resuming
-it is ``armimp_jax.study.tune``.
+it is ``armimp_jax.study.tuning``.
 """
 
 from __future__ import annotations
@@ -324,10 +327,10 @@ def tune(
             f"tune: the state has {np.shape(state.theta)[0]} parameters; parameterisation "
             f"{config.parameterisation!r} has {n_theta}"
         )
-    trainer = _trainer(params, f_delta, welch, config, mesh, log)
+    trainer = make_trainer(params, f_delta, welch, config, mesh, log)
     opt = optax.adam(config.learning_rate)
     if state is None:
-        state = _start(trainer, opt, theta0, log)
+        state = start_state(trainer, opt, theta0, log)
         log(state.history.record(-1))
         if on_iteration is not None:
             on_iteration(state)
@@ -335,14 +338,14 @@ def tune(
         if state.step_scale < config.min_step_scale:
             log(dict(event="stopping: step scale below minimum"))
             break
-        state = _step(trainer, opt, state, evaluate, eval_every)
+        state = step_state(trainer, opt, state, evaluate, eval_every)
         log(state.history.record(-1))
         if on_iteration is not None:
             on_iteration(state)
     return state
 
 
-class _Trainer(NamedTuple):
+class Trainer(NamedTuple):
     """What a tuning run holds fixed: the jitted loss value and gradient ``vg``, the placed
     training batch, the sharding ``theta`` is replicated with (None: unsharded), the batch
     size and the configuration."""
@@ -355,7 +358,7 @@ class _Trainer(NamedTuple):
     config: TuneConfig
 
 
-def _trainer(params, f_delta, welch, config: TuneConfig, mesh, log) -> _Trainer:
+def make_trainer(params, f_delta, welch, config: TuneConfig, mesh, log) -> Trainer:
     params, f_delta, placed = place_batch(params, f_delta, mesh=mesh)
     n_trials = int(params.q0.shape[0])
     log(dict(event="training batch", trials=n_trials, devices=1 if placed is None else placed.size))
@@ -369,10 +372,10 @@ def _trainer(params, f_delta, welch, config: TuneConfig, mesh, log) -> _Trainer:
         mode=config.mode,
         numerics=config.numerics,
     )
-    return _Trainer(vg, params, f_delta, replicated, n_trials, config)
+    return Trainer(vg, params, f_delta, replicated, n_trials, config)
 
 
-def _evaluate(trainer: _Trainer, theta):
+def _evaluate(trainer: Trainer, theta):
     """``(sound, loss, grad, aux, seconds)`` of the training batch at ``theta``; sound: finite
     and no trial diverged."""
     t0 = time.perf_counter()
@@ -384,11 +387,11 @@ def _evaluate(trainer: _Trainer, theta):
     return ok, float(value), grad, aux, time.perf_counter() - t0
 
 
-def _mhat(trainer: _Trainer, theta) -> np.ndarray:
+def _mhat(trainer: Trainer, theta) -> np.ndarray:
     return np.asarray(mhat_from_theta(theta, trainer.config.parameterisation))
 
 
-def _accepted_row(trainer: _Trainer, iteration, theta, value, grad, aux, scale, dt, ev=None) -> dict:
+def _accepted_row(trainer: Trainer, iteration, theta, value, grad, aux, scale, dt, ev=None) -> dict:
     """The ``History`` row of an accepted point (``ev``: its held-out evaluation, if run)."""
     return dict(
         iteration=iteration,
@@ -403,7 +406,7 @@ def _accepted_row(trainer: _Trainer, iteration, theta, value, grad, aux, scale, 
     )
 
 
-def _start(trainer: _Trainer, opt, theta0, log) -> TuneState:
+def start_state(trainer: Trainer, opt, theta0, log) -> TuneState:
     """The run's first state at ``theta0``, shrunk towards small ``Mhat`` (stable for TDE)
     while its training trials diverge."""
     theta = jnp.asarray(theta0, dtype=jnp.float64)
@@ -424,7 +427,7 @@ def _start(trainer: _Trainer, opt, theta0, log) -> TuneState:
     return TuneState(theta, opt.init(theta), grad, value, 0, 1.0, 0, history)
 
 
-def _step(trainer: _Trainer, opt, state: TuneState, evaluate, eval_every: int) -> TuneState:
+def step_state(trainer: Trainer, opt, state: TuneState, evaluate, eval_every: int) -> TuneState:
     """One Adam step, scaled by the guard's step scale: accepted (the scale grows by 1.5, to
     at most 1) or, if the training trials diverge or give non-finite values, rejected (the
     scale halves)."""

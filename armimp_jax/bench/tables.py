@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from _bench_run import markdown_head, markdown_table
-
 import armimp_jax as aj
+
+from .timing import markdown_head, markdown_table
 
 
 def markdown_unrolling(rows, seconds, substeps, repeats):
@@ -22,9 +22,9 @@ def markdown_unrolling(rows, seconds, substeps, repeats):
 
 
 HOW = {  # the processes of --library-path, in words
-    "library": "library: `import armimp_jax`, float64 only",
+    "library": "library: the README's `aj.runtime.configure()` (one device)",
     "configured": "configured: `runtime.configure(host_devices=1)`",
-    "plain": "plain XLA: `ARMIMP_JAX_XLA_DEFAULTS=0`, float64 only",
+    "plain": "plain XLA: float64 only, nothing configured",
 }
 
 

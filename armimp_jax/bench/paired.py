@@ -8,7 +8,7 @@ import json
 import statistics
 import sys
 
-from _bench_run import run_children
+from .timing import run_children
 
 SETUPS = ("library", "configured", "plain")  # the set-ups --library-path compares, a child each
 LIBRARY_BATCH = 24  # trials of --library-path
@@ -84,10 +84,10 @@ def library_path(script, caller_env, seconds, substeps, repeats):
     """``simulate_batch`` on one device in three child processes (library, configured, plain
     XLA) started from the caller's environment ``caller_env``, compiled once each, timed in
     alternation (so the host's drift hits all alike)."""
-    base = {k: v for k, v in caller_env.items() if k != "ARMIMP_JAX_XLA_DEFAULTS"}
+    base = dict(caller_env)
     base["XLA_FLAGS"] = _strip_device_count(caller_env.get("XLA_FLAGS", ""))
-    base["ARMIMP_JAX_CPU_DEVICES"] = "1"  # one device each (the library's own default is one per core)
-    envs = dict(library=base, configured=base, plain=dict(base, ARMIMP_JAX_XLA_DEFAULTS="0"))
+    base["ARMIMP_JAX_CPU_DEVICES"] = "1"  # one device each (configure's own default is one per core)
+    envs = dict(library=base, configured=base, plain=base)
     cmd = [sys.executable, script, "--seconds", str(seconds), "--substeps", str(substeps), "--library-child"]
     specs = {setup: (cmd + [setup], envs[setup]) for setup in SETUPS}
     ready, times = run_children(specs, repeats, 1, what="--library-path")

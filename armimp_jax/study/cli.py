@@ -1,0 +1,84 @@
+"""What the scripts in ``sweeps/`` share: one-line errors, the parser, the solvers' names and
+the many-process options. Importing it imports no JAX (so ``--help`` and bad options answer
+at once); the library is imported inside the functions that need it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import sys
+
+# The solvers' names, as ``Numerics.method`` and saved run settings spell them (spelled out
+# here so that --help needs no JAX; tests/test_bench_helpers.py holds them to the library's).
+METHODS = ("rk4", "ark3", "ark4", "gark4")
+Z95 = 1.959963984540054  # the two-sided 95% normal quantile
+
+
+def error_line(message: str, prog: str) -> int:
+    """Write one line ``PROG: error: MESSAGE`` on stderr; return exit status 2 (for a ``main``
+    that returns its status)."""
+    sys.stderr.write(f"{prog}: error: {message}\n")
+    return 2
+
+
+def fail(message: str, prog: str):
+    """One line ``PROG: error: MESSAGE`` on stderr and exit status 2 (no traceback)."""
+    sys.exit(error_line(message, prog))
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (``PROG: error: ...``, exit status 2), under the parser's
+    own ``prog``; the description is printed as written (``RawDescriptionHelpFormatter``)."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", argparse.RawDescriptionHelpFormatter)
+        super().__init__(*args, **kwargs)
+
+    def error(self, message):
+        fail(message, self.prog)
+
+
+def solver(method: str, *, kernel: str = "fast"):
+    """The solver named ``method`` (one of ``METHODS``) with RK4's ``kernel`` (or the kernel
+    the others accept)."""
+    from .._solver.ark import ARK3, ARK4
+    from .._solver.graded import GradedARK4
+    from .._solver.rk4 import RK4
+
+    return dict(zip(METHODS, (RK4, ARK3, ARK4, GradedARK4)))[method](kernel=kernel)
+
+
+def parse_cases(text: str, prog: str, example: str) -> list[tuple[str, float]]:
+    """``--cases`` as ``[(controller, tau_c [N m]), ...]`` from ``"pd:0.3,imbic:1"``; one line
+    (showing ``example``) and exit status 2 when it does not read so."""
+    try:
+        return [(c.split(":")[0], float(c.split(":")[1])) for c in text.split(",")]
+    except (IndexError, ValueError):
+        fail(f"--cases must look like {example}; got {text!r}", prog)
+
+
+def distributed_options():
+    """``armimp_jax.study.distributed``, for its option helpers (``add_arguments``,
+    ``check_arguments``): they need no JAX (the module imports it only to start a job)."""
+    from . import distributed
+
+    return distributed
+
+
+def script(prog: str):
+    """Decorate a script's ``main(argv=None) -> status``: a ``ValueError`` it raises (a bad
+    setting, a refused folder) becomes one line ``PROG: error: ...`` and exit status 2, with
+    no traceback."""
+
+    def wrap(main):
+        @functools.wraps(main)
+        def guarded(argv=None):
+            try:
+                return main(argv)
+            except ValueError as err:
+                fail(str(err), prog)
+
+        return guarded
+
+    return wrap
