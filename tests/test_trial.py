@@ -171,10 +171,7 @@ def test_ideal_sensors_are_bitwise_ideal_and_pd_motion_ignores_force_noise():
     lag1 = np.mean(noise[:, 1:] * noise[:, :-1]) / np.mean(noise**2)
     assert abs(lag1) < 0.1  # white
     assert abs(np.corrcoef(noise[0, :, 0], noise[1, :, 0])[0, 1]) < 0.15  # independent keys
-    again = jax.jit(
-        jax.vmap(lambda t, f, k: aj.simulate(t, f, key=k, numerics=aj.Numerics(solver=aj.RK4(), substeps=5)))
-    )(noisy, fd, keys)
-    assert tree_equal(again, n)  # same key, same noise
+    # (the same key gives the same noise in another compilation and process: tests/test_determinism.py)
 
 
 def test_encoder_quantisation_and_velocity_noise():
