@@ -1,3 +1,6 @@
+import os
+import pathlib
+
 import jax
 import numpy as np
 import scipy.signal
@@ -29,3 +32,14 @@ def zoh_response(m, b, k, fd, period):
         out.append(s[:2].copy())
         s = ad @ s + bd @ f
     return np.array(out)
+
+
+def env_without_jax(folder: pathlib.Path) -> dict:
+    """The environment of a process in which ``import jax`` fails (a stand-in package first on
+    ``PYTHONPATH``): a script that answers in it parsed its options before importing JAX. No
+    clock is read, so a loaded host cannot fail it."""
+    (folder / "jax").mkdir(exist_ok=True)
+    (folder / "jax" / "__init__.py").write_text("raise ImportError('jax imported before the options were parsed')\n")
+    return dict(
+        os.environ, PYTHONPATH=os.pathsep.join([str(folder), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    )

@@ -234,9 +234,11 @@ def test_each_acquisition_model_is_recovered_to_round_off(acquisition):
     np.testing.assert_allclose(fit.delay, 0.7e-3 if acquisition == "delay" else 0.0, rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(fit.impedance(F, acquisition=acquisition, period=PERIOD), z, rtol=1e-9)
     np.testing.assert_allclose(fit.vaf, 100.0, rtol=1e-12)
-    if acquisition != "plain":  # the plain model cannot absorb the lag or the delay: B takes it
-        plain = textbook(jnp.asarray(z), F)
-        assert np.abs(np.diagonal(plain.damping / B - 1)).max() > (0.05 if acquisition != "interval_mean" else -1)
+    plain = textbook(jnp.asarray(z), F)
+    if acquisition in ("instant", "delay"):  # the plain model cannot absorb the lag or the delay: B takes it
+        assert np.abs(np.diagonal(plain.damping / B - 1)).max() > 0.05
+    else:  # interval means obey the plain model itself (docs/estimation.md section 2)
+        np.testing.assert_allclose(plain.damping, B, rtol=1e-9, atol=1e-9 * np.abs(B).max())
 
 
 ARM = aj.Arm(  # the README's quick-start arm
@@ -265,18 +267,18 @@ def noise_free_records():
 )
 def test_noise_free_simulation_gives_the_arm_at_each_acquisition(noise_free_records, data, acquisition):
     """Noise-free, frictionless: each acquisition's model recovers the diagonals of M, B, K
-    within 2% (measured: <= 1%, the rest is Welch leakage); the plain model on instant
-    samples puts the hold's half-sample lag into B (measured +35%)."""
+    within 1% (docs/estimation.md; measured at most 0.96%, K_yy: Welch leakage); the plain
+    model on instant samples puts the hold's half-sample lag into B (+35%)."""
     fit = aj.fit_impedance(noise_free_records[data], acquisition=acquisition, se="spectral")
     rel = {
         p: np.diagonal(np.asarray(getattr(fit, p)) / np.asarray(getattr(ARM, p)) - 1)
         for p in ("mass", "damping", "stiffness")
     }
     if acquisition == "plain":
-        assert np.all(rel["damping"] > 0.2), rel
+        assert np.all((rel["damping"] > 0.33) & (rel["damping"] < 0.37)), rel  # measured +34.8%, +35.0%
     else:
         for p, r in rel.items():
-            assert np.all(np.abs(r) < 0.02), (p, r)
+            assert np.all(np.abs(r) < 0.01), (p, r)
 
 
 def test_fitted_delay_finds_the_half_sample_lag_of_instant_acquisition(noise_free_records):
@@ -285,7 +287,7 @@ def test_fitted_delay_finds_the_half_sample_lag_of_instant_acquisition(noise_fre
     for data, expected in (("instant", 0.5e-3), ("interval_mean", 0.0)):
         fit = aj.fit_impedance(noise_free_records[data], acquisition="delay", se="spectral")
         assert abs(float(fit.delay) - expected) < 0.05e-3, (data, float(fit.delay))
-        assert np.all(np.abs(np.diagonal(np.asarray(fit.mass) / np.asarray(ARM.mass) - 1)) < 0.02)
+        assert np.all(np.abs(np.diagonal(np.asarray(fit.mass) / np.asarray(ARM.mass) - 1)) < 0.01)
 
 
 # A linear 2x2 system observed through a Welch average: the inputs drive x, F_h = Z x + noise

@@ -1,5 +1,7 @@
 """LuGre: steady sliding friction, pre-sliding stiffness, and the exact zero of level 0."""
 
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -9,15 +11,28 @@ import armimp_jax as aj
 from armimp_jax import paper
 from armimp_jax._model.friction import steady_state_friction, stribeck
 
+# The paper's Table 1 (docs/model.md section 4), written out here: (tau_c, tau_s) [N m] per
+# level; sigma0 = 1e5 N m/rad, sigma1 = sqrt(1e5) N m s/rad, sigma2 = 0.5 N m s/rad, v_s = 1e-3 rad/s.
+TABLE_1 = {1: (1.0, 1.5), 2: (4.0, 6.0)}
+SIGMA0, SIGMA1, SIGMA2, V_S = 1e5, math.sqrt(1e5), 0.5, 1e-3
+
+
+def g_of(v, level):
+    """The Stribeck curve from its formula: ``g(v) = tau_c + (tau_s - tau_c) exp(-(v / v_s)^2)``."""
+    tau_c, tau_s = TABLE_1[level]
+    return tau_c + (tau_s - tau_c) * math.exp(-((v / V_S) ** 2))
+
 
 @pytest.mark.parametrize("level", [1, 2])
 @pytest.mark.parametrize("v", [-0.2, -2e-3, 5e-4, 0.05])
 def test_constant_velocity_reaches_the_steady_friction(level, v):
     p = paper.friction(level).joint(0)
+    g = g_of(v, level)
+    np.testing.assert_allclose(float(stribeck(jnp.asarray(v), p)), g, rtol=1e-14)
     v = jnp.asarray(v)
 
     # The bristle ODE relaxes with time constant g(v) / (sigma0 |v|): integrate 40 of them.
-    tau_z = float(stribeck(v, p)) / (float(p.sigma0) * abs(float(v)))
+    tau_z = g / (SIGMA0 * abs(float(v)))
     h = tau_z / 200
 
     def step(z, _):  # RK4 on the bristle ODE at fixed velocity
@@ -33,8 +48,9 @@ def test_constant_velocity_reaches_the_steady_friction(level, v):
 
     z, _ = jax.lax.scan(step, jnp.asarray(0.0), None, length=8000)
     tau, zd = aj.lugre(v, z, p)
-    np.testing.assert_allclose(tau, steady_state_friction(v, p), rtol=1e-9)
-    np.testing.assert_allclose(tau, stribeck(v, p) * np.sign(v) + p.sigma2 * v, rtol=1e-9)
+    # at steady sliding zd = 0, so z = g(v) sign(v) / sigma0 and tau = g(v) sign(v) + sigma2 v
+    np.testing.assert_allclose(tau, g * np.sign(float(v)) + SIGMA2 * float(v), rtol=1e-9)
+    np.testing.assert_allclose(steady_state_friction(v, p), g * np.sign(float(v)) + SIGMA2 * float(v), rtol=1e-14)
     assert abs(float(zd)) < 1e-9 * abs(float(v))
 
 
@@ -52,7 +68,7 @@ def test_small_motions_see_the_bristle_stiffness(level):
         return z + h * zd, aj.lugre(v, z, p)[0]
 
     _, tau = jax.lax.scan(step, jnp.asarray(0.0), jnp.asarray(qd))
-    expected = float(p.sigma0) * q + (float(p.sigma1) + float(p.sigma2)) * qd
+    expected = SIGMA0 * q + (SIGMA1 + SIGMA2) * qd
     np.testing.assert_allclose(tau[1000:], expected[1000:], atol=3e-3 * np.abs(expected).max())
 
 

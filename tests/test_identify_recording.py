@@ -138,9 +138,9 @@ def test_model_route_recovers_the_stiffness_and_writes_finite_results(identified
     for name, entry in result["parameters"].items():
         for field in ("value", "se"):
             assert _finite(entry[field]), (name, field)
-        for index, e in entry["entries"].items():
-            assert e["low95"] < e["value"] < e["high95"], (name, index)
-            assert math.isclose(e["high95"] - e["value"], 1.959963984540054 * e["se"], rel_tol=1e-9)
+        for index, e in entry["entries"].items():  # value +- z_0.975 se, z from the normal quantile
+            assert math.isclose(e["high95"] - e["value"], 1.959963984540054 * e["se"], rel_tol=1e-9), (name, index)
+            assert math.isclose(e["value"] - e["low95"], 1.959963984540054 * e["se"], rel_tol=1e-9), (name, index)
     assert set(result["parameters"]) == set(_config()["identify"]["free"])
     for field in ("cost", "iterations", "draws"):
         assert _finite(result[field])

@@ -33,11 +33,10 @@ def test_scalar_and_per_axis_peaks():
     np.testing.assert_allclose(g[:, 1], f[:, 1], rtol=1e-15)
 
 
-def test_same_key_same_signal_different_keys_differ():
+def test_different_keys_differ():
+    """(The same key gives the same signal in another process: tests/test_determinism.py.)"""
     a = aj.perturbation(jax.random.PRNGKey(7), 4000, 2.25)
-    b = aj.perturbation(jax.random.PRNGKey(7), 4000, 2.25)
     c = aj.perturbation(jax.random.PRNGKey(8), 4000, 2.25)
-    np.testing.assert_array_equal(a, b)
     assert np.abs(a - c).max() > 0.5
     assert abs(np.corrcoef(a[:, 0], a[:, 1])[0, 1]) < 0.2  # the axes are independent
 
@@ -52,10 +51,16 @@ def test_warmup_is_discarded_and_spectrum_rolls_off_above_15_hz():
     assert np.abs(f[:1000]).max() < 1.01 * np.abs(f[1000:]).max()
 
 
-def test_input_coherence_is_reported():
+def test_input_coherence_meets_the_papers_criterion_and_sees_a_shared_input():
+    """The two axes are drawn independently, so their largest coherence over 0-15 Hz stays under
+    the paper's 0.4 (36 segments of 2048 here; over keys 0-299 the largest was 0.36, the median
+    0.18); an axis that copies the other's signal is seen at once."""
     f = aj.perturbation(jax.random.PRNGKey(2), 20000, 2.25)
     c = float(aj.input_coherence(f, nperseg=2048, noverlap=1536))
-    assert 0.0 < c < 1.0
+    assert 0.0 < c < 0.4, c
+    noise = 0.05 * aj.perturbation(jax.random.PRNGKey(3), 20000, 2.25)[:, :1]
+    shared = np.concatenate([f[:, :1], f[:, :1] + noise], axis=1)
+    assert float(aj.input_coherence(shared, nperseg=2048, noverlap=1536)) > 0.99
 
 
 @pytest.mark.parametrize(

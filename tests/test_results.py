@@ -6,7 +6,6 @@ import pathlib
 import socket
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -241,7 +240,5 @@ def test_run_lock_held_by_another_process_and_freed_when_it_ends(tmp_path):
     finally:
         holder.communicate("")
     assert holder.returncode == 0 and not (tmp_path / ".lock").exists()
-    start = time.perf_counter()
-    with RunLock(tmp_path):
+    with RunLock(tmp_path):  # free again: taken at once (a held lock raises, it never waits)
         pass
-    assert time.perf_counter() - start < 1.0

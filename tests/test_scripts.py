@@ -1,5 +1,6 @@
-"""Every script in sweeps/ answers ``--help`` at once (its options are parsed before JAX is
-imported), and numba_baseline.py says what it needs when numba is missing."""
+"""Every script in sweeps/ answers ``--help`` before it imports JAX (its options are parsed
+first: checked in a process where JAX cannot be imported, not with a clock), and
+numba_baseline.py says what it needs when numba is missing."""
 
 import ast
 import io
@@ -7,13 +8,12 @@ import os
 import pathlib
 import subprocess
 import sys
-import time
 
 import pytest
+from helpers import env_without_jax
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPTS = sorted((ROOT / "sweeps").glob("*.py"))
-HELP_LIMIT_S = 3.0  # importing JAX alone takes longer than this on a loaded 2-core host
 
 
 def run(*args, **kwargs):
@@ -21,13 +21,10 @@ def run(*args, **kwargs):
 
 
 @pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: p.name)
-def test_help_is_fast(script):
-    t0 = time.perf_counter()
-    proc = run(script, "--help", timeout=60)
-    wall = time.perf_counter() - t0
-    assert proc.returncode == 0, proc.stderr
+def test_help_answers_before_jax_is_imported(script, tmp_path):
+    proc = run(script, "--help", timeout=120, env=env_without_jax(tmp_path))
+    assert proc.returncode == 0, f"{script.name} --help: {proc.stderr}"
     assert "usage:" in proc.stdout
-    assert wall < HELP_LIMIT_S, f"{script.name} --help took {wall:.1f} s (JAX imported before the options?)"
 
 
 @pytest.mark.parametrize("name", ["reproduce_paper", "tune_mhat", "sweep", "friction_threshold"])

@@ -2,13 +2,11 @@
 sweep's files have always had (empty cells for undefined numbers, floats as Python's repr)."""
 
 import csv
-import importlib.util
 import io
 import math
 
 import numpy as np
 import pandas as pd
-import pytest
 
 from armimp_jax.study import tables
 
@@ -77,7 +75,6 @@ def test_column_types_are_inferred_for_plain_rows(tmp_path):
     assert (tmp_path / "t.csv").read_text() == reference_csv(rs)
 
 
-@pytest.mark.skipif(importlib.util.find_spec("pyarrow") is None, reason="pyarrow not installed")
 def test_parquet_is_written_next_to_the_csv_with_the_same_table(tmp_path):
     frame = tables.table(rows(50), DTYPES)
     written = tables.write_table(frame, tmp_path / "t.csv")

@@ -84,12 +84,12 @@ def test_the_person_pushes_the_arm_and_the_transducer_reads_minus_that():
     acc = np.gradient(xd, 1e-3, axis=0)
     arm = paper.arm(2)
     assert np.abs(fv).max() > 3.0
-    # F_h,k is read just before the update, while F_v,k-1 still acts (measured: within 6e-4 N)
+    # F_h,k is read just before the update, while F_v,k-1 still acts (measured: within 6.2e-4 N)
     passive = acc @ np.asarray(arm.mass).T + xd @ np.asarray(arm.damping).T + dx @ np.asarray(arm.stiffness).T
-    np.testing.assert_allclose((fh[1:] + fv[:-1])[1000:-1], passive[1:][1000:-1], atol=3e-3)
-    # the robot's side (measured within 4e-3 N: its inertia varies with the posture)
+    np.testing.assert_allclose((fh[1:] + fv[:-1])[1000:-1], passive[1:][1000:-1], atol=7e-4)
+    # the robot's side (measured within 4.1e-3 N: its inertia varies with the posture)
     robot = -(250.0 * dx + 4.0 * xd) - acc @ np.asarray(cartesian_inertia(trial.q0)).T
-    np.testing.assert_allclose(fh[1000:-1], robot[1000:-1], atol=0.02)
+    np.testing.assert_allclose(fh[1000:-1], robot[1000:-1], atol=5e-3)
     # and F_v moved it: the arm's passive force is not the transducer's
     assert np.abs(fh - passive).max() > 1.0
 

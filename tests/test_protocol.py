@@ -1,0 +1,94 @@
+"""A lab's protocol (issue 47): the force channel's calibration and a force from the motor torques
+against closed forms written here, several recordings in one identification (postures, the
+robot alone, repeated trials), and the bias a calibration error leaves."""
+
+import jax
+import numpy as np
+import pytest
+
+import armimp_jax as aj
+from armimp_jax import paper
+from armimp_jax._model.robot import cartesian_inertia
+
+# Frictionless loops are not stiff: RK4 at 2 substeps (the suite is compile-bound).
+NUM = aj.Numerics(solver=aj.RK4(), substeps=2)
+F = aj.perturbation(jax.random.key(4), 2000, paper.perturbation_peak(1))
+ARM = ("arm.mass", "arm.damping", "arm.stiffness")
+
+
+def _sim(trial, f=F, key=None):
+    return jax.jit(aj.simulate, static_argnames="numerics")(trial, f, key=key, numerics=NUM)
+
+
+def test_the_recorded_force_channel_has_its_gain_offset_and_delay():
+    plain = aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.NO_FRICTION)
+    sensors = aj.Sensors(force_gain=[1.1, 0.9], force_offset=[0.2, -0.1], force_delay=0.0025)
+    cal = aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.NO_FRICTION, sensors=sensors)
+    fh, fc = np.asarray(_sim(plain).fh), np.asarray(_sim(cal).fh)
+    # 2.5 samples late: half of each neighbour; PD never reads the force, so the motion is the same
+    want = np.array([1.1, 0.9]) * 0.5 * (fh[:-3] + fh[1:-2]) + np.array([0.2, -0.1])
+    np.testing.assert_allclose(fc[3:], want, rtol=0, atol=1e-14)
+    with pytest.raises(ValueError, match="force_delay must be below 0.007 s"):
+        aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.NO_FRICTION, sensors=aj.Sensors(force_delay=0.01))
+
+
+def test_a_force_from_the_motor_torques_is_the_command_less_the_models_inertial_force():
+    model = aj.Robot(inertia=1.1 * np.asarray(aj.MIT_MANUS.inertia))  # the lab's model, 10% off
+    trial = aj.make_trial(aj.IMBIC(), arm=paper.arm(2), friction=aj.NO_FRICTION, sensors=aj.Sensors(force_model=model))
+    sim = _sim(trial)
+    fu, xd, q = (np.asarray(a) for a in (sim.fu, sim.xd, sim.q))
+    inertia = np.asarray(jax.vmap(lambda qq: cartesian_inertia(qq, model))(q[1:]))
+    want = fu[:-1] - np.einsum("kij,kj->ki", inertia, (xd[1:] - xd[:-1]) / trial.period)
+    np.testing.assert_allclose(np.asarray(sim.fh)[1:], want, rtol=1e-12, atol=1e-12)
+
+
+def test_postures_and_the_robot_alone_in_one_identification_recover_every_parameter():
+    """Noise-free: two postures and a robot-alone recording, the robot's inertia shared."""
+    truth_robot = aj.Robot(inertia=1.15 * np.asarray(aj.MIT_MANUS.inertia))
+    recordings = []
+    for loc, arm in ((1, paper.arm(1)), (2, paper.arm(2)), ("alone", aj.no_arm(paper.location_endpoint(2)))):
+        truth = aj.make_trial(aj.PD(), arm=arm, friction=aj.NO_FRICTION, robot=truth_robot)
+        sim = _sim(truth)
+        start_arm = arm if loc == "alone" else aj.Arm(1.1 * arm.mass, arm.damping, 0.9 * arm.stiffness, arm.endpoint)
+        model = aj.make_trial(aj.PD(), arm=start_arm, friction=aj.NO_FRICTION)
+        recordings.append(aj.Recording(model, F, sim.x, sim.fh, group=str(loc)))
+    res = aj.identify(recordings, free=("arm.mass", "arm.stiffness", "robot.inertia"), numerics=NUM)
+    assert res.converged, res.message
+    assert set(res.values) == {"arm.mass@1", "arm.stiffness@1", "arm.mass@2", "arm.stiffness@2", "robot.inertia"}
+    for loc in (1, 2):
+        np.testing.assert_allclose(res.values[f"arm.stiffness@{loc}"], paper.arm(loc).stiffness, rtol=1e-6)
+        np.testing.assert_allclose(res.values[f"arm.mass@{loc}"], paper.arm(loc).mass, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(res.values["robot.inertia"], truth_robot.inertia, rtol=1e-6)
+    assert [r.group for r in res.recordings] == ["1", "2", "alone"]
+
+
+def test_repeated_trials_share_one_binding_and_halve_the_variance():
+    noise = dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(0.3, 2.0))
+    truth = aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.NO_FRICTION, **noise)
+    sims = [_sim(truth, key=jax.random.key(10 + i)) for i in range(2)]
+    kw = dict(free=("arm.stiffness",), numerics=NUM, draws=16, jacobian_draws=4)
+    one = aj.identify(truth, F, sims[0].x, sims[0].fh, **kw)
+    both = aj.identify([aj.Recording(truth, F, s.x, s.fh, group="a") for s in sims], **kw)
+    assert one.converged and both.converged, (one.message, both.message)
+    # the mean of two recordings spreads as one over two; the binding's own MC error adds 1/R
+    ratio = np.asarray(both.se["arm.stiffness"]) / np.asarray(one.se["arm.stiffness"])
+    # each SE rests on its own Jacobian at its own estimate (4 draws): entry by entry within 20%
+    want = np.sqrt((0.5 + 1 / 16) / (1 + 1 / 16))
+    np.testing.assert_allclose(ratio, want, rtol=0.2)
+    np.testing.assert_allclose(ratio.mean(), want, rtol=0.08)
+    assert len(both.recordings) == 2
+
+
+def test_a_force_gain_error_scales_the_arm_row_it_reads():
+    """Under PD (which never reads the force) a model that believes the force channel 1% too
+    strong reads every entry of that axis's row of the arm 1% too small, the other row not."""
+    noise = dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(0.3, 2.0))
+    trial = aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.NO_FRICTION, **noise)
+    s = aj.robot_sensitivity(trial, F, robot=("sensors.force_gain",), numerics=NUM, draws=16, jacobian_draws=4)
+    assert s.robot_labels == ["sensors.force_gain[0]", "sensors.force_gain[1]"]
+    arm = paper.arm(2)
+    values = np.concatenate([np.asarray(getattr(arm, n)).reshape(-1) for n in ("mass", "damping", "stiffness")])
+    row = np.array([lab.split("[")[1][0] == "0" for lab in s.arm_labels])
+    np.testing.assert_allclose(s.bias_per_percent[row, 0], -values[row] / 101, rtol=0.02, atol=1e-3 * values.max())
+    np.testing.assert_allclose(s.bias_per_percent[~row, 0], 0.0, atol=1e-3 * values.max())
+    np.testing.assert_allclose(s.in_se, s.bias_per_percent / s.se[:, None])
