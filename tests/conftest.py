@@ -23,6 +23,14 @@ runtime.use_compilation_cache(runtime.compilation_cache_dir())
 # compiled programs are made once). Its heaviest files go first, so the last file a worker
 # takes is a short one: by worker seconds on a cold cache (docs/performance.md, version 1.1).
 HEAVY_FIRST = (
+    # the statistics tier (pytest -m stats), longest first
+    "test_claims_identify.py",
+    "test_claims_design.py",
+    "test_claims_friction.py",
+    "test_claims_fit.py",
+    "test_claims_readme.py",
+    "test_claims_numerics.py",
+    # the default suite
     "test_identify.py",
     "test_bound.py",
     "test_reproduce.py",

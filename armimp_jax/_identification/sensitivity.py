@@ -165,9 +165,13 @@ def _answer(est, both, model, p, stats, jac, pred, plausible) -> Sensitivity:
     for j, lab in enumerate(robot_labels):
         worst = int(np.argmax(np.abs(in_se[:, j])))
         if abs(in_se[worst, j]) * plausible > 1.0:
+            remedy = (
+                "calibrate the force transducer against a known load"  # the robot alone reads no hand force
+                if lab.startswith("sensors.")
+                else "calibrate it (free it in identify with a robot-alone recording under PD) or know it better"
+            )
             warnings.append(
                 f"a {plausible:g}% error in the robot's {lab} would move {arm_labels[worst]} by "
-                f"{abs(in_se[worst, j]) * plausible:.1f} SE: calibrate it (free it in identify with a robot-alone "
-                "recording) or know it better"
+                f"{abs(in_se[worst, j]) * plausible:.1f} SE: {remedy}"
             )
     return Sensitivity(bias, in_se, arm_labels, robot_labels, se, float(plausible), warnings)
