@@ -143,6 +143,7 @@ def test_bad_options_are_refused_with_the_allowed_choices():
         aj.Numerics(solver=aj.ARK3(), substeps=0)
 
 
+@pytest.mark.slow  # about 14 s cold: a coarse batch against its reference
 def test_check_numerics_reports_the_error_of_a_coarse_batch():
     """The observed error is the difference from a run at 4x the substeps, on an even sample."""
     trials = aj.stack_trials([paper.trial("pd", 1, loc) for loc in (1, 2, 3, 4)])

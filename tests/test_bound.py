@@ -121,6 +121,7 @@ def test_the_bound_is_the_closed_form_of_white_reading_noise():
     np.testing.assert_allclose(got, closed, rtol=0.01)
 
 
+@pytest.mark.slow  # about 27 s cold: the bound at several records
 def test_the_bound_falls_at_least_as_one_over_the_square_root_of_the_record():
     """The same perturbation twice over: the bound falls by sqrt(2) or a little more (the loop's
     start from rest carries less information than its steady state, and weighs less in the

@@ -50,6 +50,7 @@ def test_the_projection_meets_the_drift_limit_and_the_minimum_gains():
     assert np.sqrt(np.mean(np.sum(x**2, axis=1))) == pytest.approx(float(aj.drift(t)), rel=0.2)
 
 
+@pytest.mark.slow  # about 50 s cold: finite differences of the design criterion
 def test_the_criterion_differentiates_in_the_spectrum_and_the_gains():
     """The design's objective (worst log relative SE bound, the signal scaled to the displacement
     limit) against central differences in a knot and in the stiffness."""

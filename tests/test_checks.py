@@ -40,6 +40,7 @@ def test_one_bad_lane_of_a_vmap_raises_and_good_values_pass_unchanged():
     assert np.array_equal(good, [run(0.1), run(0.3)])
 
 
+@pytest.mark.slow  # about 15 s cold: gradients through the checked paths
 def test_gradients_pass_through_the_checks():
     def loss(mass_scale, *, traced):
         arm = paper.arm(1)

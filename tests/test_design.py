@@ -266,6 +266,7 @@ def test_a_bad_record_is_refused_in_one_line_before_any_computation(args, messag
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow  # about 110 s cold: the design script's two-arm bound design end to end
 def test_design_json_is_what_crlb_gives_on_the_controller_and_the_signal_written(tmp_path, capsys):
     """A two-arm design of IMBIC's gains on the bound, written at another record than its own:
     every arm's bound minutes in design.json are ``crlb`` on the trial its controller record

@@ -105,6 +105,7 @@ def test_step_sizes_fill_the_period_and_shrink_towards_the_sample():
         assert np.all(np.diff(hs) <= 0) and hs[-1] < 1e-3 / substeps
 
 
+@pytest.mark.slow  # about 24 s cold: the graded step's gradients (test_ark checks the ARK gradients fast)
 def test_gradients_match_finite_differences():
     """Forward and reverse mode through the solver agree with each other and with central
     differences, for an arm stiffness, a mass and the Coulomb torque."""

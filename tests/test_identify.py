@@ -218,6 +218,7 @@ def test_predict_se_is_differentiable_in_the_perturbation():
     np.testing.assert_allclose(slope, fd, rtol=1e-3)
 
 
+@pytest.mark.slow  # about 45 s cold: the efficient statistic's own loop
 def test_the_efficient_statistic_is_exact_on_its_own_loop_and_finds_the_arm():
     """On the linear loop's own noise-free response the statistic returns its reference to
     round-off; from a generic start the linear fit of a noisy PD recording lands within a few

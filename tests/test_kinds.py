@@ -86,6 +86,7 @@ def test_the_toy_kinds_simulate_under_every_integrator_and_batch():
     np.testing.assert_allclose(batch.fh[0], jax.jit(aj.simulate)(trial, F).fh, rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow  # about 60 s cold: crlb and identify compiled for the toy kinds
 def test_the_toy_kinds_have_a_bound_and_identify_through_the_loop():
     truth = _trial(**NOISE)
     bound = aj.crlb(truth, F)

@@ -55,7 +55,9 @@ def test_postures_and_the_robot_alone_in_one_identification_recover_every_parame
         start_arm = arm if loc == "alone" else aj.Arm(1.1 * arm.mass, arm.damping, 0.9 * arm.stiffness, arm.endpoint)
         model = aj.make_trial(aj.PD(), arm=start_arm, friction=aj.NO_FRICTION)
         recordings.append(aj.Recording(model, F, sim.x, sim.fh, group=str(loc)))
-    res = aj.identify(recordings, free=("arm.mass", "arm.stiffness", "robot.inertia"), numerics=NUM)
+    res = aj.identify(
+        recordings, free=("arm.mass", "arm.stiffness", "robot.inertia"), numerics=NUM, draws=8, jacobian_draws=2
+    )
     assert res.converged, res.message
     assert set(res.values) == {"arm.mass@1", "arm.stiffness@1", "arm.mass@2", "arm.stiffness@2", "robot.inertia"}
     for loc in (1, 2):
@@ -65,6 +67,7 @@ def test_postures_and_the_robot_alone_in_one_identification_recover_every_parame
     assert [r.group for r in res.recordings] == ["1", "2", "alone"]
 
 
+@pytest.mark.slow  # about 50 s cold: two identifications at 16 draws
 def test_repeated_trials_share_one_binding_and_halve_the_variance():
     truth = aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.NO_FRICTION, **NOISE)
     sims = [_sim(truth, key=jax.random.key(10 + i)) for i in range(2)]

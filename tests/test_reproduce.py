@@ -210,6 +210,7 @@ def test_fit_metrics_recover_exact_matrices_and_give_nan_for_diverged_trials():
     assert np.isnan(fits[2]["fit_B"]).all() and np.isnan(fits[2]["fit_vaf"])
 
 
+@pytest.mark.slow  # about 13 s cold: every figure drawn again
 def test_replot_redraws_from_saved_results(quick_run):
     out, _ = quick_run
     for name in FIGURES + ["REPORT.md"]:

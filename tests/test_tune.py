@@ -54,6 +54,7 @@ def _per_trial_losses(theta, params, f_delta):
     return losses
 
 
+@pytest.mark.slow  # about 16 s cold: phi's gradient by finite differences (test_trial checks it fast)
 def test_gradient_matches_finite_differences_at_friction_0_and_2(short_batch):
     params, f_delta = short_batch
     theta = tune.theta_from_mhat(0.4 * np.eye(2), "diagonal")
@@ -101,6 +102,7 @@ def test_grad_and_fast_kernels_give_the_same_gradient(short_batch):
     np.testing.assert_allclose(g_g, g_f, rtol=1e-9)
 
 
+@pytest.mark.slow  # about 13 s cold
 @pytest.mark.parametrize("kernel", [pytest.param("fast", marks=pytest.mark.slow), "grad"])
 def test_no_nan_in_the_gradient_at_friction_0(kernel):
     params = aj.stack_trials([presets.trial("imbic", 0, loc) for loc in (1, 3)])
@@ -417,6 +419,7 @@ def test_script_resume_refuses_other_settings_and_a_torn_state_in_one_line(tmp_p
     assert f"(--resume {tmp_path})" in proc.stderr
 
 
+@pytest.mark.slow  # about 30 s cold: a tuning run, interrupted and resumed
 def test_a_tuning_run_resumes_from_its_last_record_to_the_same_numbers(tmp_path, script):
     """An interrupted run (its first iterations recorded) goes on from the last record, and a
     torn record is named and its iteration run again: the same gain as one run through."""
