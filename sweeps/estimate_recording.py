@@ -2,6 +2,7 @@
 
     python sweeps/estimate_recording.py RECORDING --fs HZ --out DIR [Welch and fit options]
     python sweeps/estimate_recording.py RECORDING --fs 1000 --model CONFIG.toml --out DIR
+    python sweeps/estimate_recording.py --fs 1000 --model POOL.toml --out DIR
 
 RECORDING is a CSV file (a header row, one sample per row; delimiter ',' ';' or tab;
 leading '#' lines skipped; extra columns ignored), an NPZ file or a MATLAB MAT-file (v7 or
@@ -56,6 +57,11 @@ not apply. Prints convergence, each parameter as value +- SE (the arm's beside t
 classical answer: the Welch route at its defaults on the same recording) and where the
 fit cannot be trusted; writes DIR/identification.json, DIR/identification.csv, DIR/position.png,
 DIR/residual_spectrum.png, DIR/frf.png and DIR/stiffness_ellipse.png.
+
+Several recordings (postures, repeated trials, the robot alone) in one identification: a
+--model config with a [recordings] section (files, one group per file, the groups recorded
+alone, the shared names) and no RECORDING; each recording's model rests at its first hand
+position. Writes one table: the arm per group, the robot shared (docs/identify_recording.md).
 """
 
 from __future__ import annotations
@@ -84,7 +90,12 @@ def _window(text: str):
 
 def parse(argv):
     ap = Parser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("recording", type=pathlib.Path, help="CSV, NPZ or MAT recording (see above)")
+    ap.add_argument(
+        "recording",
+        type=pathlib.Path,
+        nargs="?",
+        help="CSV, NPZ or MAT recording (see above); none with a --model config that lists its [recordings]",
+    )
     ap.add_argument("--fs", type=float, required=True, metavar="HZ", help="sample rate [Hz] of the recording")
     ap.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR", help="output folder (created)")
     ap.add_argument("--columns", default="", metavar="STD=NAME,...", help="map standard column names to the file's")
@@ -135,6 +146,8 @@ def parse(argv):
     given += ["--lines"] if args.lines else []
     if args.model is not None and given:
         ap.error(f"--model takes its settings from the config; not with the Welch route's {', '.join(given)}")
+    if args.model is None and args.recording is None:
+        ap.error("the Welch route needs a RECORDING")
     if args.friction is not None and not args.friction >= 0:
         ap.error(f"--friction must be >= 0 N m, got {args.friction}")
     return args
@@ -236,6 +249,12 @@ def model_route(args) -> int:
         config = idr.read_identify_config(args.model)
         model, options = idr.build_model(config, where=str(args.model))
         idr.check_rate(args.fs, model)
+        if "recordings" in config:
+            if args.recording is not None:
+                raise ValueError(f"{args.model} lists its recordings in [recordings]: give no RECORDING")
+            return pooled_route(args, config, options)
+        if args.recording is None:
+            raise ValueError(f"{args.model} has no [recordings]: give the RECORDING to identify")
         columns, rec = load(args, recording)
     except ValueError as err:  # IdentifyConfigError and RecordingError included
         return fail(str(err))
@@ -264,6 +283,36 @@ def model_route(args) -> int:
     except OSError as err:
         return fail(f"cannot write to {args.out}: {err.strerror or err}")
     print("\n".join(recording_report.model_report(res, None if classical is None else classical[1], warnings)))
+    print(f"wrote {', '.join(str(p) for p in paths)}")
+    return 0
+
+
+def pooled_route(args, config: dict, options: dict) -> int:
+    """Every recording of the config's [recordings] in one identification (study.identify_pool):
+    one table of the arm per group and the shared robot."""
+    import armimp_jax as aj
+    from armimp_jax.study import identify_pool, recording
+
+    columns = recording.parse_columns(args.columns)
+    try:
+        listed = identify_pool.files(config, args.model)
+        loaded = [(g, recording.load_recording(path, columns=columns)) for path, g in listed]
+        recordings = identify_pool.build_recordings(config, loaded, str(args.model))
+    except ValueError as err:  # ConfigError and RecordingError included
+        return fail(str(err))
+    print(f"{len(recordings)} recordings in {len(set(g for _, g in listed))} groups; identifying ...", flush=True)
+    try:
+        res = aj.identify(recordings, **options, shared=config["recordings"]["shared"], progress=True)
+    except ValueError as err:
+        return fail(str(err))
+    warnings = ([] if res.converged else [f"the fit did not converge ({res.message})"]) + list(res.warnings)
+    settings = dict(recordings=[str(p) for p, _ in listed], columns=columns, fs_hz=args.fs, config_path=str(args.model))
+    settings["config"] = config
+    try:
+        paths = identify_pool.write_results(args.out, res, settings=settings, warnings=warnings)
+    except OSError as err:
+        return fail(f"cannot write to {args.out}: {err.strerror or err}")
+    print("\n".join(identify_pool.report(res, warnings)))
     print(f"wrote {', '.join(str(p) for p in paths)}")
     return 0
 

@@ -241,6 +241,7 @@ def test_the_efficient_statistic_is_exact_on_its_own_loop_and_finds_the_arm():
     assert converged and np.all(np.abs(ref - np.asarray(p)) < 5 * bound), (ref - np.asarray(p)) / bound
 
 
+@pytest.mark.slow  # about 60 s cold: the statistical claim's fast cousin (pytest -m stats asserts it over 50 seeds)
 def test_identify_is_near_the_bound_and_holds_the_truth_on_a_linear_loop():
     """PD without friction, 2 s: the efficient statistic, every estimate within 4 SE, and SEs within
     0.8-1.6 of the Cramér-Rao bound on the diagonals. Not the efficiency claim (0.86-1.10 of the bound

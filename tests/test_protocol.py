@@ -16,6 +16,7 @@ from armimp_jax._model.robot import cartesian_inertia
 NUM = aj.Numerics(solver=aj.RK4(), substeps=2)
 F = aj.perturbation(jax.random.key(4), 2000, paper.perturbation_peak(1))
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
+F_POOL = F[:1024]  # identify's least record: the pooled test's compile, not its length, is the cost
 NOISE = dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(0.3, 2.0))
 
 
@@ -45,6 +46,27 @@ def test_a_force_from_the_motor_torques_is_the_command_less_the_models_inertial_
     np.testing.assert_allclose(np.asarray(sim.fh)[1:], want, rtol=1e-12, atol=1e-12)
 
 
+def test_two_postures_in_one_identification_share_the_robot_and_keep_their_own_arms():
+    """Noise-free: each posture's stiffness its own, the robot's inertia (15% off the model's)
+    one value for both, every entry the truth; one joint covariance over all of them."""
+    truth_robot = aj.Robot(inertia=1.15 * np.asarray(aj.MIT_MANUS.inertia))
+    recordings = []
+    for loc in (1, 2):
+        arm = paper.arm(loc)
+        sim = _sim(aj.make_trial(aj.PD(), arm=arm, friction=aj.NO_FRICTION, robot=truth_robot), F_POOL)
+        start = aj.Arm(arm.mass, arm.damping, 0.9 * arm.stiffness, arm.endpoint)
+        model = aj.make_trial(aj.PD(), arm=start, friction=aj.NO_FRICTION)
+        recordings.append(aj.Recording(model, F_POOL, sim.x, sim.fh, group=str(loc)))
+    res = aj.identify(recordings, free=("arm.stiffness", "robot.inertia"), numerics=NUM, draws=8, jacobian_draws=2)
+    assert res.converged, res.message
+    assert set(res.values) == {"arm.stiffness@1", "arm.stiffness@2", "robot.inertia"}
+    for loc in (1, 2):
+        np.testing.assert_allclose(res.values[f"arm.stiffness@{loc}"], paper.arm(loc).stiffness, rtol=1e-6)
+    np.testing.assert_allclose(res.values["robot.inertia"], truth_robot.inertia, rtol=1e-6)
+    assert np.asarray(res.covariance).shape == (11, 11) and [r.group for r in res.recordings] == ["1", "2"]
+
+
+@pytest.mark.slow  # about 70 s cold: three templates, two layouts (the script's own: test_identify_pool.py, slow)
 def test_postures_and_the_robot_alone_in_one_identification_recover_every_parameter():
     """Noise-free: two postures and a robot-alone recording, the robot's inertia shared."""
     truth_robot = aj.Robot(inertia=1.15 * np.asarray(aj.MIT_MANUS.inertia))

@@ -36,6 +36,7 @@ lab's terms (``diagnosis.py``: joints that stood still), fit quality and the cla
 from __future__ import annotations
 
 import functools
+import math
 import sys
 import time
 from collections.abc import Callable
@@ -307,9 +308,10 @@ def _reporter(progress, t_start):
     if progress is True:
 
         def progress(info):
+            move = info["step_se"]  # no SE without noise: the move is then not in SEs
+            moved = f"largest move {move:.3g} SE, " if math.isfinite(move) else ""
             sys.stderr.write(
-                f"identify: step {info['step']}, mismatch {info['cost']:.4g}, largest move {info['step_se']:.3g} SE, "
-                f"{info['seconds']:.0f} s\n"
+                f"identify: step {info['step']}, mismatch {info['cost']:.4g}, {moved}{info['seconds']:.0f} s\n"
             )
             sys.stderr.flush()
 

@@ -38,6 +38,7 @@ from .._solver.numerics import METHODS, Numerics, named_solver
 from .config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
 from .estimate_recording import analyse, route_settings, settings_record
 from .figures import save_figure
+from .identify_pool import SECTION as RECORDINGS_SECTION
 from .recording import RecordingError
 from .recording_figures import ellipse_figure, frf_figure, position_figure, residual_figure, stiffness_draws
 from .results import atomic_write_json, package_version, to_jsonable
@@ -55,6 +56,7 @@ SECTIONS = {
         "method": ("text", METHODS, IDENTIFY_NUMERICS.method),  # identify's default numerics
         "substeps": ("int", 1, IDENTIFY_NUMERICS.substeps),
     },
+    "recordings": RECORDINGS_SECTION,  # several recordings in one identification (study.identify_pool)
 }
 REQUIRED_SECTIONS = ("controller", "arm", "friction", "identify")
 CHANNELS = ("x", "y", "fh_x", "fh_y")  # identify's whiteness_p order: x1, x2, fh1, fh2

@@ -1,0 +1,146 @@
+"""Several recordings through sweeps/estimate_recording.py --model (armimp_jax.study.identify_pool):
+a config's [recordings] (postures and the robot alone) becomes one Recording each, at the
+recording's own rest position; bad lists get one line; slow: the script's pooled table."""
+
+import contextlib
+import importlib.util
+import io
+import json
+import pathlib
+
+import jax
+import numpy as np
+import pandas as pd
+import pytest
+
+import armimp_jax as aj
+from armimp_jax import presets
+from armimp_jax.study import identify_pool
+from armimp_jax.study import identify_recording as idr
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+_spec = importlib.util.spec_from_file_location("estimate_recording_pool", ROOT / "sweeps" / "estimate_recording.py")
+script = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(script)
+HEADER = "f_delta_x,f_delta_y,x,y,fh_x,fh_y"
+NUM = aj.Numerics(solver=aj.RK4(), substeps=2)
+
+
+def _write(path, f, x, fh):
+    np.savetxt(path, np.column_stack([f, x, fh]), delimiter=",", fmt="%.17g", header=HEADER, comments="")
+    return path
+
+
+def _config(files, groups, alone, free=("arm.stiffness",), shared=None):
+    arm = presets.arm(2)
+    recordings = {"files": files, "groups": groups, "alone": alone}
+    if shared is not None:
+        recordings["shared"] = list(shared)
+    return {
+        "controller": {"type": "pd"},
+        "arm": {
+            "mass": np.asarray(arm.mass).tolist(),
+            "damping": np.asarray(arm.damping).tolist(),
+            "stiffness": (0.8 * np.asarray(arm.stiffness)).tolist(),
+            "endpoint": np.asarray(arm.endpoint).tolist(),
+        },
+        "friction": {"tau_c": 0.0, "tau_s": 0.0, "sigma2": 0.0},  # aj.NO_FRICTION: no viscous term either
+        "identify": {"free": list(free), "draws": 8, "jacobian_draws": 2, "method": "rk4", "substeps": 2},
+        "recordings": recordings,
+    }
+
+
+def _toml(path, config):
+    lines = []
+    for section, table in config.items():
+        lines.append(f"[{section}]")
+        lines += [f"{key} = {json.dumps(value)}" for key, value in table.items()]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _recording(tmp_path, name, endpoint, n=1024):
+    x = np.tile(np.asarray(endpoint), (n, 1))
+    return _write(tmp_path / name, np.zeros((n, 2)), x, np.zeros((n, 2)))
+
+
+def test_each_recording_is_a_model_at_its_own_rest_position_and_the_robot_alone_has_no_arm(tmp_path):
+    ends = {"1": presets.location_endpoint(1), "2": presets.location_endpoint(2)}
+    for g, e in ends.items():
+        _recording(tmp_path, f"p{g}.csv", e)
+    _recording(tmp_path, "alone.csv", ends["2"])
+    path = _toml(tmp_path / "pool.toml", _config(["p1.csv", "p2.csv", "alone.csv"], ["1", "2", "alone"], ["alone"]))
+    config = idr.read_identify_config(path)
+    listed = identify_pool.files(config, path)
+    assert [(p.name, g) for p, g in listed] == [("p1.csv", "1"), ("p2.csv", "2"), ("alone.csv", "alone")]
+    from armimp_jax.study import recording
+
+    loaded = [(g, recording.load_recording(p)) for p, g in listed]
+    recs = identify_pool.build_recordings(config, loaded, str(path))
+    assert [r.group for r in recs] == ["1", "2", "alone"]
+    for r, (g, e) in zip(recs, [("1", ends["1"]), ("2", ends["2"]), ("alone", ends["2"])], strict=True):
+        np.testing.assert_allclose(np.asarray(r.model.x0), np.asarray(e), rtol=0, atol=1e-12)  # through q0
+    np.testing.assert_array_equal(np.asarray(recs[2].model.arm.stiffness), 0.0)
+    np.testing.assert_allclose(np.asarray(recs[0].model.arm.stiffness), 0.8 * np.asarray(presets.arm(2).stiffness))
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (dict(files=[]), r"\[recordings\] files must list at least one recording"),
+        (dict(groups=["1"]), r"groups must name one group per file: 2 files, 1 groups"),
+        (dict(alone=["nobody"]), r"alone names 'nobody', which is no group; groups: a, b"),
+    ],
+)
+def test_a_bad_list_of_recordings_is_refused_in_one_line(tmp_path, change, message):
+    config = _config(["a.csv", "b.csv"], ["a", "b"], [])
+    config["recordings"].update(change)
+    path = _toml(tmp_path / "pool.toml", config)
+    with pytest.raises(ValueError, match=message):
+        identify_pool.files(idr.read_identify_config(path), path)
+
+
+def test_the_script_wants_a_recording_or_a_list_of_them_not_both(tmp_path, capsys):
+    _recording(tmp_path, "a.csv", presets.location_endpoint(2))
+    pooled = _toml(tmp_path / "pool.toml", _config(["a.csv"], ["a"], []))
+    single = _toml(tmp_path / "one.toml", {k: v for k, v in _config(["a.csv"], ["a"], []).items() if k != "recordings"})
+    out = str(tmp_path / "out")
+    assert script.main([str(tmp_path / "a.csv"), "--fs", "1000", "--model", str(pooled), "--out", out]) == 2
+    assert "lists its recordings in [recordings]: give no RECORDING" in capsys.readouterr().err
+    assert script.main(["--fs", "1000", "--model", str(single), "--out", out]) == 2
+    assert "has no [recordings]: give the RECORDING to identify" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow  # about 60 s cold: a pooled identification of three recordings
+def test_the_script_identifies_two_postures_and_the_robot_alone_in_one_table(tmp_path):
+    """Noise-free PD recordings at locations 1 and 2 (each its own stiffness) and of the robot
+    alone, the robot's link inertias 15% above the config's: the table holds each posture's
+    stiffness and one shared inertia, each the truth."""
+    robot = aj.Robot(inertia=1.15 * np.asarray(aj.MIT_MANUS.inertia))
+    f = aj.perturbation(jax.random.key(4), 2000, presets.perturbation_peak(1))
+    a2 = presets.arm(2)  # the config's mass and damping (fixed) at both postures
+    arms = {
+        "1": aj.Arm(a2.mass, a2.damping, presets.arm(1).stiffness, presets.location_endpoint(1)),
+        "2": a2,
+        "alone": aj.no_arm(presets.location_endpoint(2)),
+    }
+    for g, arm in arms.items():
+        sim = aj.simulate(aj.make_trial(aj.PD(), arm=arm, friction=aj.NO_FRICTION, robot=robot), f, numerics=NUM)
+        _write(tmp_path / f"{g}.csv", f, sim.x, sim.fh)
+    config = _config([f"{g}.csv" for g in arms], list(arms), ["alone"], free=("arm.stiffness", "robot.inertia"))
+    path = _toml(tmp_path / "pool.toml", config)
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        code = script.main(["--fs", "1000", "--model", str(path), "--out", str(tmp_path / "out")])
+    assert code == 0, stdout.getvalue()
+    frame = pd.read_csv(tmp_path / "out" / "identification.csv", keep_default_na=False)
+    for g in ("1", "2"):
+        got = frame[(frame.parameter == "arm.stiffness") & (frame.group == g)].value.to_numpy().reshape(2, 2)
+        np.testing.assert_allclose(got, np.asarray(arms[g].stiffness), rtol=1e-5)
+    inertia = frame[frame.parameter == "robot.inertia"]
+    assert list(inertia.group) == ["", "", ""]
+    np.testing.assert_allclose(inertia.value.to_numpy(), np.asarray(robot.inertia), rtol=1e-5)
+    doc = json.loads((tmp_path / "out" / "identification.json").read_text())
+    assert doc["converged"] and [r["group"] for r in doc["recordings"]] == ["1", "2", "alone"]
+    assert "(shared)" in stdout.getvalue() and "(group 2)" in stdout.getvalue()
