@@ -1,3 +1,4 @@
+import json
 import os
 import pathlib
 
@@ -43,3 +44,14 @@ def env_without_jax(folder: pathlib.Path) -> dict:
     return dict(
         os.environ, PYTHONPATH=os.pathsep.join([str(folder), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
     )
+
+
+def write_toml(path, config: dict) -> pathlib.Path:
+    """TOML of ``config``, sections of plain values (JSON numbers, strings and arrays are TOML
+    values too)."""
+    lines = []
+    for section, table in config.items():
+        lines.append(f"[{section}]")
+        lines += [f"{key} = {json.dumps(value)}" for key, value in table.items()]
+    path.write_text("\n".join(lines) + "\n")
+    return path

@@ -12,6 +12,7 @@ import jax
 import numpy as np
 import pandas as pd
 import pytest
+from helpers import write_toml
 
 import armimp_jax as aj
 from armimp_jax import presets
@@ -50,15 +51,6 @@ def _config(files, groups, alone, free=("arm.stiffness",), shared=None):
     }
 
 
-def _toml(path, config):
-    lines = []
-    for section, table in config.items():
-        lines.append(f"[{section}]")
-        lines += [f"{key} = {json.dumps(value)}" for key, value in table.items()]
-    path.write_text("\n".join(lines) + "\n")
-    return path
-
-
 def _recording(tmp_path, name, endpoint, n=1024):
     x = np.tile(np.asarray(endpoint), (n, 1))
     return _write(tmp_path / name, np.zeros((n, 2)), x, np.zeros((n, 2)))
@@ -69,7 +61,9 @@ def test_each_recording_is_a_model_at_its_own_rest_position_and_the_robot_alone_
     for g, e in ends.items():
         _recording(tmp_path, f"p{g}.csv", e)
     _recording(tmp_path, "alone.csv", ends["2"])
-    path = _toml(tmp_path / "pool.toml", _config(["p1.csv", "p2.csv", "alone.csv"], ["1", "2", "alone"], ["alone"]))
+    path = write_toml(
+        tmp_path / "pool.toml", _config(["p1.csv", "p2.csv", "alone.csv"], ["1", "2", "alone"], ["alone"])
+    )
     config = idr.read_identify_config(path)
     listed = identify_pool.files(config, path)
     assert [(p.name, g) for p, g in listed] == [("p1.csv", "1"), ("p2.csv", "2"), ("alone.csv", "alone")]
@@ -95,15 +89,17 @@ def test_each_recording_is_a_model_at_its_own_rest_position_and_the_robot_alone_
 def test_a_bad_list_of_recordings_is_refused_in_one_line(tmp_path, change, message):
     config = _config(["a.csv", "b.csv"], ["a", "b"], [])
     config["recordings"].update(change)
-    path = _toml(tmp_path / "pool.toml", config)
+    path = write_toml(tmp_path / "pool.toml", config)
     with pytest.raises(ValueError, match=message):
         identify_pool.files(idr.read_identify_config(path), path)
 
 
 def test_the_script_wants_a_recording_or_a_list_of_them_not_both(tmp_path, capsys):
     _recording(tmp_path, "a.csv", presets.location_endpoint(2))
-    pooled = _toml(tmp_path / "pool.toml", _config(["a.csv"], ["a"], []))
-    single = _toml(tmp_path / "one.toml", {k: v for k, v in _config(["a.csv"], ["a"], []).items() if k != "recordings"})
+    pooled = write_toml(tmp_path / "pool.toml", _config(["a.csv"], ["a"], []))
+    single = write_toml(
+        tmp_path / "one.toml", {k: v for k, v in _config(["a.csv"], ["a"], []).items() if k != "recordings"}
+    )
     out = str(tmp_path / "out")
     assert script.main([str(tmp_path / "a.csv"), "--fs", "1000", "--model", str(pooled), "--out", out]) == 2
     assert "lists its recordings in [recordings]: give no RECORDING" in capsys.readouterr().err
@@ -129,7 +125,7 @@ def test_the_script_identifies_two_postures_and_the_robot_alone_in_one_table(tmp
         sim = aj.simulate(aj.make_trial(aj.PD(), arm=arm, friction=aj.NO_FRICTION, robot=robot), f, numerics=NUM)
         _write(tmp_path / f"{g}.csv", f, sim.x, sim.fh)
     config = _config([f"{g}.csv" for g in arms], list(arms), ["alone"], free=("arm.stiffness", "robot.inertia"))
-    path = _toml(tmp_path / "pool.toml", config)
+    path = write_toml(tmp_path / "pool.toml", config)
     stdout = io.StringIO()
     with contextlib.redirect_stdout(stdout):
         code = script.main(["--fs", "1000", "--model", str(path), "--out", str(tmp_path / "out")])

@@ -15,6 +15,7 @@ import jax
 import numpy as np
 import pandas as pd
 import pytest
+from helpers import write_toml
 
 import armimp_jax as aj
 from armimp_jax import presets
@@ -57,16 +58,6 @@ def _config() -> dict:
     }
 
 
-def write_config(path, config: dict) -> pathlib.Path:
-    """TOML of ``config`` (JSON numbers, strings and arrays are TOML values too)."""
-    lines = []
-    for section, table in config.items():
-        lines.append(f"[{section}]")
-        lines += [f"{key} = {json.dumps(value)}" for key, value in table.items()]
-    path.write_text("\n".join(lines) + "\n")
-    return path
-
-
 @pytest.fixture(scope="module")
 def recording_csv(tmp_path_factory):
     """A 3 s PD recording at location 2 (LuGre 0.8 / 1.2 N m, force noise 0.05 N, 2^18-count
@@ -93,7 +84,7 @@ def recording_csv(tmp_path_factory):
 def identified(recording_csv, tmp_path_factory):
     """One run of the script's model route: ``(exit code, stdout, output folder)``."""
     folder = tmp_path_factory.mktemp("identified")
-    config = write_config(folder / "config.toml", _config())
+    config = write_toml(folder / "config.toml", _config())
     out = folder / "out"
     stdout = io.StringIO()
     with contextlib.redirect_stdout(stdout):
@@ -260,7 +251,7 @@ BAD_CONFIGS = {
 @pytest.mark.parametrize("case", BAD_CONFIGS)
 def test_bad_configs_get_one_line_naming_the_key(case, recording_csv, tmp_path, capsys):
     config, message = BAD_CONFIGS[case]
-    path = write_config(tmp_path / "config.toml", config)
+    path = write_toml(tmp_path / "config.toml", config)
     line = _run_bad([recording_csv, "--fs", "1000", "--model", path], tmp_path, capsys)
     assert re.search(message, line), line
     with pytest.raises(idr.IdentifyConfigError, match=message):
@@ -268,7 +259,7 @@ def test_bad_configs_get_one_line_naming_the_key(case, recording_csv, tmp_path, 
 
 
 def test_bad_files_and_rates_get_one_line(recording_csv, tmp_path, capsys):
-    good = write_config(tmp_path / "good.toml", _config())
+    good = write_toml(tmp_path / "good.toml", _config())
     line = _run_bad([recording_csv, "--fs", "500", "--model", good], tmp_path, capsys)
     assert re.search(r"sample rate 500 Hz is not the simulator's control rate 1000 Hz", line), line
     line = _run_bad([recording_csv, "--fs", "1000", "--model", tmp_path / "nope.toml"], tmp_path, capsys)
@@ -281,7 +272,7 @@ def test_bad_files_and_rates_get_one_line(recording_csv, tmp_path, capsys):
 
 
 def test_welch_options_are_refused_with_the_model_route(recording_csv, tmp_path, capsys):
-    good = write_config(tmp_path / "good.toml", _config())
+    good = write_toml(tmp_path / "good.toml", _config())
     with pytest.raises(SystemExit) as exc:
         script.main([str(recording_csv), "--fs", "1000", "--model", str(good), "--out", "x", "--nperseg", "512"])
     assert exc.value.code == 2
