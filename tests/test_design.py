@@ -421,6 +421,15 @@ def test_the_predicted_record_is_the_designs_own_answer_rounded_up_to_a_second()
     mc = [dict(relative_se_after={"a": 0.2, "b": 0.05}), dict(relative_se_after={"a": 0.1})]
     assert record("monte_carlo", mc) == math.ceil(20.0 * (0.2 * scipy.stats.norm.ppf(0.975) / 0.1) ** 2)
     assert record("bound", [dict(minutes_after=0.01)]) == 20.0  # never below the design's own record
+    # crlb's NaN where the designed loop sticks and slips: one line naming the arm, not a crash
+    stuck = [
+        dict(minutes_after=1.0, label="arm at location 1"),
+        dict(minutes_after=math.nan, label="arm at location 2"),
+    ]
+    with pytest.raises(
+        ValueError, match=r"no Cramér-Rao bound holds for the designed experiment at arm at location 2 "
+    ):
+        record("bound", stuck)
 
 
 def test_the_checked_signal_is_the_design_at_its_record_and_the_family_within_the_limits_beyond():

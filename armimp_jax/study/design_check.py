@@ -51,7 +51,15 @@ def predicted_record(doc: dict, *, design_record: float, precision: float) -> fl
     at least the record the design saw. ``doc`` is ``result_dict``'s."""
     rows = doc["trials"]
     if doc["method"] == "bound":
-        minutes = max(r.get("predicted_minutes", r["minutes_after"]) for r in rows)
+        per_arm = [r.get("predicted_minutes", r["minutes_after"]) for r in rows]
+        lost = [r.get("label", "an arm") for r, m in zip(rows, per_arm, strict=True) if not math.isfinite(m)]
+        if lost:  # crlb's NaN: the designed loop is not near-linear there (stick-slip), so no bound holds
+            raise ValueError(
+                f"design: no Cramér-Rao bound holds for the designed experiment at {', '.join(lost)} (the joints' "
+                "friction makes the hand stick and slip): no record can be predicted on the bound; lower the "
+                "friction or raise the force, or design with method 'monte_carlo' (through the friction)"
+            )
+        minutes = max(per_arm)
     else:
         worst = max(max(r["relative_se_after"].values()) for r in rows)
         minutes = record_minutes(design_record, worst, precision)
