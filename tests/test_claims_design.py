@@ -7,7 +7,7 @@ friction, 30 identifications of 2 minutes per arm) takes hours, so this is a sma
 the same kind, the one ``design_pd_frictionless.toml`` ships (the reference the friction cases
 are set against): PD without friction, the person's force and the sensors' noise of the configs,
 their multisine family and limits, the gains and spectrum designed together on the bound
-(``aj.design(..., method="bound", controller=True)``), one arm (location 2), a 10 s record, 10
+(``aj.design(..., method=aj.CramerRao(controller=True))``), one arm (location 2), a 10 s record, 10
 Adam steps. Then 50 recordings of the designed experiment under new noise, each identified from
 the truth (``aj.identify``, 64 draws), and the spread of the six diagonal entries against the
 design's own prediction at its record (its bound, exact: no draws). Asserted: the RMS over the
@@ -48,9 +48,7 @@ def designed():
         family,
         free=ARM,
         limits=limits,
-        method="bound",
-        controller=True,
-        precision=0.1,
+        method=aj.CramerRao(controller=True, precision=0.1),
         steps=10,
         learning_rate=0.1,
         key=jax.random.key(0),
