@@ -36,6 +36,7 @@ def _rel(a, b):
     return np.abs(a - b).max(axis=(1, 2)) / np.abs(b - b.mean(axis=1, keepdims=True)).max(axis=(1, 2))
 
 
+@pytest.mark.slow  # about 13 s cold (pytest -m stats asserts it on the claim's own terms: four arms, 50 s)
 def test_converges_to_the_stiff_reference_at_every_coulomb_torque():
     """Against ARK4 at 40 substeps: positions to 2e-5 of their range and sampled forces to
     1e-3 at 4 substeps, for Coulomb torques where RK4 at the paper's step diverges; without

@@ -166,6 +166,7 @@ def test_seeds_either_side_of_180_degrees_average_to_180_not_0(figures, tmp_path
         np.testing.assert_allclose(np.abs(y), 180.0, atol=1e-9)
 
 
+@pytest.mark.slow  # about 12 s cold: every figure's layout
 def test_titles_fit_and_legends_cover_no_data(monkeypatch, tmp_path):
     """Every figure as saved: no text beyond the figure's edges, no legend over a plot area."""
     kept, close = [], plt.close

@@ -276,6 +276,7 @@ def test_resume_finishes_exactly_the_recorded_run_and_refuses_other_options(tmp_
     assert results["complete"] and results["missing"] == [] and len(results["trials"]) == 2
 
 
+@pytest.mark.slow  # about 9 s cold (the resume with its refusals stays fast)
 def test_resume_computes_only_missing_trials_with_identical_numbers(tmp_path):
     settings = dataclasses.replace(TINY, locations=(1, 2), perturbations=(1,))
     full, part = tmp_path / "full", tmp_path / "part"
