@@ -309,6 +309,7 @@ def _mc_record(key, extra=0.0, white=0.0):
     return aj.estimate(*back, errors=True, **MC_WELCH)
 
 
+@pytest.mark.slow  # about 12 s cold (pytest -m stats asserts the default fit's coverage over 100 seeds a case)
 def test_spectral_intervals_cover_with_correlated_welch_bins_and_residual_ones_do_not():
     """150 records of 16 s (29 overlapping Hann segments, bins correlated 0.49 with their
     neighbours, noise power rising 900-fold over the band): the residual-based 95%

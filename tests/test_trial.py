@@ -118,7 +118,7 @@ def _fd():
         ("imbic", "mhat"),
         pytest.param("imbic", "kp", marks=pytest.mark.slow),
         pytest.param("pd", "kp", marks=pytest.mark.slow),
-        # d phi_T / d tau_c is checked fast in test_ark.py (ARK3) and test_graded.py (Numerics())
+        # d phi_T / d tau_c is checked fast in test_ark.py (ARK3; test_graded.py's, Numerics(), is slow)
         pytest.param("pd", "tau_c", marks=pytest.mark.slow),
         pytest.param("pd", "sigma1", marks=pytest.mark.slow),
     ],

@@ -126,6 +126,7 @@ def test_parameterisation_is_spd_and_invertible(kind):
         tune.theta_from_mhat(-np.eye(2), "full")
 
 
+@pytest.mark.slow  # about 11 s cold: a tuning run (its divergence guards stay fast)
 def test_short_tuning_run_lowers_the_loss_from_a_poor_start():
     params, f_delta = paper_tune.training_batch((2,), (1,), (0,), seconds=1.6)
     config = tune.TuneConfig(learning_rate=0.3, iterations=4, numerics=NUM)
