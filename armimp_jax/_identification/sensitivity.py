@@ -9,8 +9,8 @@ the estimate moves by
 
 the derivative of the estimate through the binding (``indirect.py``), with the statistics the
 lab's own ``identify`` matches (of the arm alone). ``A_p`` comes from the same noisy draws as
-``identify``'s slope (forward mode through the simulation), the arm's SEs from
-``predict_se`` on those draws. Robot parameters: the link inertias, the friction law's
+``identify``'s slope (forward mode through the simulation), the arm's SEs ``predict_se``'s
+covariance of those same draws and slope. Robot parameters: the link inertias, the friction law's
 ``IDENTIFIABLE`` parameters and the force channel's gain, each by 1% of its value (a parameter
 at zero has no 1%: it is left out, and a force offset or delay has no percentage).
 """
@@ -29,7 +29,7 @@ from .._solver.numerics import Numerics
 from . import indirect
 from . import layout as lay
 from .bound import ARM, has_friction, is_near_linear
-from .predict import check_sampling, check_signal, predict_se
+from .predict import check_sampling, check_signal
 
 DIAGONALS = ("[0,0]", "[1,1]")
 
@@ -107,6 +107,10 @@ def robot_sensitivity(
     free = (free,) if isinstance(free, str) else tuple(free)
     if not free or any(n not in lay.ARM_PARAMETERS for n in free):
         raise ValueError(f"robot_sensitivity: free must name arm matrices ({', '.join(lay.ARM_PARAMETERS)})")
+    if not trial.noisy:
+        raise ValueError(
+            "robot_sensitivity: the trial has no noise (ideal sensors, no voluntary force): no SE to weigh by"
+        )
     robot = tuple(_robot_names(trial) if robot is None else ((robot,) if isinstance(robot, str) else robot))
     if not robot or any(n in lay.ARM_PARAMETERS for n in robot):
         raise ValueError("robot_sensitivity: robot must name the robot's parameters (not the arm's)")
@@ -115,9 +119,6 @@ def robot_sensitivity(
     f = check_signal(trial, f, "robot_sensitivity")
     numerics, draws, jacobian_draws = check_sampling("robot_sensitivity", statistic, numerics, draws, jacobian_draws)
     key = jax.random.key(0) if key is None else key
-    pred = predict_se(
-        trial, f, free=free, statistic=statistic, numerics=numerics, key=key, draws=draws, jacobian_draws=jacobian_draws
-    )
     model = _calibrated(trial, robot)
     p = lay.pack(both, model)
     n_draws, n_jac = indirect.draw_counts(model, draws, jacobian_draws)
@@ -134,7 +135,7 @@ def robot_sensitivity(
     jac, diverged = indirect.binding_jacobian(both, model, p, f, keys[:n_jac], numerics, arm_stat, est)
     if bool(diverged):
         raise ValueError("robot_sensitivity: a noisy simulation of the trial diverged")
-    return _answer(est, both, model, np.asarray(p), np.asarray(stats), np.asarray(jac), pred, plausible)
+    return _answer(est, both, model, np.asarray(p), np.asarray(stats), np.asarray(jac), n_draws, plausible)
 
 
 def _calibrated(trial: Trial, robot) -> Trial:
@@ -144,7 +145,7 @@ def _calibrated(trial: Trial, robot) -> Trial:
     return trial
 
 
-def _answer(est, both, model, p, stats, jac, pred, plausible) -> Sensitivity:
+def _answer(est, both, model, p, stats, jac, n_draws, plausible) -> Sensitivity:
     n = est.size
     w = np.asarray(indirect.weights(jnp.asarray(stats), jnp.asarray(jac[:, :n])))
     a_t, a_p = jac[:, :n], jac[:, n:]
@@ -158,7 +159,8 @@ def _answer(est, both, model, p, stats, jac, pred, plausible) -> Sensitivity:
     per_percent = np.linalg.pinv(d_nat) @ np.diag(0.01 * natural)  # internal move per 1% of each entry
     g = np.asarray(lay.natural_jacobian(est, jnp.asarray(p[:n]), model))
     bias = g @ move @ per_percent
-    se = np.sqrt(np.diag(np.asarray(pred.covariance)))
+    # predict_se's covariance, from the same draws and slope (not a second pass of them)
+    se = np.sqrt(np.diag(g @ np.asarray(indirect.covariance(a_t, stats, n_draws)) @ g.T))
     in_se = bias / se[:, None]
     arm_labels, robot_labels = est.labels(), robot_layout.labels()
     warnings = []
