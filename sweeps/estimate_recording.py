@@ -141,7 +141,16 @@ def parse(argv):
         "stick-slip, as the report says); with instant or delay timing a robot with friction biases M and B in "
         "ways the fit cannot show, and a warning says so",
     )
+    ap.add_argument(
+        "--sensitivity",
+        type=float,
+        metavar="PERCENT",
+        help="the model route: also print how far a PERCENT error in each robot parameter (link inertias, "
+        "friction, force gain) would move each arm entry, in SEs (armimp_jax.robot_sensitivity; a binding more)",
+    )
     args = ap.parse_args(argv)
+    if args.sensitivity is not None and (args.model is None or not 0 < args.sensitivity <= 100):
+        ap.error(f"--sensitivity takes a percentage in (0, 100] with --model, got {args.sensitivity}")
     given = [f"--{k}" for k in WELCH_OPTIONS if getattr(args, k) is not None]
     given += ["--lines"] if args.lines else []
     if args.model is not None and given:
@@ -249,6 +258,8 @@ def model_route(args) -> int:
         config = idr.read_identify_config(args.model)
         model, options = idr.build_model(config, where=str(args.model))
         idr.check_rate(args.fs, model)
+        if args.sensitivity is not None:
+            idr.check_sensitivity(model, options)
         if "recordings" in config:
             if args.recording is not None:
                 raise ValueError(f"{args.model} lists its recordings in [recordings]: give no RECORDING")
@@ -284,6 +295,11 @@ def model_route(args) -> int:
         return fail(f"cannot write to {args.out}: {err.strerror or err}")
     print("\n".join(recording_report.model_report(res, None if classical is None else classical[1], warnings)))
     print(f"wrote {', '.join(str(p) for p in paths)}")
+    if args.sensitivity is not None:
+        try:
+            print("\n".join(idr.sensitivity_report(res, rec, options, args.sensitivity)))
+        except ValueError as err:
+            return fail(str(err))
     return 0
 
 

@@ -103,6 +103,22 @@ def test_binding_jacobian_matches_central_differences():
         np.testing.assert_allclose(jac[:, i], fd, rtol=5e-4, atol=1e-5 * float(jnp.abs(fd).max()))
 
 
+def test_a_slope_on_fewer_draws_is_the_mean_over_each_devices_first_keys():
+    """The search's coarse slope and its fine one are one program: ``count`` draws of one buffer
+    of keys, each device taking the first ``count / devices`` of its share (noisy draws, so a
+    count that were ignored would show)."""
+    model = _trial(friction=aj.NO_FRICTION, **NOISE)
+    layout = lay.make_layout(ARM)
+    p = lay.pack(layout, model)
+    n_dev = jax.local_device_count()
+    keys = jax.random.split(jax.random.key(5), 2 * n_dev)  # each device's share: two keys
+    some, _ = indirect.binding_jacobian(layout, model, p, F_BINDING, keys, LINEAR_NUM, count=n_dev)
+    first, _ = indirect.binding_jacobian(layout, model, p, F_BINDING, keys[::2], LINEAR_NUM)
+    every, _ = indirect.binding_jacobian(layout, model, p, F_BINDING, keys, LINEAR_NUM)
+    np.testing.assert_allclose(some, first, rtol=1e-12, atol=1e-12 * float(jnp.abs(first).max()))
+    assert float(jnp.abs(every - first).max()) > 1e-6 * float(jnp.abs(first).max())
+
+
 def test_encoder_readings_differentiate_as_the_identity():
     sensors = aj.Sensors(encoder_counts=2**12)
     q = jnp.array([0.3, -1.1])

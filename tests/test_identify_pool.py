@@ -140,3 +140,20 @@ def test_the_script_identifies_two_postures_and_the_robot_alone_in_one_table(tmp
     doc = json.loads((tmp_path / "out" / "identification.json").read_text())
     assert doc["converged"] and [r["group"] for r in doc["recordings"]] == ["1", "2", "alone"]
     assert "(shared)" in stdout.getvalue() and "(group 2)" in stdout.getvalue()
+
+
+def test_a_robot_alone_recording_does_not_see_the_force_channels_gain_or_delay():
+    """The robot alone reads no hand force for the channel's gain or delay to act on: its layout
+    leaves them out (its statistics of them were not finite), and keeps the offset and inertia."""
+    from armimp_jax._identification import pool as pl
+
+    end = presets.location_endpoint(2)
+    sensors = aj.Sensors(force_noise=0.05, force_delay=0.001)
+    human = aj.make_trial(aj.PD(), arm=presets.arm(2), friction=aj.NO_FRICTION, sensors=sensors)
+    alone = aj.make_trial(aj.PD(), arm=aj.no_arm(end), friction=aj.NO_FRICTION, sensors=sensors)
+    f = np.zeros((1024, 2))
+    free = ("arm.stiffness", "robot.inertia", "sensors.force_offset", "sensors.force_gain", "sensors.force_delay")
+    recs = [aj.Recording(human, f, f, f, group="arm"), aj.Recording(alone, f, f, f, group="alone")]
+    pool = pl.make_pool(recs, free, (), tuple(free[1:]))
+    assert pool.layouts[0].names == free
+    assert pool.layouts[1].names == ("robot.inertia", "sensors.force_offset")

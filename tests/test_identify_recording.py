@@ -3,6 +3,7 @@ simulated PD recording with friction, sensor noise and a voluntary force, writte
 identified from a start 15-20% off the truth; every bad config gets one line before any work."""
 
 import contextlib
+import dataclasses
 import importlib.util
 import io
 import json
@@ -332,3 +333,56 @@ def test_classical_column_is_the_welch_routes_default_fit(identified, recording_
     assert entry["classical"] == pytest.approx(float(fit.damping[1, 1]), rel=1e-9)
     assert entry["classical_se"] == pytest.approx(float(fit.damping_se[1, 1]), rel=1e-9)
     assert f"(classical {float(fit.damping[1, 1]):.4g})" in printed
+
+
+def test_a_sensitivity_the_model_cannot_give_is_refused_before_the_fit(recording_csv, tmp_path, capsys):
+    """--sensitivity wants a percentage, the model route, a free arm and the config's noise; each
+    refusal is one line, before any identification (no output folder)."""
+    good = write_toml(tmp_path / "good.toml", _config())
+    args = [str(recording_csv), "--fs", "1000", "--model", str(good), "--out", "x"]
+    for value in ("0", "150"):
+        with pytest.raises(SystemExit) as exc:
+            script.main([*args, "--sensitivity", value])
+        assert exc.value.code == 2
+        assert "--sensitivity takes a percentage in (0, 100] with --model" in capsys.readouterr().err
+    quiet = {k: v for k, v in _config().items() if k not in ("sensors", "voluntary")}
+    no_arm = dict(_config(), identify=dict(_config()["identify"], free=["friction.tau_c"]))
+    for name, config, message in (
+        ("quiet", quiet, r"--sensitivity needs the config's noise"),
+        ("no_arm", no_arm, r"--sensitivity needs the arm free"),
+    ):
+        path = write_toml(tmp_path / f"{name}.toml", config)
+        line = _run_bad([recording_csv, "--fs", "1000", "--model", path, "--sensitivity", "10"], tmp_path, capsys)
+        assert re.search(message, line), line
+
+
+@pytest.mark.slow  # about 40 s cold: an identification and a robot_sensitivity
+def test_the_sensitivity_table_prints_robot_sensitivitys_numbers_for_what_was_not_estimated(recording_csv, tmp_path):
+    """--sensitivity 10 prints aj.robot_sensitivity at the identified trial (the robot's
+    parameters that were not free: tau_c was estimated, so it has no column), to its 2 decimals."""
+    config = write_toml(tmp_path / "config.toml", _config())
+    stdout = io.StringIO()
+    args = [str(recording_csv), "--fs", "1000", "--model", str(config), "--out", str(tmp_path / "out")]
+    with contextlib.redirect_stdout(stdout):
+        assert script.main([*args, "--sensitivity", "10"]) == 0
+    text = stdout.getvalue()
+    head = next(line for line in text.splitlines() if line.startswith("| arm entry |"))
+    assert "friction.tau_c" not in head and "robot.inertia[0]" in head
+    doc = json.loads((tmp_path / "out" / "identification.json").read_text())
+    trial = idr.build_model(idr.read_identify_config(config), where="config")[0]
+    values = {n: np.asarray(v["value"]) for n, v in doc["parameters"].items()}
+    fitted = aj.Arm(values["arm.mass"], values["arm.damping"], values["arm.stiffness"], ARM.endpoint)
+    trial = dataclasses.replace(trial, arm=fitted, friction=aj.LuGre(values["friction.tau_c"], 1.2))
+    rec = recording.load_recording(recording_csv)
+    robot = [n for n in head.strip("| ").split(" | ")[1:]]
+    options = dict(_config()["identify"])
+    sens = aj.robot_sensitivity(
+        trial,
+        rec["f_delta"],
+        robot=tuple(dict.fromkeys(n.split("[")[0] for n in robot)),
+        plausible=10.0,
+        draws=options["draws"],
+        jacobian_draws=options["jacobian_draws"],
+        numerics=aj.Numerics(solver=aj.GradedARK4(), substeps=SUBSTEPS),
+    )
+    assert sens.table() in text

@@ -42,7 +42,7 @@ from .._simulate import Trial, simulate
 from .._solver.graded import GradedARK4
 from .._solver.numerics import Numerics
 from . import efficient
-from .auxiliary import statistics
+from .auxiliary import statistic_labels, statistics
 from .layout import LINEAR, Layout, with_values
 
 # The converged step at every friction in [0, 4] N m and the cheapest measured (docs/performance.md).
@@ -144,10 +144,15 @@ def binding_draws(layout: Layout, model: Trial, p, f, keys, numerics, arm_stat=N
 
 
 @functools.partial(jax.jit, static_argnames=("layout", "numerics", "stat_layout"))
-def binding_jacobian(layout: Layout, model: Trial, p, f, keys, numerics, arm_stat=None, stat_layout=None):
+def binding_jacobian(layout: Layout, model: Trial, p, f, keys, numerics, arm_stat=None, stat_layout=None, count=None):
     """``A = d beta / d p`` ``(m, n)`` averaged over the draws of ``keys`` (forward mode: one
     pass per draw carries every parameter's tangent), and whether a draw diverged
-    (``stat_layout``: as ``draw_statistics``)."""
+    (``stat_layout``: as ``draw_statistics``). ``count`` (traced; default every key): the draws
+    used, a multiple of the local devices, each device taking the first ``count / devices`` of
+    its share of ``keys``: one program serves the search's coarse slope and its fine one."""
+    n_dev = jax.local_device_count()
+    count = keys.shape[0] if count is None else count
+    per_count = jnp.asarray(count, dtype=jnp.int32) // n_dev
 
     def one(k):
         def stats(q):
@@ -156,11 +161,19 @@ def binding_jacobian(layout: Layout, model: Trial, p, f, keys, numerics, arm_sta
         return jax.jacfwd(stats, has_aux=True)(p)
 
     def per_device(k):
-        # one draw at a time: a vmap over draws of the tangents' batch ran several times slower
-        return jax.lax.map(one, k)
+        # one draw at a time (a vmap over draws of the tangents' batch ran several times slower),
+        # as many as asked: a loop of traced length
+        def body(i, acc):
+            jac, div = one(k[i])
+            return acc[0] + jac, acc[1] | div
 
-    jacs, diverged = _sharded(per_device, 2)(keys)
-    return jnp.mean(jacs, axis=0), jnp.any(diverged)
+        # the slope's shape from the layout: tracing `one` for it would double the trace time
+        zero = (jnp.zeros((len(statistic_labels(stat_layout or layout)), p.shape[0]), p.dtype), jnp.zeros((), bool))
+        total, diverged = jax.lax.fori_loop(0, per_count, body, zero)
+        return total[None], diverged[None]
+
+    totals, diverged = _sharded(per_device, 2)(keys)
+    return jnp.sum(totals, axis=0) / (per_count * n_dev), jnp.any(diverged)
 
 
 def weights(stats, jac=None):

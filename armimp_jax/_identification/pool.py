@@ -25,6 +25,10 @@ import numpy as np
 from .._simulate import Trial
 from . import layout as lay
 
+# What a robot-alone recording cannot tell: its force reading holds no hand force for the
+# force channel's gain or delay to act on (the other recordings tell them).
+ALONE_BLIND = ("sensors.force_gain", "sensors.force_delay")
+
 
 class Recording(NamedTuple):
     """One recording for ``identify``: the ``model`` (a ``Trial`` with every fixed setting and
@@ -140,7 +144,7 @@ def _finish(blocks, groups, alone, free, sym) -> Pool:
     layouts, indices = [], []
     for g, a in zip(groups, alone, strict=True):
         mine = [b for b in blocks if b.group in (None, g)]
-        names = tuple(n for n in free if any(n in b.layout.names for b in mine))
+        names = tuple(n for n in free if any(n in b.layout.names for b in mine) and not (a and n in ALONE_BLIND))
         index = []
         for name in names:
             b = next(b for b in mine if name in b.layout.names)

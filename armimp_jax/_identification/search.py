@@ -4,10 +4,13 @@
 Steps on the weighted mismatch ``b - beta(p)`` (``indirect.py``): the binding's Jacobian ``A``
 is reused between them (a chord) and recomputed after a step of more than
 ``JACOBIAN_REUSE_SE`` standard errors or one that fails; a step is halved while a draw
-diverges or the mismatch grows (a stale slope gets two tries before it is refreshed); the
-search stops when a step moves every parameter by less than ``CONVERGED_FRACTION`` of its
-SE, or by less than twice the binding's own Monte Carlo error (``1 / sqrt(R)`` SE: a smaller
-step chases the draws' noise).
+diverges or the mismatch grows (a stale slope gets two tries before it is refreshed). A step
+that moves every parameter by less than ``FINAL_STEP_SE`` of its SE is the last: it is taken
+without a binding of its own (a chord step from that near lands within a fraction of itself).
+Where a nuisance the recordings barely tell moves more, the search stops instead when a step
+moves every other parameter by less than ``CONVERGED_FRACTION`` of its SE, or by less than
+twice the binding's own Monte Carlo error (``1 / sqrt(R)`` SE: a smaller step chases the
+draws' noise).
 
 Far from the answer the draws' noise does not matter: the search starts **coarse**, the
 binding on ``COARSE_DRAWS`` of the draws and the slope on ``COARSE_JACOBIAN_DRAWS``, and takes
@@ -46,6 +49,9 @@ COARSE_DRAWS = 8  # the binding's draws far from the answer (rounded up to the d
 COARSE_JACOBIAN_DRAWS = 2  # the slope's draws far from the answer (rounded up to the devices)
 FINE_WITHIN_SE = 2.0  # coarse steps until one moves every parameter by less than this many SEs
 JACOBIAN_REUSE_SE = 3.0  # A computed within this many SEs of the estimate serves its covariance
+# A fine step that moves every parameter (the nuisances too) by less than this many SEs is taken
+# unchecked and ends the search (``_final_step``): the binding it saves is most of a step's time.
+FINAL_STEP_SE = 1.0
 HALVINGS = 6  # a step is halved at most this many times while a draw diverges or the mismatch grows
 # The nuisance prior of each free friction parameter: this SD on its internal (log or logit) scale
 # about its start, a factor of e^2 ~ 7 either way.
@@ -175,9 +181,10 @@ def _jacobian(problem: Problem, p, draws=None):
             part.model,
             jnp.asarray(p[part.index]),
             part.f,
-            part.keys[:draws],
+            part.keys[: problem.n_jac],
             problem.numerics,
             part.arm_stat,
+            count=draws,
         )
         jac = np.asarray(jac)
         if bool(div) or not np.all(np.isfinite(jac)):
@@ -218,11 +225,15 @@ def init(problem: Problem, p0) -> Search:
 
 
 def _fine(problem: Problem, state: Search) -> Search:
-    """The search at the same ``p`` with every draw (the slope kept: a chord)."""
+    """The search at the same ``p`` with every draw, and the slope on every Jacobian draw: the
+    fine steps are chords on it, and the covariance takes it where the answer is near."""
     mean, stats, diverged = _binding(problem, state.p)
     if diverged:
         why = "noisy simulations diverge at the coarse stage's answer"
         return state._replace(problems=state.problems + (why,), done=True)
+    jac = _jacobian(problem, state.p) if state.jac_draws < problem.n_jac else None
+    if jac is not None:
+        state = state._replace(jac=jac, jac_at=state.p, jac_draws=problem.n_jac)
     w = _weights(problem, stats, state.jac)
     return state._replace(mean=mean, stats=stats, w=w, cost=_cost(problem, mean, w), draws=problem.n_draws)
 
@@ -262,6 +273,8 @@ def step(problem: Problem, state: Search, max_steps: int) -> Search:
     state = state._replace(se_p=se_p, history=history)
     if coarse and step_se <= FINE_WITHIN_SE:
         return _fine(problem, state)
+    if problem.noisy and not coarse and np.all(np.abs(step) <= FINAL_STEP_SE * se_p):
+        return _final_step(problem, state, step)
     settle = max(CONVERGED_FRACTION, NOISE_MULTIPLE / math.sqrt(problem.n_draws))
     if problem.noisy and not coarse and np.all(np.abs(step[told]) <= settle * se_p[told]):
         return state._replace(done=True)
@@ -290,6 +303,16 @@ def step(problem: Problem, state: Search, max_steps: int) -> Search:
         return state._replace(problems=state.problems + (why,), done=True)
     w = _weights(problem, state.stats, new)
     return state._replace(jac=new, jac_at=state.p, w=w, cost=_cost(problem, state.mean, w), jac_draws=jac_draws)
+
+
+def _final_step(problem: Problem, state: Search, step) -> Search:
+    """The search's last step, taken without a binding of its own: from within ``FINAL_STEP_SE``
+    of the answer a chord step lands within a fraction of itself (the slope's own error), nearer
+    than stopping short would. The mismatch is the linear prediction at the new ``p``."""
+    mean = state.mean + state.jac @ step
+    return state._replace(
+        p=state.p + step, mean=mean, cost=_cost(problem, mean, state.w), iterations=state.iterations + 1, done=True
+    )
 
 
 def final_covariance(problem: Problem, state: Search):

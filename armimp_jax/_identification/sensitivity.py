@@ -66,7 +66,7 @@ class Sensitivity:
         return "\n".join(lines)
 
 
-def _robot_names(trial: Trial) -> list[str]:
+def robot_names(trial: Trial) -> list[str]:
     """The robot's parameters with a value to take 1% of: the inertias, the friction law's and
     the force gain."""
     names = ["robot.inertia"] + [f"friction.{n}" for n in type(trial.friction).IDENTIFIABLE]
@@ -111,7 +111,7 @@ def robot_sensitivity(
         raise ValueError(
             "robot_sensitivity: the trial has no noise (ideal sensors, no voluntary force): no SE to weigh by"
         )
-    robot = tuple(_robot_names(trial) if robot is None else ((robot,) if isinstance(robot, str) else robot))
+    robot = tuple(robot_names(trial) if robot is None else ((robot,) if isinstance(robot, str) else robot))
     if not robot or any(n in lay.ARM_PARAMETERS for n in robot):
         raise ValueError("robot_sensitivity: robot must name the robot's parameters (not the arm's)")
     est = lay.make_layout(free, friction=trial.friction, where="robot_sensitivity")

@@ -15,7 +15,7 @@ from armimp_jax.study import coverage as cov
 from armimp_jax.study.results import atomic_write_json, stamped
 
 ARM = cov.ARM
-DEFAULT_CASES = "pd:0.2,pd:1,imbic:0.2,imbic:1"
+COVERAGE_CASES = "pd:0.2,pd:1,imbic:0.2,imbic:1"  # bench_identify_coverage's --cases default
 # name: (controller, arm location, IMBIC's k_rd [N/m] or None for the paper's, tau_c [N m], peak [N] or "L1",
 # free: the arm's matrices, and the Coulomb torque too with "tau_c"; optionally the acquisition, default instant)
 CASES = {
@@ -87,7 +87,7 @@ def must_show(a) -> dict:
     recording, called twice (the second without compiling); prints and returns what it found."""
     arm = presets.arm(2)
     noise = cov.noise()
-    default = [tuple(c.split(":")[:1]) + (float(c.split(":")[1]),) for c in DEFAULT_CASES.split(",")]
+    default = [tuple(c.split(":")[:1]) + (float(c.split(":")[1]),) for c in COVERAGE_CASES.split(",")]
     controller, tau_c = a.cases[0] if a.cases != default else ("pd", 0.8)
     ctrl = aj.controller_kind(controller)()
     truth = aj.make_trial(ctrl, arm=arm, friction=friction_law(tau_c, a), **noise)

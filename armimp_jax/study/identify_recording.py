@@ -120,6 +120,42 @@ def run(rec: dict, model, options: dict):
     return identify(model, rec["f_delta"], rec["x"], rec["fh"], **options)
 
 
+def check_sensitivity(model, options: dict) -> None:
+    """One-line errors, before the fit, for a sensitivity the model cannot give: no free arm
+    matrix, or no noise in the config (no SE to weigh the moves by)."""
+    if not any(n in ARM_PARAMETERS for n in options["free"]):
+        raise ValueError("--sensitivity needs the arm free ([identify] free names arm.mass, ...)")
+    if not model.noisy:
+        raise ValueError("--sensitivity needs the config's noise ([sensors], [voluntary]): no SE to weigh by")
+
+
+def sensitivity_report(res, rec: dict, options: dict, percent: float) -> list[str]:
+    """How well must the lab know its robot for this answer: ``robot_sensitivity`` at the
+    identified trial and the recording's perturbation (the arm's free matrices; the draws and
+    numerics of ``options``), as lines: the table of each arm diagonal's move per 1% error in
+    each robot parameter [SE], then a warning per parameter a ``percent`` error would move an
+    entry by more than one SE. A one-line ``ValueError`` where the arm is not free."""
+    from .._identification.sensitivity import robot_names, robot_sensitivity
+
+    check_sensitivity(res.trial, options)
+    arm = tuple(n for n in options["free"] if n in ARM_PARAMETERS)
+    robot = [n for n in robot_names(res.trial) if n not in options["free"]]  # a free one was estimated
+    if not robot:
+        return ["how well must you know your robot: every robot parameter with a value was estimated"]
+    sens = robot_sensitivity(
+        res.trial,
+        rec["f_delta"],
+        free=arm,
+        robot=robot,
+        plausible=percent,
+        numerics=options.get("numerics"),
+        draws=options.get("draws", 64),
+        jacobian_draws=options.get("jacobian_draws", 8),
+    )
+    head = "how well must you know your robot: each arm diagonal's move per 1% error in the robot [SE]"
+    return [head, sens.table(), *(f"warning: {w}" for w in sens.warnings)]
+
+
 def trust_warnings(res, rec: dict) -> list[str]:
     """Where the fit of ``res`` (an ``Identification``) cannot be trusted, one line each."""
     out = []

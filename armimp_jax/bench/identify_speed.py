@@ -1,0 +1,146 @@
+"""``identify``'s speed in a lab's three cases (``sweeps/bench_identify_speed.py``, issue 47):
+
+- ``single``: one 20 s PD recording through LuGre 0.8 / 1.2 N m (10 N peak), the arm and both
+  Coulomb torques free from a generic start (a generic arm, half the torque); target 30 s warm;
+- ``pooled``: eight recordings of 20 s (the paper's four postures, two trials at each, every
+  recording its own perturbation), one arm per posture and the torques shared, from the same
+  generic start; target 3 min warm;
+- ``script``: a 48 s IMBIC recording at 1 N m (LuGre 1 / 1.5 N m, the paper's level-1
+  perturbation, arm 2) through ``estimate_recording.py --model`` as a lab runs it, twice (the
+  second loads the compiled programs from the cache); target 60 s on the second run.
+
+Each in-process case calls ``identify`` twice and reports both times (the first compiles).
+Every time is a wall time on this host; the truth's noise is the studies' (``coverage.noise``).
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import subprocess
+import sys
+import time
+
+import jax
+import numpy as np
+
+import armimp_jax as aj
+from armimp_jax import presets
+from armimp_jax.study import coverage as cov
+from armimp_jax.study.results import atomic_write_json
+
+FREE = (*cov.ARM, "friction.tau_c")
+TARGETS_S = dict(single=30.0, pooled=180.0, script=60.0)
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+
+
+def _generic(endpoint) -> aj.Arm:
+    return aj.Arm(np.eye(2), 5.0 * np.eye(2), 150.0 * np.eye(2), endpoint)
+
+
+def _trial(controller, arm, friction):
+    return aj.make_trial(controller, arm=arm, friction=friction, **cov.noise())
+
+
+def _timed(call) -> dict:
+    """Two calls of ``call`` (the first compiles): their wall times and the second's answer."""
+    times, res = [], None
+    for _ in range(2):
+        t0 = time.perf_counter()
+        res = call()
+        times.append(time.perf_counter() - t0)
+    return dict(
+        first_s=times[0],
+        second_s=times[1],
+        converged=bool(res.converged),
+        message=res.message,
+        iterations=int(res.iterations),
+        forward_s=float(res.forward_s),
+        warnings=list(res.warnings),
+    )
+
+
+def single(seconds: float = 20.0, draws: int = 64) -> dict:
+    """The ``single`` case (module docstring)."""
+    truth = _trial(aj.PD(), presets.arm(2), aj.LuGre(0.8, 1.2))
+    start = _trial(aj.PD(), _generic(presets.location_endpoint(2)), aj.LuGre(0.4, 1.2))
+    f = aj.perturbation(jax.random.key(2024), int(round(seconds * 1000)), 10.0)
+    rec = cov.record(truth, f, 3)
+    out = _timed(lambda: aj.identify(start, f, rec.x, rec.fh, free=FREE, draws=draws))
+    return out | dict(recordings=1, seconds=seconds, draws=draws)
+
+
+def pooled(seconds: float = 20.0, trials: int = 2, draws: int = 64) -> dict:
+    """The ``pooled`` case (module docstring): ``trials`` recordings at each paper posture."""
+    recordings = []
+    for loc in presets.LOCATIONS:
+        truth = _trial(aj.PD(), presets.arm(loc), aj.LuGre(0.8, 1.2))
+        start = _trial(aj.PD(), _generic(presets.location_endpoint(loc)), aj.LuGre(0.4, 1.2))
+        for t in range(trials):
+            f = aj.perturbation(jax.random.key(100 * loc + t), int(round(seconds * 1000)), 10.0)
+            rec = cov.record(truth, f, 10 * loc + t)
+            recordings.append(aj.Recording(start, f, rec.x, rec.fh, group=f"posture {loc}"))
+    out = _timed(lambda: aj.identify(recordings, free=FREE, draws=draws))
+    return out | dict(recordings=len(recordings), seconds=seconds, draws=draws)
+
+
+def _write_lab_files(folder: pathlib.Path, seconds: float) -> tuple[pathlib.Path, pathlib.Path]:
+    """The ``script`` case's recording (NPZ) and model config (TOML) in ``folder``."""
+    arm = presets.arm(2)
+    truth = _trial(aj.IMBIC(), arm, aj.LuGre(1.0, 1.5))
+    f = aj.perturbation(jax.random.key(48), int(round(seconds * 1000)), presets.perturbation_peak(1))
+    rec = cov.record(truth, f, 7)
+    data = folder / "imbic48.npz"
+    np.savez(data, f_delta=np.asarray(f), x=np.asarray(rec.x), fh=np.asarray(rec.fh))
+    config = {
+        "controller": {"type": "imbic"},
+        "sensors": {"force_noise": 0.05, "encoder_counts": 2**18},
+        "voluntary": {"std": 0.3, "cutoff": 2.0},
+        "arm": {
+            "mass": np.eye(2).tolist(),
+            "damping": (5.0 * np.eye(2)).tolist(),
+            "stiffness": (150.0 * np.eye(2)).tolist(),
+            "endpoint": np.asarray(arm.endpoint).tolist(),
+        },
+        "friction": {"tau_c": 0.5, "tau_s": 1.5},
+        "identify": {"free": list(FREE)},
+    }
+    lines = [f"[{s}]\n" + "".join(f"{k} = {json.dumps(v)}\n" for k, v in t.items()) for s, t in config.items()]
+    model = folder / "imbic48.toml"
+    model.write_text("\n".join(lines))
+    return data, model
+
+
+def script(folder, seconds: float = 48.0) -> dict:
+    """The ``script`` case (module docstring): ``estimate_recording.py --model`` run twice in
+    fresh processes (the compiled programs' cache as the user's environment sets it)."""
+    folder = pathlib.Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    data, model = _write_lab_files(folder, seconds)
+    runs = []
+    for i in range(2):
+        out = folder / f"run{i + 1}"
+        cmd = [sys.executable, str(ROOT / "sweeps" / "estimate_recording.py"), str(data), "--fs", "1000"]
+        t0 = time.perf_counter()
+        done = subprocess.run([*cmd, "--model", str(model), "--out", str(out)], capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+        if done.returncode != 0:
+            raise RuntimeError(f"estimate_recording.py failed ({done.returncode}): {done.stderr.strip()[-400:]}")
+        doc = json.loads((out / "identification.json").read_text())
+        runs.append(dict(wall_s=wall, identify_s=doc["time_s"], converged=doc["converged"]))
+    return dict(first_s=runs[0]["wall_s"], second_s=runs[1]["wall_s"], runs=runs, seconds=seconds)
+
+
+CASES = dict(single=single, pooled=pooled)
+
+
+def run(cases, out) -> dict:
+    """Each of ``cases`` (``single``, ``pooled``, ``script``); JSON in ``out`` (the script's files
+    beside it)."""
+    out = pathlib.Path(out)
+    results = {}
+    for name in cases:
+        results[name] = script(out.parent / "script") if name == "script" else CASES[name]()
+        results[name]["target_s"] = TARGETS_S[name]
+        atomic_write_json(out, dict(cases=results))
+    return results

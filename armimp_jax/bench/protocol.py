@@ -1,0 +1,229 @@
+"""A lab's protocol, checked by Monte Carlo (``sweeps/bench_identify_protocol.py``, issue 47):
+each case is a set of recordings drawn afresh per seed and identified in one call, started at
+the truth's arm (the intervals are what is measured), and scored by the share of 95%
+intervals that hold the truth, entry by entry.
+
+The calibration cases' truth (``calibration_truth``): IMBIC at the paper's arm 2 with LuGre
+0.5 / 0.75 N m, the robot's link inertias 15% above the lab's model, its viscous friction
+``sigma2`` twice the model's, and the force channel 2 ms behind the position. IMBIC's desired
+inertia is the lab's (the model's ``M_x(q0)``), so the controller is the same in the truth
+and in the model.
+
+- ``uncalibrated``: the human's 20 s recording, the model's robot fixed, the arm free;
+- ``calibrated``: the same with two robot-alone recordings of 20 s (under PD, 10 N peak: the
+  robot moves freely) pooled in, and the inertias, ``sigma2`` and the force delay free;
+- ``motor-force``: ``calibrated`` on a robot without a force transducer (the hand force from
+  the motor torques through the lab's model robot, ``Sensors(force_model=...)``), no delay;
+- ``one-trial`` / ``four-trials``: one, then four repeated 20 s recordings of one signal at
+  one posture (IMBIC, LuGre 0.5 / 0.75 N m, the arm free): the SEs should halve;
+- ``four-postures``: the paper's four postures, one 20 s recording each, in one call (PD
+  through LuGre 0.5 / 0.75 N m, 10 N peak), an arm per posture and ``tau_c`` shared.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import jax
+import numpy as np
+
+import armimp_jax as aj
+from armimp_jax import presets
+from armimp_jax.study import coverage as cov
+
+ARM = cov.ARM
+SECONDS = 20.0
+CALIBRATION = ("robot.inertia", "friction.sigma2", "sensors.force_delay")
+NOISE = dict(force_noise=0.05, encoder_counts=2**18)
+INERTIA_ERROR = 1.15  # the truth's link inertias over the model's
+VISCOUS_ERROR = 2.0  # the truth's sigma2 over the model's
+DELAY_S = 0.002  # the truth's force-channel delay [s]
+DELAY_START_S = 0.001  # the calibration's starting guess of it [s]
+
+
+@dataclasses.dataclass(frozen=True)
+class Case:
+    """A protocol case: ``recordings(seed)`` gives ``(list of Recording, truth)`` with ``truth``
+    ``{name: value}`` of every free parameter (names as ``Identification.values``' keys)."""
+
+    free: tuple
+    recordings: Callable
+    shared: tuple | None = None
+
+
+def _samples() -> int:
+    return int(round(SECONDS * 1000))
+
+
+def _record(trial, f, key: int):
+    rec = cov.record(trial, f, key)
+    if bool(rec.diverged):
+        raise FloatingPointError(f"the recording of key {key} diverged")
+    return rec
+
+
+def _lugre(viscous_factor: float = 1.0) -> aj.LuGre:
+    base = aj.LuGre(0.5, 0.75)
+    return aj.LuGre(0.5, 0.75, sigma2=viscous_factor * float(np.ravel(np.asarray(base.sigma2))[0]))
+
+
+def calibration_truth(motor_force: bool = False):
+    """``(truth, model)`` of the human's recording in the calibration cases (module docstring):
+    the truth's robot, friction and force channel, and the lab's model of them (the model's
+    force delay at its starting guess when the channel has one)."""
+    arm = presets.arm(2)
+    m_rd = np.asarray(aj.make_trial(aj.IMBIC(), arm=arm, friction=aj.NO_FRICTION).controller.m_rd)  # the lab's M_x(q0)
+    robot = aj.Robot(inertia=INERTIA_ERROR * np.asarray(aj.MIT_MANUS.inertia))
+    sensor = dict(force_model=aj.MIT_MANUS) if motor_force else dict(force_delay=DELAY_S)
+    common = dict(arm=arm, voluntary=aj.VoluntaryForce(0.3, 2.0))
+    friction, sensors = _lugre(VISCOUS_ERROR), aj.Sensors(**NOISE, **sensor)
+    truth = aj.make_trial(aj.IMBIC(m_rd=m_rd), robot=robot, friction=friction, sensors=sensors, **common)
+    start = dict(force_model=aj.MIT_MANUS) if motor_force else dict(force_delay=DELAY_START_S)
+    model = aj.make_trial(aj.IMBIC(m_rd=m_rd), friction=_lugre(), sensors=aj.Sensors(**NOISE, **start), **common)
+    return truth, model
+
+
+def _truth_values(truth, free, group=None) -> dict:
+    out = {}
+    for n in free:
+        section, name = n.split(".")
+        value = np.asarray(getattr(getattr(truth, section), name), dtype=float)
+        per_joint = value.ndim == 0 and section == "friction"  # a law's scalar stands for both joints
+        out[n if group is None else f"{n}@{group}"] = value * np.ones(2) if per_joint else value
+    return out
+
+
+def _calibration(seed: int, *, calibrate: bool, motor_force: bool):
+    truth, model = calibration_truth(motor_force)
+    f = aj.perturbation(jax.random.key(7), _samples(), presets.perturbation_peak(1))
+    rec = _record(truth, f, 1000 + seed)
+    if not calibrate:
+        sensors = aj.Sensors(**NOISE, **({"force_model": aj.MIT_MANUS} if motor_force else {}))  # no delay
+        fixed = dataclasses.replace(model, sensors=sensors)
+        return [aj.Recording(fixed, f, rec.x, rec.fh)], _truth_values(truth, ARM)
+    recordings = [aj.Recording(model, f, rec.x, rec.fh, group="arm")]
+    for i in range(2):  # the robot alone, under PD: nothing on the handle, the robot moves freely
+        fa = aj.perturbation(jax.random.key(70 + i), _samples(), 10.0)
+        alone = dict(arm=aj.no_arm(truth.arm.endpoint), voluntary=None)
+        t_alone = aj.make_trial(aj.PD(), robot=truth.robot, friction=truth.friction, sensors=truth.sensors, **alone)
+        m_alone = aj.make_trial(aj.PD(), friction=model.friction, sensors=model.sensors, **alone)
+        ra = _record(t_alone, fa, 2000 + 10 * seed + i)
+        recordings.append(aj.Recording(m_alone, fa, ra.x, ra.fh, group="alone"))
+    free = _calibration_free(motor_force)
+    values = _truth_values(truth, ARM) | _truth_values(truth, free[len(ARM) :])  # one arm group: plain names
+    if not motor_force:
+        values["sensors.force_delay"] = np.asarray(DELAY_S)
+    return recordings, values
+
+
+def _calibration_free(motor_force: bool) -> tuple:
+    return ARM + (CALIBRATION[:2] if motor_force else CALIBRATION)
+
+
+def _trials(seed: int, count: int):
+    arm = presets.arm(2)
+    truth = aj.make_trial(aj.IMBIC(), arm=arm, friction=_lugre(), **cov.noise())
+    f = aj.perturbation(jax.random.key(9), _samples(), presets.perturbation_peak(1))
+    recs = [_record(truth, f, 3000 + 10 * seed + i) for i in range(count)]
+    # one posture: one group (one arm); the same signal and model: one binding, its mean matched
+    return [aj.Recording(truth, f, r.x, r.fh, group="posture 2") for r in recs], _truth_values(truth, ARM)
+
+
+def _postures(seed: int):
+    recordings, values = [], {}
+    friction = _lugre()
+    for loc in presets.LOCATIONS:
+        truth = aj.make_trial(aj.PD(), arm=presets.arm(loc), friction=friction, **cov.noise())
+        f = aj.perturbation(jax.random.key(20 + loc), _samples(), 10.0)
+        rec = _record(truth, f, 4000 + 10 * seed + loc)
+        recordings.append(aj.Recording(truth, f, rec.x, rec.fh, group=f"posture {loc}"))
+        values |= _truth_values(truth, ARM, f"posture {loc}")
+    values |= _truth_values(truth, ("friction.tau_c",))
+    return recordings, values
+
+
+CASES = {
+    "uncalibrated": Case(ARM, lambda s: _calibration(s, calibrate=False, motor_force=False)),
+    "calibrated": Case(_calibration_free(False), lambda s: _calibration(s, calibrate=True, motor_force=False)),
+    "motor-force": Case(_calibration_free(True), lambda s: _calibration(s, calibrate=True, motor_force=True)),
+    "one-trial": Case(ARM, lambda s: _trials(s, 1)),
+    "four-trials": Case(ARM, lambda s: _trials(s, 4)),
+    "four-postures": Case(ARM + ("friction.tau_c",), _postures),
+}
+
+
+def one(case: str, seed: int, *, draws: int = 64) -> dict:
+    """One seed of ``case``: its recordings identified in one call (the seed keys the draws),
+    with each free entry's estimate, SE and truth, as plain lists."""
+    c = CASES[case]
+    recordings, truth = c.recordings(seed)
+    model = recordings[0].model if len(recordings) == 1 else recordings
+    if len(recordings) == 1:
+        r = recordings[0]
+        res = aj.identify(model, r.f, r.x, r.fh, free=c.free, draws=draws, key=jax.random.key(seed))
+    else:
+        res = aj.identify(model, free=c.free, shared=c.shared, draws=draws, key=jax.random.key(seed))
+    return dict(
+        seed=seed,
+        diverged=False,
+        converged=bool(res.converged),
+        message=res.message,
+        warnings=list(res.warnings),
+        time_s=float(res.time_s),
+        iterations=int(res.iterations),
+        values={n: np.asarray(v).tolist() for n, v in res.values.items()},
+        se={n: np.asarray(v).tolist() for n, v in res.se.items()},
+        truth={n: np.asarray(v).tolist() for n, v in truth.items()},
+    )
+
+
+def summary(rows: list[dict]) -> dict:
+    """Per parameter: coverage of the 95% intervals entry by entry, the SD of
+    ``z = (estimate - truth) / SE``, and the mean SE; over the arm's entries and over the rest."""
+    ok = [r for r in rows if not r["diverged"] and r["converged"]]
+    out = dict(recordings=len(rows), converged=len(ok), parameters={})
+    if len(ok) < 2:
+        return out
+    arm_hits, other_hits = [], []
+    for n in ok[0]["values"]:
+        e = np.array([r["values"][n] for r in ok])
+        s = np.array([r["se"][n] for r in ok])
+        t = np.asarray(ok[0]["truth"][n])
+        z = (e - t) / s
+        hit = np.abs(z) <= cov.Z95
+        (arm_hits if n.startswith("arm.") else other_hits).append(hit.reshape(len(ok), -1))
+        out["parameters"][n] = dict(
+            coverage=hit.mean(axis=0).ravel().tolist(),
+            sd_z=z.std(axis=0, ddof=1).ravel().tolist(),
+            mean_z=z.mean(axis=0).ravel().tolist(),
+            mean_se=s.mean(axis=0).ravel().tolist(),
+        )
+    out["coverage_arm"] = float(np.concatenate(arm_hits, axis=1).mean()) if arm_hits else None
+    out["coverage_other"] = float(np.concatenate(other_hits, axis=1).mean()) if other_hits else None
+    out["mean_time_s"] = float(np.mean([r["time_s"] for r in ok]))
+    out["warned"] = float(np.mean([bool(r["warnings"]) for r in ok]))
+    return out
+
+
+def study(cases, seeds: int, out, *, draws: int = 64, console=None) -> dict:
+    """Run (or resume) ``cases`` x ``seeds`` in run folder ``out`` on the study engine; per case
+    ``{seeds: rows, summary}``, also written to ``out/protocol.json`` with the settings."""
+    from armimp_jax.study.results import atomic_write_json, stamped
+
+    settings = dict(draws=draws, seconds=SECONDS)
+
+    def report(name, row):
+        steps = f"{row['iterations']} steps, converged {row['converged']}"
+        return f"  {name} seed {row['seed']}: {row['time_s']:.1f} s, {steps}"
+
+    def finish(run, rows):
+        done = {name: dict(seeds=rs, summary=summary(rs)) for name, rs in rows.items()}
+        atomic_write_json(run.path / "protocol.json", dict(settings=stamped(settings), cases=done))
+        return done
+
+    def row(case, _f, _name, seed):
+        return one(case, seed, draws=draws)
+
+    spec = cov.Recordings("protocol", settings, list(cases), range(seeds), lambda c: (c, None), row, report)
+    return cov.run_recordings(spec, out, console=console, finish=finish).finished

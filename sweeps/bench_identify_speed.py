@@ -1,0 +1,55 @@
+"""identify's speed in a lab's three cases (issue 47; armimp_jax.bench.identify_speed):
+
+    single   one 20 s PD recording through 0.8 / 1.2 N m of LuGre friction, the arm and both
+             Coulomb torques free from a generic start (target: 30 s warm)
+    pooled   eight 20 s recordings, two at each paper posture, an arm per posture and the
+             torques shared (target: 3 min warm)
+    script   a 48 s IMBIC recording at 1 N m through estimate_recording.py --model, run twice
+             in fresh processes (target: 60 s on the second run)
+
+Each in-process case calls identify twice (the first compiles) and reports both wall times;
+the script case reports both runs' wall times. Writes strict JSON with the settings.
+
+    python sweeps/bench_identify_speed.py --out results/bench-identify-speed/speed.json
+    python sweeps/bench_identify_speed.py --cases single,script --out speed.json
+"""
+
+from __future__ import annotations
+
+import sys
+
+from armimp_jax.study.cli import Parser, fail, script
+
+PROG = "bench_identify_speed"
+CASES = ("single", "pooled", "script")
+
+
+def parse(argv):
+    p = Parser(prog=PROG, description=__doc__.split("\n\n")[0])
+    p.add_argument("--cases", default=",".join(CASES), help=f"comma list of {', '.join(CASES)} (default all)")
+    p.add_argument("--out", default="results/bench-identify-speed/speed.json", help="the JSON file")
+    a = p.parse_args(argv)
+    a.cases = tuple(c.strip() for c in a.cases.split(",") if c.strip())
+    unknown = [c for c in a.cases if c not in CASES]
+    if unknown or not a.cases:
+        fail(f"--cases takes {', '.join(CASES)}; got {unknown or a.cases}", PROG)
+    return a
+
+
+@script(PROG)
+def main(argv=None):
+    a = parse(sys.argv[1:] if argv is None else argv)
+    from armimp_jax.runtime import configure
+
+    configure()
+    from armimp_jax.bench import identify_speed
+
+    results = identify_speed.run(a.cases, a.out)
+    for name, r in results.items():
+        verdict = "within" if r["second_s"] <= r["target_s"] else "OVER"
+        print(f"{name}: first {r['first_s']:.1f} s, second {r['second_s']:.1f} s ({verdict} {r['target_s']:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
