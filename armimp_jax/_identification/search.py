@@ -5,8 +5,9 @@ Steps on the weighted mismatch ``b - beta(p)`` (``indirect.py``): the binding's 
 is reused between them (a chord) and recomputed after a step of more than
 ``JACOBIAN_REUSE_SE`` standard errors or one that fails; a step is halved while a draw
 diverges or the mismatch grows (a stale slope gets two tries before it is refreshed). A step
-that moves every parameter by less than ``FINAL_STEP_SE`` of its SE is the last: it is taken
-without a binding of its own (a chord step from that near lands within a fraction of itself).
+that moves every parameter by less than ``FINAL_STEP_SE`` of its SE (a barely told nuisance,
+below) is the last: it is taken without a binding of its own (a chord step from that near
+lands within a fraction of itself).
 Where a nuisance the recordings barely tell moves more, the search stops instead when a step
 moves every other parameter by less than ``CONVERGED_FRACTION`` of its SE, or by less than
 twice the binding's own Monte Carlo error (``1 / sqrt(R)`` SE: a smaller step chases the
@@ -49,8 +50,9 @@ COARSE_DRAWS = 8  # the binding's draws far from the answer (rounded up to the d
 COARSE_JACOBIAN_DRAWS = 2  # the slope's draws far from the answer (rounded up to the devices)
 FINE_WITHIN_SE = 2.0  # coarse steps until one moves every parameter by less than this many SEs
 JACOBIAN_REUSE_SE = 3.0  # A computed within this many SEs of the estimate serves its covariance
-# A fine step that moves every parameter (the nuisances too) by less than this many SEs is taken
-# unchecked and ends the search (``_final_step``): the binding it saves is most of a step's time.
+# A fine step that moves every parameter by less than this many SEs (a barely told nuisance by less
+# than the settling fraction) is taken unchecked and ends the search (``_final_step``): the binding
+# it saves is most of a step's time.
 FINAL_STEP_SE = 1.0
 HALVINGS = 6  # a step is halved at most this many times while a draw diverges or the mismatch grows
 # The nuisance prior of each free friction parameter: this SD on its internal (log or logit) scale
@@ -273,9 +275,11 @@ def step(problem: Problem, state: Search, max_steps: int) -> Search:
     state = state._replace(se_p=se_p, history=history)
     if coarse and step_se <= FINE_WITHIN_SE:
         return _fine(problem, state)
-    if problem.noisy and not coarse and np.all(np.abs(step) <= FINAL_STEP_SE * se_p):
-        return _final_step(problem, state, step)
     settle = max(CONVERGED_FRACTION, NOISE_MULTIPLE / math.sqrt(problem.n_draws))
+    # a barely told nuisance's SE is most of its prior's: it takes no unchecked step of more than `settle`
+    near = np.where(told, FINAL_STEP_SE, settle) * se_p
+    if problem.noisy and not coarse and np.all(np.abs(step) <= near):
+        return _final_step(problem, state, step)
     if problem.noisy and not coarse and np.all(np.abs(step[told]) <= settle * se_p[told]):
         return state._replace(done=True)
     if not problem.noisy and np.all(np.abs(step) <= 1e-10 * (1.0 + np.abs(state.p))):
