@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import sys
 
-from armimp_jax.study.cli import Parser, fail, script
+from armimp_jax.study.cli import Parser, fail, parse_names, script
 
 PROG = "bench_identify_protocol"
 CASES = ("uncalibrated", "calibrated", "motor-force", "one-trial", "four-trials", "four-postures")
@@ -28,10 +28,7 @@ def parse(argv):
     p.add_argument("--draws", type=int, default=64, help="identify's noise draws (default 64)")
     p.add_argument("--out", default="results/protocol", help="run folder (resumed)")
     a = p.parse_args(argv)
-    a.cases = tuple(c.strip() for c in a.cases.split(",") if c.strip())
-    unknown = [c for c in a.cases if c not in CASES]
-    if unknown or not a.cases:
-        fail(f"--cases takes {', '.join(CASES)}; got {unknown or a.cases}", PROG)
+    a.cases = parse_names(a.cases, CASES, PROG)
     if a.seeds < 2 or a.draws < 8:
         fail(f"need --seeds >= 2 and --draws >= 8; got {a.seeds} and {a.draws}", PROG)
     return a

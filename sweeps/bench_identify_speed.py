@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import sys
 
-from armimp_jax.study.cli import Parser, fail, script
+from armimp_jax.study.cli import Parser, parse_names, script
 
 PROG = "bench_identify_speed"
 CASES = ("single", "pooled", "script")
@@ -29,10 +29,7 @@ def parse(argv):
     p.add_argument("--cases", default=",".join(CASES), help=f"comma list of {', '.join(CASES)} (default all)")
     p.add_argument("--out", default="results/bench-identify-speed/speed.json", help="the JSON file")
     a = p.parse_args(argv)
-    a.cases = tuple(c.strip() for c in a.cases.split(",") if c.strip())
-    unknown = [c for c in a.cases if c not in CASES]
-    if unknown or not a.cases:
-        fail(f"--cases takes {', '.join(CASES)}; got {unknown or a.cases}", PROG)
+    a.cases = parse_names(a.cases, CASES, PROG)
     return a
 
 

@@ -131,16 +131,14 @@ def script(folder, seconds: float = 48.0) -> dict:
     return dict(first_s=runs[0]["wall_s"], second_s=runs[1]["wall_s"], runs=runs, seconds=seconds)
 
 
-CASES = dict(single=single, pooled=pooled)
-
-
 def run(cases, out) -> dict:
     """Each of ``cases`` (``single``, ``pooled``, ``script``); JSON in ``out`` (the script's files
     beside it)."""
     out = pathlib.Path(out)
+    measure = dict(single=single, pooled=pooled, script=lambda: script(out.parent / "script"))
     results = {}
     for name in cases:
-        results[name] = script(out.parent / "script") if name == "script" else CASES[name]()
+        results[name] = measure[name]()
         results[name]["target_s"] = TARGETS_S[name]
         atomic_write_json(out, dict(cases=results))
     return results

@@ -85,13 +85,8 @@ def calibration_truth(motor_force: bool = False):
 
 
 def _truth_values(truth, free, group=None) -> dict:
-    out = {}
-    for n in free:
-        section, name = n.split(".")
-        value = np.asarray(getattr(getattr(truth, section), name), dtype=float)
-        per_joint = value.ndim == 0 and section == "friction"  # a law's scalar stands for both joints
-        out[n if group is None else f"{n}@{group}"] = value * np.ones(2) if per_joint else value
-    return out
+    """``coverage.truth_of``, each name carrying ``@group`` where given (a pooled answer's names)."""
+    return {n if group is None else f"{n}@{group}": v for n, v in cov.truth_of(truth, free).items()}
 
 
 def _calibration(seed: int, *, calibrate: bool, motor_force: bool):
@@ -111,10 +106,7 @@ def _calibration(seed: int, *, calibrate: bool, motor_force: bool):
         ra = _record(t_alone, fa, 2000 + 10 * seed + i)
         recordings.append(aj.Recording(m_alone, fa, ra.x, ra.fh, group="alone"))
     free = _calibration_free(motor_force)
-    values = _truth_values(truth, ARM) | _truth_values(truth, free[len(ARM) :])  # one arm group: plain names
-    if not motor_force:
-        values["sensors.force_delay"] = np.asarray(DELAY_S)
-    return recordings, values
+    return recordings, _truth_values(truth, free)  # one arm group: plain names
 
 
 def _calibration_free(motor_force: bool) -> tuple:
@@ -158,12 +150,12 @@ def one(case: str, seed: int, *, draws: int = 64) -> dict:
     with each free entry's estimate, SE and truth, as plain lists."""
     c = CASES[case]
     recordings, truth = c.recordings(seed)
-    model = recordings[0].model if len(recordings) == 1 else recordings
+    options = dict(free=c.free, draws=draws, key=jax.random.key(seed))
     if len(recordings) == 1:
         r = recordings[0]
-        res = aj.identify(model, r.f, r.x, r.fh, free=c.free, draws=draws, key=jax.random.key(seed))
+        res = aj.identify(r.model, r.f, r.x, r.fh, **options)
     else:
-        res = aj.identify(model, free=c.free, shared=c.shared, draws=draws, key=jax.random.key(seed))
+        res = aj.identify(recordings, shared=c.shared, **options)
     return dict(
         seed=seed,
         diverged=False,

@@ -58,6 +58,16 @@ def parse_cases(text: str, prog: str, example: str) -> list[tuple[str, float]]:
         fail(f"--cases must look like {example}; got {text!r}", prog)
 
 
+def parse_names(text: str, allowed, prog: str, option: str = "--cases") -> tuple[str, ...]:
+    """A comma list of names from ``allowed`` (``"single,script"``); one line naming the allowed
+    ones and exit status 2 for an unknown name or an empty list."""
+    names = tuple(c.strip() for c in text.split(",") if c.strip())
+    unknown = [c for c in names if c not in allowed]
+    if unknown or not names:
+        fail(f"{option} takes {', '.join(allowed)}; got {unknown or names}", prog)
+    return names
+
+
 def distributed_options():
     """``armimp_jax.study.distributed``, for its option helpers (``add_arguments``,
     ``check_arguments``): they need no JAX (the module imports it only to start a job)."""
