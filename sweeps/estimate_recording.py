@@ -258,14 +258,16 @@ def model_route(args) -> int:
         config = idr.read_identify_config(args.model)
         model, options = idr.build_model(config, where=str(args.model))
         idr.check_rate(args.fs, model)
-        if args.sensitivity is not None:
-            idr.check_sensitivity(model, options)
         if "recordings" in config:
             if args.recording is not None:
                 raise ValueError(f"{args.model} lists its recordings in [recordings]: give no RECORDING")
+            if args.sensitivity is not None:
+                raise ValueError("--sensitivity takes one RECORDING, not a [recordings] list (not yet)")
             return pooled_route(args, config, options)
         if args.recording is None:
             raise ValueError(f"{args.model} has no [recordings]: give the RECORDING to identify")
+        if args.sensitivity is not None:
+            idr.check_sensitivity(model, options)
         columns, rec = load(args, recording)
     except ValueError as err:  # IdentifyConfigError and RecordingError included
         return fail(str(err))

@@ -105,6 +105,8 @@ def test_the_script_wants_a_recording_or_a_list_of_them_not_both(tmp_path, capsy
     assert "lists its recordings in [recordings]: give no RECORDING" in capsys.readouterr().err
     assert script.main(["--fs", "1000", "--model", str(single), "--out", out]) == 2
     assert "has no [recordings]: give the RECORDING to identify" in capsys.readouterr().err
+    assert script.main(["--fs", "1000", "--model", str(pooled), "--out", out, "--sensitivity", "10"]) == 2
+    assert "--sensitivity takes one RECORDING, not a [recordings] list" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
 
 
