@@ -1,6 +1,7 @@
 """Design the perturbation of an impedance experiment within a patient's limits, and check it.
 
     python sweeps/design_experiment.py CONFIG.toml --out DIR [--record predicted|design|SECONDS] [--validate SEEDS]
+        [--sensitivity PERCENT]
 
 CONFIG.toml names the robot, controller, sensors, the person's own force and the friction
 (as the model route of estimate_recording.py), the arm to design for ([arm], or the
@@ -20,6 +21,8 @@ limits met), with the settings, the start and the optimisation trace; DIR/pertur
 DIR/spectrum.png, DIR/se.png, DIR/trace.png (and minutes.png) beside it. With --validate
 SEEDS (or [validate] seeds) it simulates and identifies SEEDS recordings per arm under new
 noise with that signal and reports the spread of the estimates against the predicted SEs.
+With --sensitivity PERCENT it prints, per arm, how far a PERCENT error in each of the robot's
+parameters would move each arm entry in SEs, with a warning where that is more than one.
 A bound's minutes leave the joints' friction out: calibrate ([design] calibrate) before
 trusting them through friction. Every bad config gets one line on stderr and exit status 2,
 before any computation.
@@ -48,7 +51,16 @@ def parse(argv):
         help="the written signal's record: the one the design predicts (default), its own, or SECONDS",
     )
     ap.add_argument("--validate", type=int, metavar="SEEDS", help="Monte Carlo check: recordings per arm")
+    ap.add_argument(
+        "--sensitivity",
+        type=float,
+        metavar="PERCENT",
+        help="also print how far a PERCENT error in each robot parameter (inertia, friction, force gain; 1 ms of "
+        "force delay) would move each arm entry, in SEs (armimp_jax.robot_sensitivity per arm)",
+    )
     args = ap.parse_args(argv)
+    if args.sensitivity is not None and not 0 < args.sensitivity <= 100:
+        ap.error(f"--sensitivity takes a percentage in (0, 100], got {args.sensitivity:g}")
     if args.validate is not None and args.validate < 0:
         ap.error(f"--validate must be >= 0 recordings, got {args.validate}")
     if args.record not in ("predicted", "design"):
@@ -233,6 +245,8 @@ def main(argv=None) -> int:
     try:
         config = dx.read_design_config(args.config)
         trials, family, limits, options = dx.build_design(config, where=str(args.config))
+        if args.sensitivity is not None:
+            dx.check_sensitivity(trials, options["free"])
     except ValueError as err:  # ConfigError included
         return fail(str(err))
     start = time.perf_counter()
@@ -284,6 +298,10 @@ def main(argv=None) -> int:
         vbar.close()
         doc, paths = write(validation)
     print_summary(np, result, doc, config, limits, on_bound=isinstance(result, aj.BoundDesign))
+    if args.sensitivity is not None:
+        labels = [row["label"] for row in doc["trials"]]
+        lines = dx.sensitivity_report(trials, result.signal, options["free"], args.sensitivity, labels)
+        print("\n".join(lines))
     print(f"{time.perf_counter() - start:.0f} s; wrote " + ", ".join(p.name for p in paths))
     return 0
 

@@ -146,7 +146,8 @@ def parse(argv):
         type=float,
         metavar="PERCENT",
         help="the model route: also print how far a PERCENT error in each robot parameter (link inertias, "
-        "friction, force gain) would move each arm entry, in SEs (armimp_jax.robot_sensitivity; a binding more)",
+        "friction, force gain; 1 ms of force delay) would move each arm entry, in SEs "
+        "(armimp_jax.robot_sensitivity; a binding more)",
     )
     args = ap.parse_args(argv)
     if args.sensitivity is not None and (args.model is None or not 0 < args.sensitivity <= 100):

@@ -255,6 +255,7 @@ def test_bad_design_configs_get_one_line_before_any_work(case, tmp_path, capsys)
     [
         (["--record", "longest"], "--record must be predicted, design or a number of seconds, got 'longest'"),
         (["--record", "1"], "--record must be >= 2 s, got 1"),
+        (["--sensitivity", "0"], "--sensitivity takes a percentage in (0, 100], got 0"),
     ],
 )
 def test_a_bad_record_is_refused_in_one_line_before_any_computation(args, message, tmp_path, capsys):
@@ -266,19 +267,19 @@ def test_a_bad_record_is_refused_in_one_line_before_any_computation(args, messag
     assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.slow  # about 110 s cold: the design script's two-arm bound design end to end
+@pytest.mark.slow  # about 150 s cold: the design script's two-arm bound design end to end
 def test_design_json_is_what_crlb_gives_on_the_controller_and_the_signal_written(tmp_path, capsys):
     """A two-arm design of IMBIC's gains on the bound, written at another record than its own:
     every arm's bound minutes in design.json are ``crlb`` on the trial its controller record
     builds for that arm (IMBIC's desired inertia resolved per arm, not arm 1's for all) and
-    on perturbation.csv."""
+    on perturbation.csv; the --sensitivity tables printed are ``robot_sensitivity``'s there."""
     text = IMBIC_CONFIG.read_text().replace("robust = [1, 2, 3, 4]", "robust = [1, 3]")
     text = text.replace("record = 20.0 ", "record = 3.0 ").replace("steps = 40", "steps = 2")
     text = text.replace("calibrate = 1 ", "calibrate = 0 ")
     config = tmp_path / "small.toml"
     config.write_text(text)
     out = tmp_path / "out"
-    code, captured = _run_script([config, "--out", out, "--record", "4"], capsys)
+    code, captured = _run_script([config, "--out", out, "--record", "4", "--sensitivity", "10"], capsys)
     assert code == 0, captured.err
     doc = json.loads((out / "design.json").read_text())
     f = np.loadtxt(out / "perturbation.csv", delimiter=",", skiprows=1)
@@ -293,6 +294,8 @@ def test_design_json_is_what_crlb_gives_on_the_controller_and_the_signal_written
         assert row["minutes_after"] == pytest.approx(bound.record_for(precision, entries=doc["targets"]) / 60, rel=1e-9)
         for target, value in row["relative_se_after"].items():
             assert value == pytest.approx(bound.relative([target])[target], rel=1e-9)
+        signal = np.load(out / "perturbation.npz")["f_delta"]
+        assert aj.robot_sensitivity(trial, signal, free=ARM, plausible=10).table() in captured.out
     assert [r["label"] for r in doc["trials"]] == ["arm at location 1", "arm at location 3"]
     assert doc["achieved"]["peak_force"] == pytest.approx(np.abs(f).max(axis=0).tolist(), rel=1e-12)
 

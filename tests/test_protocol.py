@@ -106,16 +106,18 @@ def test_repeated_trials_share_one_binding_and_halve_the_variance():
     assert len(both.recordings) == 2
 
 
-@pytest.mark.slow  # about 150 s: two identifications beside the sensitivity
-def test_the_sensitivity_to_a_force_gain_error_is_identifys_own_move():
+@pytest.mark.slow  # about 200 s: three identifications beside the sensitivity
+def test_the_sensitivity_to_a_force_gain_or_delay_error_is_identifys_own_move():
     """The first-order bias robot_sensitivity predicts for a force channel 1% too strong on the
     x axis is the move of identify's estimate on one recording when its model's gain is 5% off
     (per percent), within 0.1 SE per percent on every entry and 35% on the x-axis mass and
-    damping (the entries the gain moves by more than the draws' noise)."""
+    damping (the entries the gain moves by more than the draws' noise). Its per-ms column is
+    the move when the model's force delay is 1 ms and the recording's none: within 0.6 SE on
+    every entry and 15% on the damping's diagonal (measured 5% and 2%: 1.1 and 1.8 SE each)."""
     trial = aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.NO_FRICTION, **NOISE)
     kw = dict(numerics=NUM, draws=16, jacobian_draws=4)
-    s = aj.robot_sensitivity(trial, F, robot=("sensors.force_gain",), **kw)
-    assert s.robot_labels == ["sensors.force_gain[0]", "sensors.force_gain[1]"]
+    s = aj.robot_sensitivity(trial, F, robot=("sensors.force_gain", "sensors.force_delay"), **kw)
+    assert s.robot_labels == ["sensors.force_gain[0]", "sensors.force_gain[1]", "sensors.force_delay (per ms)"]
     np.testing.assert_allclose(s.in_se, s.bias_per_percent / s.se[:, None])
     sim = _sim(trial, key=jax.random.key(11))
     right = aj.identify(trial, F, sim.x, sim.fh, free=ARM, **kw)
@@ -127,3 +129,29 @@ def test_the_sensitivity_to_a_force_gain_error_is_identifys_own_move():
     for label in ("arm.mass[0,0]", "arm.damping[0,0]"):
         i = s.arm_labels.index(label)
         np.testing.assert_allclose(s.bias_per_percent[i, 0], move[i], rtol=0.35)
+    late = dataclasses.replace(trial, sensors=dataclasses.replace(trial.sensors, force_delay=0.001))
+    delayed = aj.identify(late, F, sim.x, sim.fh, free=ARM, **kw)
+    assert delayed.converged, delayed.message
+    move = np.concatenate([np.ravel(delayed.values[n] - right.values[n]) for n in ARM])
+    np.testing.assert_array_less(np.abs(s.bias_per_percent[:, 2] - move), 0.6 * s.se)
+    for label in ("arm.damping[0,0]", "arm.damping[1,1]"):
+        i = s.arm_labels.index(label)
+        np.testing.assert_allclose(s.bias_per_percent[i, 2], move[i], rtol=0.15)
+
+
+def test_robot_sensitivity_refuses_what_it_cannot_weigh_in_one_line():
+    """A calibration error of 0% and a delay on a force from the motor torques are refused before
+    any simulation; the delay is probed only where the robot has a force transducer."""
+    from armimp_jax._identification.sensitivity import robot_names
+
+    trial = aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.NO_FRICTION, **NOISE)
+    assert robot_names(trial)[-1] == "sensors.force_delay"
+    with pytest.raises(ValueError, match=r"^robot_sensitivity: plausible must be > 0%, got 0$"):
+        aj.robot_sensitivity(trial, F, plausible=0)
+    with pytest.raises(ValueError, match=r"plausible_delay_ms must be > 0 ms, got -1"):
+        aj.robot_sensitivity(trial, F, plausible_delay_ms=-1)
+    motor = aj.Sensors(force_noise=0.05, force_model=aj.MIT_MANUS)
+    no_transducer = dataclasses.replace(trial, sensors=motor)
+    assert "sensors.force_delay" not in robot_names(no_transducer)
+    with pytest.raises(ValueError, match="a force from the motor torques has no force-channel delay"):
+        aj.robot_sensitivity(no_transducer, F, robot="sensors.force_delay")

@@ -12,7 +12,12 @@ lab's own ``identify`` matches (of the arm alone). ``A_p`` comes from the same n
 ``identify``'s slope (forward mode through the simulation), the arm's SEs ``predict_se``'s
 covariance of those same draws and slope. Robot parameters: the link inertias, the friction law's
 ``IDENTIFIABLE`` parameters and the force channel's gain, each by 1% of its value (a parameter
-at zero has no 1%: it is left out, and a force offset or delay has no percentage).
+at zero has no 1%: it is left out, and a force offset has no percentage). The force channel's
+delay behind the position is zero in most models, so it has no 1% either: its column is per
+millisecond, a secant of the binding from the model's delay to 1 ms more on the same draws (the
+delay reads the recorded force by linear interpolation between samples, so its derivative at a
+sample is one-sided; the delay leaves the loop alone, so the secant's draws differ only in the
+recorded force).
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import require_x64
+from .._model.sensors import FORCE_HISTORY
 from .._simulate import Trial
 from .._solver.numerics import Numerics
 from . import indirect
@@ -32,6 +38,8 @@ from .bound import ARM, has_friction, is_near_linear
 from .predict import check_sampling, check_signal
 
 DIAGONALS = ("[0,0]", "[1,1]")
+DELAY = "sensors.force_delay"
+DELAY_STEP_S = 1e-3  # the delay column's secant [s]: per millisecond
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,11 +48,14 @@ class Sensitivity:
 
     Attributes:
         bias_per_percent: ``(n_arm, n_robot)`` the move of each arm entry [its units] per 1%
-            error in each robot parameter entry (the model's value 1% above the truth).
+            error in each robot parameter entry (the model's value 1% above the truth); the
+            force delay's column (labelled ``... (per ms)``) per millisecond of the model's delay
+            above the truth's (a truth 2 ms behind a model with none moves by -2 times it).
         in_se: the same over the arm entry's SE (``predict_se``).
         arm_labels, robot_labels: the rows' and columns' names.
         se: ``(n_arm,)`` the arm entries' SEs.
         plausible: the calibration error [%] the warnings are for.
+        plausible_delay_ms: the force delay [ms] the delay's warning is for.
         warnings: per robot parameter that error would move an arm entry by more than one SE.
     """
 
@@ -55,6 +66,7 @@ class Sensitivity:
     se: np.ndarray
     plausible: float
     warnings: list
+    plausible_delay_ms: float = 1.0
 
     def table(self, *, diagonals: bool = True) -> str:
         """A Markdown table of ``in_se`` (the arm's diagonals by default)."""
@@ -67,11 +79,13 @@ class Sensitivity:
 
 
 def robot_names(trial: Trial) -> list[str]:
-    """The robot's parameters with a value to take 1% of: the inertias, the friction law's and
-    the force gain."""
+    """The robot's parameters to probe: those with a value to take 1% of (the inertias, the
+    friction law's and the force gain), and the force channel's delay where the robot has a
+    force transducer (its column per millisecond)."""
     names = ["robot.inertia"] + [f"friction.{n}" for n in type(trial.friction).IDENTIFIABLE]
     names.append("sensors.force_gain")
-    return [n for n in names if np.all(np.asarray(lay._get(trial, n)) > 0)]
+    names = [n for n in names if np.all(np.asarray(lay._get(trial, n)) > 0)]
+    return names + ([] if trial.sensors.motor_force else [DELAY])
 
 
 def robot_sensitivity(
@@ -81,6 +95,7 @@ def robot_sensitivity(
     free=ARM,
     robot=None,
     plausible: float = 10.0,
+    plausible_delay_ms: float = 1.0,
     statistic: str = "auto",
     numerics: Numerics | None = None,
     key=None,
@@ -94,8 +109,10 @@ def robot_sensitivity(
         f: the perturbation ``(N, 2)`` [N].
         free: the arm matrices ``identify`` will estimate.
         robot: the robot's parameters to probe (names as ``identify``'s: ``"robot.inertia"``,
-            ``"friction.<name>"``, ``"sensors.force_gain"``); default every one with a value.
+            ``"friction.<name>"``, ``"sensors.force_gain"``, ``"sensors.force_delay"``, the last
+            per millisecond); default ``robot_names(trial)``.
         plausible: the calibration error [%] the warnings are for.
+        plausible_delay_ms: the force delay [ms] the delay's warning is for.
         statistic, numerics, key, draws, jacobian_draws: as ``predict_se``.
 
     Returns a ``Sensitivity``. One-line errors for names that are not arm matrices (``free``) or
@@ -114,13 +131,19 @@ def robot_sensitivity(
     robot = tuple(robot_names(trial) if robot is None else ((robot,) if isinstance(robot, str) else robot))
     if not robot or any(n in lay.ARM_PARAMETERS for n in robot):
         raise ValueError("robot_sensitivity: robot must name the robot's parameters (not the arm's)")
+    for name, value, unit in (("plausible", plausible, "%"), ("plausible_delay_ms", plausible_delay_ms, " ms")):
+        if not float(value) > 0.0:
+            raise ValueError(f"robot_sensitivity: {name} must be > 0{unit}, got {value}")
+    delay = DELAY in robot
+    if delay and trial.sensors.motor_force:
+        raise ValueError("robot_sensitivity: a force from the motor torques has no force-channel delay to probe")
+    percent = tuple(n for n in robot if n != DELAY)
     est = lay.make_layout(free, friction=trial.friction, where="robot_sensitivity")
-    both = lay.make_layout(free + robot, friction=trial.friction, where="robot_sensitivity")
+    both = lay.make_layout(free + percent, friction=trial.friction, where="robot_sensitivity")
     f = check_signal(trial, f, "robot_sensitivity")
     numerics, draws, jacobian_draws = check_sampling("robot_sensitivity", statistic, numerics, draws, jacobian_draws)
     key = jax.random.key(0) if key is None else key
     model = _calibrated(trial, robot)
-    p = lay.pack(both, model)
     n_draws, n_jac = indirect.draw_counts(model, draws, jacobian_draws)
     keys = jax.random.split(key, n_draws)
     if statistic == "auto":  # as identify and predict_se choose
@@ -130,12 +153,30 @@ def robot_sensitivity(
         weight = indirect.statistic_weight(
             est, model, lay.pack(est, model), f, keys[: indirect.weight_draws(n_draws)], numerics
         )
-    arm_stat = indirect.arm_statistic(est, model, lay.pack(est, model), f, weight) if statistic == "efficient" else None
-    stats, _ = indirect.binding_draws(est, model, lay.pack(est, model), f, keys, numerics, arm_stat)
+    p_arm = lay.pack(est, model)
+    arm_stat = indirect.arm_statistic(est, model, p_arm, f, weight) if statistic == "efficient" else None
+    stats, _ = indirect.binding_draws(est, model, p_arm, f, keys, numerics, arm_stat)
+    p = lay.pack(both, model)
     jac, diverged = indirect.binding_jacobian(both, model, p, f, keys[:n_jac], numerics, arm_stat, est)
     if bool(diverged):
         raise ValueError("robot_sensitivity: a noisy simulation of the trial diverged")
-    return _answer(est, both, model, np.asarray(p), np.asarray(stats), np.asarray(jac), n_draws, plausible)
+    jac = np.asarray(jac)
+    if delay:  # the per-ms column: a secant on the slope's own draws (module docstring)
+        secant = _delay_secant(est, model, p_arm, f, keys[:n_jac], numerics, arm_stat, stats)
+        jac = np.concatenate([jac, secant], axis=1)
+    return _answer(est, both, model, np.asarray(p), np.asarray(stats), jac, n_draws, plausible, plausible_delay_ms)
+
+
+def _delay_secant(est, model, p_arm, f, keys, numerics, arm_stat, stats) -> np.ndarray:
+    """``(m, 1)``: the binding's move per millisecond of the model's force delay, a secant over
+    the first draws (``keys``, those of ``stats``' first rows): 1 ms later, or earlier where
+    that would pass the delay line's end."""
+    delay = float(model.sensors.force_delay)
+    step = DELAY_STEP_S if delay + DELAY_STEP_S < (FORCE_HISTORY - 1) * model.period else -DELAY_STEP_S
+    moved = dataclasses.replace(model, sensors=dataclasses.replace(model.sensors, force_delay=delay + step))
+    shifted, _ = indirect.binding_draws(est, moved, p_arm, f, keys, numerics, arm_stat)
+    diff = (np.asarray(shifted) - np.asarray(stats)[: keys.shape[0]]).mean(axis=0)
+    return (diff / (1e3 * step))[:, None]
 
 
 def _calibrated(trial: Trial, robot) -> Trial:
@@ -145,35 +186,52 @@ def _calibrated(trial: Trial, robot) -> Trial:
     return trial
 
 
-def _answer(est, both, model, p, stats, jac, n_draws, plausible) -> Sensitivity:
+def _answer(est, both, model, p, stats, jac, n_draws, plausible, plausible_delay_ms) -> Sensitivity:
+    """The table from the slope ``jac``: the arm's columns, each percent parameter's of
+    ``both``, then (where one more) the delay's per-ms secant."""
     n = est.size
     w = np.asarray(indirect.weights(jnp.asarray(stats), jnp.asarray(jac[:, :n])))
     a_t, a_p = jac[:, :n], jac[:, n:]
     aw = a_t.T * w[None, :]
-    move = -np.linalg.solve(aw @ a_t, aw @ a_p)  # internal arm per internal robot unit
+    move = -np.linalg.solve(aw @ a_t, aw @ a_p)  # internal arm per internal robot unit (per ms: the delay)
     # 1% of each robot entry in its internal units, and the arm's internal -> natural map
     robot_layout = lay.Layout(both.names[len(est.names) :], both.symmetric[len(est.names) :])
     q = p[n:]
-    natural = np.asarray(lay.natural(robot_layout, jnp.asarray(q), model))
-    d_nat = np.asarray(jax.jacfwd(lambda v: lay.natural(robot_layout, v, model))(jnp.asarray(q)))
-    per_percent = np.linalg.pinv(d_nat) @ np.diag(0.01 * natural)  # internal move per 1% of each entry
     g = np.asarray(lay.natural_jacobian(est, jnp.asarray(p[:n]), model))
-    bias = g @ move @ per_percent
+    bias = np.zeros((g.shape[0], 0))
+    if q.size:
+        natural = np.asarray(lay.natural(robot_layout, jnp.asarray(q), model))
+        d_nat = np.asarray(jax.jacfwd(lambda v: lay.natural(robot_layout, v, model))(jnp.asarray(q)))
+        per_percent = np.linalg.pinv(d_nat) @ np.diag(0.01 * natural)  # internal move per 1% of each entry
+        bias = g @ move[:, : q.size] @ per_percent
+    robot_labels = robot_layout.labels() if q.size else []
+    if move.shape[1] > q.size:  # the delay's column
+        bias = np.concatenate([bias, g @ move[:, q.size :]], axis=1)
+        robot_labels = [*robot_labels, f"{DELAY} (per ms)"]
     # predict_se's covariance, from the same draws and slope (not a second pass of them)
     se = np.sqrt(np.diag(g @ np.asarray(indirect.covariance(a_t, stats, n_draws)) @ g.T))
     in_se = bias / se[:, None]
-    arm_labels, robot_labels = est.labels(), robot_layout.labels()
+    arm_labels = est.labels()
     warnings = []
     for j, lab in enumerate(robot_labels):
         worst = int(np.argmax(np.abs(in_se[:, j])))
-        if abs(in_se[worst, j]) * plausible > 1.0:
-            remedy = (
-                "calibrate the force transducer against a known load"  # the robot alone reads no hand force
-                if lab.startswith("sensors.")
-                else "calibrate it (free it in identify with a robot-alone recording under PD) or know it better"
-            )
-            warnings.append(
-                f"a {plausible:g}% error in the robot's {lab} would move {arm_labels[worst]} by "
-                f"{abs(in_se[worst, j]) * plausible:.1f} SE: {remedy}"
-            )
-    return Sensitivity(bias, in_se, arm_labels, robot_labels, se, float(plausible), warnings)
+        error = plausible_delay_ms if lab.startswith(DELAY) else plausible
+        if abs(in_se[worst, j]) * error > 1.0:
+            warnings.append(_warning(lab, arm_labels[worst], abs(in_se[worst, j]) * error, error))
+    return Sensitivity(bias, in_se, arm_labels, robot_labels, se, float(plausible), warnings, float(plausible_delay_ms))
+
+
+def _warning(label: str, entry: str, moved: float, error: float) -> str:
+    """One warning, in the lab's terms, with what to do (``error``: in % or, the delay's, ms)."""
+    if label.startswith(DELAY):
+        return (
+            f"a {error:g} ms error in the force channel's delay behind the position would move {entry} by "
+            f"{moved:.1f} SE: measure the acquisition's delay (a tap on the handle shows it in both channels) or "
+            "free sensors.force_delay in identify"
+        )
+    remedy = (
+        "calibrate the force transducer against a known load"  # the robot alone reads no hand force
+        if label.startswith("sensors.")
+        else "calibrate it (free it in identify with a robot-alone recording under PD) or know it better"
+    )
+    return f"a {error:g}% error in the robot's {label} would move {entry} by {moved:.1f} SE: {remedy}"

@@ -18,11 +18,19 @@ and in the model.
   one posture (IMBIC, LuGre 0.5 / 0.75 N m, the arm free): the SEs should halve;
 - ``four-postures``: the paper's four postures, one 20 s recording each, in one call (PD
   through LuGre 0.5 / 0.75 N m, 10 N peak), an arm per posture and ``tau_c`` shared.
+- ``sensitivity`` (``sensitivity_case``, from a folder of ``sweeps/design_experiment.py``): one
+  arm of the design on its designed controller and the first 20 s of its signal; each recording
+  identified twice, by the true model and by one whose link inertias are 10% above the truth's
+  (IMBIC's desired inertia kept, as the lab's controller). The mean paired move is the bias
+  ``robot_sensitivity`` predicts (``sensitivity_prediction``: ten times the sum of its three
+  inertia columns, first order).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
+import pathlib
 from collections.abc import Callable
 
 import jax
@@ -40,6 +48,7 @@ INERTIA_ERROR = 1.15  # the truth's link inertias over the model's
 VISCOUS_ERROR = 2.0  # the truth's sigma2 over the model's
 DELAY_S = 0.002  # the truth's force-channel delay [s]
 DELAY_START_S = 0.001  # the calibration's starting guess of it [s]
+INERTIA_OFF = 1.10  # the sensitivity case: the model's link inertias over the truth's
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,6 +59,7 @@ class Case:
     free: tuple
     recordings: Callable
     shared: tuple | None = None
+    off: Callable | None = None  # a trial -> the lab's wrong model of it: each seed fitted twice
 
 
 def _samples() -> int:
@@ -145,18 +155,69 @@ CASES = {
 }
 
 
-def one(case: str, seed: int, *, draws: int = 64) -> dict:
-    """One seed of ``case``: its recordings identified in one call (the seed keys the draws),
-    with each free entry's estimate, SE and truth, as plain lists."""
-    c = CASES[case]
-    recordings, truth = c.recordings(seed)
-    options = dict(free=c.free, draws=draws, key=jax.random.key(seed))
+def designed(folder) -> tuple[list, np.ndarray]:
+    """``(trials, signal)`` of a ``design_experiment.py`` folder: each arm's trial on the designed
+    controller (``design.json``'s, as its config builds it) and the perturbation ``(N, 2)`` [N]."""
+    from armimp_jax.study.config import build_trial
+    from armimp_jax.study.design_experiment import paper_arm
+
+    folder = pathlib.Path(folder)
+    doc = json.loads((folder / "design.json").read_text())
+    config = dict(doc["settings"]["config"], controller=doc["controller"])
+    robust = config["design"]["robust"] or [None]
+    trials = [build_trial(config, arm=None if loc is None else paper_arm(loc)) for loc in robust]
+    return trials, np.load(folder / "perturbation.npz")["f_delta"]
+
+
+def _inertia_off(trial):
+    robot = aj.Robot(inertia=INERTIA_OFF * np.asarray(trial.robot.inertia))
+    return dataclasses.replace(trial, robot=robot)  # the controller as resolved: the lab's
+
+
+def sensitivity_case(folder, arm: int = 0) -> Case:
+    """The ``sensitivity`` case of a design folder's arm ``arm`` (module docstring)."""
+    trials, signal = designed(folder)
+    truth, f = trials[arm], np.asarray(signal[: _samples()])
+
+    def recordings(seed):
+        rec = _record(truth, f, 5000 + seed)
+        return [aj.Recording(truth, f, rec.x, rec.fh)], _truth_values(truth, ARM)
+
+    return Case(ARM, recordings, off=_inertia_off)
+
+
+def sensitivity_prediction(folder, arm: int = 0, *, draws: int = 64) -> dict:
+    """``robot_sensitivity`` at the ``sensitivity`` case's truth and signal: per arm entry the
+    bias of link inertias ``INERTIA_OFF`` times the truth's (first order) and the SE."""
+    trials, signal = designed(folder)
+    s = aj.robot_sensitivity(trials[arm], signal[: _samples()], free=ARM, robot="robot.inertia", draws=draws)
+    bias = 100.0 * (INERTIA_OFF - 1.0) * s.bias_per_percent.sum(axis=1)
+    return dict(labels=s.arm_labels, bias=bias.tolist(), se=s.se.tolist(), table=s.table())
+
+
+def _identify(c: Case, recordings, options):
     if len(recordings) == 1:
         r = recordings[0]
-        res = aj.identify(r.model, r.f, r.x, r.fh, **options)
-    else:
-        res = aj.identify(recordings, shared=c.shared, **options)
-    return dict(
+        return aj.identify(r.model, r.f, r.x, r.fh, **options)
+    return aj.identify(recordings, shared=c.shared, **options)
+
+
+def one(case: str, seed: int, *, draws: int = 64, cases=None) -> dict:
+    """One seed of ``case`` (of ``cases``, default ``CASES``): its recordings identified in one
+    call (the seed keys the draws), with each free entry's estimate, SE and truth, as plain
+    lists; a case with an ``off`` model adds that fit's values (``values_off``)."""
+    c = (CASES if cases is None else cases)[case]
+    recordings, truth = c.recordings(seed)
+    options = dict(free=c.free, draws=draws, key=jax.random.key(seed))
+    res = _identify(c, recordings, options)
+    extra = {}
+    if c.off is not None:  # the same recordings and draws, the lab's wrong model
+        wrong = [r._replace(model=c.off(r.model)) for r in recordings]
+        off = _identify(c, wrong, options)
+        extra = dict(
+            converged_off=bool(off.converged), values_off={n: np.asarray(v).tolist() for n, v in off.values.items()}
+        )
+    return extra | dict(
         seed=seed,
         diverged=False,
         converged=bool(res.converged),
@@ -198,12 +259,42 @@ def summary(rows: list[dict]) -> dict:
     return out
 
 
-def study(cases, seeds: int, out, *, draws: int = 64, console=None) -> dict:
+def paired_summary(rows: list[dict], prediction: dict) -> dict:
+    """The ``sensitivity`` case: per arm entry the mean paired move (wrong model less right) over
+    the seeds both fits converged on, its standard error, the predicted bias and their ratio
+    (where the move is measurable: more than three of its standard errors)."""
+    ok = [r for r in rows if not r["diverged"] and r["converged"] and r["converged_off"]]
+    out = dict(recordings=len(rows), both_converged=len(ok), entries={})
+    if len(ok) < 2:
+        return out
+    moves = np.array(
+        [np.concatenate([np.ravel(np.subtract(r["values_off"][n], r["values"][n])) for n in ARM]) for r in ok]
+    )
+    mean, sem = moves.mean(axis=0), moves.std(axis=0, ddof=1) / np.sqrt(len(ok))
+    for i, label in enumerate(prediction["labels"]):
+        predicted = prediction["bias"][i]
+        measurable = abs(mean[i]) > 3 * sem[i]
+        out["entries"][label] = dict(
+            measured=float(mean[i]),
+            measured_se=float(sem[i]),
+            predicted=float(predicted),
+            in_se=float(predicted / prediction["se"][i]),
+            ratio=float(predicted / mean[i]) if measurable else None,
+        )
+    return out
+
+
+def study(cases, seeds: int, out, *, draws: int = 64, design=None, design_arm: int = 0, console=None) -> dict:
     """Run (or resume) ``cases`` x ``seeds`` in run folder ``out`` on the study engine; per case
-    ``{seeds: rows, summary}``, also written to ``out/protocol.json`` with the settings."""
+    ``{seeds: rows, summary}``, also written to ``out/protocol.json`` with the settings. The
+    ``sensitivity`` case needs ``design`` (a ``design_experiment.py`` folder) and its arm."""
     from armimp_jax.study.results import atomic_write_json, stamped
 
     settings = dict(draws=draws, seconds=SECONDS)
+    known = dict(CASES)
+    if "sensitivity" in cases:
+        settings.update(design=str(design), design_arm=design_arm, inertia_off=INERTIA_OFF)
+        known["sensitivity"] = sensitivity_case(design, design_arm)
 
     def report(name, row):
         steps = f"{row['iterations']} steps, converged {row['converged']}"
@@ -211,11 +302,14 @@ def study(cases, seeds: int, out, *, draws: int = 64, console=None) -> dict:
 
     def finish(run, rows):
         done = {name: dict(seeds=rs, summary=summary(rs)) for name, rs in rows.items()}
+        if "sensitivity" in done:
+            prediction = sensitivity_prediction(design, design_arm, draws=draws)
+            done["sensitivity"].update(prediction=prediction, paired=paired_summary(rows["sensitivity"], prediction))
         atomic_write_json(run.path / "protocol.json", dict(settings=stamped(settings), cases=done))
         return done
 
     def row(case, _f, _name, seed):
-        return one(case, seed, draws=draws)
+        return one(case, seed, draws=draws, cases=known)
 
     spec = cov.Recordings("protocol", settings, list(cases), range(seeds), lambda c: (c, None), row, report)
     return cov.run_recordings(spec, out, console=console, finish=finish).finished

@@ -25,7 +25,7 @@ from .._identification.bound import has_friction
 from .._identification.bound_design import BoundDesign
 from .._identification.criterion import default_targets, relative_se
 from .._identification.design import AGGREGATES, CRITERIA, METHODS, Auto, CramerRao, MonteCarlo
-from .._identification.layout import make_layout, parameter_units
+from .._identification.layout import ARM_PARAMETERS, make_layout, parameter_units
 from .._identification.limits import Limits
 from .._model.families import ShapedNoise, multisine
 from ..presets import arm as paper_arm
@@ -206,6 +206,32 @@ def friction_note(result: BoundDesign) -> str:
         f"  (the bound's minutes leave out the joints' Coulomb friction, {tau_c} here, which adds to "
         "them; [validate] seeds = 30 measures them by identification, docs/experiment_design.md)"
     )
+
+
+def check_sensitivity(trials, free) -> None:
+    """One-line errors, before the design, for a ``--sensitivity`` the design cannot give: no
+    free arm matrix, or no noise (no SE to weigh the moves by)."""
+    if not any(n in ARM_PARAMETERS for n in free):
+        raise ValueError("--sensitivity needs the arm free ([design] free names arm.mass, ...)")
+    if not trials[0].noisy:
+        raise ValueError("--sensitivity needs the config's noise ([sensors], [voluntary]): no SE to weigh by")
+
+
+def sensitivity_report(trials, signal, free, percent: float, labels, *, draws: int = 64) -> list[str]:
+    """How well must the lab know its robot for this design: ``robot_sensitivity`` of each arm's
+    trial at the signal written, as lines (per arm the table of each diagonal's move per 1%
+    error in each robot parameter, per ms of force delay [SE], then its warnings at ``percent``)."""
+    from .._identification.sensitivity import robot_sensitivity
+
+    arm = tuple(n for n in free if n in ARM_PARAMETERS)
+    lines = [
+        "how well must you know your robot: each arm diagonal's move per 1% error in the robot (the force "
+        "delay's per ms), in SEs at the signal written"
+    ]
+    for label, trial in zip(labels, trials, strict=True):
+        s = robot_sensitivity(trial, signal, free=arm, plausible=percent, draws=draws)
+        lines += [f"{label}:", s.table(), *(f"warning: {w}" for w in s.warnings)]
+    return lines
 
 
 def _arm_record(trial) -> dict:

@@ -133,8 +133,9 @@ def sensitivity_report(res, rec: dict, options: dict, percent: float) -> list[st
     """How well must the lab know its robot for this answer: ``robot_sensitivity`` at the
     identified trial and the recording's perturbation (the arm's free matrices; the draws and
     numerics of ``options``), as lines: the table of each arm diagonal's move per 1% error in
-    each robot parameter [SE], then a warning per parameter a ``percent`` error would move an
-    entry by more than one SE. A one-line ``ValueError`` where the arm is not free."""
+    each robot parameter (per ms of force delay) [SE], then a warning per parameter a ``percent``
+    error (1 ms of delay) would move an entry by more than one SE. A one-line ``ValueError``
+    where the arm is not free."""
     from .._identification.sensitivity import robot_names, robot_sensitivity
 
     check_sensitivity(res.trial, options)
@@ -152,7 +153,10 @@ def sensitivity_report(res, rec: dict, options: dict, percent: float) -> list[st
         draws=options.get("draws", 64),
         jacobian_draws=options.get("jacobian_draws", 8),
     )
-    head = "how well must you know your robot: each arm diagonal's move per 1% error in the robot [SE]"
+    head = (
+        "how well must you know your robot: each arm diagonal's move per 1% error in the robot (the force "
+        "delay's per ms) [SE]"
+    )
     return [head, sens.table(), *(f"warning: {w}" for w in sens.warnings)]
 
 
