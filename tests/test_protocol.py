@@ -155,3 +155,24 @@ def test_robot_sensitivity_refuses_what_it_cannot_weigh_in_one_line():
     assert "sensors.force_delay" not in robot_names(no_transducer)
     with pytest.raises(ValueError, match="a force from the motor torques has no force-channel delay"):
         aj.robot_sensitivity(no_transducer, F, robot="sensors.force_delay")
+
+
+def test_the_entrywise_cells_change_one_factor_each_from_the_base_case():
+    """Issue 50's design: every cell is the base case (IMBIC, LuGre 0.5 N m, 0.5 N of the
+    person's force below 1.5 Hz, force noise 0.1 N, 10 s, arm 2) with one factor changed, and
+    its settings are plain JSON."""
+    import json
+
+    from armimp_jax.bench import entrywise as ew
+
+    base = ew.BASE.truth()
+    assert isinstance(base.controller, aj.IMBIC) and float(base.friction.tau_c[0]) == 0.5
+    assert float(np.ravel(base.voluntary.std)[0]) == 0.5 and float(base.sensors.force_noise[0]) == 0.1
+    for name, cell in ew.CELLS_FACTORS.items():
+        changed = {k for k, v in dataclasses.asdict(cell).items() if v != getattr(ew.BASE, k)}
+        assert len(changed) <= (3 if name == "pd" else 1), (name, changed)
+    assert ew.CELLS_FACTORS["friction-0"].free() == ARM  # no Coulomb torque to estimate
+    assert ew.CELLS_FACTORS["base"].free() == (*ARM, "friction.tau_c")
+    assert json.loads(json.dumps(ew.settings()))["pd"] == dict(
+        controller="pd", tau_c=0.3, voluntary=0.5, seconds=10.0, location=2, peak=10.0
+    )

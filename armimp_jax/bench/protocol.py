@@ -284,14 +284,27 @@ def paired_summary(rows: list[dict], prediction: dict) -> dict:
     return out
 
 
-def study(cases, seeds: int, out, *, draws: int = 64, design=None, design_arm: int = 0, console=None) -> dict:
+def study(
+    cases,
+    seeds: int,
+    out,
+    *,
+    draws: int = 64,
+    design=None,
+    design_arm: int = 0,
+    catalogue=None,
+    settings=None,
+    console=None,
+) -> dict:
     """Run (or resume) ``cases`` x ``seeds`` in run folder ``out`` on the study engine; per case
     ``{seeds: rows, summary}``, also written to ``out/protocol.json`` with the settings. The
-    ``sensitivity`` case needs ``design`` (a ``design_experiment.py`` folder) and its arm."""
+    ``sensitivity`` case needs ``design`` (a ``design_experiment.py`` folder) and its arm.
+    ``catalogue``: the cases by name (default ``CASES``; ``bench.entrywise.cells``', say), with
+    the ``settings`` that describe them."""
     from armimp_jax.study.results import atomic_write_json, stamped
 
-    settings = dict(draws=draws, seconds=SECONDS)
-    known = dict(CASES)
+    settings = dict(draws=draws, **(dict(seconds=SECONDS) if catalogue is None else dict(cases=settings)))
+    known = dict(CASES if catalogue is None else catalogue)
     if "sensitivity" in cases:
         settings.update(design=str(design), design_arm=design_arm, inertia_off=INERTIA_OFF)
         known["sensitivity"] = sensitivity_case(design, design_arm)

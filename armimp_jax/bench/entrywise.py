@@ -1,0 +1,85 @@
+"""Intervals entry by entry (issue 50): a one-factor-at-a-time design around one base case,
+each cell a ``protocol.Case`` run by ``protocol.study`` (``sweeps/bench_identify_entries.py``).
+
+The base case (``base``): IMBIC through LuGre 0.5 / 0.75 N m, force noise 0.1 N, 2^18-count
+encoders, a strong person's force of 0.5 N RMS below 1.5 Hz, 10 s records at the paper's
+level 1, the paper's arm at location 2; the arm and ``tau_c`` free, started at the truth.
+The cells change one factor: the record (``record-5``, ``record-20`` s), the person's force
+(``force-0.1``, ``force-0.3`` N RMS), IMBIC's friction (``friction-0``: the arm alone, and
+``friction-1`` N m), the arm (``arm-<L>``: the paper's arm at location L in the base case),
+and ``pd``: PD through 0.3 N m with a 10 N peak. Each recording's perturbation is one signal
+per cell; the noise is drawn afresh per seed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+
+import armimp_jax as aj
+from armimp_jax import presets
+
+from . import protocol as pr
+
+ARM = pr.ARM
+
+
+@dataclasses.dataclass(frozen=True)
+class Cell:
+    """One cell's factors (the base case's by default)."""
+
+    controller: str = "imbic"
+    tau_c: float = 0.5
+    voluntary: float = 0.5
+    seconds: float = 10.0
+    location: int = 2
+    peak: float | None = None  # [N] per axis; None: the paper's level 1
+
+    def truth(self):
+        friction = aj.NO_FRICTION if self.tau_c == 0 else aj.LuGre(self.tau_c, 1.5 * self.tau_c)
+        return aj.make_trial(
+            aj.controller_kind(self.controller)(),
+            arm=presets.arm(self.location),
+            friction=friction,
+            sensors=aj.Sensors(force_noise=0.1, encoder_counts=2**18),
+            voluntary=aj.VoluntaryForce(self.voluntary, 1.5),
+        )
+
+    def free(self) -> tuple:
+        return ARM if self.tau_c == 0 else ARM + ("friction.tau_c",)
+
+    def case(self) -> pr.Case:
+        truth, free = self.truth(), self.free()
+        peak = presets.perturbation_peak(1) if self.peak is None else self.peak
+        f = aj.perturbation(jax.random.key(50), int(round(self.seconds * 1000)), peak)
+
+        def recordings(seed):
+            rec = pr._record(truth, f, 6000 + seed)
+            return [aj.Recording(truth, f, rec.x, rec.fh)], pr._truth_values(truth, free)
+
+        return pr.Case(free, recordings)
+
+
+BASE = Cell()
+CELLS_FACTORS = {
+    "base": BASE,
+    "record-5": dataclasses.replace(BASE, seconds=5.0),
+    "record-20": dataclasses.replace(BASE, seconds=20.0),
+    "force-0.1": dataclasses.replace(BASE, voluntary=0.1),
+    "force-0.3": dataclasses.replace(BASE, voluntary=0.3),
+    "friction-0": dataclasses.replace(BASE, tau_c=0.0),
+    "friction-1": dataclasses.replace(BASE, tau_c=1.0),
+    **{f"arm-{loc}": dataclasses.replace(BASE, location=loc) for loc in (1, 3, 4)},
+    "pd": dataclasses.replace(BASE, controller="pd", tau_c=0.3, peak=10.0),
+}
+
+
+def settings() -> dict:
+    """Every cell's factors (a run folder's settings: naming more cells later extends it)."""
+    return {n: dataclasses.asdict(c) for n, c in CELLS_FACTORS.items()}
+
+
+def cells(names) -> dict:
+    """``{name: Case}`` of the cells named (``CELLS_FACTORS``' keys)."""
+    return {n: CELLS_FACTORS[n].case() for n in names}
