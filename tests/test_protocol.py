@@ -156,6 +156,15 @@ def test_robot_sensitivity_refuses_what_it_cannot_weigh_in_one_line():
     assert "sensors.force_delay" not in robot_names(no_transducer)
     with pytest.raises(ValueError, match="a force from the motor torques has no force-channel delay"):
         aj.robot_sensitivity(no_transducer, F, robot="sensors.force_delay")
+    # the force channel's calibration is simulated under the instant acquisition only
+    mean = aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.NO_FRICTION, acquisition="interval_mean", **NOISE)
+    assert not any(n.startswith("sensors.") for n in robot_names(mean))
+    with pytest.raises(ValueError, match="gain and delay need acquisition 'instant', got 'interval_mean'"):
+        aj.robot_sensitivity(mean, F, robot="sensors.force_gain")
+    # a delay line too short for a 1 ms secant either way (7 periods of 0.1 ms)
+    fast = aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.NO_FRICTION, period=1e-4, **NOISE)
+    with pytest.raises(ValueError, match=r"the force delay line holds 0.7 ms at a 0.1 ms period, too short"):
+        aj.robot_sensitivity(fast, F, robot="sensors.force_delay")
 
 
 def test_the_entrywise_cells_change_one_factor_each_from_the_base_case():

@@ -83,9 +83,10 @@ def robot_names(trial: Trial) -> list[str]:
     friction law's and the force gain), and the force channel's delay where the robot has a
     force transducer (its column per millisecond)."""
     names = ["robot.inertia"] + [f"friction.{n}" for n in type(trial.friction).IDENTIFIABLE]
-    names.append("sensors.force_gain")
+    if trial.acquisition == "instant":  # the force channel's calibration is simulated only there
+        names.append("sensors.force_gain")
     names = [n for n in names if np.all(np.asarray(lay._get(trial, n)) > 0)]
-    return names + ([] if trial.sensors.motor_force else [DELAY])
+    return names + ([DELAY] if trial.acquisition == "instant" and not trial.sensors.motor_force else [])
 
 
 def robot_sensitivity(
@@ -137,6 +138,12 @@ def robot_sensitivity(
     delay = DELAY in robot
     if delay and trial.sensors.motor_force:
         raise ValueError("robot_sensitivity: a force from the motor torques has no force-channel delay to probe")
+    if any(n.startswith("sensors.") for n in robot) and trial.acquisition != "instant":
+        raise ValueError(
+            "robot_sensitivity: the force channel's gain and delay need acquisition 'instant', got "
+            f"{trial.acquisition!r}"
+        )
+    step = _delay_step(trial) if delay else 0.0
     percent = tuple(n for n in robot if n != DELAY)
     est = lay.make_layout(free, friction=trial.friction, where="robot_sensitivity")
     both = lay.make_layout(free + percent, friction=trial.friction, where="robot_sensitivity")
@@ -162,18 +169,30 @@ def robot_sensitivity(
         raise ValueError("robot_sensitivity: a noisy simulation of the trial diverged")
     jac = np.asarray(jac)
     if delay:  # the per-ms column: a secant on the slope's own draws (module docstring)
-        secant = _delay_secant(est, model, p_arm, f, keys[:n_jac], numerics, arm_stat, stats)
+        secant = _delay_secant(est, model, p_arm, f, keys[:n_jac], numerics, arm_stat, stats, step)
         jac = np.concatenate([jac, secant], axis=1)
     return _answer(est, both, model, np.asarray(p), np.asarray(stats), jac, n_draws, plausible, plausible_delay_ms)
 
 
-def _delay_secant(est, model, p_arm, f, keys, numerics, arm_stat, stats) -> np.ndarray:
-    """``(m, 1)``: the binding's move per millisecond of the model's force delay, a secant over
-    the first draws (``keys``, those of ``stats``' first rows): 1 ms later, or earlier where
-    that would pass the delay line's end."""
-    delay = float(model.sensors.force_delay)
-    step = DELAY_STEP_S if delay + DELAY_STEP_S < (FORCE_HISTORY - 1) * model.period else -DELAY_STEP_S
-    moved = dataclasses.replace(model, sensors=dataclasses.replace(model.sensors, force_delay=delay + step))
+def _delay_step(trial: Trial) -> float:
+    """The delay secant's step [s]: 1 ms later, or earlier where that would pass the delay
+    line's end; a one-line error where neither fits (a period too short for 1 ms)."""
+    delay, longest = float(trial.sensors.force_delay), (FORCE_HISTORY - 1) * trial.period
+    if delay + DELAY_STEP_S < longest:
+        return DELAY_STEP_S
+    if delay - DELAY_STEP_S >= 0.0:
+        return -DELAY_STEP_S
+    raise ValueError(
+        f"robot_sensitivity: the force delay line holds {1e3 * longest:g} ms at a {1e3 * trial.period:g} ms period, "
+        f"too short to probe 1 ms about {1e3 * delay:g} ms"
+    )
+
+
+def _delay_secant(est, model, p_arm, f, keys, numerics, arm_stat, stats, step: float) -> np.ndarray:
+    """``(m, 1)``: the binding's move per millisecond of the model's force delay, a secant of
+    ``step`` [s] over the first draws (``keys``, those of ``stats``' first rows)."""
+    later = float(model.sensors.force_delay) + step
+    moved = dataclasses.replace(model, sensors=dataclasses.replace(model.sensors, force_delay=later))
     shifted, _ = indirect.binding_draws(est, moved, p_arm, f, keys, numerics, arm_stat)
     diff = (np.asarray(shifted) - np.asarray(stats)[: keys.shape[0]]).mean(axis=0)
     return (diff / (1e3 * step))[:, None]

@@ -163,20 +163,34 @@ def designed(folder) -> tuple[list, np.ndarray]:
 
     folder = pathlib.Path(folder)
     doc = json.loads((folder / "design.json").read_text())
-    config = dict(doc["settings"]["config"], controller=doc["controller"])
+    config = doc["settings"]["config"]
+    config = dict(config, controller=doc.get("controller", config["controller"]))  # a bound design's gains
     robust = config["design"]["robust"] or [None]
     trials = [build_trial(config, arm=None if loc is None else paper_arm(loc)) for loc in robust]
     return trials, np.load(folder / "perturbation.npz")["f_delta"]
 
 
+def _digest(folder) -> str:
+    """The design's files' SHA-256: a rerun of the design into the same folder is another study."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for name in ("design.json", "perturbation.npz"):
+        h.update((pathlib.Path(folder) / name).read_bytes())
+    return h.hexdigest()
+
+
 def _inertia_off(trial):
-    robot = aj.Robot(inertia=INERTIA_OFF * np.asarray(trial.robot.inertia))
+    robot = dataclasses.replace(trial.robot, inertia=INERTIA_OFF * np.asarray(trial.robot.inertia))
     return dataclasses.replace(trial, robot=robot)  # the controller as resolved: the lab's
 
 
 def sensitivity_case(folder, arm: int = 0) -> Case:
     """The ``sensitivity`` case of a design folder's arm ``arm`` (module docstring)."""
     trials, signal = designed(folder)
+    if not 0 <= arm < len(trials):
+        last = len(trials) - 1
+        raise ValueError(f"the design in {folder} has {len(trials)} arm(s): --design-arm must be 0 to {last}")
     truth, f = trials[arm], np.asarray(signal[: _samples()])
 
     def recordings(seed):
@@ -306,7 +320,8 @@ def study(
     settings = dict(draws=draws, **(dict(seconds=SECONDS) if catalogue is None else dict(cases=settings)))
     known = dict(CASES if catalogue is None else catalogue)
     if "sensitivity" in cases:
-        settings.update(design=str(design), design_arm=design_arm, inertia_off=INERTIA_OFF)
+        digest = _digest(design)
+        settings.update(design=str(design), design_digest=digest, design_arm=design_arm, inertia_off=INERTIA_OFF)
         known["sensitivity"] = sensitivity_case(design, design_arm)
 
     def report(name, row):

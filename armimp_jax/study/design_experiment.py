@@ -221,7 +221,7 @@ def sensitivity_report(trials, signal, free, percent: float, labels, *, draws: i
     """How well must the lab know its robot for this design: ``robot_sensitivity`` of each arm's
     trial at the signal written, as lines (per arm the table of each diagonal's move per 1%
     error in each robot parameter, per ms of force delay [SE], then its warnings at ``percent``)."""
-    from .._identification.sensitivity import robot_sensitivity
+    from .._identification.sensitivity import robot_names, robot_sensitivity
 
     arm = tuple(n for n in free if n in ARM_PARAMETERS)
     lines = [
@@ -229,7 +229,8 @@ def sensitivity_report(trials, signal, free, percent: float, labels, *, draws: i
         "delay's per ms), in SEs at the signal written"
     ]
     for label, trial in zip(labels, trials, strict=True):
-        s = robot_sensitivity(trial, signal, free=arm, plausible=percent, draws=draws)
+        robot = [n for n in robot_names(trial) if n not in free]  # a free one is estimated
+        s = robot_sensitivity(trial, signal, free=arm, robot=robot, plausible=percent, draws=draws)
         lines += [f"{label}:", s.table(), *(f"warning: {w}" for w in s.warnings)]
     return lines
 
