@@ -120,29 +120,8 @@ def robot_sensitivity(
     robot parameters (``robot``), and for a bad ``f``.
     """
     require_x64("robot_sensitivity")
-    if not isinstance(trial, Trial):
-        raise ValueError(f"robot_sensitivity: trial must be a Trial, got {type(trial).__name__}")
-    free = (free,) if isinstance(free, str) else tuple(free)
-    if not free or any(n not in lay.ARM_PARAMETERS for n in free):
-        raise ValueError(f"robot_sensitivity: free must name arm matrices ({', '.join(lay.ARM_PARAMETERS)})")
-    if not trial.noisy:
-        raise ValueError(
-            "robot_sensitivity: the trial has no noise (ideal sensors, no voluntary force): no SE to weigh by"
-        )
-    robot = tuple(robot_names(trial) if robot is None else ((robot,) if isinstance(robot, str) else robot))
-    if not robot or any(n in lay.ARM_PARAMETERS for n in robot):
-        raise ValueError("robot_sensitivity: robot must name the robot's parameters (not the arm's)")
-    for name, value, unit in (("plausible", plausible, "%"), ("plausible_delay_ms", plausible_delay_ms, " ms")):
-        if not float(value) > 0.0:
-            raise ValueError(f"robot_sensitivity: {name} must be > 0{unit}, got {value}")
+    free, robot = _checked(trial, free, robot, plausible, plausible_delay_ms)
     delay = DELAY in robot
-    if delay and trial.sensors.motor_force:
-        raise ValueError("robot_sensitivity: a force from the motor torques has no force-channel delay to probe")
-    if any(n.startswith("sensors.") for n in robot) and trial.acquisition != "instant":
-        raise ValueError(
-            "robot_sensitivity: the force channel's gain and delay need acquisition 'instant', got "
-            f"{trial.acquisition!r}"
-        )
     step = _delay_step(trial) if delay else 0.0
     percent = tuple(n for n in robot if n != DELAY)
     est = lay.make_layout(free, friction=trial.friction, where="robot_sensitivity")
@@ -172,6 +151,34 @@ def robot_sensitivity(
         secant = _delay_secant(est, model, p_arm, f, keys[:n_jac], numerics, arm_stat, stats, step)
         jac = np.concatenate([jac, secant], axis=1)
     return _answer(est, both, model, np.asarray(p), np.asarray(stats), jac, n_draws, plausible, plausible_delay_ms)
+
+
+def _checked(trial, free, robot, plausible, plausible_delay_ms) -> tuple[tuple, tuple]:
+    """``(free, robot)`` as tuples, after the one-line refusals ``robot_sensitivity`` makes before
+    any simulation."""
+    if not isinstance(trial, Trial):
+        raise ValueError(f"robot_sensitivity: trial must be a Trial, got {type(trial).__name__}")
+    free = (free,) if isinstance(free, str) else tuple(free)
+    if not free or any(n not in lay.ARM_PARAMETERS for n in free):
+        raise ValueError(f"robot_sensitivity: free must name arm matrices ({', '.join(lay.ARM_PARAMETERS)})")
+    if not trial.noisy:
+        raise ValueError(
+            "robot_sensitivity: the trial has no noise (ideal sensors, no voluntary force): no SE to weigh by"
+        )
+    robot = tuple(robot_names(trial) if robot is None else ((robot,) if isinstance(robot, str) else robot))
+    if not robot or any(n in lay.ARM_PARAMETERS for n in robot):
+        raise ValueError("robot_sensitivity: robot must name the robot's parameters (not the arm's)")
+    for name, value, unit in (("plausible", plausible, "%"), ("plausible_delay_ms", plausible_delay_ms, " ms")):
+        if not float(value) > 0.0:
+            raise ValueError(f"robot_sensitivity: {name} must be > 0{unit}, got {value}")
+    if DELAY in robot and trial.sensors.motor_force:
+        raise ValueError("robot_sensitivity: a force from the motor torques has no force-channel delay to probe")
+    if any(n.startswith("sensors.") for n in robot) and trial.acquisition != "instant":
+        raise ValueError(
+            "robot_sensitivity: the force channel's gain and delay need acquisition 'instant', got "
+            f"{trial.acquisition!r}"
+        )
+    return free, robot
 
 
 def _delay_step(trial: Trial) -> float:
