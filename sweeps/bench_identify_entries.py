@@ -59,8 +59,9 @@ def main(argv=None):
     configure()
     from armimp_jax.bench import entrywise, protocol
 
+    catalogue = entrywise.cells(a.cells)
     cells = protocol.study(
-        a.cells, a.seeds, a.out, draws=a.draws, catalogue=entrywise.cells(a.cells), settings=entrywise.settings()
+        a.cells, a.seeds, a.out, draws=a.draws, catalogue=catalogue, catalogue_settings=entrywise.settings()
     )
     print(_table(cells))
     return 0

@@ -246,7 +246,9 @@ def main(argv=None) -> int:
         config = dx.read_design_config(args.config)
         trials, family, limits, options = dx.build_design(config, where=str(args.config))
         if args.sensitivity is not None:
-            dx.check_sensitivity(trials, options["free"])
+            from armimp_jax.study.identify_recording import check_sensitivity
+
+            check_sensitivity(trials[0], options["free"], "[design]")
     except ValueError as err:  # ConfigError included
         return fail(str(err))
     start = time.perf_counter()

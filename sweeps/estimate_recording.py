@@ -268,7 +268,7 @@ def model_route(args) -> int:
         if args.recording is None:
             raise ValueError(f"{args.model} has no [recordings]: give the RECORDING to identify")
         if args.sensitivity is not None:
-            idr.check_sensitivity(model, options)
+            idr.check_sensitivity(model, options["free"])
         columns, rec = load(args, recording)
     except ValueError as err:  # IdentifyConfigError and RecordingError included
         return fail(str(err))

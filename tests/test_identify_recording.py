@@ -379,7 +379,7 @@ def test_the_sensitivity_table_prints_robot_sensitivitys_numbers_for_what_was_no
     sens = aj.robot_sensitivity(
         trial,
         rec["f_delta"],
-        robot=tuple(dict.fromkeys(n.split("[")[0] for n in robot)),
+        robot=tuple(dict.fromkeys(n.split("[")[0].removesuffix(" (per ms)") for n in robot)),
         plausible=10.0,
         draws=options["draws"],
         jacobian_draws=options["jacobian_draws"],

@@ -307,17 +307,18 @@ def study(
     design=None,
     design_arm: int = 0,
     catalogue=None,
-    settings=None,
+    catalogue_settings=None,
     console=None,
 ) -> dict:
     """Run (or resume) ``cases`` x ``seeds`` in run folder ``out`` on the study engine; per case
     ``{seeds: rows, summary}``, also written to ``out/protocol.json`` with the settings. The
     ``sensitivity`` case needs ``design`` (a ``design_experiment.py`` folder) and its arm.
     ``catalogue``: the cases by name (default ``CASES``; ``bench.entrywise.cells``', say), with
-    the ``settings`` that describe them."""
+    ``catalogue_settings``, what describes them (the run's settings)."""
     from armimp_jax.study.results import atomic_write_json, stamped
 
-    settings = dict(draws=draws, **(dict(seconds=SECONDS) if catalogue is None else dict(cases=settings)))
+    described = dict(seconds=SECONDS) if catalogue is None else dict(cases=catalogue_settings)
+    settings = dict(draws=draws, **described)
     known = dict(CASES if catalogue is None else catalogue)
     if "sensitivity" in cases:
         digest = _digest(design)

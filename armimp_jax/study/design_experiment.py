@@ -25,7 +25,7 @@ from .._identification.bound import has_friction
 from .._identification.bound_design import BoundDesign
 from .._identification.criterion import default_targets, relative_se
 from .._identification.design import AGGREGATES, CRITERIA, METHODS, Auto, CramerRao, MonteCarlo
-from .._identification.layout import ARM_PARAMETERS, make_layout, parameter_units
+from .._identification.layout import make_layout, parameter_units
 from .._identification.limits import Limits
 from .._model.families import ShapedNoise, multisine
 from ..presets import arm as paper_arm
@@ -208,30 +208,15 @@ def friction_note(result: BoundDesign) -> str:
     )
 
 
-def check_sensitivity(trials, free) -> None:
-    """One-line errors, before the design, for a ``--sensitivity`` the design cannot give: no
-    free arm matrix, or no noise (no SE to weigh the moves by)."""
-    if not any(n in ARM_PARAMETERS for n in free):
-        raise ValueError("--sensitivity needs the arm free ([design] free names arm.mass, ...)")
-    if not trials[0].noisy:
-        raise ValueError("--sensitivity needs the config's noise ([sensors], [voluntary]): no SE to weigh by")
-
-
 def sensitivity_report(trials, signal, free, percent: float, labels, *, draws: int = 64) -> list[str]:
-    """How well must the lab know its robot for this design: ``robot_sensitivity`` of each arm's
-    trial at the signal written, as lines (per arm the table of each diagonal's move per 1%
-    error in each robot parameter, per ms of force delay [SE], then its warnings at ``percent``)."""
-    from .._identification.sensitivity import robot_names, robot_sensitivity
+    """How well must the lab know its robot for this design: ``identify_recording``'s
+    ``sensitivity_lines`` of each arm's trial at the signal written, under its head, each arm's
+    lines after its label."""
+    from .identify_recording import SENSITIVITY_HEAD, sensitivity_lines
 
-    arm = tuple(n for n in free if n in ARM_PARAMETERS)
-    lines = [
-        "how well must you know your robot: each arm diagonal's move per 1% error in the robot (the force "
-        "delay's per ms), in SEs at the signal written"
-    ]
+    lines = [f"{SENSITIVITY_HEAD}, at the signal written"]
     for label, trial in zip(labels, trials, strict=True):
-        robot = [n for n in robot_names(trial) if n not in free]  # a free one is estimated
-        s = robot_sensitivity(trial, signal, free=arm, robot=robot, plausible=percent, draws=draws)
-        lines += [f"{label}:", s.table(), *(f"warning: {w}" for w in s.warnings)]
+        lines += [f"{label}:", *sensitivity_lines(trial, signal, free, percent, draws=draws)]
     return lines
 
 

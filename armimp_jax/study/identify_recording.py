@@ -120,44 +120,49 @@ def run(rec: dict, model, options: dict):
     return identify(model, rec["f_delta"], rec["x"], rec["fh"], **options)
 
 
-def check_sensitivity(model, options: dict) -> None:
-    """One-line errors, before the fit, for a sensitivity the model cannot give: no free arm
-    matrix, or no noise in the config (no SE to weigh the moves by)."""
-    if not any(n in ARM_PARAMETERS for n in options["free"]):
-        raise ValueError("--sensitivity needs the arm free ([identify] free names arm.mass, ...)")
+def check_sensitivity(model, free, section: str = "[identify]") -> None:
+    """One-line errors, before the fit or the design, for a ``--sensitivity`` the model cannot
+    give: no free arm matrix (``section`` names where ``free`` is set), or no noise in the
+    config (no SE to weigh the moves by)."""
+    if not any(n in ARM_PARAMETERS for n in free):
+        raise ValueError(f"--sensitivity needs the arm free ({section} free names arm.mass, ...)")
     if not model.noisy:
         raise ValueError("--sensitivity needs the config's noise ([sensors], [voluntary]): no SE to weigh by")
 
 
-def sensitivity_report(res, rec: dict, options: dict, percent: float) -> list[str]:
-    """How well must the lab know its robot for this answer: ``robot_sensitivity`` at the
-    identified trial and the recording's perturbation (the arm's free matrices; the draws and
-    numerics of ``options``), as lines: the table of each arm diagonal's move per 1% error in
-    each robot parameter (per ms of force delay) [SE], then a warning per parameter a ``percent``
-    error (1 ms of delay) would move an entry by more than one SE. A one-line ``ValueError``
-    where the arm is not free."""
+SENSITIVITY_HEAD = (
+    "how well must you know your robot: each arm diagonal's move per 1% error in the robot (the force "
+    "delay's per ms) [SE]"
+)
+
+
+def sensitivity_lines(trial, f, free, percent: float, **options) -> list[str]:
+    """``robot_sensitivity`` of ``trial`` under ``f`` for the arm's matrices in ``free`` and the
+    robot parameters ``free`` does not estimate, as lines: the table of each arm diagonal's move
+    per 1% error in each (per ms of force delay) [SE], then a warning per parameter a ``percent``
+    error (1 ms of delay) would move an entry by more than one SE. ``options``: the sampling
+    (``numerics``, ``draws``, ``jacobian_draws``)."""
     from .._identification.sensitivity import robot_names, robot_sensitivity
 
-    check_sensitivity(res.trial, options)
-    arm = tuple(n for n in options["free"] if n in ARM_PARAMETERS)
-    robot = [n for n in robot_names(res.trial) if n not in options["free"]]  # a free one was estimated
+    robot = [n for n in robot_names(trial) if n not in free]  # a free one is estimated
     if not robot:
-        return ["how well must you know your robot: every robot parameter with a value was estimated"]
-    sens = robot_sensitivity(
-        res.trial,
-        rec["f_delta"],
-        free=arm,
-        robot=robot,
-        plausible=percent,
+        return ["every robot parameter with a value was estimated"]
+    arm = tuple(n for n in free if n in ARM_PARAMETERS)
+    sens = robot_sensitivity(trial, f, free=arm, robot=robot, plausible=percent, **options)
+    return [sens.table(), *(f"warning: {w}" for w in sens.warnings)]
+
+
+def sensitivity_report(res, rec: dict, options: dict, percent: float) -> list[str]:
+    """How well must the lab know its robot for this answer: ``sensitivity_lines`` at the
+    identified trial and the recording's perturbation (the draws and numerics of ``options``),
+    under ``SENSITIVITY_HEAD``. A one-line ``ValueError`` where the arm is not free."""
+    check_sensitivity(res.trial, options["free"])
+    sampling = dict(
         numerics=options.get("numerics"),
         draws=options.get("draws", 64),
         jacobian_draws=options.get("jacobian_draws", 8),
     )
-    head = (
-        "how well must you know your robot: each arm diagonal's move per 1% error in the robot (the force "
-        "delay's per ms) [SE]"
-    )
-    return [head, sens.table(), *(f"warning: {w}" for w in sens.warnings)]
+    return [SENSITIVITY_HEAD, *sensitivity_lines(res.trial, rec["f_delta"], options["free"], percent, **sampling)]
 
 
 def trust_warnings(res, rec: dict) -> list[str]:
