@@ -18,7 +18,7 @@ from armimp_jax.study.cli import Parser, fail, parse_names, script
 
 PROG = "bench_identify_entries"
 CELLS = ("base", "record-5", "record-20", "force-0.1", "force-0.3", "friction-0", "friction-1")
-MORE = ("arm-1", "arm-3", "arm-4", "pd")
+MORE = ("arm-1", "arm-3", "arm-4", "pd", "friction-1-arm-4")
 SYMBOL = {"arm.mass": "M", "arm.damping": "B", "arm.stiffness": "K"}
 
 

@@ -164,3 +164,36 @@ def test_predict_se_is_the_spread(monte_carlo):
     figures["entries"] = list(DIAGONAL)
     report(f"identify-{monte_carlo['name']}-predict_se", figures)
     assert figures["band"][0] <= figures["rms"] <= figures["band"][1] and not figures["entries_outside"], figures
+
+
+# identification.md section 6b (issue 50): per cell, over its six diagonals, coverage 0.92-0.98,
+# and per diagonal the SD of z within 0.75-1.3 (about 2.5 of its own SEs at 50 recordings)
+ENTRY_CELLS = ("base", "friction-1")
+ENTRY_COVERAGE, ENTRY_SD_Z = (0.92, 0.98), (0.75, 1.3)
+
+
+@pytest.mark.parametrize("cell", ENTRY_CELLS)
+def test_intervals_hold_entry_by_entry(cell):
+    """identification.md section 6b: the base case of issue 50 (IMBIC through 0.5 N m, a strong
+    person's force, 10 s) and its 1 N m cell, 50 recordings each, as
+    ``bench_identify_entries.py`` runs them."""
+    from armimp_jax.bench import entrywise, protocol
+
+    cases = entrywise.cells([cell])
+    rows = []
+    for seed in range(RECORDINGS):
+        rows.append(protocol.one(cell, seed, cases=cases))
+        progress(f"identify {cell} seed {seed}: {rows[-1]['time_s']:.1f} s, converged {rows[-1]['converged']}")
+    summary = protocol.summary(rows)
+    diagonal = {
+        f"{n}[{i},{i}]": (e["coverage"][3 * i], e["sd_z"][3 * i])
+        for n, e in summary["parameters"].items()
+        if n.startswith("arm.")
+        for i in (0, 1)
+    }
+    coverage = float(np.mean([c for c, _ in diagonal.values()]))
+    figures = dict(coverage=coverage, converged=summary["converged"], per_entry=diagonal)
+    report(f"identify-entries-{cell}", figures)
+    assert summary["converged"] >= 0.98 * RECORDINGS, figures
+    assert ENTRY_COVERAGE[0] <= coverage <= ENTRY_COVERAGE[1], figures
+    assert all(ENTRY_SD_Z[0] <= sd <= ENTRY_SD_Z[1] for _, sd in diagonal.values()), figures

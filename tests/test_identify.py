@@ -333,3 +333,24 @@ def test_the_excess_weight_is_blind_to_what_every_draw_shares():
     assert w.shape == (255, 4, 4) and bool(jnp.all(jnp.isfinite(w)))
     np.testing.assert_allclose(efficient.excess_weight(filt, ys + 10.0 * common), w, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(w, jnp.conj(jnp.swapaxes(w, -1, -2)), rtol=1e-12, atol=1e-12)
+
+
+def test_the_chord_is_exact_on_a_quadratic_binding_and_narrows_where_draws_diverge():
+    """``indirect.chord``: central differences are exact for a quadratic binding; a column whose
+    draws diverge at its full width is taken at half of it (still exact); one that diverges at
+    both widths is the tangent's, and without a tangent the answer is ``None``."""
+    a = np.array([[1.0, 2.0], [0.5, -1.0], [3.0, 0.0]])
+    c = np.array([[0.3, 0.1], [0.0, 0.2], [1.0, -0.4]])
+    p, half = np.array([0.2, -0.5]), np.array([0.7, 0.3])
+    exact = a + 2.0 * c * p[None, :]  # d/dq of a q + c q^2 at p
+
+    def binding(q, reach=np.inf):
+        return a @ q + c @ (q**2), bool(abs(q[0] - p[0]) > reach)
+
+    np.testing.assert_allclose(indirect.chord(binding, p, half), exact, rtol=1e-12)
+    np.testing.assert_allclose(indirect.chord(lambda q: binding(q, 0.5), p, half), exact, rtol=1e-12)
+    tangent = np.full((3, 2), 9.0)
+    out = indirect.chord(lambda q: binding(q, 0.1), p, half, tangent)
+    np.testing.assert_array_equal(out[:, 0], 9.0)
+    np.testing.assert_allclose(out[:, 1], exact[:, 1], rtol=1e-12)
+    assert indirect.chord(lambda q: binding(q, 0.1), p, half, lambda: None) is None

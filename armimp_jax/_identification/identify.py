@@ -364,8 +364,10 @@ def _problem(parts, groups, recordings, pool: pl.Pool, p0, numerics, n_jac) -> s
     n_draws = parts[0].keys.shape[0]
     slack = b.size / n_draws if noisy else 1e-24 * (1.0 + float(b @ b))  # the binding's own MC jitter
     statistics_and_prior = np.concatenate([b, prior_mean])
+    # through friction the binding's tangent misses its chord over the SEs (search._slope)
+    chord = noisy and any(has_friction(r.model) for r in recordings)
     return search.Problem(
-        tuple(parts), numerics, n_jac, noisy, statistics_and_prior, prior_index, prior_mean, slack, p0.size
+        tuple(parts), numerics, n_jac, noisy, statistics_and_prior, prior_index, prior_mean, slack, p0.size, chord
     )
 
 

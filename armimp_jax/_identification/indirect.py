@@ -50,6 +50,9 @@ IDENTIFY_NUMERICS = Numerics(solver=GradedARK4(), substeps=4)
 # Draws behind the efficient statistic's weight under friction (efficient.excess_weight): each Welch
 # bin then averages some 600 segments, a few percent of scatter in the weight.
 WEIGHT_DRAWS = 16
+# The draws behind the binding's chord through friction (``chord``; ``search._slope``): on the
+# issue-50 base case its SEs on 8 draws came within 10% of those on 64 (docs/identification.md 6c).
+CHORD_DRAWS = 8
 
 
 def arm_layout(layout: Layout) -> Layout | None:
@@ -132,13 +135,13 @@ def _sharded(fn, n_out: int):
     return jax.shard_map(fn, mesh=mesh, in_specs=P("batch"), out_specs=(P("batch"),) * n_out, check_vma=False)
 
 
-@functools.partial(jax.jit, static_argnames=("layout", "numerics"))
-def binding_draws(layout: Layout, model: Trial, p, f, keys, numerics, arm_stat=None):
+@functools.partial(jax.jit, static_argnames=("layout", "numerics", "stat_layout"))
+def binding_draws(layout: Layout, model: Trial, p, f, keys, numerics, arm_stat=None, stat_layout=None):
     """``(stats (R, n), diverged (R,))``: the statistics of ``R`` noisy recordings at ``p``
-    (one per key), vmapped on each device."""
+    (one per key), vmapped on each device (``stat_layout``: as ``draw_statistics``)."""
 
     def per_device(k):
-        return jax.vmap(lambda kk: draw_statistics(layout, model, p, f, kk, numerics, arm_stat))(k)
+        return jax.vmap(lambda kk: draw_statistics(layout, model, p, f, kk, numerics, arm_stat, stat_layout))(k)
 
     return _sharded(per_device, 2)(keys)
 
@@ -174,6 +177,45 @@ def binding_jacobian(layout: Layout, model: Trial, p, f, keys, numerics, arm_sta
 
     totals, diverged = _sharded(per_device, 2)(keys)
     return jnp.sum(totals, axis=0) / (per_count * n_dev), jnp.any(diverged)
+
+
+def chord_draws(n_draws: int) -> int:
+    """The draws behind a chord: ``CHORD_DRAWS``, a multiple of the local devices, at most ``n_draws``."""
+    n_dev = jax.local_device_count()
+    return int(min(n_draws, math.ceil(CHORD_DRAWS / n_dev) * n_dev))
+
+
+def chord(mean_at, p, half, tangent=None, tries: int = 2) -> np.ndarray | None:
+    """``(m, n)``: the binding's slope as central differences, column ``j`` over ``p +- half[j]``
+    (``mean_at(q) -> (mean (m,), diverged)``, on fixed draws: common random numbers).
+
+    Why not the tangent (``binding_jacobian``) alone: through friction the binding is a smooth
+    chord over its SEs, but each draw's tangent follows where the sticking falls, and the draws'
+    mean tangent missed the chord by a factor of 6 along one direction of the stiffness (issue
+    50; docs/identification.md 6c). The estimate spreads over its SEs, so the chord over them is
+    the slope its covariance needs. A column whose draws diverge is tried at half the width,
+    ``tries`` times in all; then it is ``tangent``'s (an array, or a function giving it, called
+    once; ``None`` if it gives ``None``)."""
+    cols, failed = [], []
+    for j in range(p.size):
+        col, width = None, float(half[j])
+        for _ in range(tries):
+            move = np.zeros(p.size)
+            move[j] = width
+            (up, up_diverged), (down, down_diverged) = mean_at(p + move), mean_at(p - move)
+            col = (np.asarray(up) - np.asarray(down)) / (2.0 * width)
+            if not (up_diverged or down_diverged) and np.all(np.isfinite(col)):
+                break
+            col, width = None, 0.5 * width
+        failed.append(col is None)
+        cols.append(np.zeros(np.asarray(up).shape) if col is None else col)
+    out = np.stack(cols, axis=1)
+    if any(failed):
+        fill = tangent() if callable(tangent) else tangent
+        if fill is None:
+            return None
+        out[:, failed] = np.asarray(fill)[:, failed]
+    return out
 
 
 def weights(stats, jac=None):

@@ -5,7 +5,9 @@ of recordings simulated with the trial's noise (``Omega``, their covariance over
 and the binding's Jacobian ``A`` give ``indirect.covariance`` (``(1 + 1/R) A^-1 Omega
 A^-T`` when there are as many statistics as parameters). Pure
 JAX from the perturbation on, with the draws fixed by ``key`` (common random numbers), so
-experiment design can optimise it by gradient (through ``Omega`` and ``A`` both).
+experiment design can optimise it by gradient (through ``Omega`` and ``A`` both). Through
+friction, for a concrete perturbation, ``A`` is ``identify``'s: the binding's chord over its
+SEs (``indirect.chord``); under tracing it is the tangent, whose gradient design follows.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._checks import as_float64, check_choice, check_int, is_concrete, require_x64
 from .._estimation.welch import check_finite
@@ -123,7 +126,10 @@ def predict_se(
         weight = jax.block_until_ready(
             indirect.statistic_weight(layout, trial, p, f, keys[: indirect.weight_draws(n_draws)], numerics)
         )
-    cov, diverged = _prediction(layout, trial, p, f, keys, keys[:n_jac], numerics, n_draws, efficient, weight)
+    if is_concrete(f) and has_friction(trial):  # identify's slope through friction is the chord: so is this one's
+        cov, diverged = _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, efficient, weight)
+    else:
+        cov, diverged = _prediction(layout, trial, p, f, keys, keys[:n_jac], numerics, n_draws, efficient, weight)
     if is_concrete(f):
         # one program in flight at a time: two programs that split over the CPU devices and
         # meet at collectives, queued together, can each hold a thread the other waits for
@@ -145,3 +151,32 @@ def _prediction(layout, trial, p, f, keys, jac_keys, numerics, n_draws, efficien
     jac, jac_diverged = indirect.binding_jacobian(layout, trial, p, f, jac_keys, numerics, arm_stat)
     g = lay.natural_jacobian(layout, p, trial)
     return g @ indirect.covariance(jac, stats, n_draws) @ g.T, jnp.any(diverged) | jac_diverged
+
+
+@functools.partial(jax.jit, static_argnames=("layout", "numerics", "efficient"))
+def _draws_and_tangent(layout, trial, p, f, keys, jac_keys, numerics, efficient, weight):
+    """``(arm statistic, draws' statistics, tangent slope, diverged)`` in one program."""
+    arm_stat = indirect.arm_statistic(layout, trial, p, f, weight) if efficient else None
+    stats, diverged = indirect.binding_draws(layout, trial, p, f, keys, numerics, arm_stat)
+    jac, jac_diverged = indirect.binding_jacobian(layout, trial, p, f, jac_keys, numerics, arm_stat)
+    return arm_stat, stats, jac, jnp.any(diverged) | jac_diverged
+
+
+def _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, efficient, weight):
+    """``_prediction`` with ``identify``'s slope through friction: the binding's chord over +-1
+    SE (the tangent's), on ``indirect.CHORD_DRAWS`` of the draws (``indirect.chord``). Concrete
+    ``f`` only: under tracing ``predict_se`` keeps the tangent (its gradient is the tangent's)."""
+    arm_stat, stats, tangent, diverged = _draws_and_tangent(
+        layout, trial, p, f, keys, keys[:n_jac], numerics, efficient, weight
+    )
+    stats, tangent = np.asarray(stats), np.asarray(tangent)
+    half = np.sqrt(np.diag(np.asarray(indirect.covariance(tangent, stats, n_draws))))
+    chord_keys = keys[: indirect.chord_draws(n_draws)]
+
+    def mean_at(q):
+        drawn, div = indirect.binding_draws(layout, trial, jnp.asarray(q), f, chord_keys, numerics, arm_stat)
+        return np.asarray(drawn).mean(axis=0), bool(np.asarray(div).any())
+
+    slope = indirect.chord(mean_at, np.asarray(p), half, tangent)
+    g = lay.natural_jacobian(layout, p, trial)
+    return g @ indirect.covariance(jnp.asarray(slope), jnp.asarray(stats), n_draws) @ g.T, diverged

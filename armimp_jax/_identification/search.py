@@ -91,6 +91,7 @@ class Problem(NamedTuple):
     prior_mean: np.ndarray
     slack: float
     size: int
+    chord: bool = False  # the fine slope is the binding's chord (friction in a noisy loop), not its tangent
 
     @property
     def n_draws(self) -> int:
@@ -197,6 +198,21 @@ def _jacobian(problem: Problem, p, draws=None):
     return _with_prior(problem, p, np.zeros(0), np.zeros((1, 0)), np.concatenate(blocks, axis=0))[2]
 
 
+def _slope(problem: Problem, p, se_p):
+    """The fine stage's slope: the binding's chord over +-1 SE (``indirect.chord``, on
+    ``indirect.CHORD_DRAWS`` of the draws) where the problem asks for it and the SEs give its
+    widths, else (and for a column whose draws diverge) the tangent on every Jacobian draw."""
+    if not (problem.chord and se_p is not None and np.all(np.isfinite(se_p)) and np.all(se_p > 0)):
+        return _jacobian(problem, p)
+    draws = indirect.chord_draws(problem.n_draws)
+
+    def mean_at(q):
+        mean, _, diverged = _binding(problem, q, draws)
+        return mean, diverged
+
+    return indirect.chord(mean_at, p, np.asarray(se_p, dtype=float), lambda: _jacobian(problem, p))
+
+
 def _cost(problem: Problem, mean, w):
     d = problem.b - mean
     return 0.5 * float(d @ (w * d))
@@ -233,7 +249,8 @@ def _fine(problem: Problem, state: Search) -> Search:
     if diverged:
         why = "noisy simulations diverge at the coarse stage's answer"
         return state._replace(problems=state.problems + (why,), done=True)
-    jac = _jacobian(problem, state.p) if state.jac_draws < problem.n_jac else None
+    fine_slope = problem.chord or state.jac_draws < problem.n_jac
+    jac = _slope(problem, state.p, state.se_p) if fine_slope else None
     if jac is not None:
         state = state._replace(jac=jac, jac_at=state.p, jac_draws=problem.n_jac)
     w = _weights(problem, stats, state.jac)
@@ -297,7 +314,11 @@ def step(problem: Problem, state: Search, max_steps: int) -> Search:
     if kept and np.all(np.abs(scale * step) <= JACOBIAN_REUSE_SE * se_p):
         return state
     jac_draws = problem.n_jac if not coarse else state.jac_draws
-    new = _jacobian(problem, state.p, jac_draws) if (stale or kept) else None
+    new = (
+        (_slope(problem, state.p, state.se_p) if not coarse else _jacobian(problem, state.p, jac_draws))
+        if (stale or kept)
+        else None
+    )
     if new is None:
         if kept:
             return state
@@ -326,7 +347,7 @@ def final_covariance(problem: Problem, state: Search):
     if jac is not None and state.se_p is not None:
         far = not np.all(np.abs(state.p - state.jac_at) <= JACOBIAN_REUSE_SE * state.se_p)
         if far or state.jac_draws < problem.n_jac:  # a slope far from the answer, or a coarse one
-            jac = _jacobian(problem, state.p)
+            jac = _slope(problem, state.p, state.se_p)
             if jac is None:
                 problems = problems + ("the binding's Jacobian is not finite at the estimate",)
     if jac is None:

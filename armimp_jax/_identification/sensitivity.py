@@ -8,11 +8,13 @@ the estimate moves by
     d theta = -(A_t^T W A_t)^-1 A_t^T W A_p d phi,     A_t = d beta / d theta,  A_p = d beta / d phi,
 
 the derivative of the estimate through the binding (``indirect.py``), with the statistics the
-lab's own ``identify`` matches (of the arm alone). ``A_p`` comes from the same noisy draws as
-``identify``'s slope (forward mode through the simulation), the arm's SEs ``predict_se``'s
-covariance of those same draws and slope. Robot parameters: the link inertias, the friction law's
-``IDENTIFIABLE`` parameters and the force channel's gain, each by 1% of its value (a parameter
-at zero has no 1%: it is left out, and a force offset has no percentage). The force channel's
+lab's own ``identify`` matches (of the arm alone). ``A_t`` and ``A_p`` are ``identify``'s
+slope: the tangent (forward mode through the simulation) and, through friction, the binding's
+chord (``indirect.chord``: over +-1 SE of each arm entry and +-``plausible`` percent of each
+robot entry); the arm's SEs ``predict_se``'s covariance of those same draws and slope.
+Robot parameters: the link inertias, the friction law's ``IDENTIFIABLE`` parameters and the
+force channel's gain, each by 1% of its value (a parameter at zero has no 1%: it is left out,
+and a force offset has no percentage). The force channel's
 delay behind the position is zero in most models, so it has no 1% either: its column is per
 millisecond, a secant of the binding from the model's delay to 1 ms more on the same draws (the
 delay reads the recorded force by linear interpolation between samples, so its derivative at a
@@ -147,10 +149,40 @@ def robot_sensitivity(
     if bool(diverged):
         raise ValueError("robot_sensitivity: a noisy simulation of the trial diverged")
     jac = np.asarray(jac)
+    if has_friction(model):  # identify's slope through friction is the binding's chord: so is this one's
+        half = _chord_widths(est, both, model, np.asarray(p), jac, np.asarray(stats), n_draws, plausible)
+        jac = _chord(both, est, model, p, f, keys[: indirect.chord_draws(n_draws)], numerics, arm_stat, half, jac)
     if delay:  # the per-ms column: a secant on the slope's own draws (module docstring)
         secant = _delay_secant(est, model, p_arm, f, keys[:n_jac], numerics, arm_stat, stats, step)
         jac = np.concatenate([jac, secant], axis=1)
     return _answer(est, both, model, np.asarray(p), np.asarray(stats), jac, n_draws, plausible, plausible_delay_ms)
+
+
+def _chord_widths(est, both, model, p, jac, stats, n_draws, plausible) -> np.ndarray:
+    """The chord's half-widths in ``both``'s internal units: the arm's SEs (from the tangent's
+    covariance) and ``plausible`` percent of each robot entry."""
+    n = est.size
+    se = np.sqrt(np.diag(np.asarray(indirect.covariance(jac[:, :n], stats, n_draws))))
+    k = len(est.names)
+    if k == len(both.names):  # the delay alone: its column is a secant of its own
+        return se
+    robot_layout = lay.Layout(both.names[k:], both.symmetric[k:])
+    q = jnp.asarray(p[n:])
+    natural = np.asarray(lay.natural(robot_layout, q, model))
+    d_nat = np.asarray(jax.jacfwd(lambda v: lay.natural(robot_layout, v, model))(q))
+    per_percent = np.abs(np.diag(np.linalg.pinv(d_nat) @ np.diag(0.01 * natural)))
+    return np.concatenate([se, plausible * per_percent])
+
+
+def _chord(both, est, model, p, f, keys, numerics, arm_stat, half, tangent) -> np.ndarray:
+    """``identify``'s chord (``search._slope``) of the binding in ``both``'s parameters, the
+    tangent's column where a chord's draws diverged."""
+
+    def mean_at(q):
+        stats, diverged = indirect.binding_draws(both, model, jnp.asarray(q), f, keys, numerics, arm_stat, est)
+        return np.asarray(stats).mean(axis=0), bool(np.asarray(diverged).any())
+
+    return indirect.chord(mean_at, p, half, tangent)
 
 
 def _checked(trial, free, robot, plausible, plausible_delay_ms) -> tuple[tuple, tuple]:

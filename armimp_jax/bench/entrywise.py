@@ -7,7 +7,8 @@ level 1, the paper's arm at location 2; the arm and ``tau_c`` free, started at t
 The cells change one factor: the record (``record-5``, ``record-20`` s), the person's force
 (``force-0.1``, ``force-0.3`` N RMS), IMBIC's friction (``friction-0``: the arm alone, and
 ``friction-1`` N m), the arm (``arm-<L>``: the paper's arm at location L in the base case),
-and ``pd``: PD through 0.3 N m with a 10 N peak. Each recording's perturbation is one signal
+``pd``: PD through 0.3 N m with a 10 N peak, and ``friction-1-arm-4``: the arm at location 4
+in the worst cell (``friction-1`` with ``identify`` 2.3.0). Each recording's perturbation is one signal
 per cell; the noise is drawn afresh per seed.
 """
 
@@ -72,6 +73,8 @@ CELLS_FACTORS = {
     "friction-1": dataclasses.replace(BASE, tau_c=1.0),
     **{f"arm-{loc}": dataclasses.replace(BASE, location=loc) for loc in (1, 3, 4)},
     "pd": dataclasses.replace(BASE, controller="pd", tau_c=0.3, peak=10.0),
+    # the second arm at the worst cell (2.3.0: friction-1)
+    "friction-1-arm-4": dataclasses.replace(BASE, tau_c=1.0, location=4),
 }
 
 
