@@ -41,7 +41,7 @@ CASES = {
     # through PD's stick-slip: no bound; identification.md section 10: predict_se within 0.78-1.32 of the spread
     "pd-a2-1Nm": ("pd", 1.0, 10.0, None, (0.78, 1.32)),
 }
-# README: "its 95% intervals held the truth 0.932-0.960 of the time": nominally 0.95
+# README: "its 95% intervals held the truth 0.942-0.953 of the time": nominally 0.95
 NOMINAL = 0.95
 
 
@@ -108,7 +108,7 @@ def coverage_check(values, se, true, nominal=NOMINAL):
 
 
 def test_intervals_hold_the_truth_95_percent_of_the_time(monte_carlo):
-    """README: "its 95% intervals held the truth 0.932-0.960 of the time" (all 12 entries)."""
+    """README: "its 95% intervals held the truth 0.942-0.953 of the time" (all 12 entries)."""
     values, se, true = _columns(monte_carlo, monte_carlo["labels"])
     coverage, band, n_eff = coverage_check(values, se, true)
     per_entry = np.mean(np.abs(values - true) <= Z95 * se, axis=0)

@@ -204,13 +204,37 @@ def _slope(problem: Problem, p, se_p):
     widths, else (and for a column whose draws diverge) the tangent on every Jacobian draw."""
     if not (problem.chord and se_p is not None and np.all(np.isfinite(se_p)) and np.all(se_p > 0)):
         return _jacobian(problem, p)
+    return indirect.chord(_chord_binding(problem, p), p, np.asarray(se_p, dtype=float), lambda: _jacobian(problem, p))
+
+
+def _chord_binding(problem: Problem, p):
+    """``mean_at(q) -> (mean, diverged)``: ``_binding`` on ``indirect.CHORD_DRAWS`` of the draws,
+    simulating only the parts whose parameters ``q`` moves from ``p`` (a chord column moves one
+    parameter: pooled recordings then cost the parts that hold it, not all of them)."""
     draws = indirect.chord_draws(problem.n_draws)
+    at_p = {}
+
+    def part_mean(part, sub):
+        stats, diverged = indirect.binding_draws(
+            part.layout, part.model, jnp.asarray(sub), part.f, part.keys[:draws], problem.numerics, part.arm_stat
+        )
+        return np.asarray(stats).mean(axis=0), bool(np.asarray(diverged).any())
 
     def mean_at(q):
-        mean, _, diverged = _binding(problem, q, draws)
-        return mean, diverged
+        means, diverged = [], False
+        for t, part in enumerate(problem.parts):
+            sub = q[part.index]
+            if np.array_equal(sub, p[part.index]):
+                if t not in at_p:
+                    at_p[t] = part_mean(part, sub)
+                mean, div = at_p[t]
+            else:
+                mean, div = part_mean(part, sub)
+            means.append(mean)
+            diverged |= div
+        return np.concatenate([*means, q[problem.prior_index]]), diverged
 
-    return indirect.chord(mean_at, p, np.asarray(se_p, dtype=float), lambda: _jacobian(problem, p))
+    return mean_at
 
 
 def _cost(problem: Problem, mean, w):
