@@ -179,6 +179,13 @@ def binding_jacobian(layout: Layout, model: Trial, p, f, keys, numerics, arm_sta
     return jnp.sum(totals, axis=0) / (per_count * n_dev), jnp.any(diverged)
 
 
+def binding_mean(layout: Layout, model: Trial, p, f, keys, numerics, arm_stat=None, stat_layout=None):
+    """``(mean (n,), diverged)`` on the host: ``binding_draws``' statistics averaged over the draws
+    of ``keys``, and whether any draw diverged (a chord's ``mean_at``)."""
+    stats, diverged = binding_draws(layout, model, jnp.asarray(p), f, keys, numerics, arm_stat, stat_layout)
+    return np.asarray(stats).mean(axis=0), bool(np.asarray(diverged).any())
+
+
 def chord_draws(n_draws: int) -> int:
     """The draws behind a chord: ``CHORD_DRAWS``, a multiple of the local devices, at most ``n_draws``."""
     n_dev = jax.local_device_count()

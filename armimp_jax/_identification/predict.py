@@ -142,31 +142,31 @@ def predict_se(
     )
 
 
-@functools.partial(jax.jit, static_argnames=("layout", "numerics", "n_draws", "efficient"))
-def _prediction(layout, trial, p, f, keys, jac_keys, numerics, n_draws, efficient, weight):
-    """``(natural covariance, diverged)``: the arm's statistic (``efficient``, with ``weight``;
-    else Welch), the draws, the binding's Jacobian and the covariance in one program."""
-    arm_stat = indirect.arm_statistic(layout, trial, p, f, weight) if efficient else None
-    stats, diverged = indirect.binding_draws(layout, trial, p, f, keys, numerics, arm_stat)
-    jac, jac_diverged = indirect.binding_jacobian(layout, trial, p, f, jac_keys, numerics, arm_stat)
-    g = lay.natural_jacobian(layout, p, trial)
-    return g @ indirect.covariance(jac, stats, n_draws) @ g.T, jnp.any(diverged) | jac_diverged
-
-
-@functools.partial(jax.jit, static_argnames=("layout", "numerics", "efficient"))
 def _draws_and_tangent(layout, trial, p, f, keys, jac_keys, numerics, efficient, weight):
-    """``(arm statistic, draws' statistics, tangent slope, diverged)`` in one program."""
+    """``(arm statistic, draws' statistics, tangent slope, diverged)``: the arm's statistic
+    (``efficient``, with ``weight``; else Welch), the draws and the binding's Jacobian."""
     arm_stat = indirect.arm_statistic(layout, trial, p, f, weight) if efficient else None
     stats, diverged = indirect.binding_draws(layout, trial, p, f, keys, numerics, arm_stat)
     jac, jac_diverged = indirect.binding_jacobian(layout, trial, p, f, jac_keys, numerics, arm_stat)
     return arm_stat, stats, jac, jnp.any(diverged) | jac_diverged
 
 
+_draws_and_tangent_jit = jax.jit(_draws_and_tangent, static_argnames=("layout", "numerics", "efficient"))
+
+
+@functools.partial(jax.jit, static_argnames=("layout", "numerics", "n_draws", "efficient"))
+def _prediction(layout, trial, p, f, keys, jac_keys, numerics, n_draws, efficient, weight):
+    """``(natural covariance, diverged)``: ``_draws_and_tangent`` and the covariance in one program."""
+    _, stats, jac, diverged = _draws_and_tangent(layout, trial, p, f, keys, jac_keys, numerics, efficient, weight)
+    g = lay.natural_jacobian(layout, p, trial)
+    return g @ indirect.covariance(jac, stats, n_draws) @ g.T, diverged
+
+
 def _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, efficient, weight):
     """``_prediction`` with ``identify``'s slope through friction: the binding's chord over +-1
     SE (the tangent's), on ``indirect.CHORD_DRAWS`` of the draws (``indirect.chord``). Concrete
     ``f`` only: under tracing ``predict_se`` keeps the tangent (its gradient is the tangent's)."""
-    arm_stat, stats, tangent, diverged = _draws_and_tangent(
+    arm_stat, stats, tangent, diverged = _draws_and_tangent_jit(
         layout, trial, p, f, keys, keys[:n_jac], numerics, efficient, weight
     )
     stats, tangent = np.asarray(stats), np.asarray(tangent)
@@ -174,8 +174,7 @@ def _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, effic
     chord_keys = keys[: indirect.chord_draws(n_draws)]
 
     def mean_at(q):
-        drawn, div = indirect.binding_draws(layout, trial, jnp.asarray(q), f, chord_keys, numerics, arm_stat)
-        return np.asarray(drawn).mean(axis=0), bool(np.asarray(div).any())
+        return indirect.binding_mean(layout, trial, q, f, chord_keys, numerics, arm_stat)
 
     slope = indirect.chord(mean_at, np.asarray(p), half, tangent)
     g = lay.natural_jacobian(layout, p, trial)

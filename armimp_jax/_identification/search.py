@@ -215,10 +215,9 @@ def _chord_binding(problem: Problem, p):
     at_p = {}
 
     def part_mean(part, sub):
-        stats, diverged = indirect.binding_draws(
-            part.layout, part.model, jnp.asarray(sub), part.f, part.keys[:draws], problem.numerics, part.arm_stat
+        return indirect.binding_mean(
+            part.layout, part.model, sub, part.f, part.keys[:draws], problem.numerics, part.arm_stat
         )
-        return np.asarray(stats).mean(axis=0), bool(np.asarray(diverged).any())
 
     def mean_at(q):
         means, diverged = [], False
@@ -338,11 +337,9 @@ def step(problem: Problem, state: Search, max_steps: int) -> Search:
     if kept and np.all(np.abs(scale * step) <= JACOBIAN_REUSE_SE * se_p):
         return state
     jac_draws = problem.n_jac if not coarse else state.jac_draws
-    new = (
-        (_slope(problem, state.p, state.se_p) if not coarse else _jacobian(problem, state.p, jac_draws))
-        if (stale or kept)
-        else None
-    )
+    new = None
+    if stale or kept:
+        new = _jacobian(problem, state.p, jac_draws) if coarse else _slope(problem, state.p, state.se_p)
     if new is None:
         if kept:
             return state

@@ -163,15 +163,21 @@ def _chord_widths(est, both, model, p, jac, stats, n_draws, plausible) -> np.nda
     covariance) and ``plausible`` percent of each robot entry."""
     n = est.size
     se = np.sqrt(np.diag(np.asarray(indirect.covariance(jac[:, :n], stats, n_draws))))
-    k = len(est.names)
-    if k == len(both.names):  # the delay alone: its column is a secant of its own
+    if p.size == n:  # the delay alone: its column is a secant of its own
         return se
+    per_percent = np.abs(np.diag(_per_percent(est, both, p, model)[1]))
+    return np.concatenate([se, plausible * per_percent])
+
+
+def _per_percent(est, both, p, model):
+    """``(robot layout, (k, k))``: the robot parameters of ``both`` after ``est``'s, and the move
+    of each one's internal value per 1% of each robot entry (its columns)."""
+    k = len(est.names)
     robot_layout = lay.Layout(both.names[k:], both.symmetric[k:])
-    q = jnp.asarray(p[n:])
+    q = jnp.asarray(p[est.size :])
     natural = np.asarray(lay.natural(robot_layout, q, model))
     d_nat = np.asarray(jax.jacfwd(lambda v: lay.natural(robot_layout, v, model))(q))
-    per_percent = np.abs(np.diag(np.linalg.pinv(d_nat) @ np.diag(0.01 * natural)))
-    return np.concatenate([se, plausible * per_percent])
+    return robot_layout, np.linalg.pinv(d_nat) @ np.diag(0.01 * natural)
 
 
 def _chord(both, est, model, p, f, keys, numerics, arm_stat, half, tangent) -> np.ndarray:
@@ -179,8 +185,7 @@ def _chord(both, est, model, p, f, keys, numerics, arm_stat, half, tangent) -> n
     tangent's column where a chord's draws diverged."""
 
     def mean_at(q):
-        stats, diverged = indirect.binding_draws(both, model, jnp.asarray(q), f, keys, numerics, arm_stat, est)
-        return np.asarray(stats).mean(axis=0), bool(np.asarray(diverged).any())
+        return indirect.binding_mean(both, model, q, f, keys, numerics, arm_stat, est)
 
     return indirect.chord(mean_at, p, half, tangent)
 
@@ -253,16 +258,13 @@ def _answer(est, both, model, p, stats, jac, n_draws, plausible, plausible_delay
     aw = a_t.T * w[None, :]
     move = -np.linalg.solve(aw @ a_t, aw @ a_p)  # internal arm per internal robot unit (per ms: the delay)
     # 1% of each robot entry in its internal units, and the arm's internal -> natural map
-    robot_layout = lay.Layout(both.names[len(est.names) :], both.symmetric[len(est.names) :])
     q = p[n:]
     g = np.asarray(lay.natural_jacobian(est, jnp.asarray(p[:n]), model))
-    bias = np.zeros((g.shape[0], 0))
+    bias, robot_labels = np.zeros((g.shape[0], 0)), []
     if q.size:
-        natural = np.asarray(lay.natural(robot_layout, jnp.asarray(q), model))
-        d_nat = np.asarray(jax.jacfwd(lambda v: lay.natural(robot_layout, v, model))(jnp.asarray(q)))
-        per_percent = np.linalg.pinv(d_nat) @ np.diag(0.01 * natural)  # internal move per 1% of each entry
+        robot_layout, per_percent = _per_percent(est, both, p, model)
         bias = g @ move[:, : q.size] @ per_percent
-    robot_labels = robot_layout.labels() if q.size else []
+        robot_labels = robot_layout.labels()
     if move.shape[1] > q.size:  # the delay's column
         bias = np.concatenate([bias, g @ move[:, q.size :]], axis=1)
         robot_labels = [*robot_labels, f"{DELAY} (per ms)"]
