@@ -50,8 +50,8 @@ IDENTIFY_NUMERICS = Numerics(solver=GradedARK4(), substeps=4)
 # Draws behind the efficient statistic's weight under friction (efficient.excess_weight): each Welch
 # bin then averages some 600 segments, a few percent of scatter in the weight.
 WEIGHT_DRAWS = 16
-# The draws behind the binding's chord through friction (``chord``; ``search._slope``): on the
-# issue-50 base case its SEs on 8 draws came within 10% of those on 64 (docs/identification.md 6c).
+# The draws behind the binding's chord through friction (``chord``; ``search._slope``): their SEs
+# against 64 draws' are measured in docs/identification.md section 6b.
 CHORD_DRAWS = 8
 
 
@@ -198,8 +198,8 @@ def chord(mean_at, p, half, tangent=None, tries: int = 2) -> np.ndarray | None:
 
     Why not the tangent (``binding_jacobian``) alone: through friction the binding is a smooth
     chord over its SEs, but each draw's tangent follows where the sticking falls, and the draws'
-    mean tangent missed the chord by a factor of 6 along one direction of the stiffness (issue
-    50; docs/identification.md 6c). The estimate spreads over its SEs, so the chord over them is
+    mean tangent missed the chord along the stiffness (issue 50, measured in
+    docs/identification.md section 6b). The estimate spreads over its SEs, so the chord over them is
     the slope its covariance needs. A column whose draws diverge is tried at half the width,
     ``tries`` times in all; then it is ``tangent``'s (an array, or a function giving it, called
     once; ``None`` if it gives ``None``)."""
