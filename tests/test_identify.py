@@ -344,8 +344,8 @@ def test_the_chord_is_exact_on_a_quadratic_binding_and_narrows_where_draws_diver
     p, half = np.array([0.2, -0.5]), np.array([0.7, 0.3])
     exact = a + 2.0 * c * p[None, :]  # d/dq of a q + c q^2 at p
 
-    def binding(q, reach=np.inf):
-        return a @ q + c @ (q**2), bool(abs(q[0] - p[0]) > reach)
+    def binding(q, reach=np.inf):  # every point's mean in one call, as indirect.binding_means
+        return q @ a.T + (q**2) @ c.T, np.abs(q[:, 0] - p[0]) > reach
 
     np.testing.assert_allclose(indirect.chord(binding, p, half), exact, rtol=1e-12)
     np.testing.assert_allclose(indirect.chord(lambda q: binding(q, 0.5), p, half), exact, rtol=1e-12)

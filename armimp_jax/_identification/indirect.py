@@ -53,6 +53,9 @@ WEIGHT_DRAWS = 16
 # The draws behind the binding's chord through friction (``chord``; ``search._slope``): their SEs
 # against 64 draws' are measured in docs/identification.md section 6b.
 CHORD_DRAWS = 8
+# Simulations in one call of the chord's bindings (``binding_means``): wider batches run each
+# simulation faster on XLA:CPU up to about this width, then slower (docs/performance.md 2.4.0).
+CHORD_BATCH = 112
 
 
 def arm_layout(layout: Layout) -> Layout | None:
@@ -179,11 +182,49 @@ def binding_jacobian(layout: Layout, model: Trial, p, f, keys, numerics, arm_sta
     return jnp.sum(totals, axis=0) / (per_count * n_dev), jnp.any(diverged)
 
 
-def binding_mean(layout: Layout, model: Trial, p, f, keys, numerics, arm_stat=None, stat_layout=None):
-    """``(mean (n,), diverged)`` on the host: ``binding_draws``' statistics averaged over the draws
-    of ``keys``, and whether any draw diverged (a chord's ``mean_at``)."""
-    stats, diverged = binding_draws(layout, model, jnp.asarray(p), f, keys, numerics, arm_stat, stat_layout)
-    return np.asarray(stats).mean(axis=0), bool(np.asarray(diverged).any())
+@functools.partial(jax.jit, static_argnames=("layout", "numerics", "stat_layout"))
+def binding_draws_at(layout: Layout, model: Trial, points, f, keys, numerics, arm_stat=None, stat_layout=None):
+    """``(stats (k R, n), diverged (k R,))``: ``binding_draws`` at each of ``k`` points ``(k, n)``
+    with the same ``R`` keys (common random numbers), point-major, in one program: the chord's
+    bindings batched (``binding_means``)."""
+    k, r = points.shape[0], keys.shape[0]
+    pair = jnp.arange(k * r)
+    pts, ks = points[pair // r], keys[pair % r]
+
+    def per_device(q, kk):
+        return jax.vmap(lambda qq, key: draw_statistics(layout, model, qq, f, key, numerics, arm_stat, stat_layout))(
+            q, kk
+        )
+
+    mesh = make_mesh()
+    spec = P("batch")
+    return jax.shard_map(per_device, mesh=mesh, in_specs=(spec, spec), out_specs=(spec, spec), check_vma=False)(pts, ks)
+
+
+def _bucket(k: int, cap: int) -> int:
+    """Points in the next call: the power of two at or above ``k``, at most ``cap`` (few shapes,
+    few programs to compile)."""
+    return min(cap, 1 << max(0, (k - 1).bit_length()))
+
+
+def binding_means(layout: Layout, model: Trial, points, f, keys, numerics, arm_stat=None, stat_layout=None):
+    """``(means (k, n), diverged (k,))`` on the host: the binding at each of ``points`` ``(k, n)``
+    averaged over the draws of ``keys``, and whether any of its draws diverged. Run in calls of
+    ``CHORD_BATCH`` simulations (a short last call padded with its last point)."""
+    points = np.atleast_2d(np.asarray(points, dtype=float))
+    r = keys.shape[0]
+    cap = max(1, CHORD_BATCH // r)
+    means, diverged, i = [], [], 0
+    while i < points.shape[0]:
+        size = _bucket(points.shape[0] - i, cap)
+        chunk = points[i : i + size]
+        pad = np.concatenate([chunk, np.repeat(chunk[-1:], size - chunk.shape[0], axis=0)])
+        stats, div = binding_draws_at(layout, model, jnp.asarray(pad), f, keys, numerics, arm_stat, stat_layout)
+        stats = np.asarray(stats).reshape(size, r, -1)[: chunk.shape[0]]
+        means.extend(stats[j].mean(axis=0) for j in range(chunk.shape[0]))
+        diverged.extend(np.asarray(div).reshape(size, r)[: chunk.shape[0]].any(axis=1))
+        i += chunk.shape[0]
+    return np.stack(means), np.asarray(diverged, dtype=bool)
 
 
 def chord_draws(n_draws: int) -> int:
@@ -192,9 +233,10 @@ def chord_draws(n_draws: int) -> int:
     return int(min(n_draws, math.ceil(CHORD_DRAWS / n_dev) * n_dev))
 
 
-def chord(mean_at, p, half, tangent=None, tries: int = 2) -> np.ndarray | None:
+def chord(means_at, p, half, tangent=None, tries: int = 2) -> np.ndarray | None:
     """``(m, n)``: the binding's slope as central differences, column ``j`` over ``p +- half[j]``
-    (``mean_at(q) -> (mean (m,), diverged)``, on fixed draws: common random numbers).
+    (``means_at(points (k, n)) -> (means (k, m), diverged (k,))``, on fixed draws: common random
+    numbers; every column's two points in one call).
 
     Why not the tangent (``binding_jacobian``) alone: through friction the binding is a smooth
     chord over its SEs, but each draw's tangent follows where the sticking falls, and the draws'
@@ -203,25 +245,29 @@ def chord(mean_at, p, half, tangent=None, tries: int = 2) -> np.ndarray | None:
     the slope its covariance needs. A column whose draws diverge is tried at half the width,
     ``tries`` times in all; then it is ``tangent``'s (an array, or a function giving it, called
     once; ``None`` if it gives ``None``)."""
-    cols, failed = [], []
-    for j in range(p.size):
-        col, width = None, float(half[j])
-        for _ in range(tries):
-            move = np.zeros(p.size)
-            move[j] = width
-            (up, up_diverged), (down, down_diverged) = mean_at(p + move), mean_at(p - move)
-            col = (np.asarray(up) - np.asarray(down)) / (2.0 * width)
-            if not (up_diverged or down_diverged) and np.all(np.isfinite(col)):
-                break
-            col, width = None, 0.5 * width
-        failed.append(col is None)
-        cols.append(np.zeros(np.asarray(up).shape) if col is None else col)
-    out = np.stack(cols, axis=1)
-    if any(failed):
+    p = np.asarray(p, dtype=float)
+    width, cols = np.asarray(half, dtype=float).copy(), [None] * p.size
+    todo = list(range(p.size))
+    for _ in range(tries):
+        if not todo:
+            break
+        moves = np.zeros((len(todo), p.size))
+        moves[np.arange(len(todo)), todo] = width[todo]
+        means, diverged = means_at(np.concatenate([p + moves, p - moves]))
+        means, diverged = np.asarray(means), np.asarray(diverged)
+        for i, j in enumerate(todo):
+            col = (means[i] - means[len(todo) + i]) / (2.0 * width[j])
+            if not (diverged[i] or diverged[len(todo) + i]) and np.all(np.isfinite(col)):
+                cols[j] = col
+        todo = [j for j in todo if cols[j] is None]
+        width[todo] *= 0.5
+    rows = means.shape[1]
+    out = np.stack([np.zeros(rows) if c is None else c for c in cols], axis=1)
+    if todo:
         fill = tangent() if callable(tangent) else tangent
         if fill is None:
             return None
-        out[:, failed] = np.asarray(fill)[:, failed]
+        out[:, todo] = np.asarray(fill)[:, todo]
     return out
 
 

@@ -173,9 +173,9 @@ def _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, effic
     half = np.sqrt(np.diag(np.asarray(indirect.covariance(tangent, stats, n_draws))))
     chord_keys = keys[: indirect.chord_draws(n_draws)]
 
-    def mean_at(q):
-        return indirect.binding_mean(layout, trial, q, f, chord_keys, numerics, arm_stat)
+    def means_at(points):
+        return indirect.binding_means(layout, trial, points, f, chord_keys, numerics, arm_stat)
 
-    slope = indirect.chord(mean_at, np.asarray(p), half, tangent)
+    slope = indirect.chord(means_at, np.asarray(p), half, tangent)
     g = lay.natural_jacobian(layout, p, trial)
     return g @ indirect.covariance(jnp.asarray(slope), jnp.asarray(stats), n_draws) @ g.T, diverged

@@ -208,32 +208,35 @@ def _slope(problem: Problem, p, se_p):
 
 
 def _chord_binding(problem: Problem, p):
-    """``mean_at(q) -> (mean, diverged)``: ``_binding`` on ``indirect.CHORD_DRAWS`` of the draws,
-    simulating only the parts whose parameters ``q`` moves from ``p`` (a chord column moves one
-    parameter: pooled recordings then cost the parts that hold it, not all of them)."""
+    """``means_at(points (k, n)) -> (means, diverged)``: ``_binding`` on ``indirect.CHORD_DRAWS``
+    of the draws at each point, each part simulating only the points that move its parameters
+    from ``p`` (a chord column moves one parameter: pooled recordings then cost the parts that
+    hold it, not all of them), in batched calls (``indirect.binding_means``)."""
     draws = indirect.chord_draws(problem.n_draws)
     at_p = {}
 
-    def part_mean(part, sub):
-        return indirect.binding_mean(
-            part.layout, part.model, sub, part.f, part.keys[:draws], problem.numerics, part.arm_stat
+    def part_means(part, subs):
+        return indirect.binding_means(
+            part.layout, part.model, subs, part.f, part.keys[:draws], problem.numerics, part.arm_stat
         )
 
-    def mean_at(q):
-        means, diverged = [], False
+    def means_at(points):
+        blocks, diverged = [], np.zeros(points.shape[0], dtype=bool)
         for t, part in enumerate(problem.parts):
-            sub = q[part.index]
-            if np.array_equal(sub, p[part.index]):
-                if t not in at_p:
-                    at_p[t] = part_mean(part, sub)
-                mean, div = at_p[t]
-            else:
-                mean, div = part_mean(part, sub)
-            means.append(mean)
-            diverged |= div
-        return np.concatenate([*means, q[problem.prior_index]]), diverged
+            subs = points[:, part.index]
+            moved = np.any(subs != p[part.index][None, :], axis=1)
+            if not np.all(moved) and t not in at_p:
+                at_p[t] = part_means(part, p[part.index][None, :])
+            means = np.zeros((points.shape[0], len(statistic_labels(part.layout))))
+            if not np.all(moved):
+                means[~moved], diverged[~moved] = at_p[t][0][0], diverged[~moved] | at_p[t][1][0]
+            if np.any(moved):
+                means[moved], div = part_means(part, subs[moved])
+                diverged[moved] |= div
+            blocks.append(means)
+        return np.concatenate([*blocks, points[:, problem.prior_index]], axis=1), diverged
 
-    return mean_at
+    return means_at
 
 
 def _cost(problem: Problem, mean, w):

@@ -184,10 +184,10 @@ def _chord(both, est, model, p, f, keys, numerics, arm_stat, half, tangent) -> n
     """``identify``'s chord (``search._slope``) of the binding in ``both``'s parameters, the
     tangent's column where a chord's draws diverged."""
 
-    def mean_at(q):
-        return indirect.binding_mean(both, model, q, f, keys, numerics, arm_stat, est)
+    def means_at(points):
+        return indirect.binding_means(both, model, points, f, keys, numerics, arm_stat, est)
 
-    return indirect.chord(mean_at, p, half, tangent)
+    return indirect.chord(means_at, p, half, tangent)
 
 
 def _checked(trial, free, robot, plausible, plausible_delay_ms) -> tuple[tuple, tuple]:
