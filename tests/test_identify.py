@@ -87,11 +87,13 @@ def test_binding_jacobian_matches_central_differences():
     layout = lay.make_layout(FREE_BINDING)
     p = lay.pack(layout, model)
     keys = jax.random.split(jax.random.key(3), jax.local_device_count())
-    jac, diverged = indirect.binding_jacobian(layout, model, p, f, keys, NUM)
+    # the arguments as identify passes them (the Welch statistic, `None`, positional; the count):
+    # the noise-free recovery above compiled these very programs
+    jac, diverged = indirect.binding_jacobian(layout, model, p, f, keys, NUM, None, count=keys.shape[0])
     assert not bool(diverged)
 
     def beta(q):
-        return jnp.mean(indirect.binding_draws(layout, model, q, f, keys, NUM)[0], axis=0)
+        return jnp.mean(indirect.binding_draws(layout, model, q, f, keys, NUM, None)[0], axis=0)
 
     # mass, damping, stiffness entries, log tau_c of each joint; steps measured to sit between
     # round-off and the roughness the stick-slip gives the binding on this record (the worst
