@@ -10,7 +10,7 @@ import pytest
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._identification import auxiliary, efficient, indirect, kalman
+from armimp_jax._identification import auxiliary, efficient, indirect, kalman, search
 from armimp_jax._identification import layout as lay
 from armimp_jax._model.sensors import quantise
 
@@ -124,6 +124,44 @@ def test_a_slope_on_fewer_draws_is_the_mean_over_each_devices_first_keys():
     every = slope(keys, 2 * n_dev)
     np.testing.assert_array_equal(some, first_twice)  # (2 J0 + 2 J2) / 4 = (J0 + J2) / 2 exactly
     assert float(jnp.abs(every - some).max()) > 1e-6 * float(jnp.abs(some).max())
+
+
+def test_a_pooled_chord_simulates_only_the_parts_a_column_moves(monkeypatch):
+    """``search._chord_binding`` on two recordings sharing one parameter: each part's binding
+    at the points that move its parameters in one batched call, its centre (once, kept)
+    where a column leaves it alone, the nuisance prior's parameter appended; the chord of
+    that binding is then exact for a quadratic binding (the bindings stubbed: logic only)."""
+    calls = []
+
+    def binding(sub):  # three statistics of a part's two parameters
+        return np.array([sub[0] + 2.0 * sub[1], sub[0] * sub[1], sub[1] ** 2])
+
+    def batched(layout, model, points, f, keys, numerics, arm_stat=None, stat_layout=None):
+        calls.append((model, "batch", len(points)))
+        return np.stack([binding(q) for q in points]), np.zeros(len(points), dtype=bool)
+
+    def draws(layout, model, p, f, keys, numerics, arm_stat=None, stat_layout=None):
+        calls.append((model, "centre", 1))
+        return jnp.tile(jnp.asarray(binding(np.asarray(p)))[None], (keys.shape[0], 1)), jnp.zeros(keys.shape[0], bool)
+
+    monkeypatch.setattr(indirect, "binding_means", batched)
+    monkeypatch.setattr(indirect, "binding_draws", draws)
+    monkeypatch.setattr(search, "statistic_labels", lambda layout: ("s0", "s1", "s2"))
+    keys = jax.random.split(jax.random.key(0), 8)
+    parts = tuple(
+        search.Part(None, name, None, keys, None, np.array(index)) for name, index in (("A", [0, 2]), ("B", [1, 2]))
+    )
+    problem = search.Problem(parts, None, 2, True, np.zeros(7), np.array([3]), np.zeros(1), 0.0, 4, chord=True)
+    p, half = np.array([0.5, -1.0, 2.0, 0.1]), np.array([0.1, 0.2, 0.3, 0.4])
+    slope = indirect.chord(search._chord_binding(problem, p), p, half)
+    exact = np.zeros((7, 4))
+    for rows, (i, j) in ((slice(0, 3), (0, 2)), (slice(3, 6), (1, 2))):  # d binding / d (own params)
+        a, b = p[i], p[j]
+        exact[rows, [i, j]] = [[1.0, 2.0], [b, a], [0.0, 2.0 * b]]
+    exact[6, 3] = 1.0  # the prior's row is its parameter
+    np.testing.assert_allclose(slope, exact, rtol=1e-12, atol=1e-12)
+    # A moves in columns 0 and 2 (four points, one call), B in 1 and 2; each centre once
+    assert sorted(calls) == [("A", "batch", 4), ("A", "centre", 1), ("B", "batch", 4), ("B", "centre", 1)]
 
 
 def test_encoder_readings_differentiate_as_the_identity():

@@ -207,6 +207,15 @@ def _slope(problem: Problem, p, se_p):
     return indirect.chord(_chord_binding(problem, p), p, np.asarray(se_p, dtype=float), lambda: _jacobian(problem, p))
 
 
+def _centre(problem: Problem, part, sub, draws: int):
+    """``(mean, diverged)``: one part's binding at ``sub`` on its first ``draws`` draws, on the
+    coarse binding's program (a chord's draws are as many: no program of its own)."""
+    stats, div = indirect.binding_draws(
+        part.layout, part.model, jnp.asarray(sub), part.f, part.keys[:draws], problem.numerics, part.arm_stat
+    )
+    return np.asarray(stats).mean(axis=0), bool(np.asarray(div).any())
+
+
 def _chord_binding(problem: Problem, p):
     """``means_at(points (k, n)) -> (means, diverged)``: ``_binding`` on ``indirect.CHORD_DRAWS``
     of the draws at each point, each part simulating only the points that move its parameters
@@ -226,10 +235,10 @@ def _chord_binding(problem: Problem, p):
             subs = points[:, part.index]
             moved = np.any(subs != p[part.index][None, :], axis=1)
             if not np.all(moved) and t not in at_p:
-                at_p[t] = part_means(part, p[part.index][None, :])
+                at_p[t] = _centre(problem, part, p[part.index], draws)
             means = np.zeros((points.shape[0], len(statistic_labels(part.layout))))
             if not np.all(moved):
-                means[~moved], diverged[~moved] = at_p[t][0][0], diverged[~moved] | at_p[t][1][0]
+                means[~moved], diverged[~moved] = at_p[t][0], diverged[~moved] | at_p[t][1]
             if np.any(moved):
                 means[moved], div = part_means(part, subs[moved])
                 diverged[moved] |= div
