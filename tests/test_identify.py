@@ -128,40 +128,63 @@ def test_a_slope_on_fewer_draws_is_the_mean_over_each_devices_first_keys():
 
 def test_a_pooled_chord_simulates_only_the_parts_a_column_moves(monkeypatch):
     """``search._chord_binding`` on two recordings sharing one parameter: each part's binding
-    at the points that move its parameters in one batched call, its centre (once, kept)
-    where a column leaves it alone, the nuisance prior's parameter appended; the chord of
-    that binding is then exact for a quadratic binding (the bindings stubbed: logic only)."""
+    at the points that move its parameters, in one batched call, a part's divergence kept
+    where another's is not, the nuisance prior's parameter appended; the chord of that binding
+    is exact for a quadratic binding, its diverging column retried at half width (the
+    bindings stubbed: the bookkeeping only)."""
+    p, half = np.array([0.5, -1.0, 2.0, 0.1]), np.array([0.1, 0.2, 0.3, 0.4])
     calls = []
 
     def binding(sub):  # three statistics of a part's two parameters
         return np.array([sub[0] + 2.0 * sub[1], sub[0] * sub[1], sub[1] ** 2])
 
     def batched(layout, model, points, f, keys, numerics, arm_stat=None, stat_layout=None):
-        calls.append((model, "batch", len(points)))
-        return np.stack([binding(q) for q in points]), np.zeros(len(points), dtype=bool)
-
-    def draws(layout, model, p, f, keys, numerics, arm_stat=None, stat_layout=None):
-        calls.append((model, "centre", 1))
-        return jnp.tile(jnp.asarray(binding(np.asarray(p)))[None], (keys.shape[0], 1)), jnp.zeros(keys.shape[0], bool)
+        calls.append((model, len(points)))
+        # part A's draws diverge beyond 0.2 of the shared parameter: column 2 at its full width
+        diverged = [model == "A" and abs(q[1] - p[2]) > 0.2 for q in points]
+        return np.stack([binding(q) for q in points]), np.asarray(diverged)
 
     monkeypatch.setattr(indirect, "binding_means", batched)
-    monkeypatch.setattr(indirect, "binding_draws", draws)
     monkeypatch.setattr(search, "statistic_labels", lambda layout: ("s0", "s1", "s2"))
     keys = jax.random.split(jax.random.key(0), 8)
     parts = tuple(
         search.Part(None, name, None, keys, None, np.array(index)) for name, index in (("A", [0, 2]), ("B", [1, 2]))
     )
     problem = search.Problem(parts, None, 2, True, np.zeros(7), np.array([3]), np.zeros(1), 0.0, 4, chord=True)
-    p, half = np.array([0.5, -1.0, 2.0, 0.1]), np.array([0.1, 0.2, 0.3, 0.4])
     slope = indirect.chord(search._chord_binding(problem, p), p, half)
     exact = np.zeros((7, 4))
     for rows, (i, j) in ((slice(0, 3), (0, 2)), (slice(3, 6), (1, 2))):  # d binding / d (own params)
-        a, b = p[i], p[j]
-        exact[rows, [i, j]] = [[1.0, 2.0], [b, a], [0.0, 2.0 * b]]
+        exact[rows, [i, j]] = [[1.0, 2.0], [p[j], p[i]], [0.0, 2.0 * p[j]]]
     exact[6, 3] = 1.0  # the prior's row is its parameter
     np.testing.assert_allclose(slope, exact, rtol=1e-12, atol=1e-12)
-    # A moves in columns 0 and 2 (four points, one call), B in 1 and 2; each centre once
-    assert sorted(calls) == [("A", "batch", 4), ("A", "centre", 1), ("B", "batch", 4), ("B", "centre", 1)]
+    # A moves in columns 0 and 2 (four points), B in 1 and 2; then column 2 again, at half width,
+    # in both (B's sound draws did not hide A's divergence)
+    assert calls == [("A", 4), ("B", 4), ("A", 2), ("B", 2)]
+
+
+def test_binding_means_keeps_each_points_draws_together_across_calls_and_padding(monkeypatch):
+    """``indirect.binding_means``: the points in calls of ``CHORD_BATCH`` simulations (the last
+    padded to its bucket), each point's mean over its own draws, point-major as
+    ``binding_draws_at`` lays them out, and a point diverged if any of its draws did (the
+    program stubbed: the bookkeeping only)."""
+    r, sizes = 2, []
+
+    def program(layout, model, points, f, keys, numerics, arm_stat=None, stat_layout=None):
+        points = np.asarray(points)
+        sizes.append(points.shape[0])
+        pair = np.arange(points.shape[0] * r)  # point-major: pair // r the point, pair % r the draw
+        stats = 1000.0 * points[pair // r, :1] + (pair % r)[:, None]
+        return jnp.asarray(stats), jnp.asarray((points[pair // r, 0] == 3.0) & (pair % r == 1))
+
+    monkeypatch.setattr(indirect, "binding_draws_at", program)
+    monkeypatch.setattr(indirect, "CHORD_BATCH", 4 * r)  # four points a call
+    points = np.arange(7.0)[:, None] * np.ones((1, 2))
+    means, diverged = indirect.binding_means(None, None, points, None, jnp.zeros(r), None)
+    assert sizes == [4, 4]  # the last three points padded to four
+    np.testing.assert_array_equal(means[:, 0], 1000.0 * np.arange(7) + 0.5)
+    np.testing.assert_array_equal(diverged, np.arange(7) == 3)
+    with pytest.raises(ValueError, match="no points"):
+        indirect.binding_means(None, None, np.zeros((0, 2)), None, jnp.zeros(r), None)
 
 
 def test_encoder_readings_differentiate_as_the_identity():

@@ -54,7 +54,7 @@ WEIGHT_DRAWS = 16
 # against 64 draws' are measured in docs/identification.md section 6b.
 CHORD_DRAWS = 8
 # Simulations in one call of the chord's bindings (``binding_means``): wider batches run each
-# simulation faster on XLA:CPU up to about this width, then slower (docs/performance.md 2.4.0).
+# simulation faster on XLA:CPU up to about this width, then slower (docs/performance.md 2.3.1).
 CHORD_BATCH = 112
 
 
@@ -212,6 +212,8 @@ def binding_means(layout: Layout, model: Trial, points, f, keys, numerics, arm_s
     averaged over the draws of ``keys``, and whether any of its draws diverged. Run in calls of
     ``CHORD_BATCH`` simulations (a short last call padded with its last point)."""
     points = np.atleast_2d(np.asarray(points, dtype=float))
+    if points.shape[0] == 0:
+        raise ValueError("binding_means: no points given")
     r = keys.shape[0]
     cap = max(1, CHORD_BATCH // r)
     means, diverged, i = [], [], 0

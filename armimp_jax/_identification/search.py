@@ -207,40 +207,25 @@ def _slope(problem: Problem, p, se_p):
     return indirect.chord(_chord_binding(problem, p), p, np.asarray(se_p, dtype=float), lambda: _jacobian(problem, p))
 
 
-def _centre(problem: Problem, part, sub, draws: int):
-    """``(mean, diverged)``: one part's binding at ``sub`` on its first ``draws`` draws, on the
-    coarse binding's program (a chord's draws are as many: no program of its own)."""
-    stats, div = indirect.binding_draws(
-        part.layout, part.model, jnp.asarray(sub), part.f, part.keys[:draws], problem.numerics, part.arm_stat
-    )
-    return np.asarray(stats).mean(axis=0), bool(np.asarray(div).any())
-
-
 def _chord_binding(problem: Problem, p):
     """``means_at(points (k, n)) -> (means, diverged)``: ``_binding`` on ``indirect.CHORD_DRAWS``
     of the draws at each point, each part simulating only the points that move its parameters
     from ``p`` (a chord column moves one parameter: pooled recordings then cost the parts that
-    hold it, not all of them), in batched calls (``indirect.binding_means``)."""
+    hold it, not all of them), in batched calls (``indirect.binding_means``). A part a point
+    leaves at ``p`` gives zeros: a chord column differences two such points, whose bindings
+    there are the same (and sound: ``p``'s binding was checked on these draws)."""
     draws = indirect.chord_draws(problem.n_draws)
-    at_p = {}
-
-    def part_means(part, subs):
-        return indirect.binding_means(
-            part.layout, part.model, subs, part.f, part.keys[:draws], problem.numerics, part.arm_stat
-        )
 
     def means_at(points):
         blocks, diverged = [], np.zeros(points.shape[0], dtype=bool)
-        for t, part in enumerate(problem.parts):
+        for part in problem.parts:
             subs = points[:, part.index]
             moved = np.any(subs != p[part.index][None, :], axis=1)
-            if not np.all(moved) and t not in at_p:
-                at_p[t] = _centre(problem, part, p[part.index], draws)
             means = np.zeros((points.shape[0], len(statistic_labels(part.layout))))
-            if not np.all(moved):
-                means[~moved], diverged[~moved] = at_p[t][0], diverged[~moved] | at_p[t][1]
             if np.any(moved):
-                means[moved], div = part_means(part, subs[moved])
+                means[moved], div = indirect.binding_means(
+                    part.layout, part.model, subs[moved], part.f, part.keys[:draws], problem.numerics, part.arm_stat
+                )
                 diverged[moved] |= div
             blocks.append(means)
         return np.concatenate([*blocks, points[:, problem.prior_index]], axis=1), diverged
