@@ -132,10 +132,11 @@ def draw_recordings(layout: Layout, model: Trial, p, f, keys, numerics):
     return jax.vmap(one)(keys)
 
 
-def _sharded(fn, n_out: int):
-    """``fn(keys)`` run with ``keys`` split over the local devices; outputs concatenated."""
-    mesh = make_mesh()
-    return jax.shard_map(fn, mesh=mesh, in_specs=P("batch"), out_specs=(P("batch"),) * n_out, check_vma=False)
+def _sharded(fn, n_out: int, n_in: int = 1):
+    """``fn(*inputs)`` run with its ``n_in`` inputs split along their first axis over the local
+    devices; its ``n_out`` outputs concatenated."""
+    spec = P("batch")
+    return jax.shard_map(fn, mesh=make_mesh(), in_specs=(spec,) * n_in, out_specs=(spec,) * n_out, check_vma=False)
 
 
 @functools.partial(jax.jit, static_argnames=("layout", "numerics", "stat_layout"))
@@ -196,9 +197,7 @@ def binding_draws_at(layout: Layout, model: Trial, points, f, keys, numerics, ar
             q, kk
         )
 
-    mesh = make_mesh()
-    spec = P("batch")
-    return jax.shard_map(per_device, mesh=mesh, in_specs=(spec, spec), out_specs=(spec, spec), check_vma=False)(pts, ks)
+    return _sharded(per_device, 2, n_in=2)(pts, ks)
 
 
 def _bucket(k: int, cap: int) -> int:
@@ -222,11 +221,10 @@ def binding_means(layout: Layout, model: Trial, points, f, keys, numerics, arm_s
         chunk = points[i : i + size]
         pad = np.concatenate([chunk, np.repeat(chunk[-1:], size - chunk.shape[0], axis=0)])
         stats, div = binding_draws_at(layout, model, jnp.asarray(pad), f, keys, numerics, arm_stat, stat_layout)
-        stats = np.asarray(stats).reshape(size, r, -1)[: chunk.shape[0]]
-        means.extend(stats[j].mean(axis=0) for j in range(chunk.shape[0]))
-        diverged.extend(np.asarray(div).reshape(size, r)[: chunk.shape[0]].any(axis=1))
+        means.append(np.asarray(stats).reshape(size, r, -1)[: chunk.shape[0]].mean(axis=1))
+        diverged.append(np.asarray(div).reshape(size, r)[: chunk.shape[0]].any(axis=1))
         i += chunk.shape[0]
-    return np.stack(means), np.asarray(diverged, dtype=bool)
+    return np.concatenate(means), np.concatenate(diverged)
 
 
 def chord_draws(n_draws: int) -> int:
