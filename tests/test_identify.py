@@ -12,6 +12,7 @@ import armimp_jax as aj
 from armimp_jax import paper
 from armimp_jax._identification import auxiliary, efficient, indirect, kalman, search
 from armimp_jax._identification import layout as lay
+from armimp_jax._identification import result as result_mod
 from armimp_jax._model.sensors import quantise
 
 NUM = aj.IDENTIFY_NUMERICS
@@ -160,6 +161,93 @@ def test_a_pooled_chord_simulates_only_the_parts_a_column_moves(monkeypatch):
     # A moves in columns 0 and 2 (four points), B in 1 and 2; then column 2 again, at half width,
     # in both (B's sound draws did not hide A's divergence)
     assert calls == [("A", 4), ("B", 4), ("A", 2), ("B", 2)]
+
+
+def test_the_spread_ratio_is_one_on_a_straight_binding_and_the_one_step_spread_on_a_bent_one(monkeypatch):
+    """``search.spread_ratio`` at ``p = (0, 0.3)``: the arm's parameter under ``b(q) = a q + c
+    q^2`` (the binding stubbed), a nuisance with its prior. The re-estimates start from the
+    draws after the chord's (a mean of ``count`` recordings: their deviations over
+    ``sqrt(count)``), linearised ``lin = (s - b(0)) / a``, then one step on the binding, ``lin -
+    (c / a) lin^2``: their SDs' ratio is that of those two, 1 for ``c = 0``, and the nuisance,
+    whose moment is its parameter, moves by nothing in the step (ratio 1). A re-estimate whose
+    simulations diverge is left out and counted; fewer than three sound give ``None``."""
+    a, reach = 2.0, [np.inf]
+
+    def stub(layout, model, points, f, keys, numerics, arm_stat=None, stat_layout=None):
+        q = np.asarray(points)[:, 0]
+        return (a * q + model * q**2)[:, None], np.abs(q) > reach[0]
+
+    monkeypatch.setattr(indirect, "binding_means", stub)
+    monkeypatch.setattr(search, "statistic_labels", lambda layout: ("s0",))
+    chord = indirect.chord_draws(64)
+    count = indirect.CHORD_BATCH // chord
+    x = np.linspace(-1.0, 3.0, count) ** 2 - 1.5  # skewed: a step of the wrong sign changes the SD
+    p, jac, w = np.array([0.0, 0.3]), np.array([[a, 0.0], [0.0, 1.0]]), np.array([1.0, search.PRIOR_SD**-2])
+    keys = jax.random.split(jax.random.key(0), 64)
+    for c, repeats in ((0.0, 1), (0.5, 1), (0.5, 4)):
+        draws = np.zeros((64, 2))
+        draws[:, 1] = p[1]  # the prior's moment: its parameter, in every draw
+        draws[chord : chord + count, 0] = x
+        part = search.Part(None, c, None, keys, None, np.array([0]), repeats)
+        problem = search.Problem((part,), None, 2, True, np.zeros(2), np.array([1]), p[1:], 0.0, 2, True)
+        ratio, dropped, n = search.spread_ratio(problem, p, draws, jac, w)
+        lin = x / np.sqrt(repeats) / a  # b(0) = 0 on the chord's draws
+        want = np.std(lin - (c / a) * lin**2, ddof=1) / np.std(lin, ddof=1)
+        np.testing.assert_allclose(ratio, [want, 1.0], rtol=1e-12)
+        assert (dropped, n) == (0, count)
+    # the bend is seen (on these skewed draws it narrows the spread), less in a mean of four recordings
+    one = search.spread_ratio(problem._replace(parts=(part._replace(count=1),)), p, draws, jac, w)[0][0]
+    assert abs(one - 1.0) > abs(want - 1.0) > 0.05
+    reach[0] = np.sort(np.abs(x / a))[-3] + 1e-9  # the two largest re-estimates' simulations diverge
+    part = part._replace(count=1)
+    problem = problem._replace(parts=(part,))
+    ratio, dropped, _ = search.spread_ratio(problem, p, draws, jac, w)
+    kept = (x / a)[np.abs(x / a) <= reach[0]]
+    np.testing.assert_allclose(ratio[0], np.std(kept - (0.5 / a) * kept**2, ddof=1) / np.std(kept, ddof=1), rtol=1e-12)
+    assert dropped == 2 and kept.size == count - 2
+    reach[0] = 0.0
+    assert search.spread_ratio(problem, p, draws, jac, w) == (None, count, count)
+
+
+def test_the_covariance_is_widened_by_the_spread_ratio_and_never_narrowed(monkeypatch):
+    """``search.final_covariance`` through friction: each SD times its spread ratio where that is
+    above 1 (0.8 leaves it), the correlations kept; without a chord, or without a ratio, as it was."""
+    cov = np.array([[4.0, 1.2], [1.2, 9.0]])
+    monkeypatch.setattr(search, "_covariance", lambda *a: cov.copy())
+    monkeypatch.setattr(search, "_weights", lambda *a: np.ones(2))
+    check = [(np.array([0.8, 1.5]), 0, 14)]
+    monkeypatch.setattr(search, "spread_ratio", lambda *a: check[0])
+    part = search.Part(None, None, None, np.zeros(8), None, np.arange(2))
+    problem = search.Problem((part,), None, 2, True, np.zeros(2), np.zeros(0, int), np.zeros(0), 0.0, 2, chord=True)
+    state = search.Search(
+        np.zeros(2), None, np.zeros((8, 2)), 0.0, np.eye(2), np.zeros(2), np.ones(2), None, 1, (), (), True, 8, 2
+    )
+    out, problems, got = search.final_covariance(problem, state)
+    np.testing.assert_array_equal(out, [[4.0, 1.2 * 1.5], [1.2 * 1.5, 9.0 * 1.5**2]])
+    assert problems == () and got is check[0]
+    np.testing.assert_array_equal(search.final_covariance(problem._replace(chord=False), state)[0], cov)
+    check[0] = (None, 12, 14)
+    np.testing.assert_array_equal(search.final_covariance(problem, state)[0], cov)
+
+
+def test_the_bend_warning_names_the_arms_entries_and_the_record_that_would_do():
+    """``result._bent``: only the arm's entries above ``SPREAD_WARN`` (any group), and the data
+    at which the largest one's excess variance, ``ratio^2 - 1``, which falls as one over the
+    recorded time, reaches the limit's; ``_unchecked`` says when the check could not run."""
+    ratios = {
+        "arm.stiffness[1,1]": 1.6,
+        "arm.mass@left[0,0]": 1.45,
+        "arm.damping[0,0]": 1.2,
+        "friction.tau_c[0]": 3.0,
+    }
+    assert set(result_mod.bent_entries(ratios)) == {"arm.stiffness[1,1]", "arm.mass@left[0,0]"}
+    (warning,) = result_mod._bent(ratios, 10.0)
+    times = (1.6**2 - 1.0) / (result_mod.SPREAD_WARN**2 - 1.0)
+    assert f"about {times:.1f} times as much (about {times * 10:.0f} s against these 10 s" in warning
+    assert "arm.stiffness[1,1] (1.6 times)" in warning and "tau_c" not in warning
+    assert result_mod._bent({"arm.mass[0,0]": 1.3}, 10.0) == []
+    assert "3 of 14 recordings simulated near the estimate diverged" in result_mod._unchecked((None, 3, 14))[0]
+    assert result_mod._unchecked((np.ones(2), 3, 14)) == [] and result_mod._unchecked(None) == []
 
 
 def test_binding_means_keeps_each_points_draws_together_across_calls_and_padding(monkeypatch):

@@ -29,8 +29,10 @@ The search (``search.py``): Gauss-Newton on the mismatch of statistics, the bind
 Jacobian reused between steps, friction parameters held by a wide prior about their start
 (nuisances for the arm: one the recording cannot tell, such as the Coulomb torque under
 IMBIC, which cancels it, is flagged in ``not_told`` and its uncertainty carried into the
-arm's intervals). Then the result's assembly: the covariance at the estimate, warnings in a
-lab's terms (``diagnosis.py``: joints that stood still), fit quality and the classical answer.
+arm's intervals). Then the result's assembly: the covariance at the estimate (through
+friction checked against re-estimates from recordings simulated there, and widened entry by
+entry where the fit is not linear across the intervals: ``search.spread_ratio``), warnings in
+a lab's terms (``diagnosis.py``: joints that stood still), fit quality and the classical answer.
 """
 
 from __future__ import annotations

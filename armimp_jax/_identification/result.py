@@ -26,6 +26,10 @@ from .indirect import predict
 # An entry whose SE exceeds this multiple of its parameter's scale is reported as barely identifiable.
 WEAK_RELATIVE_SE = 1.0
 WHITENESS_LAGS = 20  # Ljung-Box lags of the residual
+# An arm entry whose re-estimates spread more than this multiple of their linearised spread
+# (``search.spread_ratio``; its SE is widened by it) is warned of: chosen on docs/identification.md
+# section 6b's cells, where it flagged most recordings of the cell whose linearised intervals failed.
+SPREAD_WARN = 1.4
 
 
 class RecordingFit(NamedTuple):
@@ -85,6 +89,15 @@ class Identification:
             recording's).
         recordings: per recording, a ``RecordingFit`` (its group, model with the estimates,
             fit quality and classical answer).
+        spread_ratio: ``{label: float}`` through friction in a noisy loop, each entry's spread
+            over re-estimates from recordings simulated at the estimate, one Gauss-Newton step
+            past the linearisation, over their linearised spread (``search.spread_ratio``; on
+            the internal scale, so for friction a log or logit's): 1 where the fit is linear over
+            the intervals, above it where the friction bends it. ``se`` and ``covariance`` are
+            widened by it where it is above 1; an arm entry above ``SPREAD_WARN`` is warned of
+            (``bent``). Empty without friction or noise, or where the check could not run (then
+            a warning says why). From up to 14 re-estimates, so itself noisy
+            (docs/identification.md 6b).
     """
 
     values: dict
@@ -111,6 +124,13 @@ class Identification:
     time_s: float
     forward_s: float
     recordings: tuple = ()
+    spread_ratio: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def bent(self) -> dict:
+        """``{label: spread ratio}``: the arm's entries warned of for spreading more than
+        ``SPREAD_WARN`` times their linearised spread (``spread_ratio``)."""
+        return bent_entries(self.spread_ratio)
 
     def interval(self, name: str, level: float = 0.95):
         """Two-sided normal ``level`` interval ``(low, high)`` of parameter ``name`` (for an entry
@@ -196,6 +216,48 @@ def _warnings(problem: search.Problem, pool: pl.Pool, p, labels, values, se, cov
     return warnings, not_told
 
 
+def _by_label(pool: pl.Pool, labels, per_internal) -> dict:
+    """``{label: value}`` of each natural entry from a value per internal parameter (``{}`` without)."""
+    if per_internal is None:
+        return {}
+    return {labels[j]: float(per_internal[k]) for k, entries in enumerate(_natural_of_internal(pool)) for j in entries}
+
+
+def bent_entries(spread_ratio: dict) -> dict:
+    """``{label: ratio}`` of the arm's entries whose ratio exceeds ``SPREAD_WARN``."""
+    arm = {lab: r for lab, r in spread_ratio.items() if lab.split("[")[0].split("@")[0] in lay.ARM_PARAMETERS}
+    return {lab: r for lab, r in arm.items() if r > SPREAD_WARN}
+
+
+def _bent(spread_ratio: dict, seconds: float) -> list[str]:
+    """A warning for ``bent_entries``, in a lab's terms, with the data that would bring them
+    within ``SPREAD_WARN``: the excess variance, ``ratio^2 - 1``, falls with the estimate's
+    variance, as one over the recorded time (``seconds``, every recording of the call)."""
+    bent = bent_entries(spread_ratio)
+    if not bent:
+        return []
+    times = (max(bent.values()) ** 2 - 1.0) / (SPREAD_WARN**2 - 1.0)
+    entries = ", ".join(f"{lab} ({r:.2g} times)" for lab, r in bent.items())
+    return [
+        "the fit is not linear across these intervals (the robot's friction bends the loop there): re-estimates "
+        f"from recordings simulated at the estimate spread wider than the straight line says for {entries}, and "
+        "their intervals are widened by as much, which rests on a few re-estimates; record about "
+        f"{times:.1f} times as much (about {times * seconds:.0f} s against these {seconds:.0f} s, in longer or "
+        "more recordings) for intervals that need no widening"
+    ]
+
+
+def _unchecked(check) -> list[str]:
+    """A warning where ``search.spread_ratio`` could not run for diverging simulations."""
+    if check is None or check[0] is not None or not check[1]:
+        return []
+    _, dropped, count = check
+    return [
+        f"the intervals' linearity could not be checked: {dropped} of {count} recordings simulated near the "
+        "estimate diverged, so the fit may be unstable there; check the friction's and the controller's settings"
+    ]
+
+
 def _weak(pool: pl.Pool, values, se) -> list[str]:
     """Arm entries whose SE exceeds their matrix's largest entry (an off-diagonal entry near zero
     is not weak for being small)."""
@@ -252,7 +314,7 @@ def assemble(problem: search.Problem, state: search.Search, pool: pl.Pool, recor
     """The ``Identification`` of the search's final ``state``; ``recorded``: per recording ``(part,
     x, fh)``, the index of its binding in ``problem.parts`` and its recording."""
     p = state.p
-    cov_p, problems = search.final_covariance(problem, state)
+    cov_p, problems, check = search.final_covariance(problem, state)
     fits, stuck = [], []
     for (t, x, fh), group in zip(recorded, pool.groups, strict=True):
         fit, diverged, st = _fit(problem.parts[t], p, problem.numerics, x, fh, group)
@@ -265,6 +327,9 @@ def assemble(problem: search.Problem, state: search.Search, pool: pl.Pool, recor
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     labels = pool.labels()
     warnings, not_told = _warnings(problem, pool, p, labels, values, se, cov_p)
+    spread_ratio = _by_label(pool, labels, None if check is None else check[0])
+    seconds = sum(x.shape[0] for _, x, _ in recorded) * problem.parts[0].model.period
+    warnings = warnings + _bent(spread_ratio, seconds) + _unchecked(check)
     advice = [a for st in stuck for a in st.advice]
     message = "; ".join(problems)
     if problems and advice:  # why, in a lab's terms, before the search's own account
@@ -298,4 +363,5 @@ def assemble(problem: search.Problem, state: search.Search, pool: pl.Pool, recor
         time_s=time.perf_counter() - t_start,
         forward_s=forward_s,
         recordings=tuple(fits),
+        spread_ratio=spread_ratio,
     )

@@ -58,6 +58,9 @@ HALVINGS = 6  # a step is halved at most this many times while a draw diverges o
 # The nuisance prior of each free friction parameter: this SD on its internal (log or logit) scale
 # about its start, a factor of e^2 ~ 7 either way.
 PRIOR_SD = 2.0
+# The stream (``jax.random.fold_in`` of a part's first key) of ``spread_ratio``'s prior draws: far from
+# the sample indices the draws' own noise folds in.
+SPREAD_STREAM = 2**31 - 1
 
 
 class Part(NamedTuple):
@@ -359,7 +362,12 @@ def _final_step(problem: Problem, state: Search, step) -> Search:
 
 
 def final_covariance(problem: Problem, state: Search):
-    """The covariance of ``p`` at the estimate (the slope refreshed if it is far from there)."""
+    """``(covariance of p, problems, check)`` at the estimate (the slope refreshed if it is far
+    from there). Where the slope is a chord (friction in a noisy loop), ``check`` is
+    ``spread_ratio``'s answer and each parameter's SD is widened by its ratio where that is above
+    1 (never narrowed: the ratio's own noise then errs wide); ``None`` elsewhere. Measured on
+    docs/identification.md section 6b's cells, the widened intervals hold entry by entry where
+    the linearised ones did not (the stiffness through 1 N m at arm 4)."""
     jac, problems = state.jac, state.problems
     n_draws = problem.n_draws
     if jac is not None and state.se_p is not None:
@@ -369,7 +377,57 @@ def final_covariance(problem: Problem, state: Search):
             if jac is None:
                 problems = problems + ("the binding's Jacobian is not finite at the estimate",)
     if jac is None:
-        return np.full((state.p.size,) * 2, np.nan), problems
+        return np.full((state.p.size,) * 2, np.nan), problems, None
     if not problem.noisy:
-        return np.zeros((state.p.size,) * 2), problems
-    return _covariance(problem, jac, state.stats, n_draws, _weights(problem, state.stats, jac)), problems
+        return np.zeros((state.p.size,) * 2), problems, None
+    w = _weights(problem, state.stats, jac)
+    cov = _covariance(problem, jac, state.stats, n_draws, w)
+    if not problem.chord:
+        return cov, problems, None
+    check = spread_ratio(problem, state.p, state.stats, jac, w)
+    if check[0] is not None:  # each SE widened to its re-estimates' spread, the correlations kept
+        widen = np.maximum(1.0, check[0])
+        cov = cov * widen[:, None] * widen[None, :]
+    return cov, problems, check
+
+
+def spread_ratio(problem: Problem, p, stats, jac, w) -> tuple[np.ndarray | None, int, int]:
+    """``(ratio (n,) | None, dropped, count)``: how far the estimate's spread departs from its
+    linearisation, per parameter (internal scale), from ``count`` re-estimates, ``dropped`` of
+    them left out for a diverged simulation (``None`` with fewer than 3 sound).
+
+    Re-estimates from recordings simulated near the estimate (``stats``: the last binding's
+    draws beyond the chord's, ``indirect.chord_draws``; a part matching the mean of ``count``
+    repeated recordings takes its draws' deviations over ``sqrt(count)``): each first by the
+    linearisation, ``lin = p + S (s - b)`` (``S = H^-1 A^T W``, the covariance's), then one
+    Gauss-Newton step more on the binding there (the chord's draws: common random numbers, so
+    the binding's own Monte Carlo error shifts every re-estimate alike). The ratio of their SDs
+    is 1 where the binding is straight over the estimate's spread and its slope is ``A``'s;
+    above 1 where it bends (second order), or where its slope at ``p`` is steeper or flatter
+    than the chord's, taken up to ``JACOBIAN_REUSE_SE`` away (first order: the estimate then
+    answers a new recording by ``(S A_p)^-1 S``, which the step's ``2 - S A_p`` follows to first
+    order). Either way the intervals, which are ``S``'s, hold less often than they say. The
+    statistics' draws may be the last step's, not ``p``'s (``_final_step``): that shifts every
+    re-estimate alike. The nuisance prior's moment is drawn about its value with the prior's SD
+    (as ``Omega`` takes it), on a stream of its own."""
+    chord = indirect.chord_draws(problem.n_draws)
+    count = min(indirect.CHORD_BATCH // chord, stats.shape[0] - chord)  # one batched call of the chord's
+    if count < 3:
+        return None, 0, max(count, 0)
+    m = stats.shape[1] - problem.prior_index.size
+    aw = jac.T * w[None, :]
+    sens = np.linalg.solve(aw @ jac, aw)
+    base = stats[:chord].mean(axis=0)
+    s = stats[chord : chord + count].copy()
+    for rows, part in zip(_blocks(problem), problem.parts, strict=True):
+        s[:, rows] = base[rows] + (s[:, rows] - base[rows]) / math.sqrt(part.count)
+    key = jax.random.fold_in(problem.parts[0].keys[0], SPREAD_STREAM)
+    s[:, m:] = base[m:] + PRIOR_SD * np.asarray(jax.random.normal(key, (count, problem.prior_index.size)))
+    lin = p[None, :] + (s - base[None, :]) @ sens.T
+    means, diverged = _chord_binding(problem, p)(lin)  # every lin moves every part's parameters
+    full = lin + (s - means) @ sens.T
+    ok = ~np.asarray(diverged) & np.all(np.isfinite(full), axis=1)
+    if ok.sum() < 3:
+        return None, int(count - ok.sum()), count
+    spread = np.std(lin[ok], axis=0, ddof=1)
+    return np.std(full[ok], axis=0, ddof=1) / np.where(spread > 0, spread, np.inf), int(count - ok.sum()), count

@@ -38,6 +38,7 @@ import numpy as np
 
 import armimp_jax as aj
 from armimp_jax import presets
+from armimp_jax._identification.result import bent_entries
 from armimp_jax.study import coverage as cov
 
 ARM = cov.ARM
@@ -237,6 +238,7 @@ def one(case: str, seed: int, *, draws: int = 64, cases=None) -> dict:
         converged=bool(res.converged),
         message=res.message,
         warnings=list(res.warnings),
+        spread_ratio={k: v for k, v in res.spread_ratio.items() if k.startswith("arm.")},
         time_s=float(res.time_s),
         iterations=int(res.iterations),
         values={n: np.asarray(v).tolist() for n, v in res.values.items()},
@@ -270,6 +272,11 @@ def summary(rows: list[dict]) -> dict:
     out["coverage_other"] = float(np.concatenate(other_hits, axis=1).mean()) if other_hits else None
     out["mean_time_s"] = float(np.mean([r["time_s"] for r in ok]))
     out["warned"] = float(np.mean([bool(r["warnings"]) for r in ok]))
+    if all(r.get("spread_ratio") for r in ok):  # records from before 2.4 (or without friction) carry none
+        out["bent"] = float(np.mean([bool(bent_entries(r["spread_ratio"])) for r in ok]))
+        out["spread_ratio_median"] = {
+            k: float(np.median([r["spread_ratio"][k] for r in ok])) for k in ok[0]["spread_ratio"]
+        }
     return out
 
 

@@ -314,6 +314,7 @@ def result_dict(res, *, model, settings: dict, n_samples: int, warnings: list[st
         "start_model": model_settings(model),
         "fitted_model": model_settings(res.trial),
         "warnings": list(warnings),
+        "spread_ratio": res.spread_ratio,
     }
 
 
