@@ -20,7 +20,6 @@ from helpers import write_toml
 
 import armimp_jax as aj
 from armimp_jax import presets
-from armimp_jax._identification.result import SPREAD_WARN
 from armimp_jax.study import estimate_recording, recording, recording_figures
 from armimp_jax.study import identify_recording as idr
 
@@ -138,12 +137,10 @@ def test_model_route_recovers_the_stiffness_and_writes_finite_results(identified
     for field in ("cost", "iterations", "draws"):
         assert _finite(result[field])
     assert _finite(result["vaf"]["position"]) and _finite(result["vaf"]["force"])
-    # through friction, the check of the intervals' linearity: a ratio per entry and its warning exactly
-    # where an arm entry's exceeds the limit (the wiring; search.spread_ratio's numbers: test_identify.py)
-    ratio = result["spread_ratio"]
-    assert list(ratio) == labels and _finite(list(ratio.values())) and min(ratio.values()) > 0
-    bent = any(r > SPREAD_WARN for lab, r in ratio.items() if lab.startswith("arm."))
-    assert bent == any("the fit is not linear across these intervals" in w for w in result["warnings"])
+    # the check of the intervals' linearity through friction needs draws beyond the chord's 8: at this
+    # config's 8 it does not run, and nothing says it did (search.spread_ratio: test_identify.py)
+    assert result["spread_ratio"] == {}
+    assert not any("not linear" in w or "linearity" in w for w in result["warnings"])
     assert set(result["whiteness_p"]) == {"x", "y", "fh_x", "fh_y"} and _finite(list(result["whiteness_p"].values()))
     assert _finite(result["classical"]["stiffness"])
     assert result["fitted_model"]["controller_type"] == "PD"
