@@ -232,8 +232,7 @@ def identify(
             is deterministic); each recording draws on a stream of its own.
         draws: noise draws ``R`` behind the binding and the covariance (>= 8; rounded up to
             a multiple of the local devices). The SEs carry a Monte Carlo error of about
-            ``1 / sqrt(2 R)``; the estimate's variance grows by ``1 / R``. Through friction
-            the intervals' check (``search.spread_ratio``) runs from ``R = 11``.
+            ``1 / sqrt(2 R)``, the estimate's variance ``1 / R`` more; friction's check needs 11.
         jacobian_draws: draws averaged in the Jacobian ``A`` (1 to ``draws``).
         max_steps: Gauss-Newton steps at most.
         progress: a function called after each step with ``{"step", "cost", "step_se",
