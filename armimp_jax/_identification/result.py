@@ -96,8 +96,8 @@ class Identification:
             the intervals, above it where the friction bends it. ``se`` and ``covariance`` are
             widened by it where it is above 1; an arm entry above ``SPREAD_WARN`` is warned of
             (``bent``). Empty without friction or noise, with fewer than 11 draws, or where the
-            check's simulations diverged (then a warning says so). From up to 14 re-estimates, so itself noisy
-            (docs/identification.md 6b).
+            check's simulations diverged (then a warning says so). From up to 14 re-estimates,
+            so itself noisy (docs/identification.md 6b).
     """
 
     values: dict
