@@ -8,6 +8,10 @@ it) and protocol.json. Cells: base, record-5, record-20, force-0.1, force-0.3, f
 friction-1, arm-1, arm-3, arm-4, pd (the module's docstring says what each changes).
 
     python sweeps/bench_identify_entries.py --cells base,record-5 --seeds 50 --out results/entries
+
+--oracle adds, per cell, what an exactly honest linear estimator's SD of z would be on the same
+recordings (``entrywise.oracle``: the recordings' own sampling luck, a band to read the cell's
+SD of z against).
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ def parse(argv):
     p.add_argument("--seeds", type=int, default=50, help="recordings per cell (default 50)")
     p.add_argument("--draws", type=int, default=64, help="identify's noise draws (default 64)")
     p.add_argument("--out", default="results/entries", help="run folder (resumed)")
+    p.add_argument("--oracle", action="store_true", help="also the oracle's SD of z per cell (entrywise.oracle)")
     a = p.parse_args(argv)
     a.cells = parse_names(a.cells, CELLS + MORE, PROG)
     if a.seeds < 2 or a.draws < 8:
@@ -64,6 +69,11 @@ def main(argv=None):
         a.cells, a.seeds, a.out, draws=a.draws, catalogue=catalogue, catalogue_settings=entrywise.settings()
     )
     print(_table(cells))
+    for name in a.cells if a.oracle else ():
+        o = entrywise.oracle(name, a.seeds, draws=a.draws)
+        sd = dict(zip(o["labels"], o["sd_z"], strict=True))
+        diagonals = [f"{SYMBOL[n]}{i}{i} {sd[f'{n}[{i},{i}]']:.2f}" for n in SYMBOL for i in (0, 1)]
+        print(f"oracle {name} ({a.seeds} recordings): SD of z {', '.join(diagonals)}")
     return 0
 
 
