@@ -95,30 +95,37 @@ def oracle(name: str, seeds: int, *, draws: int = 64) -> dict:
     """What an exactly honest linear estimator's SD of z would be on cell ``name``'s first
     ``seeds`` recordings (the recordings' own sampling luck): one fixed statistic (recording 0's,
     as ``identify`` builds it at the truth on ``draws`` draws) and one fixed sensitivity (its
-    chord at the truth) applied to every recording, against their spread over ``ORACLE_DRAWS``
-    fresh draws at the truth. Nothing is estimated per recording, so the SD of z comes from the
-    recordings alone. ``{"labels", "sd_z", "mean_z"}`` over the arm's internal entries."""
+    chord at the truth, without the nuisance prior's rows) applied to every recording, against
+    their spread over ``ORACLE_DRAWS`` fresh draws at the truth. Nothing is estimated per
+    recording, so the SD of z comes from the recordings alone. ``{"labels", "sd_z", "mean_z",
+    "spread"}`` over the arm's internal entries (``spread``: the predicted SD, in their units)."""
     import numpy as np
 
     from .._identification import identify as idm
     from .._identification import indirect, search
     from .._identification import pool as pl
+    from .._identification.auxiliary import statistic_labels
 
     case = CELLS_FACTORS[name].case()
-    recs, _ = case.recordings(0)
-    r = recs[0]
+    r = case.recordings(0)[0][0]
     recordings = idm._recordings(r.model, r.f, r.x, r.fh)
     layout, shared, numerics, draws, _, _ = idm._check(recordings, case.free, (), None, "auto", None, draws, 8, 20)
     pool = pl.make_pool(recordings, layout.names, (), shared)
     p, groups = pl.pack(pool), pl.templates(recordings, pool.groups)
     parts, _, _, _ = idm._parts(recordings, pool, groups, p, "auto", numerics, jax.random.key(0), draws, 8)
-    problem, part = idm._problem(parts, groups, recordings, pool, p, numerics, 8), parts[0]
+    n_jac = indirect.draw_counts(r.model, draws, 8)[1]
+    problem, part = idm._problem(parts, groups, recordings, pool, p, numerics, n_jac), parts[0]
     jac = search._jacobian(problem, p)
     _, stats, _ = search._binding(problem, p)
-    se = np.sqrt(np.diag(search._covariance(problem, jac, stats, draws, search._weights(problem, stats, jac))))
+    w = search._weights(problem, stats, jac)
+    se = np.sqrt(np.diag(search._covariance(problem, jac, stats, problem.n_draws, w)))
     m = stats.shape[1] - problem.prior_index.size
     keys = jax.random.split(jax.random.key(12345), ORACLE_DRAWS)
-    ref = np.asarray(indirect.binding_draws(part.layout, part.model, p, part.f, keys, numerics, part.arm_stat)[0])
+    q = jax.numpy.asarray(p[part.index])
+    ref, diverged = indirect.binding_draws(part.layout, part.model, q, part.f, keys, numerics, part.arm_stat)
+    if bool(np.asarray(diverged).any()):
+        raise FloatingPointError(f"oracle: a reference draw of cell {name!r} diverged at the truth")
+    ref = np.asarray(ref)
     w = np.concatenate([np.asarray(indirect.weights(ref)), np.full(problem.prior_index.size, search.PRIOR_SD**-2)])
     a = search._slope(problem, p, se)
     aw = a.T * w[None]
@@ -130,5 +137,9 @@ def oracle(name: str, seeds: int, *, draws: int = 64) -> dict:
         b.append(np.asarray(idm._statistics(part.layout, part.model, rec.f, rec.x, rec.fh, part.arm_stat)))
     z = (np.asarray(b) - ref.mean(axis=0)) @ sens.T / spread
     arm = indirect.arm_index(part.layout)
-    labels = [lab for i, lab in enumerate(layout.labels()) if i in set(arm.tolist())]
-    return dict(labels=labels, sd_z=z.std(axis=0, ddof=1)[arm].tolist(), mean_z=z.mean(axis=0)[arm].tolist())
+    return dict(
+        labels=statistic_labels(part.layout)[: arm.size],  # the internal entries, in ``arm``'s order
+        sd_z=z.std(axis=0, ddof=1)[arm].tolist(),
+        mean_z=z.mean(axis=0)[arm].tolist(),
+        spread=spread[arm].tolist(),
+    )
