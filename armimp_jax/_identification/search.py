@@ -149,6 +149,12 @@ def _blocks(problem: Problem) -> list[slice]:
     return out
 
 
+def _sensitivity(jac, w):
+    """``S = H^-1 A^T W`` ``(n, m)``: how the estimate answers the statistics to first order."""
+    aw = jac.T * w[None, :]
+    return np.linalg.solve(aw @ jac, aw)
+
+
 def _covariance(problem: Problem, jac, stats, n_draws, w):
     """The sandwich covariance with ``Omega`` block-diagonal: each recording's statistics' own
     covariance over its draws, then the prior's own variance."""
@@ -160,8 +166,7 @@ def _covariance(problem: Problem, jac, stats, n_draws, w):
             scale = 1.0 / part.count + 1.0 / n_draws
             omega[rows, rows] = scale * np.atleast_2d(np.cov(stats[:, rows].T, ddof=1))
     omega[m:, m:] = PRIOR_SD**2 * np.eye(problem.prior_index.size)
-    aw = jac.T * w[None, :]
-    sens = np.linalg.solve(aw @ jac, aw)
+    sens = _sensitivity(jac, w)
     return sens @ omega @ sens.T
 
 
@@ -415,8 +420,7 @@ def spread_ratio(problem: Problem, p, stats, jac, w) -> tuple[np.ndarray | None,
     if count < 3:
         return None, 0, max(count, 0)
     m = stats.shape[1] - problem.prior_index.size
-    aw = jac.T * w[None, :]
-    sens = np.linalg.solve(aw @ jac, aw)
+    sens = _sensitivity(jac, w)
     base = stats[:chord].mean(axis=0)
     s = stats[chord : chord + count].copy()
     for rows, part in zip(_blocks(problem), problem.parts, strict=True):

@@ -127,9 +127,7 @@ def oracle(name: str, seeds: int, *, draws: int = 64) -> dict:
         raise FloatingPointError(f"oracle: a reference draw of cell {name!r} diverged at the truth")
     ref = np.asarray(ref)
     w = np.concatenate([np.asarray(indirect.weights(ref)), np.full(problem.prior_index.size, search.PRIOR_SD**-2)])
-    a = search._slope(problem, p, se)
-    aw = a.T * w[None]
-    sens = np.linalg.solve(aw @ a, aw)[:, :m]
+    sens = search._sensitivity(search._slope(problem, p, se), w)[:, :m]
     spread = np.sqrt(np.diag(sens @ np.cov(ref.T) @ sens.T))
     b = []
     for seed in range(seeds):
