@@ -35,7 +35,7 @@ def parse(argv):
     p.add_argument("--out", default="results/entries", help="run folder (resumed)")
     p.add_argument("--oracle", action="store_true", help="also the oracle's SD of z per cell (entrywise.oracle)")
     a = p.parse_args(argv)
-    a.cells = parse_names(a.cells, CELLS + MORE, PROG)
+    a.cells = parse_names(a.cells, CELLS + MORE, PROG, option="--cells")
     if a.seeds < 2 or a.draws < 8:
         fail(f"need --seeds >= 2 and --draws >= 8; got {a.seeds} and {a.draws}", PROG)
     return a
