@@ -71,9 +71,12 @@ def main(argv=None):
     print(_table(cells))
     for name in a.cells if a.oracle else ():
         o = entrywise.oracle(name, a.seeds, draws=a.draws)
-        sd = dict(zip(o["labels"], o["sd_z"], strict=True))
-        diagonals = [f"{SYMBOL[n]}{i}{i} {sd[f'{n}[{i},{i}]']:.2f}" for n in SYMBOL for i in (0, 1)]
-        print(f"oracle {name} ({a.seeds} recordings): SD of z {', '.join(diagonals)}")
+        sd, share = (dict(zip(o["labels"], o[k], strict=True)) for k in ("sd_z", "prior_share"))
+        diag = [(f"{SYMBOL[n]}{i}{i}", f"{n}[{i},{i}]") for n in SYMBOL for i in (0, 1)]
+        print(f"oracle {name} ({a.seeds} recordings): SD of z {', '.join(f'{s} {sd[k]:.2f}' for s, k in diag)}")
+        nuisance = [f"{k} {v['sd_z']:.2f} ({v['prior_share']:.0%})" for k, v in o["nuisance"].items()]
+        print(f"  the prior's share of identify's variance: {', '.join(f'{s} {share[k]:.0%}' for s, k in diag)}")
+        print(f"  nuisances, SD of z (the prior's share): {', '.join(nuisance) or 'none'}")
     return 0
 
 

@@ -98,7 +98,11 @@ def oracle(name: str, seeds: int, *, draws: int = 64) -> dict:
     chord at the truth, without the nuisance prior's rows) applied to every recording, against
     their spread over ``ORACLE_DRAWS`` fresh draws at the truth. Nothing is estimated per
     recording, so the SD of z comes from the recordings alone. ``{"labels", "sd_z", "mean_z",
-    "spread"}`` over the arm's internal entries (``spread``: the predicted SD, in their units)."""
+    "spread", "prior_share", "nuisance"}`` over the arm's internal entries (``spread``: the
+    predicted SD, in their units; ``prior_share``: the fraction of the entry's variance in
+    ``identify``'s sandwich that the nuisance prior's moments carry, which a start at the truth
+    never realises), and ``nuisance``: ``{label: {"sd_z", "prior_share"}}`` for the other
+    parameters (internal scale: log ``tau_c``)."""
     import numpy as np
 
     from .._identification import identify as idm
@@ -127,17 +131,27 @@ def oracle(name: str, seeds: int, *, draws: int = 64) -> dict:
         raise FloatingPointError(f"oracle: a reference draw of cell {name!r} diverged at the truth")
     ref = np.asarray(ref)
     w = np.concatenate([np.asarray(indirect.weights(ref)), np.full(problem.prior_index.size, search.PRIOR_SD**-2)])
-    sens = search._sensitivity(search._slope(problem, p, se), w)[:, :m]
+    full = search._sensitivity(search._slope(problem, p, se), w)
+    sens = full[:, :m]
     spread = np.sqrt(np.diag(sens @ np.cov(ref.T) @ sens.T))
+    # the prior's moments in identify's sandwich (Omega's PRIOR_SD^2 block): a start at the truth
+    # never draws them, so they widen an SE beyond the spread such recordings show
+    prior = search.PRIOR_SD**2 * np.sum(full[:, m:] ** 2, axis=1)
+    share = prior / (spread**2 + prior)
     b = []
     for seed in range(seeds):
         rec = case.recordings(seed)[0][0]
         b.append(np.asarray(idm._statistics(part.layout, part.model, rec.f, rec.x, rec.fh, part.arm_stat)))
     z = (np.asarray(b) - ref.mean(axis=0)) @ sens.T / spread
     arm = indirect.arm_index(part.layout)
+    rest = np.setdiff1d(np.arange(p.size), arm)
+    names = part.layout.labels()  # natural labels: one per internal entry unless a matrix is symmetric
+    names = names if len(names) == p.size else [f"p[{j}]" for j in range(p.size)]
     return dict(
         labels=statistic_labels(part.layout)[: arm.size],  # the internal entries, in ``arm``'s order
         sd_z=z.std(axis=0, ddof=1)[arm].tolist(),
         mean_z=z.mean(axis=0)[arm].tolist(),
         spread=spread[arm].tolist(),
+        prior_share=share[arm].tolist(),
+        nuisance={names[j]: dict(sd_z=float(z[:, j].std(ddof=1)), prior_share=float(share[j])) for j in rest},
     )
