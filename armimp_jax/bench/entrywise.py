@@ -99,10 +99,11 @@ def oracle(name: str, seeds: int, *, draws: int = 64) -> dict:
     their spread over ``ORACLE_DRAWS`` fresh draws at the truth. Nothing is estimated per
     recording, so the SD of z comes from the recordings alone. ``{"labels", "sd_z", "mean_z",
     "spread", "prior_share", "nuisance"}`` over the arm's internal entries (``spread``: the
-    predicted SD, in their units; ``prior_share``: the fraction of the entry's variance in
-    ``identify``'s sandwich that the nuisance prior's moments carry, which a start at the truth
-    never realises), and ``nuisance``: ``{label: {"sd_z", "prior_share"}}`` for the other
-    parameters (internal scale: log ``tau_c``)."""
+    predicted SD, in their units; ``prior_share``: the nuisance prior's moments' share of the
+    entry's sandwich variance, against ``spread`` squared (``identify`` scales that part by
+    ``1 + 1/R`` more), which a start at the truth never realises), and ``nuisance``:
+    ``{label: {"sd_z", "prior_share"}}`` for the other parameters (internal scale: log
+    ``tau_c``)."""
     import numpy as np
 
     from .._identification import identify as idm
