@@ -169,11 +169,6 @@ class Bound:
         return "\n".join(lines)
 
 
-@jax.jit
-def _loop(trial):
-    return linear.linearise(trial)
-
-
 def _no_bound(trial: Trial, f, check: bool, numerics, friction: bool) -> tuple[str, np.ndarray]:
     """``(why no bound holds, or "", the (4,) departure from the linear loop: NaN if unchecked)``:
     a recorded channel without reading noise, or (with ``check``) a hand motion that leaves the
@@ -213,11 +208,11 @@ def nonlinearity(trial: Trial, f, numerics=None) -> np.ndarray:
     y, diverged = _noise_free(trial, f, IDENTIFY_NUMERICS if numerics is None else numerics)
     if bool(diverged):
         return np.full(4, np.inf)
-    y, y_linear = np.asarray(y), np.asarray(_respond(_loop(trial), f))
+    y, y_linear = np.asarray(y), np.asarray(_respond(linear.loop_of(trial), f))
     return np.sqrt(np.sum((y - y_linear) ** 2, axis=0) / np.maximum(np.sum(y_linear**2, axis=0), 1e-300))
 
 
-# The response from the loop ``_loop`` already compiled: a second program holding the linearisation
+# The response from the loop ``linear.loop_of`` already compiled: a second program holding the linearisation
 # would compile it again for a scan over the record.
 _respond = jax.jit(linear.respond)
 
@@ -232,7 +227,7 @@ def silent_readings(trial: Trial) -> list[str]:
     """The recorded outputs (of ``linear.OUTPUTS``) whose reading carries no noise of its own in
     the model (within 10x ``kalman.READING_FLOOR``): there a bound would rest on that floor, an
     artefact (e.g. ``acquisition="interval_mean"`` records the exact mean position)."""
-    loop = jax.tree.map(np.asarray, _loop(trial))
+    loop = jax.tree.map(np.asarray, linear.loop_of(trial))
     r = np.diag(kalman.noise_covariances(loop)[1])  # (4,) on the host, from the compiled loop
     floor = np.asarray(kalman.READING_FLOOR)
     return [name for name, v, f in zip(linear.OUTPUTS, r, floor, strict=True) if not v > (10 * f) ** 2]
@@ -266,7 +261,7 @@ def crlb(trial: Trial, f, *, free=ARM, symmetric=(), check: bool = True, numeric
     if not trial.noisy or not np.any(np.asarray(f) != 0):
         raise ValueError("crlb: the trial has no noise, or f is zero: the bound is 0 or undefined")
     p = lay.pack(layout, trial)
-    radius = linear.spectral_radius(_loop(trial))
+    radius = linear.spectral_radius(linear.loop_of(trial))
     if not radius < 1.0:
         raise ValueError(f"crlb: the loop is unstable (spectral radius {radius:.6f} per period, >= 1)")
     friction = has_friction(trial)

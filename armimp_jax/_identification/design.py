@@ -297,7 +297,7 @@ def _check_displacement(candidates, key, limits: Limits, trials) -> None:
     line before any design step."""
     if limits.peak_displacement is None:
         return
-    if not all(linear.spectral_radius(linear.linearise(t)) < 1.0 for t in trials):
+    if not all(linear.spectral_radius(linear.loop_of(t)) < 1.0 for t in trials):
         return  # an unstable loop: the controller's own check says so, in its words
     n = limits.n_samples(trials[0].period)
     fam_key = jax.random.split(key)[0]

@@ -186,6 +186,11 @@ def linearise(trial: Trial) -> LinearLoop:
     return LinearLoop(a, b, c, d, _noise_variances(trial), rest_out)
 
 
+# ``linearise`` compiled whole, one program per trial structure, for callers outside ``jit``: op
+# by op, its Jacobian would compile each of its ~250 operations on its own (about 9 s cold).
+loop_of = jax.jit(linearise)
+
+
 def respond(loop: LinearLoop, f):
     """The loop's deterministic response ``(N, 4)`` (``x - x0`` [m], ``F_h`` [N]) to the
     perturbation ``f`` ``(N, 2)`` [N] from rest, sample by sample as the simulation records it."""
