@@ -337,7 +337,7 @@ BAD_BOUND_CONFIGS = {
 }
 
 
-# the drift case compiles the drift's programs (about 12 s cold): the library's refusal is
+# the drift case compiles the drift's programs (10 s cold alone): the library's refusal is
 # checked fast in test_bound_design, the script's one-line path by the other cases
 SLOW_BAD_BOUND = ("drift no stable stiffness meets",)
 
