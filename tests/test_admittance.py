@@ -73,7 +73,7 @@ def test_the_loop_without_arm_or_friction_is_its_closed_form_to_1_percent_up_to_
     err = np.linalg.norm(got - want, axis=(1, 2)) / np.linalg.norm(want, axis=(1, 2))
     assert np.all(err < 0.01), err
     # and the closed form is what the linearised loop says (its own F_Delta -> x map)
-    loop = jax.jit(linear.linearise)(trial)
+    loop = linear.loop_of(trial)
     a, b, c = (np.asarray(m) for m in (loop.a, loop.b[:, :2], loop.c[:2]))
     zs = np.exp(2j * np.pi * np.asarray(LINES_HZ) * L)
     lin = np.stack([c @ np.linalg.solve(zk * np.eye(len(a)) - a, b) for zk in zs])
