@@ -222,7 +222,7 @@ def test_the_covariance_is_widened_by_the_spread_ratio_and_never_narrowed(monkey
     state = search.Search(
         np.zeros(2), None, np.zeros((8, 2)), 0.0, np.eye(2), np.zeros(2), np.ones(2), None, 1, (), (), True, 8, 2
     )
-    out, problems, got = search.final_covariance(problem, state)
+    out, problems, got, _ = search.final_covariance(problem, state)
     np.testing.assert_array_equal(out, [[4.0, 1.2 * 1.5], [1.2 * 1.5, 9.0 * 1.5**2]])
     assert problems == () and got is check[0]
     np.testing.assert_array_equal(search.final_covariance(problem._replace(chord=False), state)[0], cov)

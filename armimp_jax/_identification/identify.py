@@ -37,6 +37,7 @@ a lab's terms (``diagnosis.py``: joints that stood still), fit quality and the c
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import sys
@@ -51,14 +52,14 @@ from .._checks import as_float64, check_int, require_x64
 from .._estimation.welch import check_finite
 from .._simulate import Trial
 from .._solver.numerics import Numerics
-from . import efficient, indirect, search
+from . import efficient, indirect, linear, search
 from . import layout as lay
 from . import pool as pl
 from .auxiliary import check_statistic_record, statistic_labels, statistics
 from .bound import has_friction, is_near_linear
 from .pool import Recording
 from .predict import check_sampling
-from .result import Identification, assemble, predict_jit
+from .result import Identification, assemble, classical_fit, predict_jit
 
 MIN_SAMPLES = 1024  # the Welch statistic's least at 1 kHz (4 segments of 256 samples: 3 bins to 15 Hz)
 CHANNELS = ("x1", "x2", "fh1", "fh2")
@@ -148,9 +149,9 @@ def _arm_statistic(layout, model, p, f, x, fh, statistic, numerics, keys):
     ``auto`` takes the efficient statistic unless the model's loop is far from linear
     (``bound.is_near_linear``: stick-slip), where the Welch fit is the safer for the arm (the
     calibration's parameters always take the efficient one). The efficient statistic is
-    centred where the recording puts the parameters through the linear loop
-    (``efficient.fit_linear``). Under friction the innovations are weighed by their spread in
-    recordings simulated at the model's start (``efficient.excess_weight``)."""
+    centred where the recording puts the parameters (``_centre``). Under friction the
+    innovations are weighed by their spread in recordings simulated at that centre
+    (``efficient.excess_weight``)."""
     arm = indirect.arm_layout(layout)
     calibration = arm is not None and any(n not in lay.ARM_PARAMETERS for n in arm.names)
     if (
@@ -159,30 +160,83 @@ def _arm_statistic(layout, model, p, f, x, fh, statistic, numerics, keys):
         or (statistic == "auto" and not calibration and not is_near_linear(model, f, numerics))
     ):
         return None, None, "welch"
-    weight = None
-    if has_friction(model) and model.noisy:
-        # friction's effect is no part of the linear loop: weigh the innovations by their spread
-        # in recordings simulated with it, at the model's start, before the fit uses them
-        weight_keys = keys[: indirect.weight_draws(keys.shape[0])]
-        weight = indirect.statistic_weight(layout, model, jnp.asarray(p), f, weight_keys, numerics)
-        # one program in flight at a time: two that split over the CPU devices and meet at
-        # collectives, queued together, can each hold a thread the other waits for
-        weight = jax.block_until_ready(weight)
-        if not np.all(np.isfinite(np.asarray(weight))):
-            raise ValueError("identify: noisy simulations of the model diverge at the start; choose another start")
+    centred, weight = _centre(layout, model, p, f, x, fh, keys, numerics, arm, calibration)
+    stat = indirect.arm_statistic(layout, model, jnp.asarray(centred), f, weight)
+    return jax.block_until_ready(stat), centred, "efficient"
+
+
+def _centre(layout, model, p, f, x, fh, keys, numerics, arm, calibration):
+    """``(centre, weight)``: where the efficient statistic is linearised, and its weight.
+
+    Through friction the centre is the recording's classical fit (``classical_centre``): the
+    frictionless linear fit of a recording with friction lies in a long flat valley, and a
+    statistic centred where this one recording happens to put it gave estimates 5 SE off that
+    the recordings simulated at the estimate did not show (docs/identification.md, section 6c).
+    Elsewhere (or where the classical fit is unusable) it is the frictionless linear fit
+    (``efficient.fit_linear``) from the model's start. The weight comes from recordings
+    simulated at the centre, before the fit uses it."""
+    classical = classical_centre(layout, model, p, f, x, fh) if has_friction(model) and not calibration else None
+    centred = p.copy() if classical is None else classical
+    weight = _weight(layout, model, centred, f, keys, numerics)
+    if classical is not None and weight is None:  # the classical fit's loop diverges when simulated
+        centred, weight = p.copy(), _weight(layout, model, p, f, keys, numerics)
+    if has_friction(model) and model.noisy and weight is None:
+        raise ValueError("identify: noisy simulations of the model diverge at the start; choose another start")
+    if classical is not None and centred is classical:
+        return centred, weight
     # The centre moves the arm alone, or the calibration where the robot is alone: a frictionless
     # linear fit of both to one recording with friction was seen to run far off.
     names = lay.ARM_PARAMETERS if not pl.robot_alone(model) else tuple(n for n in arm.names)
     own = layout.index(names)
-    centred = p.copy()
     if own.size:
         at = lay.with_values(layout, model, jnp.asarray(p))
         only = lay.Layout(*zip(*[(n, s) for n, s in zip(arm.names, arm.symmetric, strict=True) if n in names]))
         ref, converged = efficient.fit_linear(only, at, p[own], f, efficient.recorded(model, x, fh), weight)
         if converged or not calibration:  # a fit that did not settle beside a calibration: keep the start
             centred[own] = ref
-    stat = indirect.arm_statistic(layout, model, jnp.asarray(centred), f, weight)
-    return jax.block_until_ready(stat), centred, "efficient"
+    return centred, weight
+
+
+def _weight(layout, model, p, f, keys, numerics):
+    """The efficient statistic's weight under friction, from noisy recordings simulated at ``p``
+    (``None`` without friction or noise, and where they diverge)."""
+    if not (has_friction(model) and model.noisy):
+        return None
+    # friction's effect is no part of the linear loop: weigh the innovations by their spread
+    # in recordings simulated with it before the fit uses them
+    weight_keys = keys[: indirect.weight_draws(keys.shape[0])]
+    weight = indirect.statistic_weight(layout, model, jnp.asarray(p), f, weight_keys, numerics)
+    # one program in flight at a time: two that split over the CPU devices and meet at
+    # collectives, queued together, can each hold a thread the other waits for
+    weight = jax.block_until_ready(weight)
+    return weight if np.all(np.isfinite(np.asarray(weight))) else None
+
+
+def classical_centre(layout, model, p, f, x, fh):
+    """``p`` with the arm's matrices at the recording's classical fit (Welch and ``fit_impedance``
+    with the trial's acquisition), or ``None`` where that fit is missing (a record too short),
+    not finite, or leaves the linearised loop unstable."""
+    fit = classical_fit(f, x, fh, model.acquisition, model.period)
+    if fit is None:
+        return None
+    values = {n: np.asarray(getattr(fit, n.split(".")[1]), dtype=float) for n in lay.ARM_PARAMETERS}
+    if not all(np.all(np.isfinite(v)) for v in values.values()):
+        return None
+    for name, sym in zip(layout.names, layout.symmetric, strict=True):
+        if sym and name in values:
+            values[name] = 0.5 * (values[name] + values[name].T)
+    at = lay.with_values(layout, model, jnp.asarray(p))
+    try:  # the arm's own checks (a mass that is not positive definite, say)
+        arm = dataclasses.replace(at.arm, **{n.split(".")[1]: jnp.asarray(v) for n, v in values.items()})
+    except ValueError:
+        return None
+    trial = dataclasses.replace(at, arm=arm)
+    if not linear.spectral_radius(linear.loop_of(trial)) < 1.0:
+        return None
+    out = np.array(p, dtype=float)
+    own = layout.index(lay.ARM_PARAMETERS)
+    out[own] = np.asarray(lay.pack(layout, trial))[own]
+    return out
 
 
 def identify(

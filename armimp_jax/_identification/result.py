@@ -22,6 +22,7 @@ from . import search
 from .auxiliary import statistic_labels
 from .diagnosis import motion_diagnosis
 from .indirect import predict
+from .selfcheck import cross_check
 
 # An entry whose SE exceeds this multiple of its parameter's scale is reported as barely identifiable.
 WEAK_RELATIVE_SE = 1.0
@@ -98,6 +99,11 @@ class Identification:
             (``bent``). Empty without friction or noise, with fewer than 11 draws, or where the
             check's simulations diverged (then a warning says so). From up to 14 re-estimates,
             so itself noisy (docs/identification.md 6b).
+        disagreements: where the loop bends, the arm entries whose classical fit departs from
+            what recordings simulated at the answer give by more than their combined uncertainty
+            (``selfcheck.Disagreement``: label, the recording's classical value, the predicted
+            one, the combined SE and ``z``); a warning names them and ``intervals_reliable`` is
+            False (``selfcheck.py``).
     """
 
     values: dict
@@ -125,6 +131,7 @@ class Identification:
     forward_s: float
     recordings: tuple = ()
     spread_ratio: dict = dataclasses.field(default_factory=dict)
+    disagreements: tuple = ()
 
     @property
     def bent(self) -> dict:
@@ -171,7 +178,9 @@ def _ljung_box_p(e, lags: int):
     return scipy.stats.chi2.sf(n * (n + 2) * q, lags)
 
 
-def _classical(f, x, fh, acquisition, period):
+def classical_fit(f, x, fh, acquisition, period):
+    """The classical answer of one recording: Welch's estimate (segments that follow the record)
+    and ``fit_impedance`` with the trial's acquisition model; ``None`` for a record too short."""
     try:
         est = estimate(f, x, fh, fs=1.0 / period)  # segments that follow the record (welch_segments)
     except ValueError:
@@ -247,6 +256,34 @@ def _bent(spread_ratio: dict, seconds: float) -> list[str]:
     ]
 
 
+def _cross_check(problem: search.Problem, state: search.Search, sens, recorded, pool: pl.Pool, labels):
+    """``selfcheck.cross_check`` at the answer where the loop bends (friction in a noisy loop)
+    and the arm's statistic is the efficient one; ``[]`` elsewhere."""
+    if not (problem.chord and sens is not None) or all(part.arm_stat is None for part in problem.parts):
+        return []
+    internal = [labels[entries[0]] for entries in _natural_of_internal(pool)]
+    found, _ = cross_check(problem, state.p, state.stats, sens, recorded, internal)
+    return found
+
+
+def _disagree(disagreements, values: dict, se: dict) -> list[str]:
+    """A warning naming the arm entries where the classical fit and the answer disagree, with both
+    values, and what a lab can change."""
+    if not disagreements:
+        return []
+    entries = "; ".join(
+        f"{d.label} {values[d.label]:.4g} +- {se[d.label]:.2g} here, the classical fit {d.classical:.4g} where "
+        f"recordings simulated at this answer give {d.predicted:.4g} ({abs(d.z):.1f} combined SEs apart)"
+        for d in disagreements
+    )
+    return [
+        f"the classical fit of this recording disagrees with the answer beyond their combined uncertainty: {entries}. "
+        "The closed-loop model at this answer does not explain the recording, so its intervals are not to be "
+        "trusted: free the friction's parameters if they are held fixed, record longer or with a larger "
+        "perturbation, or report the classical route"
+    ]
+
+
 def _unchecked(check) -> list[str]:
     """A warning where ``search.spread_ratio`` could not run for diverging simulations."""
     if check is None or check[0] is not None or not check[1]:
@@ -305,7 +342,7 @@ def _fit(part: search.Part, p, numerics, x, fh, group):
         vaf_force=vaf[2:],
         whiteness_p=_ljung_box_p(resid, WHITENESS_LAGS),
         stuck_fraction=stuck.fraction,
-        classical=_classical(part.f, x, fh, model.acquisition, model.period),
+        classical=classical_fit(part.f, x, fh, model.acquisition, model.period),
     )
     return fit, bool(diverged), stuck
 
@@ -314,7 +351,7 @@ def assemble(problem: search.Problem, state: search.Search, pool: pl.Pool, recor
     """The ``Identification`` of the search's final ``state``; ``recorded``: per recording ``(part,
     x, fh)``, the index of its binding in ``problem.parts`` and its recording."""
     p = state.p
-    cov_p, problems, check = search.final_covariance(problem, state)
+    cov_p, problems, check, sens = search.final_covariance(problem, state)
     fits, stuck = [], []
     for (t, x, fh), group in zip(recorded, pool.groups, strict=True):
         fit, diverged, st = _fit(problem.parts[t], p, problem.numerics, x, fh, group)
@@ -330,6 +367,10 @@ def assemble(problem: search.Problem, state: search.Search, pool: pl.Pool, recor
     spread_ratio = _by_label(pool, labels, None if check is None else check[0])
     seconds = sum(x.shape[0] for _, x, _ in recorded) * problem.parts[0].model.period
     warnings = warnings + _bent(spread_ratio, seconds) + _unchecked(check)
+    disagreements = _cross_check(problem, state, sens, recorded, pool, labels)
+    warnings = warnings + _disagree(
+        disagreements, dict(zip(labels, values, strict=True)), dict(zip(labels, se, strict=True))
+    )
     advice = [a for st in stuck for a in st.advice]
     message = "; ".join(problems)
     if problems and advice:  # why, in a lab's terms, before the search's own account
@@ -364,4 +405,5 @@ def assemble(problem: search.Problem, state: search.Search, pool: pl.Pool, recor
         forward_s=forward_s,
         recordings=tuple(fits),
         spread_ratio=spread_ratio,
+        disagreements=tuple(disagreements),
     )

@@ -6,8 +6,7 @@ is reused between them (a chord) and recomputed after a step of more than
 ``JACOBIAN_REUSE_SE`` standard errors or one that fails; a step is halved while a draw
 diverges or the mismatch grows (a stale slope gets two tries before it is refreshed). A step
 that moves every parameter by less than ``FINAL_STEP_SE`` of its SE (a barely told nuisance,
-below) is the last: it is taken without a binding of its own (a chord step from that near
-lands within a fraction of itself).
+below) is taken without halving, and checked by a binding of its own.
 Where a nuisance the recordings barely tell moves more, the search stops instead when a step
 moves every other parameter by less than ``CONVERGED_FRACTION`` of its SE, or by less than
 twice the binding's own Monte Carlo error (``1 / sqrt(R)`` SE: a smaller step chases the
@@ -51,8 +50,7 @@ COARSE_JACOBIAN_DRAWS = 2  # the slope's draws far from the answer (rounded up t
 FINE_WITHIN_SE = 2.0  # coarse steps until one moves every parameter by less than this many SEs
 JACOBIAN_REUSE_SE = 3.0  # A computed within this many SEs of the estimate serves its covariance
 # A fine step that moves every parameter by less than this many SEs (a barely told nuisance by less
-# than the settling fraction) is taken unchecked and ends the search (``_final_step``): the binding
-# it saves is most of a step's time.
+# than the settling fraction) is taken whole, without halving (``_final_step``).
 FINAL_STEP_SE = 1.0
 HALVINGS = 6  # a step is halved at most this many times while a draw diverges or the mismatch grows
 # The nuisance prior of each free friction parameter: this SD on its internal (log or logit) scale
@@ -323,8 +321,6 @@ def step(problem: Problem, state: Search, max_steps: int) -> Search:
     settle = max(CONVERGED_FRACTION, NOISE_MULTIPLE / math.sqrt(problem.n_draws))
     # a barely told nuisance's SE is most of its prior's: it takes no unchecked step of more than `settle`
     near = np.where(told, FINAL_STEP_SE, settle) * se_p
-    if problem.noisy and not coarse and np.all(np.abs(step) <= near):
-        return _final_step(problem, state, step)
     if problem.noisy and not coarse and np.all(np.abs(step[told]) <= settle * se_p[told]):
         return state._replace(done=True)
     if not problem.noisy and np.all(np.abs(step) <= 1e-10 * (1.0 + np.abs(state.p))):
@@ -333,6 +329,8 @@ def step(problem: Problem, state: Search, max_steps: int) -> Search:
         return state._replace(
             problems=state.problems + (f"the iteration did not settle in {max_steps} steps",), done=True
         )
+    if problem.noisy and not coarse and np.all(np.abs(step) <= near):
+        return _final_step(problem, state, step)
     stale = not np.array_equal(state.jac_at, state.p)
     kept, p, mean, stats, cost, scale = _propose(problem, state, step)
     if kept:
@@ -357,20 +355,40 @@ def step(problem: Problem, state: Search, max_steps: int) -> Search:
 
 
 def _final_step(problem: Problem, state: Search, step) -> Search:
-    """The search's last step, taken without a binding of its own: from within ``FINAL_STEP_SE``
-    of the answer a chord step lands within a fraction of itself (the slope's own error), nearer
-    than stopping short would. The mismatch is the linear prediction at the new ``p``."""
-    mean = state.mean + state.jac @ step
+    """A step from within ``FINAL_STEP_SE`` of the answer, checked by a binding of its own: the
+    linear prediction of its mismatch is not the mismatch (a slope taken where the binding bends,
+    or a parameter whose SE is large where the search stands, can promise a root that is not
+    there). The search goes on from the new point; it ends when a step there moves every told
+    parameter by less than the settling fraction of its SE. A step whose simulations diverge is
+    not taken: the search then ends where it stands, unsettled."""
+    p = state.p + step
+    mean, stats, diverged = _binding(problem, p)
+    if diverged or not np.all(np.isfinite(mean)):
+        why = "noisy simulations diverge one step from the answer"
+        return state._replace(problems=state.problems + (why,), done=True)
+    w = _weights(problem, stats, state.jac)
     return state._replace(
-        p=state.p + step, mean=mean, cost=_cost(problem, mean, state.w), iterations=state.iterations + 1, done=True
+        p=p, mean=mean, stats=stats, w=w, cost=_cost(problem, mean, w), iterations=state.iterations + 1
     )
 
 
-def final_covariance(problem: Problem, state: Search):
-    """``(covariance of p, problems, check)`` at the estimate (the slope refreshed if it is far
-    from there). Where the slope is a chord (friction in a noisy loop), ``check`` is
+class Final(NamedTuple):
+    """The answer's covariance and what it rests on (``final_covariance``): ``cov`` of ``p``,
+    the search's ``problems``, ``check`` (``spread_ratio``'s answer, or ``None``) and ``sens``,
+    the answer's first-order sensitivity to the statistics ``S = H^-1 A^T W`` (``None`` without
+    a slope or noise)."""
+
+    cov: np.ndarray
+    problems: tuple
+    check: tuple | None
+    sens: np.ndarray | None = None
+
+
+def final_covariance(problem: Problem, state: Search) -> Final:
+    """The covariance of ``p`` at the estimate (the slope refreshed if it is far from there), with
+    the search's problems. Where the slope is a chord (friction in a noisy loop), ``check`` is
     ``spread_ratio``'s answer and each parameter's SD is widened by its ratio where that is above
-    1 (never narrowed: the ratio's own noise then errs wide); ``None`` elsewhere. Measured on
+    1 (never narrowed: the ratio's own noise then errs wide). Measured on
     docs/identification.md section 6b's cells, the widened intervals hold entry by entry where
     the linearised ones did not (the stiffness through 1 N m at arm 4)."""
     jac, problems = state.jac, state.problems
@@ -382,18 +400,19 @@ def final_covariance(problem: Problem, state: Search):
             if jac is None:
                 problems = problems + ("the binding's Jacobian is not finite at the estimate",)
     if jac is None:
-        return np.full((state.p.size,) * 2, np.nan), problems, None
+        return Final(np.full((state.p.size,) * 2, np.nan), problems, None)
     if not problem.noisy:
-        return np.zeros((state.p.size,) * 2), problems, None
+        return Final(np.zeros((state.p.size,) * 2), problems, None)
     w = _weights(problem, state.stats, jac)
     cov = _covariance(problem, jac, state.stats, n_draws, w)
+    sens = _sensitivity(jac, w)
     if not problem.chord:
-        return cov, problems, None
+        return Final(cov, problems, None, sens)
     check = spread_ratio(problem, state.p, state.stats, jac, w)
     if check[0] is not None:  # each SE widened to its re-estimates' spread, the correlations kept
         widen = np.maximum(1.0, check[0])
         cov = cov * widen[:, None] * widen[None, :]
-    return cov, problems, check
+    return Final(cov, problems, check, sens)
 
 
 def spread_ratio(problem: Problem, p, stats, jac, w) -> tuple[np.ndarray | None, int, int]:

@@ -1,0 +1,81 @@
+"""The coverage matrix (armimp_jax.bench.matrix): identify on every controller x friction law,
+as a lab would run it, scored by issue 61's rule.
+
+Per cell and seed a fresh recording is identified from a generic start with the friction known;
+a run folder (--out) keeps one checked record per seed and cell (a rerun resumes; more seeds or
+cells extend it). Printed per cell: converged and trusted fits, coverage of the 95% intervals
+over the arm's diagonals, the SD of z per diagonal, z beyond 4, the fits failed or warned of
+(with why), and the verdict against the bands (coverage 0.92-0.98, SD of z 0.8-1.25, at most one
+z beyond 4).
+
+    python sweeps/bench_identify_matrix.py --cells new-user,admittance/cv-0.05 --seeds 50 --out results/matrix
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from armimp_jax.study.cli import Parser, fail, parse_names, script
+
+PROG = "bench_identify_matrix"
+
+
+def parse(argv, cells):
+    p = Parser(prog=PROG, description=__doc__.split("\n\n")[0])
+    p.add_argument("--cells", default="new-user", help=f"comma list of {', '.join(cells)}, or all (default new-user)")
+    p.add_argument("--seeds", type=int, default=50, help="recordings per cell (default 50)")
+    p.add_argument("--draws", type=int, default=64, help="identify's noise draws (default 64)")
+    p.add_argument("--out", default="results/matrix", help="run folder (resumed)")
+    p.add_argument("--json", metavar="FILE", help="also write every cell's summary to FILE")
+    a = p.parse_args(argv)
+    a.cells = tuple(cells) if a.cells == "all" else parse_names(a.cells, tuple(cells), PROG, option="--cells")
+    if a.seeds < 2 or a.draws < 8:
+        fail(f"need --seeds >= 2 and --draws >= 8; got {a.seeds} and {a.draws}", PROG)
+    return a
+
+
+def _line(name: str, s: dict, verdict: str) -> str:
+    if "coverage" not in s:
+        return f"| {name} | {s['converged']}/{s['recordings']} | {s['trusted']} | - | - | - | {verdict} |"
+    sd = ", ".join(f"{k.split('.')[1][0].upper()}{k[-4]}{k[-2]} {v:.2f}" for k, v in s["sd_z"].items())
+    return (
+        f"| {name} | {s['converged']}/{s['recordings']} | {s['trusted']} | {s['coverage']:.3f} "
+        f"({s.get('coverage_all', float('nan')):.3f}) | {sd} | {s['beyond_4']} (max {s['max_abs_z']:.1f}) | {verdict} |"
+    )
+
+
+@script(PROG)
+def main(argv=None):
+    from armimp_jax.bench.matrix import CELLS
+
+    a = parse(sys.argv[1:] if argv is None else argv, CELLS)
+    from armimp_jax.runtime import configure
+
+    configure()
+    from armimp_jax.bench import matrix, protocol
+
+    done = protocol.study(
+        a.cells, a.seeds, a.out, draws=a.draws, catalogue=matrix.cells(a.cells), catalogue_settings=matrix.settings()
+    )
+    print("| cell | converged | trusted | coverage, diagonals (all converged) | SD of z | z beyond 4 | verdict |")
+    print("|---|---|---|---|---|---|---|")
+    summaries = {}
+    for name, c in done.items():
+        s = matrix.summary(c["seeds"])
+        summaries[name] = dict(s, verdict=matrix.verdict(s))
+        print(_line(name, s, summaries[name]["verdict"]))
+    for name, s in summaries.items():
+        for kind in ("failed", "warned"):
+            for r in s[kind]:
+                print(f"{name} seed {r['seed']} {kind}: {r['why']}")
+    if a.json:
+        from armimp_jax.study.results import atomic_write_json
+
+        atomic_write_json(a.json, summaries)
+        print(json.dumps({k: v["verdict"] for k, v in summaries.items()}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
