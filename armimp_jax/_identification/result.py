@@ -20,7 +20,7 @@ from . import layout as lay
 from . import pool as pl
 from . import search
 from .auxiliary import statistic_labels
-from .diagnosis import motion_diagnosis
+from .diagnosis import motion_diagnosis, plausibility
 from .indirect import predict
 
 # An entry whose SE exceeds this multiple of its parameter's scale is reported as barely identifiable.
@@ -330,6 +330,7 @@ def assemble(problem: search.Problem, state: search.Search, pool: pl.Pool, recor
     spread_ratio = _by_label(pool, labels, None if check is None else check[0])
     seconds = sum(x.shape[0] for _, x, _ in recorded) * problem.parts[0].model.period
     warnings = warnings + _bent(spread_ratio, seconds) + _unchecked(check)
+    warnings = warnings + plausibility(pl.unflatten(pool, values), pl.unflatten(pool, se))  # no human arm's
     advice = [a for st in stuck for a in st.advice]
     message = "; ".join(problems)
     if problems and advice:  # why, in a lab's terms, before the search's own account
