@@ -509,7 +509,7 @@ def test_a_rate_given_too_low_is_warned_of_by_the_files_clock_and_the_fit(trial,
 
 
 def test_a_time_column_is_read_when_there_and_its_steps_checked_against_the_rate(trial, tmp_path):
-    """The time column (``time``, ``t``, ... in any case, or mapped) comes back as ``"time"``;
+    """The time column (``time``, ``Time``, ..., ``t``, or mapped) comes back as ``"time"``;
     seconds or milliseconds at the rate given say nothing, another rate, a clock that does not run
     forward and dropped samples a line each; a file without one, nothing."""
     n = len(trial["x"])
@@ -517,7 +517,7 @@ def test_a_time_column_is_read_when_there_and_its_steps_checked_against_the_rate
     np.testing.assert_array_equal(rec["time"], np.arange(n) / 1000.0)
     assert recording.timestamp_warnings(rec, 1000.0) == []
     cols = {k: v for k, v in _columns(trial).items() if k != "time"}
-    np.savez(tmp_path / "t.npz", T=np.arange(n) * 1.0, **cols)  # a millisecond clock named "T"
+    np.savez(tmp_path / "t.npz", t=np.arange(n) * 1.0, T=np.zeros(n), **cols)  # a millisecond clock "t"; "T" a torque
     assert recording.timestamp_warnings(recording.load_recording(tmp_path / "t.npz"), 1000.0) == []
     np.savez(tmp_path / "clock.npz", clock=np.arange(n) / 500.0, **cols)
     assert "time" not in recording.load_recording(tmp_path / "clock.npz")  # not a time column's name

@@ -8,8 +8,8 @@ A recording holds six channels sampled at one rate ``fs`` [Hz], all in one Carte
   ``F_h = M_h xdd + B_h xd + K_h (x - x0)``); a transducer that reads the force the hand
   exerts on the handle gives ``-F_h``.
 
-An optional time column [s] (``time``, or ``t``, ``time_s``, ``timestamp`` in any case, or
-the name ``columns`` maps ``time`` to) is read too, for ``timestamp_warnings``: what its steps
+An optional time column [s] (``time``, ``time_s`` or ``timestamp`` in any case, ``t``, or the
+name ``columns`` maps ``time`` to) is read too, for ``timestamp_warnings``: what its steps
 say against the sample rate given.
 
 CSV: a header row naming the columns (leading ``#`` comment lines are skipped; the
@@ -35,7 +35,7 @@ import numpy as np
 COLUMNS = ("f_delta_x", "f_delta_y", "x", "y", "fh_x", "fh_y")
 GROUPS = {"f_delta": ("f_delta_x", "f_delta_y"), "x": ("x", "y"), "fh": ("fh_x", "fh_y")}
 TIME = "time"  # the optional time column's standard name [s]
-TIME_NAMES = ("time", "t", "time_s", "timestamp")  # a column read as the time unless mapped (any case)
+TIME_NAMES = ("time", "time_s", "timestamp")  # a column read as the time unless mapped (any case; and "t")
 RATE_TOLERANCE = 0.01  # the time column's rate and the one given differ by more than this share: a warning
 UNEVEN = 0.5  # a time step this far from the median step (as its share): samples dropped or repeated
 
@@ -70,7 +70,8 @@ def _time_name(names, columns: dict[str, str]) -> tuple[str | None, bool]:
     """The time column's name among ``names`` and whether it was mapped (then it is required)."""
     if TIME in columns:
         return columns[TIME], True
-    return next((n for n in names if str(n).strip().lower() in TIME_NAMES), None), False
+    found = (n for n in names if str(n).strip().lower() in TIME_NAMES or str(n).strip() == "t")  # "T": a torque?
+    return next(found, None), False
 
 
 def _optional_time(values, n: int):
