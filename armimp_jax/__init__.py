@@ -113,6 +113,7 @@ _EXPORTS = {
     "SWEEP_NUMERICS": "._solver.numerics",
     "Numerics": "._solver.numerics",
     "RK4": "._solver.rk4",
+    "load_recording": ".study.recording",  # the one study name here: a lab's first call (no JAX)
 }
 __all__ = sorted([*_EXPORTS, "runtime"])
 

@@ -16,6 +16,7 @@ agree (they fix the program).
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from typing import Any, NamedTuple
 
 import jax
@@ -26,6 +27,7 @@ from ._model.arm import Arm
 from ._model.controllers import CONTROLLER_KINDS, AbstractController, matvec
 from ._model.friction import FRICTION_KINDS, AbstractFriction
 from ._model.plant import PlantState, Trig, displacement, measure, plant_model, rest_state, trig_of
+from ._model.plausibility import arm_input_warning
 from ._model.robot import MIT_MANUS, Robot, cartesian_inertia, fk, ik, jacobian_from_trig
 from ._model.sensors import FORCE_HISTORY, IDEAL, Sensors, delayed_force, quantise, sample_noise
 from ._model.timing import CONTROL_PERIOD
@@ -111,6 +113,9 @@ def make_trial(
     require_x64("make_trial")
     _require("controller", controller, AbstractController, f"an AbstractController ({_kind_names(CONTROLLER_KINDS)})")
     _require("arm", arm, Arm)
+    if is_concrete((arm.mass, arm.damping, arm.stiffness)):  # a word, not a refusal: Arm's docstring says why
+        for line in arm_input_warning(arm.mass, arm.damping, arm.stiffness, where="make_trial"):
+            warnings.warn(line, UserWarning, stacklevel=2)
     _require("friction", friction, AbstractFriction, f"an AbstractFriction ({_kind_names(FRICTION_KINDS)})")
     sensors = IDEAL if sensors is None else sensors
     _require("sensors", sensors, Sensors)
@@ -129,7 +134,7 @@ def make_trial(
             )
     q0 = ik(jnp.asarray(arm.endpoint), robot)
     x0 = fk(q0, robot)
-    return Trial(
+    trial = Trial(
         robot=robot,
         arm=arm,
         friction=friction,
@@ -141,6 +146,8 @@ def make_trial(
         period=float(period),
         voluntary=voluntary,
     )
+    trial.controller.check_loop(trial)
+    return trial
 
 
 def _check_calibration(sensors: Sensors, acquisition: str, period: float) -> None:

@@ -211,7 +211,8 @@ def main(argv=None) -> int:
         return fail(str(err))
     acquisition = fit_settings["acquisition"]
     # friction not given: unknown, so the record's stick-slip decides (the report's first line says so)
-    warnings = aj.fit_warnings(fit, est, acquisition=acquisition, friction=args.friction)
+    warnings = recording.timestamp_warnings(rec, args.fs)  # the file's own clock against --fs
+    warnings += aj.fit_warnings(fit, est, acquisition=acquisition, friction=args.friction)
     settings = dict(
         recording=str(args.recording), columns=columns, **estimate_recording.settings_record(welch, fit_settings)
     )
@@ -272,14 +273,15 @@ def model_route(args) -> int:
         columns, rec = load(args, recording)
     except ValueError as err:  # IdentifyConfigError and RecordingError included
         return fail(str(err))
-    n = rec["x"].shape[0]
-    print(f"{n} samples ({n / args.fs:g} s); identifying {', '.join(options['free'])} ...", flush=True)
+    n, clock = rec["x"].shape[0], recording.timestamp_warnings(rec, args.fs)
+    start = f"{n} samples ({n / args.fs:g} s); identifying {', '.join(options['free'])} ..."
+    print("\n".join([f"WARNING: {w}" for w in clock] + [start]), flush=True)
     try:
         res = idr.run(rec, model, options)
     except ValueError as err:  # identify's own refusals (e.g. a start at which the model diverges)
         return fail(str(err))
     classical = idr.classical_fit(rec, args.fs)
-    warnings = idr.trust_warnings(res, rec)
+    warnings = clock + idr.trust_warnings(res, rec, classical)
     settings = dict(
         recording=str(args.recording), columns=columns, fs_hz=args.fs, config_path=str(args.model), config=config
     )
@@ -310,28 +312,35 @@ def pooled_route(args, config: dict, options: dict) -> int:
     """Every recording of the config's [recordings] in one identification (study.identify_pool):
     one table of the arm per group and the shared robot."""
     import armimp_jax as aj
-    from armimp_jax.study import identify_pool, recording
+    from armimp_jax.study import identify_pool, recording, recording_report
+    from armimp_jax.study import identify_recording as idr
 
-    columns = recording.parse_columns(args.columns)
     try:
+        columns = recording.parse_columns(args.columns)
         listed = identify_pool.files(config, args.model)
         loaded = [(g, recording.load_recording(path, columns=columns)) for path, g in listed]
         recordings = identify_pool.build_recordings(config, loaded, str(args.model))
     except ValueError as err:  # ConfigError and RecordingError included
         return fail(str(err))
-    print(f"{len(recordings)} recordings in {len(set(g for _, g in listed))} groups; identifying ...", flush=True)
+    names = [p.name for p, _ in listed]
+    clock = [
+        f"recording {n}: {w}" for n, (_, r) in zip(names, loaded) for w in recording.timestamp_warnings(r, args.fs)
+    ]
+    start = f"{len(recordings)} recordings in {len(set(g for _, g in listed))} groups; identifying ..."
+    print("\n".join([f"WARNING: {w}" for w in clock] + [start]), flush=True)
     try:
         res = aj.identify(recordings, **options, shared=config["recordings"]["shared"], progress=True)
     except ValueError as err:
         return fail(str(err))
-    warnings = ([] if res.converged else [f"the fit did not converge ({res.message})"]) + list(res.warnings)
+    classical = [idr.classical_fit(rec, args.fs) for _, rec in loaded]
+    warnings = clock + idr.pooled_warnings(res, names, loaded, classical)
     settings = dict(recordings=[str(p) for p, _ in listed], columns=columns, fs_hz=args.fs, config_path=str(args.model))
     settings["config"] = config
     try:
-        paths = identify_pool.write_results(args.out, res, settings=settings, warnings=warnings)
+        paths = identify_pool.write_results(args.out, res, settings=settings, warnings=warnings, classical=classical)
     except OSError as err:
         return fail(f"cannot write to {args.out}: {err.strerror or err}")
-    print("\n".join(identify_pool.report(res, warnings)))
+    print("\n".join(recording_report.pooled_report(res, names, classical, warnings)))
     print(f"wrote {', '.join(str(p) for p in paths)}")
     return 0
 

@@ -1,6 +1,10 @@
 """Admittance control (issue 46): the whole sampled loop against its closed form written here
 (virtual model, servo, the robot's inertia, the holds), its limit as the servo stiffens, the
-linearised loop against the simulation with an arm, and the one-line refusals."""
+linearised loop against the simulation with an arm, and the one-line refusals (a loop the arm
+makes unstable among them, against the linearisation and the simulation)."""
+
+import dataclasses
+import re
 
 import jax
 import numpy as np
@@ -10,6 +14,8 @@ import scipy.linalg
 import armimp_jax as aj
 from armimp_jax import paper
 from armimp_jax._identification import linear
+from armimp_jax._model.controllers.admittance import coupled_radius
+from armimp_jax._model.plant import rest_plant
 from armimp_jax._model.robot import cartesian_inertia
 
 L = 1e-3
@@ -95,11 +101,47 @@ def test_as_the_servo_stiffens_the_hand_follows_the_virtual_model():
 def test_with_an_arm_the_linearised_loop_follows_the_simulation():
     trial = aj.make_trial(aj.Admittance(**VIRTUAL, **SERVO), arm=paper.arm(2), friction=aj.NO_FRICTION)
     f = aj.perturbation(jax.random.key(7), 2000, paper.perturbation_peak(1))
-    y_lin = np.asarray(jax.jit(lambda t: linear.respond(linear.linearise(t), f))(trial))
-    sim = jax.jit(aj.simulate, static_argnames="numerics")(trial, f, numerics=NUM)
+    y_lin = np.asarray(LINEARISED(trial, f)[1])
+    sim = SIMULATE(trial, f, numerics=NUM)
     y = np.concatenate([np.asarray(sim.x) - np.asarray(trial.x0), np.asarray(sim.fh)], axis=1)
     err = np.sqrt(np.sum((y - y_lin) ** 2, axis=0) / np.sum(y**2, axis=0))
     assert np.all(err < 5e-3), err
+
+
+# One program each for the tests that linearise or simulate an admittance trial with an arm.
+LINEARISED = jax.jit(lambda t, f: (linear.linearise(t).a, linear.respond(linear.linearise(t), f)))
+SIMULATE = jax.jit(aj.simulate, static_argnames="numerics")
+
+
+def test_a_loop_the_arm_makes_unstable_is_refused_with_the_margin_and_diverges():
+    """A virtual mass far below the arm's (0.001 kg): make_trial refuses it in one line with the
+    loop's spectral radius, which is the simulation's own linearisation's (crlb's check) to
+    round-off, and the virtual mass it names is where the loop turns stable. The same controller
+    bound past the check diverges in simulation; the defaults (the README's lab) pass."""
+    arm, fr = paper.arm(2), aj.LuGre(0.0, 0.0, sigma2=0.05)  # viscous alone: the programs of the test above
+    good = aj.make_trial(aj.Admittance(**VIRTUAL, **SERVO), arm=arm, friction=fr)
+    light = aj.Admittance(**(VIRTUAL | dict(m_v=0.001 * np.eye(2))), **SERVO)
+    with pytest.raises(ValueError, match=r"unstable: spectral radius (\d\.\d+) per 0.001 s period") as err:
+        aj.make_trial(light, arm=arm, friction=fr)
+    message = str(err.value)
+    assert "\n" not in message and "against the arm's [0.79, 1.56] kg" in message
+    bound = light.bind(good.robot, good.q0, good.x0, period=good.period)
+    bad = dataclasses.replace(good, controller=bound)  # past make_trial's check
+    f = aj.perturbation(jax.random.key(7), 2000, paper.perturbation_peak(1))
+    for trial, stable in ((good, True), (bad, False)):
+        radius = float(np.max(np.abs(np.linalg.eigvals(np.asarray(LINEARISED(trial, f)[0])))))
+        plant = rest_plant(trial.q0, trial.arm, trial.friction, trial.robot)
+        c = trial.controller
+        np.testing.assert_allclose(coupled_radius(c.phi, c.gamma, c.kp, c.kv, plant, np.ones(2), L), radius, rtol=1e-12)
+        assert (radius < 1) == stable and bool(SIMULATE(trial, f, numerics=NUM).diverged) != stable
+    shown = float(re.search(r"spectral radius (\d\.\d+)", message).group(1))
+    assert shown == pytest.approx(radius, abs=1e-4)
+    factor = float(re.search(r"or more \(([\d.]+) times it\)", message).group(1))
+    aj.make_trial(aj.Admittance(**(VIRTUAL | dict(m_v=0.00101 * factor * np.eye(2))), **SERVO), arm=arm, friction=fr)
+    with pytest.raises(ValueError, match="unstable: spectral radius"):
+        aj.make_trial(
+            aj.Admittance(**(VIRTUAL | dict(m_v=0.00095 * factor * np.eye(2))), **SERVO), arm=arm, friction=fr
+        )
 
 
 @pytest.mark.parametrize(

@@ -12,6 +12,7 @@ import armimp_jax as aj
 from armimp_jax import paper
 from armimp_jax._estimation.estimate import Estimate
 from armimp_jax._estimation.fit import coherence_weights
+from armimp_jax._estimation.plausibility import plausibility_warnings
 
 # Non-symmetric on purpose (docs/model.md section 3: use the matrices as given).
 M = np.array([[1.54, -0.57], [-0.65, 0.94]])
@@ -48,6 +49,30 @@ def test_arm_impedance_round_trips_through_the_fit():
     fit = textbook(arm.impedance(F), F)
     for name in ("mass", "damping", "stiffness"):
         np.testing.assert_allclose(getattr(fit, name), getattr(arm, name), rtol=0, atol=1e-12 * 250)
+
+
+def test_a_fit_no_human_arm_gives_warns_with_its_likely_cause_first():
+    """M or K negative on a fit's diagonal is warned of in one line naming the entries and the
+    likely causes, most likely first: every matrix negated (a flipped force) the force's sign; K
+    negative alone (the noise of bins past the perturbation's band, which a rate given too low
+    fits) the sample rate; intervals that reach plausible values noise. The rate's scaling the
+    warning states holds in closed form: bins read at r f give M / r^2, B / r and K unchanged."""
+    said = lambda fit: [w for w in fit.warnings if w.startswith("implausible for a human arm: ")]  # noqa: E731
+    assert said(textbook(model(F), F)) == [] and said(textbook(paper.arm(1).impedance(F), F)) == []
+    (flipped,) = said(textbook(-model(F), F))
+    assert "Mxx -1.54 kg (negative), Myy -0.94 kg (negative), Kxx -105.7 N/m (negative)" in flipped
+    assert flipped.split("most likely first: ")[1].startswith("the force's sign") and "Bxx" not in flipped
+    r = 2.0
+    fast = textbook(model(F), r * F)
+    for name, truth, power in (("mass", M, 2), ("damping", B, 1), ("stiffness", K, 0)):
+        np.testing.assert_allclose(getattr(fast, name), truth / r**power, rtol=1e-9, atol=1e-9)
+    (soft,) = said(textbook(model(F, k=K - 300.0 * np.eye(2)), F))
+    assert "Kxx -194.3 N/m (negative), Kyy -65.22 N/m (negative)" in soft and "Mxx" not in soft
+    assert soft.split("most likely first: ")[1].startswith("the sample rate (a rate given as r times")
+    near = plausibility_warnings(
+        dict(mass=M, stiffness=K - np.diag([110.0, 0.0])), dict(stiffness=np.full((2, 2), 10.0))
+    )
+    assert near[0].split("most likely first: ")[1].startswith("noise (the 95% interval reaches plausible values")
 
 
 def _noisy_fits(n_draws, sigma, f, seed=0):

@@ -13,6 +13,7 @@ from armimp_jax import paper
 from armimp_jax._identification import auxiliary, efficient, indirect, kalman, search
 from armimp_jax._identification import layout as lay
 from armimp_jax._identification import result as result_mod
+from armimp_jax._identification.diagnosis import plausibility
 from armimp_jax._model.sensors import quantise
 
 NUM = aj.IDENTIFY_NUMERICS
@@ -63,6 +64,28 @@ def test_recovers_known_parameters_from_noise_free_data():
     # a model without noise has no intervals to give, and says so
     assert not res.intervals_reliable and "has no noise" in res.warnings[0]
     assert all(np.all(s == 0) for s in res.se.values())
+    assert not any(w.startswith("implausible") for w in res.warnings)  # a human arm's answer
+
+
+def test_an_answer_no_human_arm_gives_is_warned_with_its_likely_cause():
+    """Noise-free data of an arm with 8 times paper arm 2's mass (the programs of the recovery
+    above): its answer's mass[1,1], 12.5 kg, is named with units first among the causes; per
+    group of a pool, only the group whose arm is implausible is named."""
+    arm = paper.arm(2)
+    heavy = aj.Arm(8.0 * np.asarray(arm.mass), arm.damping, arm.stiffness, arm.endpoint)
+    with pytest.warns(UserWarning, match=r"an arm no human has: mass\[1,1\] 1[23]\.\d+ kg \(over 10 kg\)"):
+        truth = _trial(heavy)
+        start = _trial(aj.Arm(1.02 * heavy.mass, arm.damping, arm.stiffness, arm.endpoint))  # a few steps
+    layout = lay.make_layout(FREE_BINDING)  # the recording by identify's own compiled simulation
+    y = np.asarray(result_mod.predict_jit(layout, start, lay.pack(layout, truth), F_BINDING, NUM)[0])
+    res = aj.identify(start, F_BINDING, y[:, :2], y[:, 2:], free=FREE_BINDING)
+    assert res.converged, res.message
+    (line,) = [w for w in res.warnings if w.startswith("implausible for a human arm: ")]
+    assert "arm.mass[1,1] 12.48 kg (over 10 kg)" in line and "[0,0]" not in line
+    assert line.split("most likely first: ")[1].startswith("units (positions in mm read as m")
+    values = {"arm.stiffness@1": arm.stiffness, "arm.stiffness@2": -np.asarray(arm.stiffness), "robot.inertia": 1.0}
+    (pooled,) = plausibility(values, {name: 0.0 * np.asarray(v) for name, v in values.items()})
+    assert "arm.stiffness@2[0,0] -31.53 N/m (negative), arm.stiffness@2[1,1]" in pooled and "@1" not in pooled
 
 
 @pytest.mark.slow  # ~40 s; the full-matrix fit is checked fast above
@@ -313,7 +336,8 @@ def test_bad_input_is_a_one_line_error_before_long_work():
         aj.identify(truth, f, x, fh, free=("arm.inertia",))
     with pytest.raises(ValueError, match="symmetric names 'arm.damping', which is not a free arm matrix"):
         aj.identify(truth, f, x, fh, free=("arm.mass",), symmetric=("arm.damping",))
-    unstable = _trial(aj.Arm(np.eye(2), np.zeros((2, 2)), -1500.0 * np.eye(2), paper.arm(2).endpoint))
+    with pytest.warns(UserWarning, match=r"make_trial: an arm no human has: stiffness\[0,0\] -1500 N/m \(negative\)"):
+        unstable = _trial(aj.Arm(np.eye(2), np.zeros((2, 2)), -1500.0 * np.eye(2), paper.arm(2).endpoint))
     with pytest.raises(ValueError, match="diverges at the starting values"):
         aj.identify(unstable, f, x, fh, free=ARM)
     with pytest.raises(ValueError, match="friction.tau_s must start above tau_c"):

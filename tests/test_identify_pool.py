@@ -7,6 +7,7 @@ import importlib.util
 import io
 import json
 import pathlib
+import types
 
 import jax
 import numpy as np
@@ -108,6 +109,83 @@ def test_the_script_wants_a_recording_or_a_list_of_them_not_both(tmp_path, capsy
     assert script.main(["--fs", "1000", "--model", str(pooled), "--out", out, "--sensitivity", "10"]) == 2
     assert "--sensitivity takes one RECORDING, not a [recordings] list" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def _classical(arm, sign=1.0):
+    """What the printout reads of a classical fit (``classical_fit``'s second item): ``arm``'s
+    matrices times ``sign``."""
+    zero = np.zeros((2, 2))
+    fields = {n: sign * np.asarray(getattr(arm, n)) for n in ("mass", "damping", "stiffness")}
+    fields.update(delay=0.0, vaf_overall=99.0)
+    return None, types.SimpleNamespace(**fields, mass_se=zero, damping_se=zero, stiffness_se=zero)
+
+
+def test_the_pooled_printout_shows_each_recordings_classical_value_vaf_whiteness_and_warnings():
+    """Per recording, its classical value beside its group's arm, its VAF and whiteness under its
+    name, and the single route's warnings about it (prefixed with it): coloured residuals, a
+    classical fit no human arm gives; none for the robot alone's force, which has no variance."""
+    from armimp_jax._identification.result import Identification, RecordingFit
+    from armimp_jax.study import recording_report
+
+    k1, k2 = (np.asarray(presets.arm(i).stiffness) for i in (1, 2))
+    trials = [aj.make_trial(aj.PD(), arm=presets.arm(i), friction=aj.NO_FRICTION) for i in (1, 2)] + [
+        aj.make_trial(aj.PD(), arm=aj.no_arm(presets.location_endpoint(2)), friction=aj.NO_FRICTION)
+    ]
+    white, coloured, none = [0.3, 0.2, 0.4, 0.5], [1e-5, 0.2, 0.4, 0.5], [0.3, 0.2, np.nan, np.nan]
+    fits = [
+        RecordingFit(g, t, np.array([99.0, 98.5]), f, np.array(w), np.zeros(2), None)
+        for g, t, f, w in zip(
+            ("1", "2", "alone"), trials, (np.array([95.0, 96.0]),) * 2 + (np.full(2, np.nan),), (coloured, white, none)
+        )
+    ]
+    values = {"arm.stiffness@1": k1, "arm.stiffness@2": k2, "robot.inertia": np.asarray(aj.MIT_MANUS.inertia)}
+    se = {name: 0.01 * np.abs(v) for name, v in values.items()}
+    res = Identification(
+        values,
+        se,
+        np.eye(11),
+        [],
+        True,
+        "",
+        True,
+        [],
+        {},
+        "welch",
+        0.1,
+        3,
+        [],
+        8,
+        {},
+        *fits[0][2:6],
+        None,
+        trials[0],
+        1.0,
+        0.1,
+        tuple(fits),
+    )
+    classical = [_classical(presets.arm(1), 1.02), _classical(presets.arm(2), -1.0), None]  # -F_h recorded at 2
+    names = ["p1.csv", "p2.csv", "alone.csv"]
+    loaded = [(f.group, {"x": np.tile(np.asarray(f.trial.x0), (4, 1))}) for f in fits]
+    warnings = idr.pooled_warnings(res, names, loaded, classical)
+    lines = recording_report.pooled_report(res, names, classical, warnings)
+    beside = f"{k1[0, 0]:10.4g} +- {0.01 * k1[0, 0]:.3g}   (classical {1.02 * k1[0, 0]:.4g})"
+    assert f"  arm.stiffness[0,0] (group 1) [N/m]: {beside}" in lines
+    assert any(line.startswith("  robot.inertia[0] (shared) [kg m^2]: ") and "classical" not in line for line in lines)
+    assert "recording p2.csv (group 2): VAF [%]: x 99.00, y 98.50, fh_x 95.00, fh_y 96.00" in lines
+    assert (
+        "recording alone.csv (group alone): residual whiteness (Ljung-Box p): x 0.3, y 0.2, fh_x nan, fh_y nan" in lines
+    )
+    said = [line for line in lines if line.startswith("WARNING: ")]
+    assert len(said) == 2 and said[0].startswith(
+        "WARNING: recording p1.csv (group 1): the residuals are not white: x (p = 1e-05)"
+    )
+    assert said[1].startswith(
+        "WARNING: recording p2.csv (group 2): the classical fit: implausible for a human arm: Mxx -0.79 kg"
+    )
+    assert said[1].split("most likely first: ")[1].startswith("the force's sign") and "Kxx -31.53" in said[1]
+    doc = identify_pool.fits(res, classical)
+    np.testing.assert_array_equal(doc[1]["classical"]["stiffness"], -k2)
+    assert doc[2]["classical"] is None
 
 
 @pytest.mark.slow  # about 60 s cold: a pooled identification of three recordings

@@ -287,6 +287,34 @@ def test_welch_options_are_refused_with_the_model_route(recording_csv, tmp_path,
     ]
 
 
+def test_every_kind_reads_from_a_config_and_the_docs_table_lists_its_keys(tmp_path):
+    """A config names any of the package's controller and friction kinds with that kind's own keys
+    (read from its class); docs/identify_recording.md's config table names every kind, each of
+    its keys and every name [identify] free takes."""
+    from armimp_jax._identification.layout import parameter_units
+    from armimp_jax._model.controllers import CONTROLLER_KINDS
+    from armimp_jax._model.friction import FRICTION_KINDS
+
+    config = _config() | {
+        "controller": {"type": "admittance", "m_v": [[3.0, 0.0], [0.0, 3.0]], "k_v": [[40.0, 0.0], [0.0, 60.0]]},
+        "friction": {"type": "coulomb_viscous", "tau_c": 0.05, "viscous": [0.01, 0.02]},
+        "identify": {"free": ["arm.stiffness", "friction.viscous"], "draws": 8},
+    }
+    model, options = idr.build_model(idr.read_identify_config(write_toml(tmp_path / "c.toml", config)))
+    assert type(model.controller) is aj.Admittance and type(model.friction) is aj.CoulombViscous
+    np.testing.assert_array_equal(model.controller.k_v, [[40.0, 0.0], [0.0, 60.0]])
+    np.testing.assert_array_equal(model.friction.viscous, [0.01, 0.02])
+    assert options["free"] == ("arm.stiffness", "friction.viscous")
+    text = (ROOT / "docs" / "identify_recording.md").read_text()
+    table = text[text.index("## The config (TOML)") : text.index("## Several recordings")]
+    for registry in (CONTROLLER_KINDS, FRICTION_KINDS):
+        for cls in (registry.get(n) for n in registry.names()):
+            if cls.__module__.startswith("armimp_jax."):  # not a test's own kind
+                assert f'"{cls.kind}"' in table, cls.kind
+                assert all(f"`{name}`" in table for name in cls.parameters()), cls.kind
+    assert all(f"`{name}`" in table for name in parameter_units())
+
+
 def test_example_config_builds_the_documented_model():
     config = idr.read_identify_config(EXAMPLE)
     model, options = idr.build_model(config, where=str(EXAMPLE))

@@ -58,4 +58,5 @@ def test_readme_library_example_runs(capsys):
         assert (float(low), float(high)) == pytest.approx((lo[ij], hi[ij]), rel=1e-3, abs=1e-3)
         assert float(low) <= float(np.asarray(getattr(arm, name))[ij]) <= float(high), (sym, i, j)  # they hold here
     assert [line[len("WARNING: ") :] for line in out.splitlines() if line.startswith("WARNING: ")] == fit.warnings
+    assert not any(w.startswith("implausible") for w in fit.warnings)  # the plausibility guard is silent here
     jax.config.update("jax_enable_x64", True)

@@ -377,6 +377,7 @@ def test_friction_warning_fires_only_when_given_and_segments_follow_the_record(t
     assert len(said) == 1 and f"WARNING: {said[0]}" in printed.splitlines()
     assert printed.splitlines()[1] == "fit: acquisition 'delay'"  # friction given: nothing assumed
     assert result["settings"]["friction_n_m"] == 0.5
+    assert not any(w.startswith(("the file's time column", "implausible")) for w in result["warnings"])
     nperseg, noverlap = aj.welch_segments(len(trial["x"]))
     assert (result["settings"]["nperseg"], result["settings"]["noverlap"]) == (nperseg, noverlap)
     assert nperseg < 4500 // 2  # not Table 4's 8192, which a 4.5 s record cannot hold twice
@@ -476,3 +477,58 @@ def test_the_classical_route_on_a_designed_multisine_says_why_and_fits_at_its_li
         true = np.asarray(getattr(arm, name))
         for i in (0, 1):
             assert low[i, i] <= true[i, i] <= high[i, i], (name, i, low[i, i], high[i, i], true[i, i])
+
+
+def test_the_files_own_clock_and_a_flipped_force_are_warned_of(trial, tmp_path, capsys):
+    """A file whose time column says 250 Hz, given --fs 1000, and whose force was recorded as the
+    force the hand exerts (-F_h): the clock's disagreement, then the fit's negative M and K with
+    the force's sign named first (the programs of the test above: the record's shapes)."""
+    path = write_csv(tmp_path / "rec.csv", dict(trial, fh=-trial["fh"]))
+    text = path.read_text().splitlines()
+    times = [repr(k / 250.0) for k in range(len(trial["x"]))]
+    path.write_text("\n".join([text[0], *(f"{t},{row.split(',', 1)[1]}" for t, row in zip(times, text[1:]))]) + "\n")
+    assert script.main([str(path), "--fs", "1000", "--out", str(tmp_path / "out")]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    clock, fit = _strict(tmp_path / "out" / "estimate.json")["warnings"][:2]
+    assert clock.startswith("the file's time column steps by 0.004 s (median): a rate of 250 Hz, but fs is 1000 Hz")
+    assert fit.startswith("implausible for a human arm: Mxx -1.5") and "Kyy -2" in fit
+    assert fit.split("most likely first: ")[1].startswith("the force's sign")
+    assert f"WARNING: {clock}" in printed and f"WARNING: {fit}" in printed
+
+
+@pytest.mark.slow  # about a minute cold: the estimate and fit compile again for the 4 times as many bins
+def test_a_rate_given_too_low_is_warned_of_by_the_files_clock_and_the_fit(trial, tmp_path, capsys):
+    """The lab's day: --fs 250 on a 1 kHz file with a time column. The fit reads bins beyond the
+    perturbation's band and goes negative; the clock, then the fit with the sample rate first."""
+    path = write_csv(tmp_path / "rec.csv", trial)
+    assert script.main([str(path), "--fs", "250", "--out", str(tmp_path / "out")]) == 0
+    clock, fit = _strict(tmp_path / "out" / "estimate.json")["warnings"][:2]
+    assert clock.startswith("the file's time column steps by 0.001 s (median): a rate of 1000 Hz, but fs is 250 Hz")
+    assert fit.startswith("implausible for a human arm: Mxx -1.6") and "Kxx -2.144e+04 N/m (negative)" in fit
+    assert fit.split("most likely first: ")[1].startswith("the sample rate")
+
+
+def test_a_time_column_is_read_when_there_and_its_steps_checked_against_the_rate(trial, tmp_path):
+    """The time column (``time``, ``Time``, ..., ``t``, or mapped) comes back as ``"time"``;
+    seconds or milliseconds at the rate given say nothing, another rate, a clock that does not run
+    forward and dropped samples a line each; a file without one, nothing."""
+    n = len(trial["x"])
+    rec = recording.load_recording(write_csv(tmp_path / "rec.csv", trial))
+    np.testing.assert_array_equal(rec["time"], np.arange(n) / 1000.0)
+    assert recording.timestamp_warnings(rec, 1000.0) == []
+    cols = {k: v for k, v in _columns(trial).items() if k != "time"}
+    np.savez(tmp_path / "t.npz", t=np.arange(n) * 1.0, T=np.zeros(n), **cols)  # a millisecond clock "t"; "T" a torque
+    assert recording.timestamp_warnings(recording.load_recording(tmp_path / "t.npz"), 1000.0) == []
+    np.savez(tmp_path / "clock.npz", clock=np.arange(n) / 500.0, **cols)
+    assert "time" not in recording.load_recording(tmp_path / "clock.npz")  # not a time column's name
+    mapped = recording.load_recording(tmp_path / "clock.npz", columns={"time": "clock"})
+    (line,) = recording.timestamp_warnings(mapped, 1000.0)
+    assert line.startswith("the file's time column steps by 0.002 s (median): a rate of 500 Hz, but fs is 1000 Hz")
+    with pytest.raises(recording.MissingColumnsError, match=r"missing array\(s\) 'stamp' \(for time\)"):
+        recording.load_recording(tmp_path / "clock.npz", columns={"time": "stamp"})
+    gaps = np.arange(n) / 1000.0
+    gaps[100:] += 0.005  # five samples dropped
+    (line,) = recording.timestamp_warnings({"time": gaps}, 1000.0)
+    assert line.startswith("the file's time column is uneven: steps from 0.001 to 0.006")
+    assert "does not run forward" in recording.timestamp_warnings({"time": np.zeros(n)}, 1000.0)[0]
+    assert recording.timestamp_warnings(cols, 1000.0) == []

@@ -1,5 +1,7 @@
 """The general simulator's values: presets, custom scenarios, invariants, gradients, bad input."""
 
+import warnings
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -267,3 +269,23 @@ def test_tracers_pass_the_checks_so_vmap_and_grad_flow():
     assert arms.mass.shape == (2, 2, 2)
     g = jax.grad(lambda tc: aj.LuGre(tc, 2.0 * tc).tau_s.sum())(1.0)
     assert float(g) == 4.0
+
+
+def test_an_arm_no_human_has_gets_one_line_with_its_likely_cause_and_the_robot_alone_none():
+    """A mass typed in grams and a negative stiffness are warned of (not refused: Arm documents
+    unstable and negative-stiffness arms as studies), each in one line naming the entry, the
+    range and the likely cause; the README's arm, the paper's and no_arm (all zero) pass quietly."""
+    m, b, k, end = (np.asarray(getattr(CUSTOM_ARM, n)) for n in ("mass", "damping", "stiffness", "endpoint"))
+    grams = aj.Arm(1000.0 * m, b, k, end)
+    with pytest.warns(UserWarning) as caught:
+        aj.make_trial(aj.PD(), arm=grams, friction=aj.NO_FRICTION)
+    (line,) = [str(w.message) for w in caught]
+    assert line.startswith("make_trial: an arm no human has: mass[0,0] 1200 kg (over 10 kg), mass[1,1] 800 kg")
+    assert "likely cause: units (a mass typed in grams" in line and "\n" not in line
+    flipped = aj.Arm(m, b, k * np.array([[1.0, 1.0], [1.0, -1.0]]), end)
+    with pytest.warns(UserWarning, match=r"stiffness\[1,1\] -120 N/m \(negative\); likely cause: a sign convention"):
+        aj.make_trial(aj.IMBIC(), arm=flipped, friction=aj.NO_FRICTION)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for arm in (CUSTOM_ARM, paper.arm(1), aj.no_arm(end)):
+            aj.make_trial(aj.PD(), arm=arm, friction=aj.NO_FRICTION)

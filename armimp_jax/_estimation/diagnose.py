@@ -18,6 +18,7 @@ import numpy as np
 from .._model.timing import CONTROL_PERIOD
 from .estimate import Estimate
 from .parametric import ELEMENTS
+from .plausibility import plausibility_warnings
 
 LACK_OF_FIT_ALPHA = 1e-3  # p-value below which the model is said not to fit
 LOW_COHERENCE = 0.5  # a multiple coherence below this somewhere in the band
@@ -122,11 +123,13 @@ def fit_warnings(fit, est: Estimate | None = None, *, acquisition: str | None = 
     shows stick-slip (``force_excess`` above ``STICK_SLIP_EXCESS``; docs/estimation.md section
     3); a friction told 0 is believed.
 
-    Each warning is one line saying what was seen and what it means: a significant lack of
-    fit, standard errors that could not be computed, few effective averages, a low multiple
-    coherence, correlated inputs beyond chance, a fitted delay whose reading as the hold's
-    lag on the mass would move M or B by more than ``TIMING_SHIFT`` standard errors, and
-    instant samples through friction (told, or seen as stick-slip).
+    Each warning is one line saying what was seen and what it means: M or K negative on the
+    diagonal, which no human arm gives, with its likely cause (``plausibility_warnings``: the
+    force's sign, the sample rate, units), a significant lack of fit, standard errors that
+    could not be computed, few effective averages, a low multiple coherence, correlated inputs
+    beyond chance, a fitted delay whose reading as the hold's lag on the mass would move M or B
+    by more than ``TIMING_SHIFT`` standard errors, and instant samples through friction (told,
+    or seen as stick-slip).
     """
     if np.ndim(np.asarray(fit.lack_of_fit_p)) != 2:
         raise ValueError(
@@ -136,8 +139,17 @@ def fit_warnings(fit, est: Estimate | None = None, *, acquisition: str | None = 
     diag = own if est is None else FitDiagnostics(*(np.asarray(v, dtype=float) for v in diagnostics_of(est)))
     friction = float(own.friction) if friction is None else float(friction)
     instant = _instant_samples(fit, own, acquisition)
-    out = [*_lack_of_fit_warning(fit), *_se_warning(fit), *_estimate_warnings(diag), *_timing_warning(fit)]
+    out = [*implausible(fit), *_lack_of_fit_warning(fit), *_se_warning(fit), *_estimate_warnings(diag)]
+    out += _timing_warning(fit)
     return out + (_friction_warning(friction, diag.force_excess) if instant else [])
+
+
+def implausible(fit) -> list[str]:
+    """A warning where ``fit`` (one concrete ``ImpedanceFit``) has M or K negative on the
+    diagonal (the classical rule of ``_model.plausibility``), with its likely cause."""
+    names = ("mass", "damping", "stiffness")
+    values = {n: np.asarray(getattr(fit, n)) for n in names}
+    return plausibility_warnings(values, {n: np.asarray(getattr(fit, f"{n}_se")) for n in names}, classical=True)
 
 
 def _friction_warning(friction: float, excess) -> list[str]:

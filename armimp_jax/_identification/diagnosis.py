@@ -1,4 +1,5 @@
-"""What a recording's motion says about whether it can tell the arm: ``motion_diagnosis``.
+"""What a recording's motion says about whether it can tell the arm: ``motion_diagnosis``; and
+whether ``identify``'s answer could be a human arm's: ``plausibility``.
 
 Under PD with joint friction the joints can stick for most of a record: the hand then hardly
 moves, the recording shows the robot's friction rather than the arm, and a fit through the
@@ -20,8 +21,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._estimation.plausibility import plausibility_warnings
 from .._model.robot import ik
 from .auxiliary import lowpass
+from .layout import ARM_PARAMETERS
 
 STUCK_SPEED = 2e-3  # [rad/s]
 SMOOTHING_HZ = 10.0
@@ -56,3 +59,24 @@ def motion_diagnosis(trial, x) -> Motion:
             "with a larger perturbation or one in bursts (ShapedNoise(duty=...)), or under IMBIC"
         )
     return Motion(fraction, advice)
+
+
+def plausibility(values: dict, se: dict) -> list[str]:
+    """Per group of recordings, a warning where its arm's estimated diagonals are no human
+    arm's (``plausibility_warnings``: a mass outside 0.05-10 kg, a negative damping or
+    stiffness), with the likely cause; ``values``, ``se``: ``{name: array}`` as
+    ``Identification``'s (``"arm.mass"`` or ``"arm.mass@<group>"``)."""
+    groups: dict[str, dict] = {}
+    for name, value in values.items():
+        base, _, group = name.partition("@")
+        if base in ARM_PARAMETERS:
+            groups.setdefault(group, {})[base.split(".")[1]] = (value, se[name])
+    out = []
+    for group, found in groups.items():
+        suffix = f"@{group}" if group else ""
+        out += plausibility_warnings(
+            {m: v for m, (v, _) in found.items()},
+            {m: s for m, (_, s) in found.items()},
+            label=lambda matrix, axis, suffix=suffix: f"arm.{matrix}{suffix}[{axis},{axis}]",
+        )
+    return out

@@ -20,7 +20,7 @@ from . import layout as lay
 from . import pool as pl
 from . import search
 from .auxiliary import statistic_labels
-from .diagnosis import motion_diagnosis
+from .diagnosis import motion_diagnosis, plausibility
 from .indirect import predict
 from .selfcheck import cross_check
 
@@ -371,6 +371,7 @@ def assemble(problem: search.Problem, state: search.Search, pool: pl.Pool, recor
     warnings = warnings + _disagree(
         disagreements, dict(zip(labels, values, strict=True)), dict(zip(labels, se, strict=True))
     )
+    warnings = warnings + plausibility(pl.unflatten(pool, values), pl.unflatten(pool, se))  # no human arm's
     advice = [a for st in stuck for a in st.advice]
     message = "; ".join(problems)
     if problems and advice:  # why, in a lab's terms, before the search's own account

@@ -42,7 +42,9 @@ class Arm:
 
     The matrices may be non-symmetric. ``mass`` must have a positive semi-definite symmetric
     part (the coupled plant's inertia, the robot's plus ``J^T M_h J``, then stays invertible);
-    damping and stiffness are free (a user may study unstable or negative-stiffness arms).
+    damping and stiffness are free (a user may study unstable or negative-stiffness arms), so
+    ``make_trial`` warns, in one line, rather than refuses an arm no human has (a mass diagonal
+    outside 0.05-10 kg, a negative damping or stiffness diagonal: ``_model/plausibility.py``).
     All zero is no arm on the handle (``no_arm(endpoint)``: the robot alone). Values
     are checked when concrete; traced values pass, so ``grad`` and ``vmap`` flow through them.
     """

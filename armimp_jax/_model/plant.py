@@ -17,7 +17,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .arm import Arm
 from .friction import AbstractFriction
@@ -74,6 +76,33 @@ def plant_model(q0, x0, arm: Arm, friction: AbstractFriction, robot: Robot) -> P
         (friction.joint(0), friction.joint(1)),
         robot,
     )
+
+
+class RestPlant(NamedTuple):
+    """The coupled plant linearised at rest, in Cartesian coordinates about ``x0`` (NumPy ``(2, 2)``
+    each): ``inertia xdd + damping xd + arm.stiffness (x - x0) = F_u``, where ``inertia`` [kg] is the
+    robot's apparent inertia ``M_x(q0)`` plus the arm's mass and ``damping`` [N s/m] the arm's plus
+    the joints' viscous friction ``J^-T C J^-1``; the hand force is ``F_h = M_h xdd + B_h xd +
+    K_h (x - x0)`` (``arm``). Coulomb friction is left out, as in the linearisation behind ``crlb``."""
+
+    inertia: np.ndarray
+    damping: np.ndarray
+    arm: Arm
+
+
+def rest_plant(q0, arm: Arm, friction: AbstractFriction, robot: Robot) -> RestPlant:
+    """``RestPlant`` at the equilibrium ``q0`` [rad] (concrete values; NumPy throughout: make_trial
+    calls it, and op by op JAX would cost milliseconds)."""
+    q = np.asarray(q0, dtype=float)
+    robot = jax.tree.map(np.asarray, robot)
+    jinv = np.linalg.inv(
+        np.reshape(jacobian_from_trig(robot, np.cos(q[0]), np.sin(q[0]), np.cos(q[1]), np.sin(q[1])), (2, 2))
+    )
+    m11, m12, m22 = mass_matrix_entries(robot, np.cos(q[0] - q[1]))
+    joints = jinv.T @ np.array([[m11, m12], [m12, m22]]) @ jinv  # M_x(q0), as robot.cartesian_inertia
+    viscous = np.diag([float(np.asarray(friction.joint(i).viscous_coefficient())) for i in range(2)])
+    mass, damping = (np.asarray(a, dtype=float) for a in (arm.mass, arm.damping))
+    return RestPlant(joints + mass, damping + jinv.T @ viscous @ jinv, arm)
 
 
 def rest_state(q0) -> PlantState:

@@ -50,6 +50,7 @@ _EXPORTS = {
     "read_table": "tables",
     "write_table": "tables",
     "save_figure": "figures",
+    "load_recording": "recording",
     "IdentifyConfigError": "identify_recording",
     "read_identify_config": "identify_recording",
     "POINT_DEFAULTS": "points",

@@ -9,7 +9,8 @@ identify config with a ``[recordings]`` section -> one pooled ``identify`` -> on
   starts), with ``aj.no_arm`` for the robot alone.
 - ``rows(res)``: every estimated entry, per group for the arm and once for the shared robot.
 - ``write_results``: ``identification.json`` (strict: settings and version, every entry, the
-  joint covariance, each recording's fit quality) and ``identification.csv``, atomically.
+  joint covariance, each recording's fit quality and classical answer) and
+  ``identification.csv``, atomically. What the script prints is ``study.recording_report``'s.
 """
 
 from __future__ import annotations
@@ -82,14 +83,23 @@ def rows(res) -> list[dict]:
     return out
 
 
-def fits(res) -> list[dict]:
-    """Each recording's fit quality: its group, VAF per axis [%], whiteness p-values, stuck share."""
+CLASSICAL = ("mass", "mass_se", "damping", "damping_se", "stiffness", "stiffness_se", "delay", "vaf_overall")
+
+
+def fits(res, classical=None) -> list[dict]:
+    """Each recording's fit quality: its group, VAF per axis [%], whiteness p-values, stuck share,
+    and with ``classical`` (one ``(Estimate, ImpedanceFit)`` or ``None`` per recording) the
+    classical answer's ``CLASSICAL`` fields (``None`` for a record Welch cannot use)."""
     keys = ("vaf_position", "vaf_force", "whiteness_p", "stuck_fraction")
-    return [dict(group=r.group, **{k: np.asarray(getattr(r, k)) for k in keys}) for r in res.recordings]
+    out = [dict(group=r.group, **{k: np.asarray(getattr(r, k)) for k in keys}) for r in res.recordings]
+    for row, cls in zip(out, classical or [], strict=False):
+        row["classical"] = None if cls is None else {k: np.asarray(getattr(cls[1], k)) for k in CLASSICAL}
+    return out
 
 
-def write_results(out_dir, res, *, settings: dict, warnings: list[str]) -> list[pathlib.Path]:
-    """``identification.json`` and ``identification.csv`` under ``out_dir``, each atomically."""
+def write_results(out_dir, res, *, settings: dict, warnings: list[str], classical=None) -> list[pathlib.Path]:
+    """``identification.json`` and ``identification.csv`` under ``out_dir``, each atomically;
+    ``classical``: each recording's classical answer (``fits``), or ``None``."""
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     entries = rows(res)
@@ -109,20 +119,10 @@ def write_results(out_dir, res, *, settings: dict, warnings: list[str]) -> list[
         "entries": entries,
         "labels": list(res.labels),
         "covariance": np.asarray(res.covariance),
-        "recordings": fits(res),
+        "recordings": fits(res, classical),
         "warnings": list(warnings),
     }
     json_path = out_dir / "identification.json"
     atomic_write_json(json_path, doc)
     frame = table(entries, {k: "string" for k in COLUMNS[:5]}, columns=COLUMNS)
     return [json_path, *write_table(frame, out_dir / "identification.csv")]
-
-
-def report(res, warnings: list[str]) -> list[str]:
-    """The printed answer: convergence, warnings, then each entry as value +- SE [unit]."""
-    lines = ["converged" if res.converged else f"NOT CONVERGED: {res.message}"]
-    lines += [f"WARNING: {w}" for w in warnings]
-    for r in rows(res):
-        where = f" (group {r['group']})" if r["group"] else " (shared)"
-        lines.append(f"  {r['parameter']}[{r['index']}]{where}: {r['value']:.5g} +- {r['se']:.2g} {r['unit']}")
-    return lines

@@ -10,8 +10,9 @@
   (the constructors' own range checks come back as ``IdentifyConfigError`` naming the section).
 - ``check_rate(fs, model)``: a recording not sampled at the trial's control rate is refused.
 - ``run(rec, model, options)``: ``identify`` on a loaded recording (``study.recording``).
-- ``trust_warnings``, ``entries``: where the fit cannot be trusted; every estimated number
-  beside the classical answer (the Welch route at its defaults, ``estimate_recording.analyse``).
+- ``trust_warnings``, ``pooled_warnings``, ``entries``: where the fit cannot be trusted (per
+  recording: ``recording_warnings``); every estimated number beside the classical answer (the
+  Welch route at its defaults, ``estimate_recording.analyse``).
 - ``write_results``: ``identification.json`` (strict), ``identification.csv`` and four figures
   (drawn by ``study.recording_figures``; the printed text is ``study.recording_report``'s).
 
@@ -29,6 +30,7 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
+from .._estimation.diagnose import implausible
 from .._identification.identify import identify
 from .._identification.indirect import IDENTIFY_NUMERICS
 from .._identification.layout import ARM_PARAMETERS, parameter_units
@@ -165,14 +167,39 @@ def sensitivity_report(res, rec: dict, options: dict, percent: float) -> list[st
     return [SENSITIVITY_HEAD, *sensitivity_lines(res.trial, rec["f_delta"], options["free"], percent, **sampling)]
 
 
-def trust_warnings(res, rec: dict) -> list[str]:
-    """Where the fit of ``res`` (an ``Identification``) cannot be trusted, one line each."""
+def trust_warnings(res, rec: dict, classical=None) -> list[str]:
+    """Where the fit of ``res`` (an ``Identification``) cannot be trusted, one line each:
+    convergence, ``identify``'s own warnings, then ``recording_warnings`` of its recording
+    (``classical``: ``classical_fit``'s answer for it, or ``None``)."""
+    return _search_warnings(res) + recording_warnings(res, rec["x"], classical)
+
+
+def pooled_warnings(res, names, loaded, classical) -> list[str]:
+    """``trust_warnings`` of a pooled ``Identification``: convergence and ``identify``'s own
+    warnings once, then each recording's ``recording_warnings``, prefixed with its name
+    (``names``: one per recording; ``loaded``: ``(group, rec)`` each; ``classical``: each
+    recording's ``classical_fit``)."""
+    out = _search_warnings(res)
+    for name, fit, (group, rec), cls in zip(names, res.recordings, loaded, classical, strict=True):
+        out += [f"recording {name} (group {group}): {w}" for w in recording_warnings(fit, rec["x"], cls)]
+    return out
+
+
+def _search_warnings(res) -> list[str]:
     out = []
     if not res.converged:
         out.append(f"the fit did not converge ({res.message}): its values and SEs cannot be trusted")
-    out += list(res.warnings)  # identify's own (identifiability, a model without noise)
+    return out + list(res.warnings)  # identify's own (identifiability, a model without noise, plausibility)
+
+
+def recording_warnings(fit, x, classical=None) -> list[str]:
+    """Where one recording's share of a fit cannot be trusted, one line each: ``fit`` (a
+    ``RecordingFit``, or an ``Identification``: its first recording's) with residuals that are
+    not white, a channel the model explains little of, a start away from the model's rest; and
+    the classical answer beside it (``classical_fit``'s, or ``None``) with M or K negative."""
+    res, out = fit, []
     p = np.asarray(res.whiteness_p)
-    low = [f"{c} (p = {v:.2g})" for c, v in zip(CHANNELS, p, strict=True) if not v >= WHITENESS_P]
+    low = [f"{c} (p = {v:.2g})" for c, v in zip(CHANNELS, p, strict=True) if v < WHITENESS_P]  # NaN: no variance
     if low:
         out.append(
             f"the residuals are not white: {', '.join(low)} (Ljung-Box, p < {WHITENESS_P:g}); the model "
@@ -180,7 +207,7 @@ def trust_warnings(res, rec: dict) -> list[str]:
             "noise model), so read the SEs as approximate"
         )
     vaf = np.concatenate([res.vaf_position, res.vaf_force])
-    poor = [f"{c} {v:.1f} %" for c, v in zip(CHANNELS, vaf, strict=True) if not v >= VAF_MIN]
+    poor = [f"{c} {v:.1f} %" for c, v in zip(CHANNELS, vaf, strict=True) if v < VAF_MIN]  # NaN: the robot alone
     if poor and getattr(res.trial, "voluntary", None) is not None:
         out.append(
             f"the model accounts for little of {', '.join(poor)} (VAF below {VAF_MIN:g} %): the person's own "
@@ -192,13 +219,13 @@ def trust_warnings(res, rec: dict) -> list[str]:
             f"the model accounts for little of {', '.join(poor)} (VAF below {VAF_MIN:g} %): a poor fit; "
             "check the config (robot, controller gains, acquisition) and the recording's frame and signs"
         )
-    offset = float(np.linalg.norm(np.asarray(rec["x"])[0] - np.asarray(res.trial.x0)))
+    offset = float(np.linalg.norm(np.asarray(x)[0] - np.asarray(res.trial.x0)))
     if offset > START_OFFSET:
         out.append(
             f"the recording starts {1e3 * offset:.1f} mm from [arm] endpoint, where the model starts at rest: "
             "the recording's positions must be in the model's world frame (origin at the shoulder)"
         )
-    return out
+    return out + ([] if classical is None else [f"the classical fit: {w}" for w in implausible(classical[1])])
 
 
 class Entry(NamedTuple):

@@ -8,6 +8,10 @@ A recording holds six channels sampled at one rate ``fs`` [Hz], all in one Carte
   ``F_h = M_h xdd + B_h xd + K_h (x - x0)``); a transducer that reads the force the hand
   exerts on the handle gives ``-F_h``.
 
+An optional time column [s] (``time``, ``time_s`` or ``timestamp`` in any case, ``t``, or the
+name ``columns`` maps ``time`` to) is read too, for ``timestamp_warnings``: what its steps
+say against the sample rate given.
+
 CSV: a header row naming the columns (leading ``#`` comment lines are skipped; the
 delimiter is ``,``, ``;`` or a tab, read from the header), one sample per row; other
 columns are ignored. NPZ and MAT (MATLAB up to v7, ``scipy.io.loadmat``; v7.3 is HDF5 and
@@ -30,6 +34,10 @@ import numpy as np
 
 COLUMNS = ("f_delta_x", "f_delta_y", "x", "y", "fh_x", "fh_y")
 GROUPS = {"f_delta": ("f_delta_x", "f_delta_y"), "x": ("x", "y"), "fh": ("fh_x", "fh_y")}
+TIME = "time"  # the optional time column's standard name [s]
+TIME_NAMES = ("time", "time_s", "timestamp")  # a column read as the time unless mapped (any case; and "t")
+RATE_TOLERANCE = 0.01  # the time column's rate and the one given differ by more than this share: a warning
+UNEVEN = 0.5  # a time step this far from the median step (as its share): samples dropped or repeated
 
 
 class RecordingError(ValueError):
@@ -49,12 +57,30 @@ def parse_columns(text: str) -> dict[str, str]:
 
 def _check_mapping(columns) -> dict[str, str]:
     columns = dict(columns or {})
-    unknown = [k for k in columns if k not in COLUMNS]
+    unknown = [k for k in columns if k not in (*COLUMNS, TIME)]
     if unknown:
         raise RecordingError(
-            f"unknown standard column(s) {', '.join(map(repr, unknown))}; they are {', '.join(COLUMNS)}"
+            f"unknown standard column(s) {', '.join(map(repr, unknown))}; they are {', '.join(COLUMNS)} "
+            f"(and {TIME}, optional)"
         )
     return columns
+
+
+def _time_name(names, columns: dict[str, str]) -> tuple[str | None, bool]:
+    """The time column's name among ``names`` and whether it was mapped (then it is required)."""
+    if TIME in columns:
+        return columns[TIME], True
+    found = (n for n in names if str(n).strip().lower() in TIME_NAMES or str(n).strip() == "t")  # "T": a torque?
+    return next(found, None), False
+
+
+def _optional_time(values, n: int):
+    """A found (not mapped) time column: its values, or ``None`` where they are no clock."""
+    try:
+        t = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    return t if t.shape == (n,) and np.all(np.isfinite(t)) else None
 
 
 class MissingColumnsError(RecordingError):
@@ -113,7 +139,8 @@ def _read_csv(path: pathlib.Path, columns: dict[str, str]) -> dict[str, np.ndarr
     except csv.Error as err:
         raise RecordingError(f"cannot parse {path} as CSV: {err}") from None
     header = [h.strip() for h in rows[0]]
-    wanted = [(std, columns.get(std, std)) for std in COLUMNS]
+    time_name, mapped = _time_name(header, columns)
+    wanted = [(std, columns.get(std, std)) for std in COLUMNS] + ([(TIME, time_name)] if mapped else [])
     missing = [(std, name) for std, name in wanted if name not in header]
     if missing:
         raise MissingColumnsError(path, missing, header, [n for _, n in wanted])
@@ -155,6 +182,11 @@ def _read_csv(path: pathlib.Path, columns: dict[str, str]) -> dict[str, np.ndarr
                     raise RecordingError(f"{where(k, name)}{what}") from None
         _finite_or_raise(values, lambda k, name=name: where(k, name))
         out[std] = values
+    if time_name is not None and not mapped:
+        i = header.index(time_name)
+        found = _optional_time([row[i].strip() if i < len(row) else "" for row in data], len(out[COLUMNS[0]]))
+        if found is not None:
+            out[TIME] = found
     return out
 
 
@@ -235,7 +267,21 @@ def _from_arrays(path: pathlib.Path, arrays: dict[str, np.ndarray], columns: dic
         values = a.astype(np.float64)
         _finite_or_raise(values, lambda k, label=label: f"{path}: array {label!r}, index {k}")
         out[std] = values
-    return out
+    return out | _array_time(path, arrays, columns, len(out[COLUMNS[0]]))
+
+
+def _array_time(path, arrays: dict, columns: dict[str, str], n: int) -> dict:
+    """``{"time": (n,)}`` from an NPZ's or MAT-file's arrays where it has a time array, else ``{}``;
+    a mapped one must be there, a vector of ``n`` finite numbers."""
+    name, mapped = _time_name(list(arrays), columns)
+    if name is None:
+        return {}
+    if name not in arrays:
+        raise MissingColumnsError(path, [(TIME, name)], list(arrays), noun="array")
+    t = _optional_time(arrays[name], n) if np.ndim(arrays[name]) == 1 else None
+    if t is None and mapped:
+        raise RecordingError(f"{path}: array {name!r} (the time) must be {n} finite numbers, like the channels")
+    return {} if t is None else {TIME: t}
 
 
 def load_recording(path, *, columns=None) -> dict[str, np.ndarray]:
@@ -247,7 +293,8 @@ def load_recording(path, *, columns=None) -> dict[str, np.ndarray]:
             standard names are ``COLUMNS``); unmapped columns keep their standard names.
 
     Returns ``{"f_delta": (N, 2), "x": (N, 2), "fh": (N, 2)}`` float64 NumPy arrays
-    (``[:, 0]`` the x axis, ``[:, 1]`` the y axis), ready for ``estimate``.
+    (``[:, 0]`` the x axis, ``[:, 1]`` the y axis), ready for ``estimate``, and ``"time"``
+    ``(N,)`` [s] where the file has a time column (module docstring; ``timestamp_warnings``).
 
     Raises ``RecordingError`` (a ``ValueError``) with one line naming the file and, where
     it applies, the column and row: unreadable file (a v7.3 MAT-file: how to re-save it),
@@ -267,4 +314,32 @@ def load_recording(path, *, columns=None) -> dict[str, np.ndarray]:
     n = len(chans[COLUMNS[0]])
     if n == 0:
         raise RecordingError(f"{path}: the recording holds no samples")
-    return {group: np.stack([chans[a], chans[b]], axis=1) for group, (a, b) in GROUPS.items()}
+    out = {group: np.stack([chans[a], chans[b]], axis=1) for group, (a, b) in GROUPS.items()}
+    return out | ({TIME: chans[TIME]} if TIME in chans else {})
+
+
+def timestamp_warnings(rec: dict, fs: float) -> list[str]:
+    """What a recording's own time column (``rec["time"]`` [s], ``load_recording``'s; none: no
+    warning) says against the sample rate ``fs`` [Hz] given, one line each: a rate that differs
+    by more than ``RATE_TOLERANCE`` (read in seconds, or in milliseconds where that matches), a
+    clock that does not run forward, steps that stray more than ``UNEVEN`` from the median."""
+    t = rec.get(TIME)
+    if t is None or len(t) < 2:
+        return []
+    steps = np.diff(np.asarray(t, dtype=float))
+    step = float(np.median(steps))
+    if not step > 0:
+        return [f"the file's time column does not run forward (median step {step:g}): check it and fs {fs:g} Hz"]
+    out = []
+    if not any(abs(rate - fs) <= RATE_TOLERANCE * fs for rate in (1.0 / step, 1e3 / step)):
+        out.append(
+            f"the file's time column steps by {step:.6g} s (median): a rate of {1.0 / step:.6g} Hz, but fs is "
+            f"{fs:g} Hz; a wrong rate scales the classical M by (true / given)^2 and B by true / given, and "
+            "moves the band fitted: give the file's rate"
+        )
+    if np.max(np.abs(steps - step)) > UNEVEN * step:
+        out.append(
+            f"the file's time column is uneven: steps from {np.min(steps):.6g} to {np.max(steps):.6g} (median "
+            f"{step:.6g}): samples dropped or repeated; both routes assume one rate throughout"
+        )
+    return out

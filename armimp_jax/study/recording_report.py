@@ -5,6 +5,9 @@
   ``bode.png``), the coherence summary and the warnings.
 - ``model_report``: the model route (``study.identify_recording``): convergence, each entry
   as value +- SE beside the classical answer, VAF, whiteness and the warnings.
+- ``pooled_report``: the same for several recordings in one identification
+  (``study.identify_pool``): the arm's entries beside each of its group's classical answers,
+  each recording's VAF and whiteness.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from .estimate_recording import PARAMETERS, coherence_summary, intervals, verdict
+from .identify_pool import rows
 from .identify_recording import CHANNELS, entries
 from .recording_figures import AXES, ELEMENTS, OUTPUTS
 
@@ -75,23 +79,67 @@ def welch_report(
     return out + ([f"WARNING: {w}" for w in warnings] or ["no warnings"])
 
 
+def _head(res, classical: str) -> list[str]:
+    return [
+        "converged" if res.converged else f"NOT CONVERGED: {res.message}",
+        f"cost {res.cost:.6g} after {res.iterations} iterations, {res.time_s:.1f} s; estimates "
+        "(value +- SE; 95% interval value +- 1.96 SE; arm matrices indexed [force axis, displacement axis]; "
+        f"classical: {classical}):",
+    ]
+
+
+def _quality(fit) -> list[str]:
+    """VAF and whiteness of ``fit`` (an ``Identification`` or a ``RecordingFit``), one line each."""
+    vaf = np.concatenate([fit.vaf_position, fit.vaf_force])
+    p = np.asarray(fit.whiteness_p)
+    return [
+        "VAF [%]: " + ", ".join(f"{c} {v:.2f}" for c, v in zip(CHANNELS, vaf, strict=True)),
+        "residual whiteness (Ljung-Box p): " + ", ".join(f"{c} {v:.2g}" for c, v in zip(CHANNELS, p, strict=True)),
+    ]
+
+
+def _warning_lines(warnings: list[str]) -> list[str]:
+    return [f"WARNING: {w}" for w in warnings] or ["no warnings: the fit looks sound"]
+
+
 def model_report(res, classical, warnings: list[str]) -> list[str]:
     """What the model route prints: convergence, each entry of ``res`` (an ``Identification``)
     as value +- SE (with the ``classical`` fit's answer beside the arm's: the Welch route at
     its defaults, ``None`` for none), VAF, whiteness, and every warning."""
-    lines = ["converged" if res.converged else f"NOT CONVERGED: {res.message}"]
-    lines.append(
-        f"cost {res.cost:.6g} after {res.iterations} iterations, {res.time_s:.1f} s; estimates "
-        "(value +- SE; 95% interval value +- 1.96 SE; arm matrices indexed [force axis, displacement axis]; "
-        "classical: the Welch route's fit at its defaults):"
-    )
+    lines = _head(res, "the Welch route's fit at its defaults")
     for e in entries(res, classical):
         beside = "" if e.classical is None else f"   (classical {e.classical:.4g})"
         lines.append(f"  {e.label} [{e.unit}]: {e.value:10.4g} +- {e.se:.3g}{beside}")
-    vaf = np.concatenate([res.vaf_position, res.vaf_force])
-    lines.append("VAF [%]: " + ", ".join(f"{c} {v:.2f}" for c, v in zip(CHANNELS, vaf, strict=True)))
-    p = np.asarray(res.whiteness_p)
-    lines.append(
-        "residual whiteness (Ljung-Box p): " + ", ".join(f"{c} {v:.2g}" for c, v in zip(CHANNELS, p, strict=True))
-    )
-    return lines + ([f"WARNING: {w}" for w in warnings] or ["no warnings: the fit looks sound"])
+    return lines + _quality(res) + _warning_lines(warnings)
+
+
+def pooled_report(res, names, classical, warnings: list[str]) -> list[str]:
+    """What the pooled model route prints: convergence, each entry of ``res`` (a pooled
+    ``Identification``) as value +- SE [unit] with its group (the arm's beside the classical
+    answer of each of the group's recordings with an arm: ``classical``, one ``classical_fit``
+    per recording, ``None`` for none), each recording's VAF and whiteness under its name
+    (``names``), and every warning."""
+    lines = _head(res, "the Welch route's fit at its defaults, one per recording of the group")
+    for r in rows(res):
+        where = f" (group {r['group']})" if r["group"] else " (shared)"
+        beside = _classical_beside(res, classical, r)
+        lines.append(
+            f"  {r['parameter']}[{r['index']}]{where} [{r['unit']}]: {r['value']:10.4g} +- {r['se']:.3g}{beside}"
+        )
+    for name, fit in zip(names, res.recordings, strict=True):
+        lines += [f"recording {name} (group {fit.group}): {line}" for line in _quality(fit)]
+    return lines + _warning_lines(warnings)
+
+
+def _classical_beside(res, classical, row) -> str:
+    """``"   (classical a, b)"``: an arm entry's classical value in each recording of its group
+    that has an arm (every such recording for an arm shared by all), or ``""``."""
+    if not row["parameter"].startswith("arm."):
+        return ""
+    field, index = row["parameter"].split(".")[1], tuple(int(i) for i in row["index"].split(","))
+    values = [
+        float(np.asarray(getattr(cls[1], field))[index])
+        for fit, cls in zip(res.recordings, classical, strict=True)
+        if cls is not None and row["group"] in ("", fit.group) and np.any(np.asarray(fit.trial.arm.mass) != 0)
+    ]
+    return f"   (classical {', '.join(f'{v:.4g}' for v in values)})" if values else ""

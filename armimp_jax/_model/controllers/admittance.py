@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..._checks import check_positive_semidefinite, is_concrete
+from ..plant import RestPlant, rest_plant
 from ..robot import cartesian_inertia
 from .base import AbstractController, gain, matvec
 
@@ -81,6 +82,58 @@ def servo_radius(kp, kv, inertia, period) -> float:
     return _radius(phi - gamma @ np.hstack([np.asarray(kp), np.asarray(kv)]))
 
 
+def _expm(a):
+    """``exp(a)`` by scaling and squaring a 16-term Taylor series, exact to round-off (NumPy:
+    ``scipy.linalg.expm`` took 20 ms per 6x6 matrix on a loaded host, make_trial's whole budget)."""
+    norm = float(np.max(np.sum(np.abs(a), axis=0)))
+    squarings = max(0, int(np.ceil(np.log2(norm))) + 1) if norm > 0 else 0  # the scaled norm <= 1/2
+    a = a / 2.0**squarings
+    out = term = np.eye(a.shape[0])
+    for k in range(1, 17):
+        term = term @ a / k
+        out = out + term
+    for _ in range(squarings):
+        out = out @ out
+    return out
+
+
+def _hold(a, b, period):
+    """``(Phi, Gamma)``: the exact zero-order-hold map of ``s' = a s + b u`` over ``period`` (NumPy)."""
+    n, m = b.shape
+    generator = np.zeros((n + m, n + m))
+    generator[:n, :n], generator[:n, n:] = a, b
+    hold = _expm(generator * period)
+    return hold[:n, :n], hold[:n, n:]
+
+
+def _second_order(mass, damping, stiffness):
+    """``(a, b)`` of ``mass xdd + damping xd + stiffness x = u`` on the state ``(x, xd)``."""
+    minv = np.linalg.inv(mass)
+    z, eye = np.zeros((2, 2)), np.eye(2)
+    return np.block([[z, eye], [-minv @ stiffness, -minv @ damping]]), np.vstack([z, minv])
+
+
+def coupled_radius(phi, gamma, kp, kv, plant: RestPlant, force_gain, period) -> float:
+    """Spectral radius per period of the admittance loop with the arm on the handle, linear about
+    rest and sampled as the simulation runs it (``plant``: ``RestPlant``; ``phi``, ``gamma``: the
+    virtual model's hold; ``force_gain`` ``(2,)``: the transducer's gain the controller reads).
+
+    State ``(x - x0, xd, the virtual model's state, F_u,k-1)``: the controller reads
+    ``F_h,k = M_h xdd + B_h xd + K_h (x - x0)`` with ``F_u,k-1`` still acting, steps its
+    virtual model on ``-F_h,k``, and its servo's command is held over the next period."""
+    m_h, b_h, k_h = (np.asarray(getattr(plant.arm, n)) for n in ("mass", "damping", "stiffness"))
+    phi_p, gamma_p = _hold(*_second_order(plant.inertia, plant.damping, k_h), period)
+    share = m_h @ np.linalg.inv(plant.inertia)  # the hand's share of the acceleration a command gives
+    read = np.diag(np.asarray(force_gain, dtype=float)) @ np.hstack(
+        [k_h - share @ k_h, b_h - share @ plant.damping, np.zeros((2, 4)), share]
+    )
+    virtual = np.hstack([np.zeros((4, 4)), np.asarray(phi), np.zeros((4, 2))]) - np.asarray(gamma) @ read
+    servo = np.hstack([np.asarray(kp), np.asarray(kv)])
+    command = servo @ virtual - np.hstack([servo, np.zeros((2, 6))])
+    plant_rows = np.hstack([phi_p, np.zeros((4, 6))]) + gamma_p @ command
+    return _radius(np.vstack([plant_rows, virtual, command]))
+
+
 class Admittance(AbstractController):
     """Admittance control: a virtual mass-damper-spring driven by the measured hand force and the
     perturbation, and an inner position servo (module docstring).
@@ -93,9 +146,10 @@ class Admittance(AbstractController):
         kv: the servo's damping ``(2, 2)`` [N s/m], positive definite symmetric part.
 
     ``make_trial`` discretises the virtual model at the control period and refuses, in one line,
-    a virtual model that grows (spectral radius per period above 1) or a servo whose sampled
-    loop on the robot's own inertia at the equilibrium is unstable. Experiment design moves
-    ``k_v`` and ``b_v``.
+    a virtual model that grows (spectral radius per period above 1), a servo whose sampled
+    loop on the robot's own inertia at the equilibrium is unstable, or a loop that the arm on the
+    handle makes unstable (``check_loop``: a virtual mass far below the arm's). Experiment
+    design moves ``k_v`` and ``b_v``.
     """
 
     kind: ClassVar[str] = "admittance"
@@ -143,6 +197,48 @@ class Admittance(AbstractController):
                     f"{servo:.6f} per {period:g} s period, must be < 1; lower kp or kv"
                 )
         return out
+
+    def check_loop(self, trial) -> None:
+        """Refuse, in one line with the margin, a trial whose loop with the arm on the handle is
+        unstable (``coupled_radius``; concrete values, a transducer's force: a force computed
+        from the motor torques is not checked), naming the virtual mass it needs."""
+        if trial.sensors.motor_force or not is_concrete(trial):
+            return
+        plant = rest_plant(trial.q0, trial.arm, trial.friction, trial.robot)
+        gain = trial.sensors.force_gain if trial.sensors.calibrated else np.ones(2)
+        radius = coupled_radius(self.phi, self.gamma, self.kp, self.kv, plant, gain, trial.period)
+        if radius < 1.0:
+            return
+        heavier = self._stable_scale(plant, gain, trial.period)
+        m_v = np.diag(np.asarray(self.m_v))
+        fix = (
+            "lower kp and kv"
+            if heavier is None
+            else f"raise m_v to about {(heavier * m_v).round(4).tolist()} kg or more ({heavier:.3g} times it)"
+        )
+        raise ValueError(
+            f"make_trial: the admittance loop with this arm on the handle is unstable: spectral radius "
+            f"{radius:.4f} per {trial.period:g} s period, must be < 1 (virtual mass diagonal "
+            f"{m_v.tolist()} kg against the arm's {np.diag(np.asarray(plant.arm.mass)).tolist()} "
+            f"kg); {fix}"
+        )
+
+    def _stable_scale(self, plant: RestPlant, gain, period: float) -> float | None:
+        """The smallest factor on ``m_v`` (to 2%, from 1 to 1e4) at which the loop is stable, if any."""
+
+        def stable(scale):
+            phi, gamma = _hold(*_second_order(scale * np.asarray(self.m_v), self.b_v, self.k_v), period)
+            return coupled_radius(phi, gamma, self.kp, self.kv, plant, gain, period) < 1.0
+
+        grid = np.geomspace(1.0, 1e4, 25)
+        k = next((i for i, scale in enumerate(grid) if stable(scale)), None)
+        if k is None:
+            return None
+        low, high = grid[max(k - 1, 0)], grid[k]
+        while high / low > 1.02:
+            mid = np.sqrt(low * high)
+            low, high = (low, mid) if stable(mid) else (mid, high)
+        return float(high)
 
     def with_gains(self, **values) -> Admittance:
         """The controller with parameters replaced and its virtual model discretised again."""

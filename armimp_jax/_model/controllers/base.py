@@ -5,6 +5,8 @@ ask of a controller, and the registry of its kinds.
 - ``bind(robot, q0, x0, period=)``: the controller with its defaults resolved for the trial's
   equilibrium and control period (IMBIC's desired inertia ``M_x(q0)``, an admittance's
   discretised virtual model); ``make_trial`` calls it.
+- ``check_loop(trial)``: refuse a trial whose loop with the arm this controller makes unstable
+  (by default nothing; ``make_trial`` calls it after ``bind``).
 - ``init(x0)``: its memory at rest at ``x0`` (a pytree of floats: the linearisation treats
   every float of it as loop state).
 - ``step(memory, x, xd, fh, f_delta, x0, period)``: the Cartesian command ``F_u,k`` [N] ``(2,)``
@@ -84,6 +86,11 @@ class AbstractController(eqx.Module):
     @abc.abstractmethod
     def step(self, memory, x, xd, fh, f_delta, x0, period):
         """``(F_u,k, new memory)`` from the measured samples (module docstring)."""
+
+    def check_loop(self, trial) -> None:
+        """Refuse, in one line, a ``trial`` (``make_trial``'s, holding this bound controller) whose
+        loop with the arm on the handle this controller makes unstable; called with concrete
+        values. By default nothing is checked (``simulate`` flags a trial that diverges)."""
 
     # --- what experiment design calls ----------------------------------------------------
 
