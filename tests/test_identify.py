@@ -269,7 +269,8 @@ def test_the_bend_warning_names_the_arms_entries_and_the_record_that_would_do():
     assert f"about {times:.1f} times as much (about {times * 10:.0f} s against these 10 s" in warning
     assert "arm.stiffness[1,1] (1.6 times)" in warning and "tau_c" not in warning
     assert result_mod._bent({"arm.mass[0,0]": 1.3}, 10.0) == []
-    assert "3 of 14 recordings simulated near the estimate diverged" in result_mod._unchecked((None, 3, 14))[0]
+    (unchecked,) = result_mod._unchecked((None, 3, 14))
+    assert "3 of 14 recordings simulated near this answer went unstable" in unchecked and result_mod.ADVICE in unchecked
     assert result_mod._unchecked((np.ones(2), 3, 14)) == [] and result_mod._unchecked(None) == []
 
 

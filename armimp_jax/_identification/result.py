@@ -31,6 +31,11 @@ WHITENESS_LAGS = 20  # Ljung-Box lags of the residual
 # (``search.spread_ratio``; its SE is widened by it) is warned of: chosen on docs/identification.md
 # section 6b's cells, where it flagged most recordings of the cell whose linearised intervals failed.
 SPREAD_WARN = 1.4
+# What a lab can change when the answer cannot be trusted, in the order to try.
+ADVICE = (
+    "record longer or with a larger perturbation, free the friction's parameters if they are held fixed, or "
+    "report the classical route (its answer is in .classical)"
+)
 
 
 class RecordingFit(NamedTuple):
@@ -278,9 +283,8 @@ def _disagree(disagreements, values: dict, se: dict) -> list[str]:
     )
     return [
         f"the classical fit of this recording disagrees with the answer beyond their combined uncertainty: {entries}. "
-        "The closed-loop model at this answer does not explain the recording, so its intervals are not to be "
-        "trusted: free the friction's parameters if they are held fixed, record longer or with a larger "
-        "perturbation, or report the classical route"
+        f"The closed-loop model at this answer does not explain the recording, so its intervals are not to be "
+        f"trusted: {ADVICE}"
     ]
 
 
@@ -290,8 +294,9 @@ def _unchecked(check) -> list[str]:
         return []
     _, dropped, count = check
     return [
-        f"the intervals' linearity could not be checked: {dropped} of {count} recordings simulated near the "
-        "estimate diverged, so the fit may be unstable there; check the friction's and the controller's settings"
+        f"the intervals could not be checked: {dropped} of {count} recordings simulated near this answer went "
+        "unstable (the arm, the robot's control and its friction together are near the edge of stability there), "
+        f"so the answer is not to be trusted: {ADVICE}"
     ]
 
 
@@ -358,7 +363,7 @@ def assemble(problem: search.Problem, state: search.Search, pool: pl.Pool, recor
         fits.append(fit)
         stuck.append(st)
         if diverged:
-            problems = problems + ("the fitted model diverges",)
+            problems = problems + ("the model at this answer is unstable when simulated without noise",)
     values, g = (np.asarray(v) for v in pl.natural_with_jacobian(pool, jnp.asarray(p)))
     cov = g @ cov_p @ g.T
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
@@ -376,6 +381,8 @@ def assemble(problem: search.Problem, state: search.Search, pool: pl.Pool, recor
     message = "; ".join(problems)
     if problems and advice:  # why, in a lab's terms, before the search's own account
         message = f"{advice[0]} (the search: {message})"
+    elif problems:
+        message = f"{message}: {ADVICE}"
     elif any("barely identifiable" in w for w in warnings):
         warnings = warnings + list(dict.fromkeys(advice))
     first = fits[0]

@@ -6,7 +6,9 @@ is reused between them (a chord) and recomputed after a step of more than
 ``JACOBIAN_REUSE_SE`` standard errors or one that fails; a step is halved while a draw
 diverges or the mismatch grows (a stale slope gets two tries before it is refreshed). A step
 that moves every parameter by less than ``FINAL_STEP_SE`` of its SE (a barely told nuisance,
-below) is taken without halving, and checked by a binding of its own.
+below) is taken without halving: without friction it is the last, taken without a binding of
+its own (a step from that near lands within a fraction of itself); through friction it is
+checked by a binding of its own, and the search goes on.
 Where a nuisance the recordings barely tell moves more, the search stops instead when a step
 moves every other parameter by less than ``CONVERGED_FRACTION`` of its SE, or by less than
 twice the binding's own Monte Carlo error (``1 / sqrt(R)`` SE: a smaller step chases the
@@ -273,7 +275,7 @@ def _fine(problem: Problem, state: Search) -> Search:
     fine steps are chords on it, and the covariance takes it where the answer is near."""
     mean, stats, diverged = _binding(problem, state.p)
     if diverged:
-        why = "noisy simulations diverge at the coarse stage's answer"
+        why = "recordings simulated at the search's first answer went unstable"
         return state._replace(problems=state.problems + (why,), done=True)
     fine_slope = problem.chord or state.jac_draws < problem.n_jac
     jac = _slope(problem, state.p, state.se_p) if fine_slope else None
@@ -305,7 +307,7 @@ def step(problem: Problem, state: Search, max_steps: int) -> Search:
     jac, w = state.jac, state.w
     step = np.asarray(indirect.gauss_newton_step(jac, w, problem.b - state.mean))
     if not np.all(np.isfinite(step)):
-        why = "the binding's Jacobian is singular: some parameter does not move the statistics"
+        why = "some free parameter does not change what the recording shows (the search's slope is singular)"
         return state._replace(problems=state.problems + (why,), done=True)
     se_p = np.sqrt(np.diag(_covariance(problem, jac, state.stats, state.draws, w)))
     # settled: every parameter moves by less than a fraction of its SE, but a nuisance the
@@ -321,15 +323,16 @@ def step(problem: Problem, state: Search, max_steps: int) -> Search:
     settle = max(CONVERGED_FRACTION, NOISE_MULTIPLE / math.sqrt(problem.n_draws))
     # a barely told nuisance's SE is most of its prior's: it takes no unchecked step of more than `settle`
     near = np.where(told, FINAL_STEP_SE, settle) * se_p
+    last = problem.noisy and not coarse and np.all(np.abs(step) <= near)
+    if last and not problem.chord:  # the last step, taken on the linear prediction
+        return _final_step(problem, state, step)
     if problem.noisy and not coarse and np.all(np.abs(step[told]) <= settle * se_p[told]):
         return state._replace(done=True)
     if not problem.noisy and np.all(np.abs(step) <= 1e-10 * (1.0 + np.abs(state.p))):
         return state._replace(done=True)  # noise-free: converged to round-off
     if state.iterations == max_steps:
-        return state._replace(
-            problems=state.problems + (f"the iteration did not settle in {max_steps} steps",), done=True
-        )
-    if problem.noisy and not coarse and np.all(np.abs(step) <= near):
+        return state._replace(problems=state.problems + (f"the search did not settle in {max_steps} steps",), done=True)
+    if last:  # through friction: checked by a binding, and the search goes on
         return _final_step(problem, state, step)
     stale = not np.array_equal(state.jac_at, state.p)
     kept, p, mean, stats, cost, scale = _propose(problem, state, step)
@@ -348,28 +351,38 @@ def step(problem: Problem, state: Search, max_steps: int) -> Search:
             return state
         if coarse:  # a coarse step that fails: go on with every draw
             return _fine(problem, state)
-        why = f"no step from iteration {state.iterations} kept the simulations sound and lowered the mismatch"
+        why = (
+            f"the search stalled after {state.iterations} steps: no step from there lowered the mismatch between "
+            "the recording and the model while keeping its simulations stable"
+        )
         return state._replace(problems=state.problems + (why,), done=True)
     w = _weights(problem, state.stats, new)
     return state._replace(jac=new, jac_at=state.p, w=w, cost=_cost(problem, state.mean, w), jac_draws=jac_draws)
 
 
 def _final_step(problem: Problem, state: Search, step) -> Search:
-    """A step from within ``FINAL_STEP_SE`` of the answer, checked by a binding of its own: the
-    linear prediction of its mismatch is not the mismatch (a slope taken where the binding bends,
-    or a parameter whose SE is large where the search stands, can promise a root that is not
-    there). The search goes on from the new point; it ends when a step there moves every told
-    parameter by less than the settling fraction of its SE. A step whose simulations diverge is
-    not taken: the search then ends where it stands, unsettled."""
+    """A step from within ``FINAL_STEP_SE`` of the answer.
+
+    Without friction the binding is near linear and its slope the tangent's, so a step from that
+    near lands within a fraction of itself: it is taken without a binding of its own (the
+    mismatch the linear prediction's) and ends the search. Through friction the linear
+    prediction is not the mismatch (a slope taken where the binding bends, or a parameter whose
+    SE is large where the search stands, can promise a root that is not there): the step is
+    checked by a binding of its own and the search goes on from the new point, ending when a step
+    there moves every told parameter by less than the settling fraction of its SE. A step whose
+    simulations diverge is not taken: the search then ends where it stands, unsettled."""
     p = state.p + step
+    if not problem.chord:
+        mean = state.mean + state.jac @ step
+        cost = _cost(problem, mean, state.w)
+        return state._replace(p=p, mean=mean, cost=cost, iterations=state.iterations + 1, done=True)
     mean, stats, diverged = _binding(problem, p)
     if diverged or not np.all(np.isfinite(mean)):
-        why = "noisy simulations diverge one step from the answer"
+        why = "recordings simulated one step from the answer went unstable"
         return state._replace(problems=state.problems + (why,), done=True)
     w = _weights(problem, stats, state.jac)
-    return state._replace(
-        p=p, mean=mean, stats=stats, w=w, cost=_cost(problem, mean, w), iterations=state.iterations + 1
-    )
+    cost = _cost(problem, mean, w)
+    return state._replace(p=p, mean=mean, stats=stats, w=w, cost=cost, iterations=state.iterations + 1)
 
 
 class Final(NamedTuple):
