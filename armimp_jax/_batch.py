@@ -26,7 +26,8 @@ from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from ._checks import check_int
+from ._checks import check_int, check_key
+from ._estimation.ensemble import Ensemble
 from ._estimation.estimate import Estimate, estimate
 from ._estimation.metrics import impedance_error
 from ._estimation.welch import Welch
@@ -347,3 +348,68 @@ def check_numerics(
         diverged=int(np.sum(~sound)),
         refined=fine,
     )
+
+
+def _ensemble_perturbations(perturbation, key, repetitions, samples, period: float) -> np.ndarray:
+    """``(R, N, 2)`` [N]: a family's draws, repetition ``r`` from ``fold_in(key, r)``, or the given array."""
+    if hasattr(perturbation, "signal"):
+        if repetitions is None or samples is None:
+            raise ValueError("simulate_ensemble: a perturbation family needs repetitions= and samples=")
+        r = check_int("repetitions", repetitions, minimum=2)
+        n = check_int("samples", samples, minimum=3)
+        return np.stack([np.asarray(perturbation.signal(jax.random.fold_in(key, i), n, period)) for i in range(r)])
+    f = np.asarray(perturbation, dtype=np.float64)
+    if f.ndim == 2:
+        raise ValueError(
+            "simulate_ensemble: one perturbation for every repetition leaves nothing once the ensemble mean is "
+            "subtracted; give one per repetition, (R, N, 2), or a family such as PaperNoise(peak=...)"
+        )
+    if f.ndim != 3 or f.shape[2] != 2 or f.shape[0] < 2:
+        raise ValueError(f"simulate_ensemble: perturbation must be a family or (R, N, 2) with R >= 2, got {f.shape}")
+    for name, value, size in (("repetitions", repetitions, f.shape[0]), ("samples", samples, f.shape[1])):
+        if value is not None and value != size:
+            raise ValueError(f"simulate_ensemble: {name}={value} but the perturbation array holds {size}")
+    return f
+
+
+def simulate_ensemble(
+    trial: Trial,
+    perturbation,
+    *,
+    key,
+    repetitions: int | None = None,
+    samples: int | None = None,
+    numerics: Numerics | None = None,
+    mesh: Mesh | None = None,
+    chunk_samples: int | None = None,
+    progress: Callable[[int, int, float], None] | None = None,
+) -> Ensemble:
+    """``R`` repetitions of one reach (one trial, moving or still), each with its own perturbation
+    and its own noise: one ``simulate_batch`` of the trial repeated.
+
+    Args:
+        trial: from ``make_trial`` (typically a moving arm's).
+        perturbation: a perturbation family (``PaperNoise``, ``ShapedNoise``, ``Multisine``:
+            anything with ``signal(key, n, period)``), drawn once per repetition, or an array
+            ``(R, N, 2)`` [N] of the repetitions' own perturbations.
+        key: a ``jax.random`` key. Repetition ``r`` draws its perturbation from
+            ``fold_in(k1, r)`` and its noise from ``fold_in(k2, r)`` (``k1, k2 = split(key)``), so
+            more repetitions extend an ensemble without changing the first ones.
+        repetitions, samples: ``R`` and ``N`` (required with a family; checked against an array).
+        numerics, mesh, chunk_samples, progress: as ``simulate_batch``'s.
+
+    Returns an ``Ensemble`` (NumPy: positions, forces and perturbations ``(R, N, 2)``, the trial,
+    which repetitions diverged).
+    """
+    check_key(key, where="simulate_ensemble")
+    if not isinstance(trial, Trial):
+        raise ValueError(f"simulate_ensemble: trial must be a Trial (from make_trial), got {type(trial).__name__}")
+    k_perturbation, k_noise = jax.random.split(key)
+    f = _ensemble_perturbations(perturbation, k_perturbation, repetitions, samples, trial.period)
+    r = f.shape[0]
+    trials = jax.tree.map(lambda a: np.broadcast_to(np.asarray(a), (r, *np.shape(a))), trial)
+    keys = jnp.stack([jax.random.fold_in(k_noise, i) for i in range(r)]) if trial.noisy else None
+    sim = simulate_batch(
+        trials, f, keys=keys, numerics=numerics, mesh=mesh, chunk_samples=chunk_samples, progress=progress
+    )
+    return Ensemble(x=sim.x, fh=sim.fh, f_delta=f, period=trial.period, trial=trial, diverged=sim.diverged)

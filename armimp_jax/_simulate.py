@@ -22,14 +22,15 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ._checks import as_float64, check_choice, is_concrete, require_x64
+from ._checks import as_float64, check_choice, require_x64
 from ._model.arm import Arm
 from ._model.controllers import CONTROLLER_KINDS, AbstractController, matvec
 from ._model.friction import FRICTION_KINDS, AbstractFriction
-from ._model.plant import PlantState, Trig, displacement, measure, plant_model, rest_state, trig_of
-from ._model.plausibility import arm_input_warning
+from ._model.movement import path_at
+from ._model.plant import PlantState, Trig, displacement, measure, near_path, plant_model, rest_state, trig_of
+from ._model.reach import arm_warnings, check_moving, motion_kind, still_trials
 from ._model.robot import MIT_MANUS, Robot, cartesian_inertia, fk, ik, jacobian_from_trig
-from ._model.sensors import FORCE_HISTORY, IDEAL, Sensors, delayed_force, quantise, sample_noise
+from ._model.sensors import FORCE_HISTORY, IDEAL, Sensors, check_calibration, delayed_force, quantise, sample_noise
 from ._model.timing import CONTROL_PERIOD
 from ._model.voluntary import VoluntaryForce, voluntary_init, voluntary_key, voluntary_normals, voluntary_update
 from ._pytree import params
@@ -39,6 +40,8 @@ ACQUISITIONS = ("instant", "interval_mean")
 # A trial is flagged as diverged when its state is not finite or a joint has moved this
 # far from its equilibrium [rad] (about 0.2 m at the handle; real trials move < 1 cm).
 DIVERGENCE_ANGLE = 0.5
+# During a reach, the same trigger as the hand's distance from the planned path [m].
+DIVERGENCE_DISTANCE = 0.2
 
 
 @params(static=("acquisition", "period"))
@@ -109,13 +112,15 @@ def make_trial(
     The robot starts at rest at ``q0 = ik(endpoint)`` (the branch ``0 < q1 - q2 < pi``);
     an endpoint it cannot reach, or reaches only near a singular posture, is refused
     with a ``ValueError``. Values may be tracers (``jax.vmap`` over ``mhat`` or an arm).
+    A moving arm (a ``MinimumJerk`` endpoint, ``Profile`` damping or stiffness) starts at rest
+    at its path's start; a reach that leaves the workspace, the ``"interval_mean"`` acquisition
+    and a controller that cannot follow the path are refused (``_model/reach.py``).
     """
     require_x64("make_trial")
     _require("controller", controller, AbstractController, f"an AbstractController ({_kind_names(CONTROLLER_KINDS)})")
     _require("arm", arm, Arm)
-    if is_concrete((arm.mass, arm.damping, arm.stiffness)):  # a word, not a refusal: Arm's docstring says why
-        for line in arm_input_warning(arm.mass, arm.damping, arm.stiffness, where="make_trial"):
-            warnings.warn(line, UserWarning, stacklevel=2)
+    for line in arm_warnings(arm):  # a word, not a refusal: Arm's docstring says why
+        warnings.warn(line, UserWarning, stacklevel=2)
     _require("friction", friction, AbstractFriction, f"an AbstractFriction ({_kind_names(FRICTION_KINDS)})")
     sensors = IDEAL if sensors is None else sensors
     _require("sensors", sensors, Sensors)
@@ -124,7 +129,7 @@ def make_trial(
     check_choice("acquisition", acquisition, ACQUISITIONS)
     if not (isinstance(period, (int, float)) and not isinstance(period, bool) and period > 0):
         raise ValueError(f"make_trial: period must be a positive number of seconds, got {period!r}")
-    _check_calibration(sensors, acquisition, period)
+    check_calibration(sensors, acquisition, period)
     if voluntary is not None:
         _require("voluntary", voluntary, VoluntaryForce)
         if not voluntary.cutoff < 0.5 / period:
@@ -132,7 +137,9 @@ def make_trial(
                 f"make_trial: voluntary cutoff must be below the Nyquist rate {0.5 / period:g} Hz, "
                 f"got {voluntary.cutoff:g} Hz"
             )
-    q0 = ik(jnp.asarray(arm.endpoint), robot)
+    if arm.moving:
+        check_moving(arm, controller, robot, acquisition)
+    q0 = ik(jnp.asarray(arm.start), robot)
     x0 = fk(q0, robot)
     trial = Trial(
         robot=robot,
@@ -146,27 +153,9 @@ def make_trial(
         period=float(period),
         voluntary=voluntary,
     )
-    trial.controller.check_loop(trial)
+    for still in still_trials(trial):  # a moving arm's loop at each still arm it passes through
+        trial.controller.check_loop(still)
     return trial
-
-
-def _check_calibration(sensors: Sensors, acquisition: str, period: float) -> None:
-    """The force channel's calibration, or a force from the motor torques, needs the instant
-    acquisition, and a delay the delay line holds."""
-    if sensors.motor_force and acquisition != "instant":
-        raise ValueError(f"make_trial: a force from the motor torques needs acquisition 'instant', got {acquisition!r}")
-    if not sensors.calibrated:
-        return
-    if acquisition != "instant":
-        raise ValueError(
-            f"make_trial: the force channel's gain, offset and delay need acquisition 'instant', got {acquisition!r}"
-        )
-    longest = (FORCE_HISTORY - 1) * period
-    if is_concrete(sensors.force_delay) and not float(sensors.force_delay) < longest:
-        raise ValueError(
-            f"make_trial: Sensors force_delay must be below {longest:g} s ({FORCE_HISTORY - 1} periods), "
-            f"got {float(sensors.force_delay):g} s"
-        )
 
 
 def _kind_names(registry) -> str:
@@ -219,6 +208,9 @@ def stack_trials(trials: list[Trial]) -> Trial:
             "trials in one batch must all have a voluntary force of one cutoff, or none; got cutoffs "
             f"{sorted(cutoffs, key=str)} (None: none)"
         )
+    motions = {motion_kind(t.arm) for t in trials}
+    if len(motions) > 1:
+        raise ValueError(f"trials in one batch must move alike (a reach or none, the knots); got {sorted(motions)}")
     structures = {jax.tree.structure(t) for t in trials}
     if len(structures) > 1:
         kinds = sorted({(type(t.controller).__name__, t.acquisition, t.period) for t in trials})
@@ -383,7 +375,9 @@ def period_step(trial: Trial, model, numerics: Numerics, carry: SimCarry, fd, in
         applied = carry.fu_prev
     else:  # the person's F_v,k-1 pushes the robot like a command and the transducer reads -F_v
         applied = carry.fu_prev + carry.voluntary.force
-    x, xd, fh = jax.lax.optimization_barrier(measure(*jax.lax.optimization_barrier((state, applied)), model))
+    moving = model.motion is not None  # a moving arm's plant, set point and range check need the time
+    t_k = carry.k.astype(trial.x0.dtype) * period if moving else None
+    x, xd, fh = jax.lax.optimization_barrier(measure(*jax.lax.optimization_barrier((state, applied)), model, t_k))
     if carry.voluntary is not None:
         fh = fh - carry.voluntary.force
     if trial.sensors.motor_force:  # no transducer: the force from the motor torques, through the model
@@ -402,7 +396,12 @@ def period_step(trial: Trial, model, numerics: Numerics, carry: SimCarry, fd, in
             fh_rec = fh_rec + inputs.force
     else:
         x_m, xd_m, fh_m = x, xd, fh
-    fu, memory = trial.controller.step(carry.memory, x_m, xd_m, fh_m, fd, trial.x0, period)
+    if moving and model.motion.path is not None:
+        offset, velocity = path_at(model.motion.path, t_k)
+        path = (jnp.stack(offset), jnp.stack(velocity))
+        fu, memory = trial.controller.step(carry.memory, x_m, xd_m, fh_m, fd, trial.x0, period, path=path)
+    else:
+        fu, memory = trial.controller.step(carry.memory, x_m, xd_m, fh_m, fd, trial.x0, period)
     fu, memory, x, xd = jax.lax.optimization_barrier((fu, memory, x, xd))
     zero = jnp.zeros_like(state.xi1)
     start = state._replace(xi1=zero, xi2=zero)
@@ -411,14 +410,18 @@ def period_step(trial: Trial, model, numerics: Numerics, carry: SimCarry, fd, in
     else:
         voluntary, fv = voluntary_update(trial.voluntary, carry.voluntary, inputs.voluntary, k, period)
         push = fu + fv
+    timed = {"time": t_k} if moving else {}  # a still arm's solvers are called as they always were
     new_state = numerics.solver.integrate_period(
-        start, push, model, period=period, substeps=numerics.substeps, checkpoint=numerics.checkpoint
+        start, push, model, period=period, substeps=numerics.substeps, checkpoint=numerics.checkpoint, **timed
     )
 
     finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(leaf)) for leaf in jax.tree.leaves((new_state, fu))]))
-    in_range = (jnp.abs(new_state.q1 - trial.q0[0]) < DIVERGENCE_ANGLE) & (
-        jnp.abs(new_state.q2 - trial.q0[1]) < DIVERGENCE_ANGLE
-    )
+    if moving and model.motion.path is not None:
+        in_range = near_path(model, new_state, t_k + period, DIVERGENCE_DISTANCE)
+    else:
+        in_range = (jnp.abs(new_state.q1 - trial.q0[0]) < DIVERGENCE_ANGLE) & (
+            jnp.abs(new_state.q2 - trial.q0[1]) < DIVERGENCE_ANGLE
+        )
     diverged_at = jnp.where((carry.diverged_at < 0) & ~(finite & in_range), k + 1, carry.diverged_at)
     frozen = diverged_at >= 0
     new = (new_state, fu, x, xd, memory, voluntary, history)

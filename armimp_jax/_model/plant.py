@@ -11,6 +11,11 @@ With ``x = x_h = x_r``, the hand force ``F_h = M_h xdd + B_h xd + K_h (x - x0)``
 substituted into ``M qdd + h + tau_f = J^T (F_u - F_h)`` and solved for ``qdd``::
 
     (M + J^T M_h J) qdd = J^T (F_u - M_h Jd qd - B_h xd - K_h (x - x0)) - h - tau_f
+
+A moving arm (``Arm.moving``) makes ``B_h`` and ``K_h`` functions of time and adds the force
+``g(t) = K_h(t) (x_e(t) - x0) + B_h(t) xd_e(t)`` to ``F_u`` (``movement.arm_forces``): its plant
+model carries ``motion`` and every evaluation takes the stage's time ``t``. A still arm's model has
+``motion=None`` and runs the code it always ran.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ import numpy as np
 
 from .arm import Arm
 from .friction import AbstractFriction
+from .movement import MinimumJerk, MotionTerms, arm_forces, path_at, path_terms, profile_terms
 from .robot import Robot, jacobian_from_trig, mass_matrix_entries
 
 
@@ -48,7 +54,8 @@ class PlantModel(NamedTuple):
     exactly zero at ``q = q0`` whatever XLA's FMA contraction does to the fused
     expressions. ``mh``, ``bh``, ``kh`` are the arm's ``(m11, m12, m21, m22)``;
     ``friction`` the friction law of each joint (``AbstractFriction.joint``: scalar fields);
-    ``robot`` the robot's parameters.
+    ``robot`` the robot's parameters. ``motion``: a moving arm's ``MotionTerms`` (its ``bh``
+    and ``kh`` are then zero: ``arm_forces`` gives them at each stage's time), ``None`` for a still arm.
     """
 
     x0: tuple
@@ -58,6 +65,7 @@ class PlantModel(NamedTuple):
     kh: tuple
     friction: tuple
     robot: Robot
+    motion: MotionTerms | None = None
 
 
 def _entries(m):
@@ -67,6 +75,12 @@ def _entries(m):
 def plant_model(q0, x0, arm: Arm, friction: AbstractFriction, robot: Robot) -> PlantModel:
     """Unpack trial parameters into the scalars the inner loop uses (hoisted out of it)."""
     cq0 = (jnp.cos(q0[0]), jnp.sin(q0[0]), jnp.cos(q0[1]), jnp.sin(q0[1]))
+    if arm.moving:
+        zero = (jnp.zeros_like(x0[0]),) * 4
+        path = path_terms(arm.endpoint) if isinstance(arm.endpoint, MinimumJerk) else None
+        motion = MotionTerms(profile_terms(arm.damping), profile_terms(arm.stiffness), path)
+        joints = (friction.joint(0), friction.joint(1))
+        return PlantModel((x0[0], x0[1]), cq0, _entries(arm.mass), zero, zero, joints, robot, motion)
     return PlantModel(
         (x0[0], x0[1]),
         cq0,
@@ -172,13 +186,23 @@ def _unshared(group, *values):
     return values
 
 
-def plant_dynamics(s: PlantState, fu, model: PlantModel, *, trig: Trig | None = None, share=_unshared) -> Dynamics:
+def moving_arm(model: PlantModel, t):
+    """``(B_h, K_h, g)`` of a moving arm's model at time ``t`` [s] (``movement.arm_forces``);
+    a one-line error when the caller gave no time."""
+    if t is None:
+        raise ValueError("the plant of a moving arm needs the time t [s] of each evaluation")
+    return arm_forces(model.motion, t)
+
+
+def plant_dynamics(
+    s: PlantState, fu, model: PlantModel, *, trig: Trig | None = None, share=_unshared, t=None
+) -> Dynamics:
     """The plant's equations at state ``s`` under the Cartesian command ``fu`` [N] ``(2,)``.
 
     ``trig`` (optional) supplies ``cos/sin`` of ``q``; by default they are evaluated.
     ``share(group, *values) -> values`` (default: identity) lets an integrator mark the 2x2
     solve's matrix (group ``"a"``) and right-hand side (``"b"``); it must return the values
-    unchanged to round-off."""
+    unchanged to round-off. ``t`` [s]: the time, which a moving arm's model needs."""
     c1, s1, c2, s2 = trig_of(s) if trig is None else trig
     # Angle-difference identities instead of cos/sin(q1 - q2): two fewer transcendentals
     # per evaluation (they dominate the cost on CPU), error ~1e-16.
@@ -189,8 +213,9 @@ def plant_dynamics(s: PlantState, fu, model: PlantModel, *, trig: Trig | None = 
     j11, j12, j21, j22 = jacobian_from_trig(model.robot, c1, s1, c2, s2)
     m11, m12, m22 = mass_matrix_entries(model.robot, cos_d)
     mh11, mh12, mh21, mh22 = model.mh
-    bh11, bh12, bh21, bh22 = model.bh
-    kh11, kh12, kh21, kh22 = model.kh
+    bh, kh, g = (model.bh, model.kh, None) if model.motion is None else moving_arm(model, t)
+    bh11, bh12, bh21, bh22 = bh
+    kh11, kh12, kh21, kh22 = kh
     qd1sq, qd2sq = s.qd1 * s.qd1, s.qd2 * s.qd2
 
     xd = j11 * s.qd1 + j12 * s.qd2
@@ -201,6 +226,8 @@ def plant_dynamics(s: PlantState, fu, model: PlantModel, *, trig: Trig | None = 
     # Hand force without its J qdd part: M_h Jd qd + B_h xd + K_h (x - x0).
     f0x = (mh11 * jdqd_x + mh12 * jdqd_y) + (bh11 * xd + bh12 * yd) + (kh11 * ex + kh12 * ey)
     f0y = (mh21 * jdqd_x + mh22 * jdqd_y) + (bh21 * xd + bh22 * yd) + (kh21 * ex + kh22 * ey)
+    if g is not None:  # the moving equilibrium's pull: F_h = ... + B_h (xd - xd_e) + K_h (x - x_e)
+        f0x, f0y = f0x - g[0], f0y - g[1]
     rx, ry = fu[0] - f0x, fu[1] - f0y
 
     tau_f1, zd1 = model.friction[0].torque_and_rate(s.qd1, s.z1)
@@ -219,18 +246,27 @@ def plant_dynamics(s: PlantState, fu, model: PlantModel, *, trig: Trig | None = 
     return Dynamics(deriv, (ex, ey), (xd, yd), (f0x, f0y), jqdd)
 
 
-def plant_derivative(s: PlantState, fu, model: PlantModel) -> PlantState:
-    """Time derivative of the state under the Cartesian command ``fu`` [N] ``(2,)``."""
-    return plant_dynamics(s, fu, model).derivative
+def plant_derivative(s: PlantState, fu, model: PlantModel, t=None) -> PlantState:
+    """Time derivative of the state under the Cartesian command ``fu`` [N] ``(2,)`` (at time ``t``
+    [s], which a moving arm needs)."""
+    return plant_dynamics(s, fu, model, t=t).derivative
 
 
-def measure(s: PlantState, fu, model: PlantModel):
+def measure(s: PlantState, fu, model: PlantModel, t=None):
     """Ideal sensors at state ``s`` while command ``fu`` acts: ``(x, xd, F_h)``, each ``(2,)``.
 
     ``F_h`` [N] is the transducer force (the force on the hand), from the same
-    acceleration the plant integrates.
+    acceleration the plant integrates; ``t`` [s], the time, which a moving arm needs.
     """
-    _, (ex, ey), (xd, yd), (f0x, f0y), (ax, ay) = plant_dynamics(s, fu, model)
+    _, (ex, ey), (xd, yd), (f0x, f0y), (ax, ay) = plant_dynamics(s, fu, model, t=t)
     mh11, mh12, mh21, mh22 = model.mh
     fh = jnp.stack([(mh11 * ax + mh12 * ay) + f0x, (mh21 * ax + mh22 * ay) + f0y])
     return jnp.stack([model.x0[0] + ex, model.x0[1] + ey]), jnp.stack([xd, yd]), fh
+
+
+def near_path(model: PlantModel, s: PlantState, t, distance):
+    """Whether the hand at state ``s`` is within ``distance`` [m] of a moving arm's planned path at
+    time ``t`` [s] (the simulation's range check during a reach)."""
+    ex, ey = displacement(trig_of(s), model)
+    (ox, oy), _ = path_at(model.motion.path, t)
+    return (ex - ox) ** 2 + (ey - oy) ** 2 < distance * distance

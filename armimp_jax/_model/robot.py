@@ -165,3 +165,26 @@ def cartesian_inertia(q, robot: Robot = MIT_MANUS):
 def workspace_margin(q, robot: Robot = MIT_MANUS) -> float:
     """``|det J(q)|`` [m^2]: distance from the singular (stretched or folded) postures."""
     return abs(float(jnp.linalg.det(jacobian(q, robot))))
+
+
+def check_reach(start, end, robot: Robot = MIT_MANUS, *, where: str = "make_trial") -> None:
+    """Refuse, in one line, a straight reach from ``start`` to ``end`` [m] (concrete) that leaves the
+    robot's workspace or passes near a singular posture on its way (``ik``'s rule at every point of
+    it; exact: ``cos(q1 - q2)`` grows with the distance from the base, whose extremes on a segment
+    lie at its ends or at the base's projection on it)."""
+    base = np.asarray(robot.base, dtype=float)
+    a, b = np.asarray(start, dtype=float), np.asarray(end, dtype=float)
+    d = b - a
+    s = 0.0 if not np.any(d) else float(np.clip(-((a - base) @ d) / (d @ d), 0.0, 1.0))
+    ls, le = float(robot.shoulder_link), float(robot.elbow_link)
+    for point in (a, b, a + s * d):
+        r = point - base
+        c = (float(r @ r) - ls * ls - le * le) / (2.0 * ls * le)
+        if -1.0 < c < 1.0 and math.sqrt(1.0 - c * c) >= MIN_ELBOW_SINE:
+            continue
+        why = "outside the robot's workspace" if not -1.0 < c < 1.0 else "too close to a singular posture"
+        raise ValueError(
+            f"{where}: the reach from {a.round(4).tolist()} to {b.round(4).tolist()} m passes {why} at "
+            f"{point.round(4).tolist()} m (reachable with |sin(q1 - q2)| >= {MIN_ELBOW_SINE}: about "
+            f"{abs(ls - le):.3f} to {ls + le:.3f} m from the base {base.round(4).tolist()}); shorten or move the reach"
+        )

@@ -166,3 +166,22 @@ def delayed_force(sensors: Sensors, history, period: float):
     i = jnp.arange(FORCE_HISTORY, dtype=history.dtype)
     w = jnp.maximum(0.0, 1.0 - jnp.abs(i - lag))
     return sensors.force_gain * (w[:, None] * history).sum(axis=0)
+
+
+def check_calibration(sensors: Sensors, acquisition: str, period: float) -> None:
+    """The force channel's calibration, or a force from the motor torques, needs the instant
+    acquisition, and a delay the delay line holds."""
+    if sensors.motor_force and acquisition != "instant":
+        raise ValueError(f"make_trial: a force from the motor torques needs acquisition 'instant', got {acquisition!r}")
+    if not sensors.calibrated:
+        return
+    if acquisition != "instant":
+        raise ValueError(
+            f"make_trial: the force channel's gain, offset and delay need acquisition 'instant', got {acquisition!r}"
+        )
+    longest = (FORCE_HISTORY - 1) * period
+    if is_concrete(sensors.force_delay) and not float(sensors.force_delay) < longest:
+        raise ValueError(
+            f"make_trial: Sensors force_delay must be below {longest:g} s ({FORCE_HISTORY - 1} periods), "
+            f"got {float(sensors.force_delay):g} s"
+        )

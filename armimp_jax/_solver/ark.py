@@ -37,7 +37,16 @@ from typing import ClassVar, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .._model.plant import PlantModel, PlantState, Trig, coupled_inertia, displacement, trig_of, trig_of_angles
+from .._model.plant import (
+    PlantModel,
+    PlantState,
+    Trig,
+    coupled_inertia,
+    displacement,
+    moving_arm,
+    trig_of,
+    trig_of_angles,
+)
 from .._model.robot import jacobian_from_trig, mass_matrix_entries
 from .common import check_checkpoint, check_kernel, rotate
 
@@ -258,17 +267,21 @@ def _newton_step(z, r, hg, v, relax, c, bristled):
     return (z[0] - d1, z[1] - d2), (lam1, lam2)
 
 
-def _explicit_rates(fr: _Frame, p, z, fu, model: PlantModel, bristled):
-    """``(qd, p', x - x0)`` at a stage: everything but the bristles, none of it stiff."""
+def _explicit_rates(fr: _Frame, p, z, fu, model: PlantModel, bristled, t=None):
+    """``(qd, p', x - x0)`` at a stage (at time ``t`` [s], which a moving arm needs): everything but
+    the bristles, none of it stiff."""
     c1, s1, c2, s2 = fr.trig
     j11, j12, j21, j22 = fr.j
     v1, v2 = _velocity(fr, p, z, model)
     ex, ey = displacement(fr.trig, model)
     xd, yd = j11 * v1 + j12 * v2, j21 * v1 + j22 * v2
     wx, wy = _mv(model.mh, xd, yd)  # M_h xd
-    bx, by = _mv(model.bh, xd, yd)
-    kx, ky = _mv(model.kh, ex, ey)
+    bh, kh, g = (model.bh, model.kh, None) if model.motion is None else moving_arm(model, t)
+    bx, by = _mv(bh, xd, yd)
+    kx, ky = _mv(kh, ex, ey)
     fx, fy = fu[0] - bx - kx, fu[1] - by - ky
+    if g is not None:  # the moving equilibrium's pull (plant.moving_arm)
+        fx, fy = fx + g[0], fy + g[1]
     dtdq = -model.robot.inertia[1] * fr.sin_d * v1 * v2  # dT/dq1 = -dT/dq2
     ls, le = model.robot.shoulder_link, model.robot.elbow_link
     f1, f2 = model.friction
@@ -310,11 +323,12 @@ def from_momentum(m: MomentumState, model: PlantModel) -> PlantState:
     return PlantState(*m.q, *_velocity(_frame(m.trig, model), m.p, m.z, model), *m.z, *m.xi)
 
 
-def ark_step(m: MomentumState, fu, model: PlantModel, h, *, tableau: Tableau = ARK324, rotating: bool = True):
+def ark_step(m: MomentumState, fu, model: PlantModel, h, *, tableau: Tableau = ARK324, rotating: bool = True, t=None):
     """One additive Runge-Kutta step of size ``h`` [s] with ``fu`` [N] held. ``rotating``
     carries ``cos/sin`` through the stages by ``rotate`` (as the ``"fast"`` RK4 kernel
     does) instead of evaluating them. A friction law's stiff stateless torque (``STIFF_STATIC``)
-    is the implicit half's share of ``p'`` (``solve_static``); its bristles, ``z'``."""
+    is the implicit half's share of ``p'`` (``solve_static``); its bristles, ``z'``. ``t`` [s]:
+    the step's start, which a moving arm's plant needs (stage ``i`` at ``t + c_i h``)."""
     bristled = _bristled(model)
     static, no_state = stiff_static(model), stateless(model)
     # XLA:CPU copies chains of cheap operations into every fusion that uses them, so a later
@@ -352,7 +366,7 @@ def ark_step(m: MomentumState, fu, model: PlantModel, h, *, tableau: Tableau = A
                 z = r
             else:
                 z, lam = share(_solve_bristles(fr, p, r, hg, z, lam, model, bristled))
-        v, pdot, e = _explicit_rates(fr, p, z, fu, model, bristled)
+        v, pdot, e = _explicit_rates(fr, p, z, fu, model, bristled, None if t is None else t + tableau.c[i] * h)
         # An implicit stage's z' is its own (exact for the solved stage equation), not the
         # formula's, which would multiply the solver's residual by lambda. The first stage
         # needs the formula: the explicit half is not FSAL (its last stage is not the step).
@@ -393,23 +407,33 @@ class _ARK:
         check_kernel(self)
 
     def integrate_period(
-        self, s: PlantState, fu, model: PlantModel, *, period: float, substeps: int, checkpoint: str = "period"
+        self,
+        s: PlantState,
+        fu,
+        model: PlantModel,
+        *,
+        period: float,
+        substeps: int,
+        checkpoint: str = "period",
+        time=None,
     ) -> PlantState:
         """Advance ``s`` over one control period [s] with ``substeps`` ARK steps (``lax.scan``),
         the command ``fu`` [N] ``(2,)`` held. Reverse mode keeps one carry per substep
-        whatever ``checkpoint`` (``"period"`` or ``"substep"``, as for ``RK4``).
+        whatever ``checkpoint`` (``"period"`` or ``"substep"``, as for ``RK4``). ``time``: the
+        period's start [s], which a moving arm's plant needs (``None`` for a still arm).
 
         The momentum form lives only within the period: the state enters and leaves as
         ``PlantState``, so controllers and sensors see the same interface as under RK4."""
         check_checkpoint(checkpoint)
         h = period / substeps
         tableau, rotating = self.tableau, self.kernel != "reference"
+        starts = None if time is None else time + h * jnp.arange(substeps, dtype=jnp.float64)
 
         @functools.partial(jax.checkpoint, prevent_cse=False)
-        def body(m, _):
-            return ark_step(m, fu, model, h, tableau=tableau, rotating=rotating), None
+        def body(m, t):
+            return ark_step(m, fu, model, h, tableau=tableau, rotating=rotating, t=t), None
 
-        return from_momentum(jax.lax.scan(body, to_momentum(s, model), None, length=substeps)[0], model)
+        return from_momentum(jax.lax.scan(body, to_momentum(s, model), starts, length=substeps)[0], model)
 
 
 @jax.tree_util.register_static

@@ -37,8 +37,10 @@ from typing import ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from .._model.plant import PlantModel, PlantState, Trig, displacement
+from .._model.plant import PlantModel, PlantState, Trig, displacement, moving_arm
+from .._model.robot import jacobian_from_trig
 from .ark import (
     ARK436,
     MomentumState,
@@ -165,16 +167,31 @@ def _rates(fr: _Frozen, e, p, z, model: PlantModel, bristled, share):
     return (v1, v2), (pd1, pd2)
 
 
+def _arm_torque(j, v, e, model: PlantModel, t):
+    """A moving arm's share of ``p'`` at a stage of time ``t`` [s]: ``J^T (g - B_h(t) J qd -
+    K_h(t) (x - x0))`` with the step's frozen ``J`` (``j``), velocities ``v`` and displacement ``e``
+    (its frozen maps then hold the viscous friction alone: a moving arm's model has ``bh = kh = 0``)."""
+    b, k, g = moving_arm(model, t)
+    j11, j12, j21, j22 = j
+    xd, yd = j11 * v[0] + j12 * v[1], j21 * v[0] + j22 * v[1]
+    fx = -(b[0] * xd + b[1] * yd) - (k[0] * e[0] + k[1] * e[1])
+    fy = -(b[2] * xd + b[3] * yd) - (k[2] * e[0] + k[3] * e[1])
+    if g is not None:
+        fx, fy = fx + g[0], fy + g[1]
+    return j11 * fx + j21 * fy, j12 * fx + j22 * fy
+
+
 def _bristle_rate(v, z, model: PlantModel, bristled):
     lam = tuple(fj.relaxation(vj)[0] for vj, fj in zip(v, model.friction))
     return tuple(jnp.where(b, vj - lj * zj, 0.0) for vj, zj, lj, b in zip(v, z, lam, bristled)), lam
 
 
-def graded_step(m: MomentumState, v_est, fu, model: PlantModel, h, one, *, tableau: Tableau = ARK436):
+def graded_step(m: MomentumState, v_est, fu, model: PlantModel, h, one, *, tableau: Tableau = ARK436, t=None):
     """One step of size ``h`` [s] (may be traced) with ``fu`` [N] held, the frame frozen at
     ``q + h/2 v_est``. Returns the new state and the step's mean velocity [rad/s] (the next
     step's ``v_est``). ``one`` is a runtime 1.0 from outside the loop (so that the divisions
-    by it need no recomputation of it)."""
+    by it need no recomputation of it). ``t`` [s]: the step's start, which a moving arm's plant
+    needs (stage ``i`` at ``t + c_i h``)."""
     bristled = _bristled(model)
     static, no_state = stiff_static(model), stateless(model)
 
@@ -183,6 +200,8 @@ def graded_step(m: MomentumState, v_est, fu, model: PlantModel, h, one, *, table
 
     mid = share(_rotate(m.trig, 0.5 * h * v_est[0], 0.5 * h * v_est[1]))
     fr = share(_frozen(mid, fu, model))
+    moving = model.motion is not None
+    j_mid = share(jacobian_from_trig(model.robot, *mid)) if moving else None
     hg = h * tableau.gamma
     inv_hg = 1.0 / hg
     ks = []  # per stage: (qd, p', x - x0, z'), and the stiff torque's share of p' (STIFF_STATIC)
@@ -209,6 +228,9 @@ def graded_step(m: MomentumState, v_est, fu, model: PlantModel, h, one, *, table
                 z, lam = _solve_bristles(fr, p, r, hg, lam, model, bristled, share)
                 z = share(z)  # lam is shared within
         v, pdot = _rates(fr, e, p, z, model, bristled, share)
+        if moving:
+            tau = _arm_torque(j_mid, v, e, model, t + tableau.c[i] * h)
+            pdot = (pdot[0] + tau[0], pdot[1] + tau[1])
         if i == 0:
             zd, lam = _bristle_rate(v, z, model, bristled)
         else:
@@ -263,20 +285,41 @@ class GradedARK4:
         return (h,) * (substeps - 1) + tuple(h * f for f in self.TAIL)
 
     def integrate_period(
-        self, s: PlantState, fu, model: PlantModel, *, period: float, substeps: int, checkpoint: str = "period"
+        self,
+        s: PlantState,
+        fu,
+        model: PlantModel,
+        *,
+        period: float,
+        substeps: int,
+        checkpoint: str = "period",
+        time=None,
     ) -> PlantState:
         """Advance ``s`` over one control period [s] (``step_sizes``), the command ``fu`` [N]
-        ``(2,)`` held. Reverse mode keeps one carry per step whatever ``checkpoint``."""
+        ``(2,)`` held. Reverse mode keeps one carry per step whatever ``checkpoint``. ``time``:
+        the period's start [s], which a moving arm's plant needs (``None`` for a still arm)."""
         check_checkpoint(checkpoint)
         tableau = self.tableau
 
         # The runtime 1.0 of the shared values, made outside the loop (a loop invariant).
         one = jax.lax.stop_gradient(1.0 + 0.0 * s.q1)
+        sizes = self.step_sizes(period, substeps)
+        hs = jnp.asarray(sizes)
+        start = (to_momentum(s, model), (s.qd1, s.qd2))
+        if time is None:
+
+            @functools.partial(jax.checkpoint, prevent_cse=False)
+            def body(carry, h):
+                return graded_step(*carry, fu, model, h, one, tableau=tableau), None
+
+            m, _ = jax.lax.scan(body, start, hs)[0]
+            return from_momentum(m, model)
 
         @functools.partial(jax.checkpoint, prevent_cse=False)
-        def body(carry, h):
-            return graded_step(*carry, fu, model, h, one, tableau=tableau), None
+        def moving_body(carry, step):
+            h, t = step
+            return graded_step(*carry, fu, model, h, one, tableau=tableau, t=t), None
 
-        hs = jnp.asarray(self.step_sizes(period, substeps))
-        m, _ = jax.lax.scan(body, (to_momentum(s, model), (s.qd1, s.qd2)), hs)[0]
+        offsets = jnp.asarray(np.concatenate([[0.0], np.cumsum(sizes[:-1])]))
+        m, _ = jax.lax.scan(moving_body, start, (hs, time + offsets))[0]
         return from_momentum(m, model)

@@ -75,41 +75,49 @@ def _tangent_sharer(one):
     return share
 
 
-def rk4_step(s: PlantState, fu, model: PlantModel, h) -> PlantState:
-    """One classical Runge-Kutta step of size ``h`` [s] with ``fu`` held constant."""
+def _stage_times(t, h):
+    """The stage times of a step from ``t`` [s] (``None`` for a still arm's plant, which needs none)."""
+    return (None,) * 4 if t is None else (t, t + 0.5 * h, t + 0.5 * h, t + h)
 
-    def f(state):
-        return plant_derivative(state, fu, model)
+
+def rk4_step(s: PlantState, fu, model: PlantModel, h, t=None) -> PlantState:
+    """One classical Runge-Kutta step of size ``h`` [s] with ``fu`` held constant, from time ``t``
+    [s] (a moving arm's plant needs it)."""
+    t1, t2, t3, t4 = _stage_times(t, h)
+
+    def f(state, time):
+        return plant_derivative(state, fu, model, time)
 
     def axpy(a, k):
         return jax.tree.map(lambda si, ki: si + a * ki, s, k)
 
-    k1 = f(s)
-    k2 = f(axpy(0.5 * h, k1))
-    k3 = f(axpy(0.5 * h, k2))
-    k4 = f(axpy(h, k3))
+    k1 = f(s, t1)
+    k2 = f(axpy(0.5 * h, k1), t2)
+    k3 = f(axpy(0.5 * h, k2), t3)
+    k4 = f(axpy(h, k3), t4)
     return jax.tree.map(lambda si, a, b, c, d: si + (h / 6.0) * (a + 2.0 * b + 2.0 * c + d), s, k1, k2, k3, k4)
 
 
-def rk4_step_rotating(s: PlantState, trig: Trig, fu, model: PlantModel, h, *, share=_unshared):
+def rk4_step_rotating(s: PlantState, trig: Trig, fu, model: PlantModel, h, *, share=_unshared, t=None):
     """``rk4_step`` with the stage angles' ``cos/sin`` obtained by ``rotate`` from ``trig``
     (the values at ``s``) instead of 16 transcendental calls; returns the new state and
     its ``Trig``. Same method, same stages; differs from ``rk4_step`` only by round-off.
 
     ``share`` (``_sharer`` for the ``"grad"`` kernel) marks the stage ``cos/sin``
     (``"trig"``), the stage states (``"stage"``) and, through ``plant_dynamics``, the 2x2
-    solve of every stage."""
+    solve of every stage. ``t`` [s]: the step's start, which a moving arm's plant needs."""
+    t1, t2, t3, t4 = _stage_times(t, h)
 
-    def f(state, t):
-        return plant_dynamics(state, fu, model, trig=Trig(*share("trig", *t)), share=share).derivative
+    def f(state, tr, time):
+        return plant_dynamics(state, fu, model, trig=Trig(*share("trig", *tr)), share=share, t=time).derivative
 
     def stage(a, k):
         return PlantState(*share("stage", *(si + a * ki for si, ki in zip(s, k)))), rotate(trig, a * k.q1, a * k.q2)
 
-    k1 = f(s, trig)
-    k2 = f(*stage(0.5 * h, k1))
-    k3 = f(*stage(0.5 * h, k2))
-    k4 = f(*stage(h, k3))
+    k1 = f(s, trig, t1)
+    k2 = f(*stage(0.5 * h, k1), t2)
+    k3 = f(*stage(0.5 * h, k2), t3)
+    k4 = f(*stage(h, k3), t4)
     incr = jax.tree.map(lambda a, b, c, d: (h / 6.0) * (a + 2.0 * b + 2.0 * c + d), k1, k2, k3, k4)
     return jax.tree.map(jnp.add, s, incr), rotate(trig, incr.q1, incr.q2)
 
@@ -137,7 +145,15 @@ class RK4:
         check_kernel(self)
 
     def integrate_period(
-        self, s: PlantState, fu, model: PlantModel, *, period: float, substeps: int, checkpoint: str = "period"
+        self,
+        s: PlantState,
+        fu,
+        model: PlantModel,
+        *,
+        period: float,
+        substeps: int,
+        checkpoint: str = "period",
+        time=None,
     ) -> PlantState:
         """Advance ``s`` over one control period [s] with ``substeps`` fixed steps (``lax.scan``),
         the command ``fu`` [N] ``(2,)`` held.
@@ -152,12 +168,17 @@ class RK4:
         ``"period"`` the ``"grad"`` kernel's substep checkpoint saves the shared stage values,
         which the backward pass produces one period at a time; under ``"substep"`` (the
         period not checkpointed, every substep's carry on the tape) it saves nothing else.
+
+        ``time``: the period's start [s], which a moving arm's plant needs (``None`` for a still arm).
         """
         check_checkpoint(checkpoint)
         h = period / substeps
+        # A still arm scans no times (its program is the one it always was); a moving one scans
+        # the substeps' start times.
+        starts = None if time is None else time + h * jnp.arange(substeps, dtype=jnp.float64)
         if self.kernel == "reference":
-            body = jax.checkpoint(lambda state, _: (rk4_step(state, fu, model, h), None), prevent_cse=False)
-            return jax.lax.scan(body, s, None, length=substeps)[0]
+            body = jax.checkpoint(lambda state, t: (rk4_step(state, fu, model, h, t), None), prevent_cse=False)
+            return jax.lax.scan(body, s, starts, length=substeps)[0]
         # Reverse mode keeps the substep carries (and, for "grad" under period checkpoints,
         # the shared stage values). The runtime 1.0 comes from the state so that XLA cannot
         # fold the divisions away.
@@ -169,7 +190,7 @@ class RK4:
                 policy = jax.checkpoint_policies.save_only_these_names(_SHARED)
 
         @functools.partial(jax.checkpoint, prevent_cse=False, policy=policy)
-        def body(carry, _):
-            return rk4_step_rotating(*carry, fu, model, h, share=share), None
+        def body(carry, t):
+            return rk4_step_rotating(*carry, fu, model, h, share=share, t=t), None
 
-        return jax.lax.scan(body, (s, trig_of(s)), None, length=substeps)[0][0]
+        return jax.lax.scan(body, (s, trig_of(s)), starts, length=substeps)[0][0]

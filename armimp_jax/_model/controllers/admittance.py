@@ -7,6 +7,8 @@ exact: one matrix exponential per trial, at ``bind``)::
 
     M_v xdd_r + B_v xd_r + K_v (x_r - x0) = F_m + F_Delta
 
+(during a movement ``M_v xdd_r + B_v (xd_r - xd_e) + K_v (x_r - x_e) = F_m + F_Delta``, the set
+point ``x_e``, ``xd_e`` sampled at ``t_k`` and held with the force).
 An inner Cartesian servo then drives the robot, with its own inertia and joint friction,
 towards the virtual model's new position and velocity: the command held over the period is
 ``F_u,k = K_p (x_r,k+1 - x_k) + K_v,servo (xd_r,k+1 - xd_k)`` (the motors apply ``J^T F_u``).
@@ -253,9 +255,15 @@ class Admittance(AbstractController):
         zero = jnp.zeros_like(x0)
         return AdmittanceMemory(zero, zero)
 
-    def step(self, memory: AdmittanceMemory, x, xd, fh, f_delta, x0, period):
+    def step(self, memory: AdmittanceMemory, x, xd, fh, f_delta, x0, period, path=None):
         state = jnp.concatenate([memory.offset, memory.velocity])
-        new = _mv(self.phi, state) + _mv(self.gamma, f_delta - fh)
+        drive = f_delta - fh
+        if path is not None:
+            # The virtual spring pulls towards x_d,k and the damper damps xd_r - xd_e,k, held with
+            # the force over the period: K_v (x_d,k - x0) + B_v xd_e,k more on the virtual model.
+            offset, velocity = path
+            drive = drive + (matvec(self.k_v, offset) + matvec(self.b_v, velocity))
+        new = _mv(self.phi, state) + _mv(self.gamma, drive)
         offset, velocity = new[:2], new[2:]
         fu = matvec(self.kp, offset - (x - x0)) + matvec(self.kv, velocity - xd)
         return fu, AdmittanceMemory(offset, velocity)

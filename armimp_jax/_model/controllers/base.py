@@ -9,10 +9,13 @@ ask of a controller, and the registry of its kinds.
   (by default nothing; ``make_trial`` calls it after ``bind``).
 - ``init(x0)``: its memory at rest at ``x0`` (a pytree of floats: the linearisation treats
   every float of it as loop state).
-- ``step(memory, x, xd, fh, f_delta, x0, period)``: the Cartesian command ``F_u,k`` [N] ``(2,)``
-  held over the next period (the motors apply ``J^T F_u``), and the new memory, from the
+- ``step(memory, x, xd, fh, f_delta, x0, period, path=None)``: the Cartesian command ``F_u,k`` [N]
+  ``(2,)`` held over the next period (the motors apply ``J^T F_u``), and the new memory, from the
   measured ``x_k`` [m], ``xd_k`` [m/s], ``F_h,k`` [N] (the force on the hand) and the
-  perturbation ``F_Delta,k`` [N].
+  perturbation ``F_Delta,k`` [N]. ``path`` is ``None`` for a still arm; for a moving one
+  (docs/model.md, "The arm during a movement") it is ``(offset, velocity)``, the planned set
+  point at ``t_k`` as ``x_d,k - x0`` [m] and ``xd_e(t_k)`` [m/s] ``(2,)`` each: the controller
+  holds ``x_d,k`` where it held ``x0`` and damps ``xd_k - xd_e(t_k)`` where it damped ``xd_k``.
 
 The linearised loop is the forward-mode derivative of the simulation's own period step
 (``_identification/linear.py``), so a kind needs no linear form of its own. Experiment design
@@ -84,8 +87,10 @@ class AbstractController(eqx.Module):
         """The memory at rest at ``x0`` [m]."""
 
     @abc.abstractmethod
-    def step(self, memory, x, xd, fh, f_delta, x0, period):
-        """``(F_u,k, new memory)`` from the measured samples (module docstring)."""
+    def step(self, memory, x, xd, fh, f_delta, x0, period, path=None):
+        """``(F_u,k, new memory)`` from the measured samples and, for a moving arm, the planned
+        set point ``path`` (module docstring). A kind whose ``step`` takes no ``path`` serves
+        still arms only (``make_trial`` refuses it a moving one)."""
 
     def check_loop(self, trial) -> None:
         """Refuse, in one line, a ``trial`` (``make_trial``'s, holding this bound controller) whose

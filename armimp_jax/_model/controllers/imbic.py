@@ -37,7 +37,8 @@ class IMBIC(AbstractController):
     """Internal-model-based impedance control (paper eqs. 10-17 and 30, docs/model.md section 9.2).
 
     Desired robot dynamics ``M_rd xdd + B_rd xd + K_rd (x - x0) = F_Delta - F_h``, realised by
-    time-delay estimation with the constant gain ``mhat``.
+    time-delay estimation with the constant gain ``mhat``; during a movement
+    ``M_rd xdd + B_rd (xd - xd_e) + K_rd (x - x_e) = F_Delta - F_h`` about the planned set point.
 
     Args:
         mhat: ``Mhat`` ``(2, 2)`` [kg], positive definite symmetric part (stability of time-delay
@@ -99,14 +100,21 @@ class IMBIC(AbstractController):
         zero = jnp.zeros_like(x0)
         return IMBICMemory(x0, x0, zero, matvec(self.m_rd_inv, matvec(self.k_rd, x0)), zero)
 
-    def step(self, memory: IMBICMemory, x, xd, fh, f_delta, x0, period):
+    def step(self, memory: IMBICMemory, x, xd, fh, f_delta, x0, period, path=None):
         if self.accel_estimate == "velocity":
             a = (xd - memory.xd_prev) / period
         else:
             a = (x - 2.0 * memory.x_prev + memory.x_prev2) / (period * period)
         minv, kd, bd = self.m_rd_inv, self.k_rd, self.b_rd
+        hold = matvec(kd, x0)
+        if path is not None:
+            # About the moving set point: K_rd x0 becomes K_rd x_d,k + B_rd xd_e,k. Carried in v (the
+            # memory's v_k is then v_k + M_rd^-1 B_rd xd_e,k), this damps xd_k - xd_e,k in u_k and
+            # xd_k-1 - xd_e,k-1 in v_k with no set point kept in memory (docs/model.md).
+            offset, velocity = path
+            hold = matvec(kd, x0 + offset) + matvec(bd, velocity)
         v = (
-            matvec(minv, (matvec(kd, x0) + f_delta) - fh)
+            matvec(minv, (hold + f_delta) - fh)
             - (a + matvec(minv, matvec(bd, memory.xd_prev) + matvec(kd, memory.x_prev)))
             + memory.v_prev
         )

@@ -14,7 +14,8 @@ PD_DAMPING = ((4.0, 0.0), (0.0, 4.0))
 
 
 class PD(AbstractController):
-    """PD control (paper eq. 5): ``F_u = F_Delta - K_p (x - x0) - K_v xd``.
+    """PD control (paper eq. 5): ``F_u = F_Delta - K_p (x - x0) - K_v xd``; during a movement
+    ``F_u = F_Delta - K_p (x - x_d,k) - K_v (xd - xd_e,k)`` about the planned set point.
 
     Args:
         kp: ``K_p`` ``(2, 2)`` [N/m]; its symmetric part positive definite.
@@ -37,5 +38,8 @@ class PD(AbstractController):
     def init(self, x0):
         return ()
 
-    def step(self, memory, x, xd, fh, f_delta, x0, period):
-        return f_delta - matvec(self.kp, x - x0) - matvec(self.kv, xd), memory
+    def step(self, memory, x, xd, fh, f_delta, x0, period, path=None):
+        if path is None:
+            return f_delta - matvec(self.kp, x - x0) - matvec(self.kv, xd), memory
+        offset, velocity = path  # about the moving set point x_d,k = x0 + offset
+        return f_delta - matvec(self.kp, (x - x0) - offset) - matvec(self.kv, xd - velocity), memory
