@@ -91,9 +91,10 @@ class Profile:
         t = jnp.asarray(t, dtype=jnp.float64)[..., None, None]
         times, values = jnp.asarray(self.times), jnp.asarray(self.values)
         out = jnp.broadcast_to(values[0], t.shape[:-2] + (2, 2))
+        lead = (1,) * (t.ndim - 2)  # explicit ranks (tests run with rank promotion raising)
         for j in range(self.knots - 1):
             ramp = jnp.clip((t - times[j]) / (times[j + 1] - times[j]), 0.0, 1.0)
-            out = out + ramp * (values[j + 1] - values[j])
+            out = out + ramp * jnp.reshape(values[j + 1] - values[j], lead + (2, 2))
         return out
 
 
@@ -131,21 +132,27 @@ class MinimumJerk:
         set_(self, "duration", _bounded("duration", self.duration, w, strict=True))
 
     def _shape(self, t):
+        """``(p, p', delta)``: the shape and its slope at ``t``, ``(..., 1)``, and ``end - start``
+        shaped to multiply them, ``(1, ..., 2)`` (explicit ranks)."""
         t = jnp.asarray(t, dtype=jnp.float64)[..., None]
         s = jnp.clip((t - self.onset) / self.duration, 0.0, 1.0)
-        return _min_jerk(s)
+        delta = jnp.reshape(jnp.asarray(self.end) - jnp.asarray(self.start), (1,) * (t.ndim - 1) + (2,))
+        return (*_min_jerk(s), delta)
 
     def offset(self, t):
         """``x_e(t) - start`` [m], ``(..., 2)``: exactly zero before the onset."""
-        return (jnp.asarray(self.end) - jnp.asarray(self.start)) * self._shape(t)[0]
+        p, _, delta = self._shape(t)
+        return delta * p
 
     def position(self, t):
         """``x_e(t)`` [m], ``(..., 2)``."""
-        return jnp.asarray(self.start) + self.offset(t)
+        offset = self.offset(t)
+        return jnp.reshape(jnp.asarray(self.start), (1,) * (offset.ndim - 1) + (2,)) + offset
 
     def velocity(self, t):
         """``xd_e(t)`` [m/s], ``(..., 2)``: the exact derivative of ``position``."""
-        return (jnp.asarray(self.end) - jnp.asarray(self.start)) * (self._shape(t)[1] / self.duration)
+        _, slope, delta = self._shape(t)
+        return delta * (slope / self.duration)
 
 
 def _bounded(name, value, where, *, strict: bool):

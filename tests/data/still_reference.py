@@ -14,17 +14,8 @@ import sys
 import jax
 import numpy as np
 
-# The test suite's own set-up (tests/conftest.py): XLA:CPU's code generation moves results in
-# their last bits, so the reference is made under the flags the test runs with.
-jax.config.update("jax_enable_x64", True)
-jax.config.update("jax_numpy_rank_promotion", "raise")
-
-from armimp_jax import runtime  # noqa: E402
-
-runtime.configure(vector_width=None, compilation_cache=False)
-
-import armimp_jax as aj  # noqa: E402
-from armimp_jax import presets  # noqa: E402
+import armimp_jax as aj
+from armimp_jax import presets, runtime
 
 SAMPLES = 300
 CONTROLLERS = {"pd": aj.PD, "imbic": aj.IMBIC, "admittance": aj.Admittance}
@@ -58,6 +49,11 @@ def run(controller: str, numerics_name: str):
 
 
 if __name__ == "__main__":
+    # The test suite's own set-up (tests/conftest.py): XLA:CPU's code generation moves results in
+    # their last bits, so the reference is made under the flags the test runs with.
+    jax.config.update("jax_enable_x64", True)
+    jax.config.update("jax_numpy_rank_promotion", "raise")
+    runtime.configure(vector_width=256, compilation_cache=False)
     out = {"jax_version": np.asarray(jax.__version__)}
     for c in CONTROLLERS:
         for n in numerics():
