@@ -252,10 +252,11 @@ def test_the_base_reach_under_the_other_controllers(controller):
 @pytest.mark.parametrize("controller", sorted(CONTROLLERS))
 def test_every_controller_follows_the_planned_path(controller):
     """Unperturbed and noise-free, the hand reaches with its equilibrium and comes to rest at the
-    X
-        hand centimetres short: its spring and the arm's would share the 5 cm. The arm's damping is
-        raised to 25 N s/m on each axis so that it settles within the record (paper arm 3's own has
-        a lightly damped mode that still swings by millimetres a second after the reach)."""
+    path's end, within a millimetre (the robot expects the reach). A robot that held the start
+    instead would stop the hand centimetres short: its spring and the arm's would share the 5 cm.
+    The arm's damping is raised to 25 N s/m on each axis so that it settles within the record
+    (paper arm 3's own has a lightly damped mode that still swings by millimetres a second after
+    the reach)."""
     arm = _short_arm()
     arm = aj.Arm(mass=arm.mass, damping=25.0 * np.eye(2), stiffness=arm.stiffness, endpoint=arm.endpoint)
     trial = aj.make_trial(CONTROLLERS[controller](), arm=arm, friction=aj.NO_FRICTION)
