@@ -119,7 +119,8 @@ _EXPORTS = {
     "SWEEP_NUMERICS": "._solver.numerics",
     "Numerics": "._solver.numerics",
     "RK4": "._solver.rk4",
-    "load_recording": ".study.recording",  # the one study name here: a lab's first call (no JAX)
+    "load_recording": ".study.recording",  # the study names here: a lab's first calls (no JAX)
+    "load_ensemble": ".study.recording",
 }
 __all__ = sorted([*_EXPORTS, "runtime"])
 

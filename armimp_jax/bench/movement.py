@@ -66,8 +66,8 @@ def fit_record(fit: aj.EnsembleFit) -> dict:
 
 
 def fit_names(a) -> list[str]:
-    """The fits each ensemble is scored by: ``profile:window`` for every profile and window of ``a``."""
-    return [f"{p}:{w:g}" for p in a.profiles for w in a.windows]
+    """The fits each ensemble is scored by: ``window:<w>`` for every window [s] of ``a``."""
+    return [f"window:{w:g}" for w in a.windows]
 
 
 def ensemble_row(trial: aj.Trial, seed: int, a) -> dict:
@@ -81,10 +81,8 @@ def ensemble_row(trial: aj.Trial, seed: int, a) -> dict:
         samples=int(round(RECORD / trial.period)),
     )
     fits = {}
-    for name in fit_names(a):
-        profile, window = name.split(":")
-        fit = aj.estimate_ensemble(ens, knots=KNOTS, window=float(window), profile=profile)
-        fits[name] = fit_record(fit)
+    for name, window in zip(fit_names(a), a.windows):
+        fits[name] = fit_record(aj.estimate_ensemble(ens, knots=KNOTS, window=float(window)))
     return dict(seed=seed, diverged=bool(ens.diverged.any()), fits=fits)
 
 
@@ -118,6 +116,16 @@ def coverage_summary(rows, true: dict, level: float = 0.95) -> dict:
     return out
 
 
+def measured() -> dict:
+    """When and where the figures were measured: the date (UTC), the host, its cores, JAX's version."""
+    import datetime
+    import os
+    import platform
+
+    now = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+    return dict(date=now, host=platform.node(), cpus=os.cpu_count(), jax=jax.__version__)
+
+
 def classical_coverage(a, out, *, console=None) -> dict:
     """The classical route's coverage over ``a.ensembles`` ensembles of the base case (options ``a``,
     ``sweeps/bench_movement.py``'s) in run folder ``out``, one record per ensemble (resumable):
@@ -138,7 +146,7 @@ def classical_coverage(a, out, *, console=None) -> dict:
     def finish(run, rows):
         rs = [r for r in rows["base"] if not r["diverged"]]
         summary = coverage_summary(rs, truth(base_trial(), KNOTS)) if rs else {}
-        result = dict(ensembles=len(rows["base"]), sound=len(rs), summary=summary)
+        result = dict(ensembles=len(rows["base"]), sound=len(rs), measured=measured(), summary=summary)
         atomic_write_json(run.path / "movement_coverage.json", dict(settings=stamped(settings), **result))
         return result
 

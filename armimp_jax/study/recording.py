@@ -20,7 +20,8 @@ refused with how to re-save it): the six names as vectors, or ``f_delta``, ``x``
 a ``RecordingError`` with a one-line message, raised before any computation.
 
 What is done with a loaded recording: ``study.estimate_recording`` (the Welch route) and
-``study.identify_recording`` (the model route).
+``study.identify_recording`` (the model route). ``load_ensemble`` reads one file per repetition
+of a reach into an ``Ensemble`` (``estimate_ensemble``'s input).
 """
 
 from __future__ import annotations
@@ -31,6 +32,8 @@ import pathlib
 import zipfile
 
 import numpy as np
+
+from .._estimation.ensemble import Ensemble
 
 COLUMNS = ("f_delta_x", "f_delta_y", "x", "y", "fh_x", "fh_y")
 GROUPS = {"f_delta": ("f_delta_x", "f_delta_y"), "x": ("x", "y"), "fh": ("fh_x", "fh_y")}
@@ -343,3 +346,22 @@ def timestamp_warnings(rec: dict, fs: float) -> list[str]:
             f"{step:.6g}): samples dropped or repeated; both routes assume one rate throughout"
         )
     return out
+
+
+def load_ensemble(paths, *, columns=None, period: float | None = None) -> Ensemble:
+    """A lab's ensemble: one recording per repetition of one reach (``load_recording``'s formats).
+
+    Args:
+        paths: the files, one per repetition, each cut to the same samples around the reach
+            (aligned on its onset).
+        columns: as ``load_recording``'s, the same for every file.
+        period: the sample period [s]; default: from the first file's time column, else 1 ms.
+
+    Refused in one line (``Ensemble``'s rules): no files, repetitions of different lengths, a
+    repetition whose path strays from the others' (a reach to another target), and every
+    problem of ``load_recording``, naming the file.
+    """
+    paths = [paths] if isinstance(paths, (str, pathlib.Path)) else list(paths)
+    if not paths:
+        raise RecordingError("load_ensemble: no files given (one recording per repetition)")
+    return Ensemble.from_recordings([load_recording(p, columns=columns) for p in paths], period=period)
