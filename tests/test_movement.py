@@ -342,6 +342,8 @@ def test_bad_profiles_and_paths_are_refused_in_one_line():
         aj.Profile(times=[0.1, 0.2, 0.3], values=np.stack([k] * 2))
     with pytest.raises(ValueError, match=r"values must have shape .* got shape \(3, 4\)"):
         aj.Profile(times=[0.1, 0.2, 0.3], values=np.ones((3, 4)))
+    with pytest.raises(ValueError, match="mass stays constant during a movement"):
+        aj.Arm(mass=aj.Profile(times=[0.1], values=k[None]), damping=k, stiffness=k, endpoint=[-0.3, 0.3])
     with pytest.raises(ValueError, match="duration must be > 0 s, got 0 s"):
         aj.MinimumJerk(start=[0.0, 0.4], end=[0.0, 0.5], onset=0.1, duration=0.0)
     with pytest.raises(ValueError, match="onset must be >= 0 s, got -0.1 s"):

@@ -66,9 +66,11 @@ class Arm:
 
     def __post_init__(self):
         w = "Arm"
+        if isinstance(self.mass, Profile):
+            raise ValueError(f"{w}: mass stays constant during a movement: give a (2, 2) matrix [kg], not a Profile")
         for name, unit in (("mass", "kg"), ("damping", "N s/m"), ("stiffness", "N/m")):
             value = getattr(self, name)
-            if isinstance(value, Profile) and name != "mass":
+            if isinstance(value, Profile):
                 if value.knots == 1:  # a constant matrix (docs/model.md: then every result is a still arm's)
                     object.__setattr__(self, name, value.values[0])
                 continue
