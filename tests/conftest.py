@@ -24,6 +24,7 @@ runtime.use_compilation_cache(runtime.compilation_cache_dir())
 # takes is a short one: by worker seconds on a cold cache (docs/performance.md, version 1.1).
 HEAVY_FIRST = (
     # the statistics tier (pytest -m stats), longest first
+    "test_claims_matrix.py",
     "test_claims_identify.py",
     "test_claims_design.py",
     "test_claims_friction.py",
