@@ -26,7 +26,7 @@ runtime.use_compilation_cache(runtime.compilation_cache_dir())
 
 # Every test leaves that set-up as it found it: an autouse fixture fails one that does not
 # (tests/helpers.py); so no test runs differently by which tests its worker ran before it.
-from helpers import global_state_unchanged  # noqa: E402, F401
+from helpers import global_state_unchanged, suite_state  # noqa: E402, F401
 
 # The suite runs file by file on two workers (``--dist loadfile``: a module's fixtures and
 # compiled programs are made once). Its heaviest files go first, so the last file a worker

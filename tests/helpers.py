@@ -98,18 +98,28 @@ def restore_state(state: dict) -> None:
     jax.config.update("jax_numpy_rank_promotion", state["jax_numpy_rank_promotion"])
 
 
+@pytest.fixture(scope="session")
+def suite_state() -> dict:
+    """``global_state`` as the session's first test finds it: the suite's set-up."""
+    return global_state()
+
+
+def _fail_and_restore(what: str, changes: list[str], state: dict) -> None:
+    restore_state(state)
+    pytest.fail(f"{what}, so later tests on this worker would run differently: " + "; ".join(changes), pytrace=False)
+
+
 @pytest.fixture(autouse=True)
-def global_state_unchanged():
-    """Fails (at teardown) a test that leaves ``global_state`` changed, then puts it back, so the
-    tests after it on the same worker run as they would alone. Its own fixtures (``monkeypatch``)
-    have restored what they set by then: they are torn down before this autouse fixture."""
+def global_state_unchanged(suite_state):
+    """Fails a test that leaves ``global_state`` changed (at its teardown), then puts it back, so
+    the tests after it on the same worker run as they would alone. Its own fixtures
+    (``monkeypatch``) have restored what they set by then: they are torn down before this autouse
+    fixture. A change made between tests (a module's fixture) fails the next test's set-up."""
     before = global_state()
+    changes = state_changes(suite_state, before)
+    if changes:
+        _fail_and_restore("the set-up changed between tests (a fixture of a wider scope)", changes, suite_state)
     yield
     changes = state_changes(before, global_state())
     if changes:
-        restore_state(before)
-        pytest.fail(
-            "the test left the process's set-up changed, so later tests on this worker would run differently: "
-            + "; ".join(changes),
-            pytrace=False,
-        )
+        _fail_and_restore("the test left the process's set-up changed", changes, before)
