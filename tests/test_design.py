@@ -44,6 +44,30 @@ def test_multisine_puts_each_axis_on_its_own_lines_at_the_rms_with_a_low_crest_f
     assert spectrum[off].max() < 1e-8 * spectrum.max()
 
 
+def test_a_multisine_is_its_sum_of_cosines_scaled_to_its_rms():
+    """Lines on whole periods of a 2 s record: the RMS of ``sum_k a_k cos(2 pi f_k t + phi_k)`` is
+    ``sqrt(sum_k a_k^2 / 2)``, so the signal is that sum times ``rms`` over it, in closed form."""
+    freqs, shape, phases = [[2.0, 7.0], [5.0, 5.5]], [[1.0, 0.5], [3.0, 0.0]], [[0.3, 2.0], [-1.1, 0.7]]
+    rms = np.array([0.5, 2.0])
+    s = np.asarray(aj.Multisine(freqs, shape, phases, rms).signal(None, 2000))
+    t = np.arange(2000)[:, None, None] * 1e-3
+    waves = np.sum(np.asarray(shape) * np.cos(2 * np.pi * np.asarray(freqs) * t + np.asarray(phases)), axis=-1)
+    expected = waves * rms / np.sqrt(np.sum(np.asarray(shape) ** 2, axis=1) / 2)
+    np.testing.assert_allclose(s, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    bad = [
+        (dict(shape=[[1.0, -0.5], [3.0, 0.0]]), r"Multisine: shape must be >= 0 with a positive entry per axis"),
+        (dict(shape=[[1.0, 0.5], [0.0, 0.0]]), r"Multisine: shape must be >= 0 with a positive entry per axis"),
+        (dict(rms=[0.5, 0.0]), r"Multisine: rms must be > 0 N per axis, got \[0.5, 0.0\]"),
+        (dict(freqs=[[2.0, 700.0], [5.0, 5.5]]), r"Multisine: freqs must lie in \[0, 500\) Hz"),
+        (dict(freqs=[2.0, 7.0]), r"Multisine: freqs \[Hz\] must have 2 axes, got shape \(2,\)"),
+        (dict(phases=[[0.3], [-1.1]]), r"Multisine: phases \[rad\] must be shape \(2, 2\), got shape \(2, 1\)"),
+    ]
+    for change, message in bad:
+        args = dict(dict(freqs=freqs, shape=shape, phases=phases, rms=rms), **change)
+        with pytest.raises(ValueError, match=message):
+            aj.Multisine(**args)
+
+
 def test_shaped_noise_follows_its_spectrum_and_level_and_differentiates():
     fam = aj.ShapedNoise(knots=[2.0, 8.0], shape=[[1.0, 1.0], [1.0, 0.0]], rms=0.5)
     s = np.asarray(fam.signal(jax.random.key(0), 10_000))
