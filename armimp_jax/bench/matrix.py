@@ -42,6 +42,7 @@ SIGNAL_KEY = 61
 Z_FAR = 4.0  # a diagonal z beyond this: at most one in a cell's 300
 DISAGREE = "the classical fit of this recording disagrees"  # the cross-check's warning
 NOT_TOLD = "the recording barely tells"  # a nuisance's range: the arm's intervals still stand
+NOISE = "most likely first: noise"  # an implausible sign within the interval: no warning today
 
 
 def friction_law(name: str):
@@ -119,12 +120,13 @@ def _diagonal_z(rows) -> dict:
 
 
 def trusted(row: dict) -> bool:
-    """Whether a converged fit's intervals stand: ``intervals_reliable``, or unreliable only for the
-    classical cross-check at a bound below today's (``selfcheck.threshold``: rows of a run under an
-    earlier bound are scored as the check now would; the check moves no estimate)."""
+    """Whether a converged fit's intervals stand: ``intervals_reliable``, or unreliable only for
+    what today's code no longer warns of: the classical cross-check at a bound below today's
+    (``selfcheck.threshold``), an implausible sign within its 95% interval (rows of an earlier
+    run scored as the checks now would; neither moves an estimate)."""
     if row.get("reliable", True):
         return True
-    others = [w for w in row["warnings"] if not w.startswith(DISAGREE) and not w.startswith(NOT_TOLD)]
+    others = [w for w in row["warnings"] if not w.startswith((DISAGREE, NOT_TOLD)) and NOISE not in w]
     bound = selfcheck.threshold(selfcheck.check_draws(row.get("draws", 64)), 12)
     return not others and all(abs(d["z"]) <= bound for d in row.get("disagreements", []))
 
