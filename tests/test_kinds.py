@@ -106,6 +106,12 @@ def test_the_toy_kinds_have_a_bound_and_identify_through_the_loop():
     assert res.converged, res.message
     np.testing.assert_allclose(res.values["arm.stiffness"], arm.stiffness, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(res.values["friction.tau_c"], [0.1, 0.1], rtol=1e-5)
+    # a noisy model of these kinds: the intervals come with the warning that no coverage cell measured them
+    from armimp_jax._identification.measured import unmeasured
+
+    (warning,) = unmeasured(aj.make_trial(Damper(), arm=arm, friction=SmoothCoulomb(0.06), **NOISE))
+    assert "a controller of kind 'toy_damper'" in warning and "friction law of kind 'toy_smooth_coulomb'" in warning
+    assert unmeasured(aj.make_trial(aj.Admittance(), arm=arm, friction=aj.CoulombViscous(0.05), **NOISE)) == []
 
 
 def test_the_toy_kinds_sweep_from_a_config(tmp_path):

@@ -22,6 +22,7 @@ from . import search
 from .auxiliary import statistic_labels
 from .diagnosis import motion_diagnosis, plausibility
 from .indirect import predict
+from .measured import unmeasured
 from .selfcheck import cross_check
 
 # An entry whose SE exceeds this multiple of its parameter's scale is reported as barely identifiable.
@@ -372,6 +373,8 @@ def assemble(problem: search.Problem, state: search.Search, pool: pl.Pool, recor
     spread_ratio = _by_label(pool, labels, None if check is None else check[0])
     seconds = sum(x.shape[0] for _, x, _ in recorded) * problem.parts[0].model.period
     warnings = warnings + _bent(spread_ratio, seconds) + _unchecked(check)
+    if problem.noisy:  # without noise there are no intervals to have measured
+        warnings = warnings + unmeasured(problem.parts[0].model)
     disagreements = _cross_check(problem, state, sens, recorded, pool, labels)
     warnings = warnings + _disagree(
         disagreements, dict(zip(labels, values, strict=True)), dict(zip(labels, se, strict=True))

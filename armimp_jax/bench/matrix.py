@@ -27,12 +27,12 @@ import numpy as np
 import armimp_jax as aj
 from armimp_jax import presets
 
-from .._identification import selfcheck
+from .._identification import measured, selfcheck
 from . import protocol as pr
 
 ARM = pr.ARM
-CONTROLLERS = ("pd", "imbic", "admittance")
-FRICTIONS = ("none", "lugre-0.3", "cv-0.05", "cv-0.3")
+CONTROLLERS = measured.CONTROLLERS  # the kinds identify's warning names as measured
+FRICTIONS = ("none", "lugre-0.3", "cv-0.05", "cv-0.3")  # measured.FRICTIONS: lugre, coulomb_viscous
 # a non-paper arm: heavier along x, stiffer than the paper's at location 1, with off-diagonal terms
 OTHER_ARM = dict(
     mass=[[1.6, 0.25], [0.2, 1.1]], damping=[[14.0, 3.0], [2.5, 10.0]], stiffness=[[260.0, 60.0], [45.0, 180.0]]
