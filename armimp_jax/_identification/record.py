@@ -75,15 +75,17 @@ class RecordLength:
     @property
     def record_s(self) -> float:
         """The record to plan on [s]: the longest ``predicted``, rounded up to a control period."""
-        n = max(int(math.ceil(max(self.predicted.values()) / self.period - 1e-9)), MIN_SAMPLES)
-        return n * self.period
+        longest = self.longest("predicted")
+        if not math.isfinite(longest):
+            return float("nan")
+        return max(int(math.ceil(longest / self.period - 1e-9)), MIN_SAMPLES) * self.period
 
     def longest(self, row: str) -> float:
         """The longest seconds of ``row`` (``"bound"``, ``"predicted"``, ``"design"``) over the
-        entries; NaN where the row is missing or has no number."""
+        entries; NaN where the row is missing or an entry has no number."""
         check_choice("row", row, ROWS)
-        values = getattr(self, row)
-        return float(max(values.values())) if values else float("nan")
+        values = list((getattr(self, row) or {}).values())
+        return float(max(values)) if values and all(math.isfinite(v) for v in values) else float("nan")
 
     def summary(self) -> str:
         """The three answers side by side in minutes, per entry and the longest, then which to
@@ -147,15 +149,19 @@ def why_lines(r: RecordLength) -> list[str]:
     """Which answer to plan on, and why the others differ from it."""
     plan, bound, design = r.longest("predicted"), r.longest("bound"), r.longest("design")
     noise = math.sqrt(2.0 / r.draws)  # an SE over R draws is good to 1/sqrt(2R); minutes go as its square
-    lines = [
-        f"plan on {plan / 60:.3g} min ({r.record_s:g} s): identify's own standard errors (predict_se, the "
-        f"{r.statistic} statistic, {r.draws} draws: about +-{noise:.0%} in minutes from the draws alone)"
-    ]
-    if math.isfinite(bound):
+    if math.isfinite(plan):
+        lines = [
+            f"plan on {plan / 60:.3g} min ({r.record_s:g} s): identify's own standard errors (predict_se, the "
+            f"{r.statistic} statistic, {r.draws} draws: about +-{noise:.0%} in minutes from the draws alone)"
+        ]
+    else:
+        lines = ["no record to plan on: predict_se gave no finite standard error here (the notes say why)"]
+    if math.isfinite(bound) and math.isfinite(plan):
+        loop = "the loop without its Coulomb friction" if r.friction else "this loop"
         cause = "the joints' Coulomb friction, which the bound leaves out" if r.friction else "identify's statistic"
         lines.append(
-            f"the bound's {bound / 60:.3g} min is a floor no unbiased estimator beats, of the loop without its "
-            f"Coulomb friction; predict_se needs {plan / bound:.2g} times it, the cost of {cause}"
+            f"the bound's {bound / 60:.3g} min is a floor no unbiased estimator beats, of {loop}; predict_se "
+            f"needs {plan / bound:.2g} times it, the cost of {cause}"
         )
     if r.design is not None:
         lines.append(
@@ -204,8 +210,8 @@ def record_for(
             per entry the worst of its arms, at its signal; ``entries`` must be among its targets.
         statistic: as ``identify``'s (``"auto"``: the efficient statistic where the loop is
             near-linear under ``f``, else Welch's); draws, key: ``predict_se``'s.
-        check: predict again at the answer's length (up to ``CHECK_LIMIT_S``): as long again as
-            the first prediction per 20 s of answer.
+        check: predict again at the answer's length (up to ``CHECK_LIMIT_S``), at the cost of
+            that record's simulations: about ``record_s / seconds`` times the first prediction.
         target: deprecated: ``{entry: relative SE}``, the same goal as ``precision={entry:
             quantile(level) * SE}`` (1.96 SE at 95%).
 
@@ -220,7 +226,10 @@ def record_for(
     statistic = _statistic(trial, f, layout, statistic, near)
     pred = predict_se(trial, f, free=free, statistic=statistic, draws=draws, key=key)
     if bool(pred.diverged):
-        notes.append("a draw of predict_se diverged: its prediction is unsound (check the trial's stability)")
+        notes.append(
+            "a simulated draw of predict_se diverged, so its prediction is unsound: a smaller perturbation, or "
+            "a controller that holds this arm stably"
+        )
     predicted_rel = relative_se(pred, trial, free=free, targets=tuple(precision))
     seconds = f.shape[0] * trial.period
 

@@ -6,9 +6,10 @@ its first call (compilation included) apart from its warm calls, on two realisti
 - ``design``: ``sweeps/configs/design_imbic.toml``'s trial at its arm location 2 (the same
   controller, friction and noise) under its starting multisine within its limits, 20 s.
 
-For each case: ``record_for`` as it answers by default (the bound and one ``predict_se``) and
-with ``check=True`` (a second ``predict_se`` at the answer's length: what every call ran
-before), then the parts alone, warm: the bound (``crlb``) and each ``predict_se``. Each timing
+For each case: ``record_for`` as it answers by default (the bound and one ``predict_se``), and
+on demand with ``check=True`` (a second ``predict_se`` at the answer's length: what every call
+ran before) and the parts alone: the bound (``crlb``), ``predict_se`` at the case's record and
+at a longer one (the check of an answer that long; one warm call). Each timing
 is ``block_until_ready``'d; the first call is reported apart, then the median of ``repeats``
 calls, with the process's CPU seconds beside the wall seconds (on a shared host the wall
 grows with the load, the CPU seconds much less).
@@ -66,30 +67,38 @@ def timed(call, repeats: int) -> dict:
     )
 
 
-def measure(name: str, repeats: int, draws: int, parts: bool) -> dict:
-    """One case: ``record_for`` by default and with its check, then (``parts``) each part warm."""
+def measure(name: str, args) -> dict:
+    """One case: ``record_for`` as it answers by default; with ``args.check`` also with its check;
+    with ``args.parts`` the bound and ``predict_se`` alone, and ``predict_se`` at a record of
+    ``args.check_record`` seconds (the check of an answer that long, what every call ran before)."""
     trial, f = case(name)
-    key = jax.random.key(0)
+    key, draws, repeats = jax.random.key(0), args.draws, args.repeats
     out = {}
     answer = timed(lambda: aj.record_for(trial, f, free=ARM, draws=draws, key=key), repeats)
     out["record_for"] = answer
     print(f"{name}: record_for {summary(answer)}\n{answer['answer'].summary()}", flush=True)
-    checked = timed(lambda: aj.record_for(trial, f, free=ARM, draws=draws, key=key, check=True), repeats)
-    out["record_for_check"] = checked
-    print(f"{name}: record_for(check=True) {summary(checked)}\n{checked['answer'].summary()}", flush=True)
-    if parts:
-        r = answer["answer"]
-        longer = np.resize(f, (int(round(checked["answer"].record_s / trial.period)), 2))
-        calls = {
-            "crlb": lambda: aj.crlb(trial, f, free=ARM),
-            "predict_se": lambda: aj.predict_se(trial, f, free=ARM, statistic=r.statistic, draws=draws, key=key).se,
-            "predict_se_at_record": lambda: (
-                aj.predict_se(trial, longer, free=ARM, statistic=r.statistic, draws=draws, key=key).se
-            ),
-        }
-        for part, call in calls.items():
-            out[part] = timed(call, repeats)
-            print(f"{name}: {part} {summary(out[part])}", flush=True)
+    if args.check:
+        checked = timed(lambda: aj.record_for(trial, f, free=ARM, draws=draws, key=key, check=True), repeats)
+        out["record_for_check"] = checked
+        print(f"{name}: record_for(check=True) {summary(checked)}\n{checked['answer'].summary()}", flush=True)
+    if not args.parts:
+        return out
+    statistic = answer["answer"].statistic
+    longer = np.resize(f, (int(round(args.check_record / trial.period)), 2))
+    calls = {
+        "crlb": (lambda: aj.crlb(trial, f, free=ARM), repeats),
+        "predict_se": (
+            lambda: aj.predict_se(trial, f, free=ARM, statistic=statistic, draws=draws, key=key).se,
+            repeats,
+        ),
+        f"predict_se_at_{args.check_record:g}s": (
+            lambda: aj.predict_se(trial, longer, free=ARM, statistic=statistic, draws=draws, key=key).se,
+            1,
+        ),
+    }
+    for part, (call, times) in calls.items():
+        out[part] = timed(call, times)
+        print(f"{name}: {part} {summary(out[part])}", flush=True)
     return out
 
 
@@ -118,7 +127,7 @@ def main(args) -> int:
     runtime.configure()
     doc = dict(devices=jax.device_count(), cpus=os.cpu_count(), draws=args.draws, repeats=args.repeats)
     for name in args.cases:
-        doc[name] = {k: _plain(v) for k, v in measure(name, args.repeats, args.draws, args.parts).items()}
+        doc[name] = {k: _plain(v) for k, v in measure(name, args).items()}
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(doc, indent=1, default=float))
