@@ -218,7 +218,7 @@ def record_for(
     Returns a ``RecordLength``. One-line ``ValueError`` before any simulation for a bad input.
     """
     require_x64("record_for")
-    layout, precision = _check_record(trial, f, free, precision, level, entries, draws, check, target)
+    layout, precision = _check_record(trial, f, free, precision, level, entries, draws, check, target, statistic)
     f = check_signal(trial, f, "record_for")
     design_rel = None if design is None else _design_relative(design, tuple(precision), "record_for")
     notes = []
@@ -267,7 +267,7 @@ def _checked(out: RecordLength, trial, f, free, key) -> RecordLength:
     return dataclasses.replace(out, check={e: quantile(out.level) * again[e] for e in out.entries})
 
 
-def _check_record(trial, f, free, precision, level, entries, draws, check, target):
+def _check_record(trial, f, free, precision, level, entries, draws, check, target, statistic="auto"):
     """``(layout, {entry: precision})``: every input checked, one line each, before any simulation."""
     if not isinstance(trial, Trial):
         raise ValueError(f"record_for: trial must be a Trial (from make_trial), got {type(trial).__name__}")
@@ -276,6 +276,7 @@ def _check_record(trial, f, free, precision, level, entries, draws, check, targe
     layout = lay.make_layout(free, friction=trial.friction, where="record_for")
     labels = layout.labels()
     check_int("draws", draws, minimum=8)
+    check_choice("statistic", statistic, STATISTICS)
     if not isinstance(check, bool):
         raise ValueError(f"record_for: check must be True or False, got {check!r}")
     if target is not None:
@@ -330,7 +331,6 @@ def _bound_relative(trial, f, free, layout, entries, notes) -> tuple[dict, bool 
 def _statistic(trial, f, layout, statistic: str, near) -> str:
     """The statistic ``identify`` would use (as ``predict_se``'s ``"auto"``), decided once:
     Welch's where no arm matrix is free or the loop is not near-linear."""
-    check_choice("statistic", statistic, STATISTICS)
     if indirect.arm_layout(layout) is None:
         return "welch"
     if statistic != "auto":
