@@ -143,7 +143,7 @@ def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:
     if on_bound:
         print(f"controller (each arm resolves the rest itself): {doc['controller']}")
         print(
-            f"the bound's minutes at the start, per arm: {np.round(result.start_minutes, 2).tolist()}; drift "
+            f"the bound's minutes of the starting signal, per arm: {np.round(result.start_minutes, 2).tolist()}; drift "
             f"{1e3 * result.achieved['drift']:.3f} mm"
         )
     from armimp_jax.study.design_experiment import design_lines, friction_note
