@@ -182,7 +182,7 @@ def test_a_designs_record_per_arm_in_the_same_convention():
     assert "calibrate to see it" in design_lines(bound_only, 0.1)[-1]
 
 
-@pytest.mark.slow  # about 3 min cold on 2 cores: the bound and four short predictions through the friction
+@pytest.mark.slow  # 644 s cold on 2 cores shared at load 11-15: the bound and five short predictions
 def test_record_for_agrees_with_crlb_and_predict_se_in_closed_form():
     """IMBIC through 1 N m of LuGre friction: the bound's row is ``crlb``'s relative SEs carried by
     the closed form, the friction's row ``predict_se``'s (same draws); the deprecated target gives
@@ -215,7 +215,7 @@ def test_record_for_agrees_with_crlb_and_predict_se_in_closed_form():
     assert "plan on" in out.summary() and "checked at 6 s" in checked.summary()
 
 
-@pytest.mark.slow  # about 2 min: stick-slip, where no bound holds; two predictions
+@pytest.mark.slow  # 838 s cold on 2 cores shared at load 11-15: stick-slip, no bound; three predictions
 def test_record_for_through_stick_slip_answers_without_a_bound():
     trial = _trial(aj.PD(), aj.LuGre(0.3, 0.45))
     f = aj.perturbation(jax.random.key(5), 4000, 10.0)
