@@ -141,15 +141,16 @@ def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:
         f"{result.criterion_before:.4g}, designed {result.criterion_after:.4g}"
     )
     if on_bound:
-        p = config["design"]["precision"]
         print(f"controller (each arm resolves the rest itself): {doc['controller']}")
         print(
-            f"minutes for +-{p:.0%} at 95% on every target, per arm ({', '.join(r['label'] for r in doc['trials'])}): "
-            f"start {np.round(result.start_minutes, 2).tolist()}, designed {np.round(result.minutes, 2).tolist()} (at "
-            f"the {doc['record_s']:g} s signal written); drift {1e3 * result.achieved['drift']:.3f} mm"
+            f"the bound's minutes of the starting signal, per arm: {np.round(result.start_minutes, 2).tolist()}; drift "
+            f"{1e3 * result.achieved['drift']:.3f} mm"
         )
-        from armimp_jax.study.design_experiment import friction_note
+    from armimp_jax.study.design_experiment import design_lines, friction_note
 
+    labels = [r["label"] for r in doc["trials"]]
+    print("\n".join(design_lines(result, config["design"]["precision"], labels=labels, written_s=doc["record_s"])))
+    if on_bound and result.predicted_minutes is None:
         note = friction_note(result)
         if note:
             print(note)
