@@ -82,7 +82,7 @@ def _checked(loads, readings):
     if readings.ndim == 3:
         readings = readings.mean(axis=1)
     if loads.shape[0] < 3:
-        raise ValueError(f"{where}: give at least 3 loads (2 leave no spread to judge the fit by), got {loads.shape[0]}")
+        raise ValueError(f"{where}: give at least 3 loads (2 leave no residual spread), got {loads.shape[0]}")
     for a, axis in enumerate("xy"):
         if np.ptp(loads[:, a]) <= 0:
             raise ValueError(

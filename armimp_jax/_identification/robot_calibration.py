@@ -193,7 +193,7 @@ def _checked(recordings, robot: Robot, cutoff, min_rate: float):
         nyquist = 0.5 / r.period
         if cutoff is not None and not 0 < cutoff < nyquist:
             raise ValueError(
-                f"{where}: cutoff must be in (0, {nyquist:g}) Hz, below the Nyquist rate of its samples, got {cutoff} Hz"
+                f"{where}: cutoff must be in (0, {nyquist:g}) Hz, below its samples' Nyquist rate, got {cutoff} Hz"
             )
         position = _one_of(r, ("x", "q"), where)
         command = _one_of(r, ("command", "torque"), where)
@@ -218,9 +218,9 @@ def _check_motion(q, period: float, taps, min_rate: float, where: str) -> None:
     for j in range(2):
         if rate[j] < min_rate:
             raise ValueError(
-                f"{where}: the robot does not move: joint {j + 1} never turns faster than {rate[j]:.3g} rad/s (min_rate "
-                f"{min_rate:g} rad/s); record it alone under a perturbation that moves it (a larger one, or a softer "
-                "controller)"
+                f"{where}: the robot does not move: joint {j + 1} never turns faster than {rate[j]:.3g} rad/s "
+                f"(min_rate {min_rate:g} rad/s); record it alone under a perturbation that moves it (a larger one, "
+                "or a softer controller)"
             )
 
 
@@ -347,8 +347,8 @@ def _warnings(values, se, fraction, cutoff: float, band: float) -> list[str]:
         )
     if cutoff < CUTOFF_WARN * band:
         out.append(
-            f"the filter's cut-off, {cutoff:.1f} Hz, is below {CUTOFF_WARN:g} times the command's band ({band:.1f} Hz): "
-            "it discards part of the perturbation's motion, so the inertias are told less well; raise cutoff "
-            "(the accelerations' noise grows with it) or perturb below half the cut-off"
+            f"the filter's cut-off, {cutoff:.1f} Hz, is below {CUTOFF_WARN:g} times the command's band "
+            f"({band:.1f} Hz): it discards part of the perturbation's motion, so the inertias are told less well; "
+            "raise cutoff (the accelerations' noise grows with it) or perturb below half the cut-off"
         )
     return out
