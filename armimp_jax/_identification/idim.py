@@ -225,6 +225,15 @@ def rows(q, tau, period: float, taps, min_rate: float, noise=None) -> Rows:
     return Rows(y, zero_phase(taps, aligned_torque(tau)), keep, share, variance)
 
 
+def noise_fraction(recordings: list[Rows]):
+    """``(3,)``: the share of each inertia column's sum of squares that is the angles' noise
+    (what the compensation removes)."""
+    k = [r.keep.astype(float) for r in recordings]
+    total = sum(np.einsum("nip,ni->p", r.y**2, w) for r, w in zip(recordings, k, strict=True))
+    noise = sum(np.einsum("nipp,ni->p", r.noise, w) for r, w in zip(recordings, k, strict=True))
+    return (noise / total)[INERTIA]
+
+
 def solve(recordings: list[Rows]):
     """``(theta, covariance, lags)``: the bias-compensated least squares over every recording's
     kept rows and its Newey-West sandwich (one lag per recording)."""

@@ -36,6 +36,9 @@ BAND_MULTIPLE = 2.5  # the default cut-off over the command's band
 CUTOFF_WARN = 2.0  # a cut-off below this multiple of the band discards part of the perturbation's
 MOTION_SE = 0.01  # an inertia told to worse than this relative SE: too little motion
 STUCK_WARN = 0.10  # a joint kept for less than this share of the record: too much time stuck
+# An inertia column whose sum of squares is more than this share the angles' noise: its compensation
+# (a first-order correction) is then large enough to doubt (measured: 20% left the inertias 4-7 SE off)
+NOISE_WARN = 0.05
 MIN_KEPT = 200  # a joint needs at least this many kept samples in all
 INERTIA_NAMES = ("c1", "c2", "c3")
 
@@ -287,10 +290,11 @@ def calibrate_robot(
             f"(at least {MIN_KEPT}): record longer, or with a larger perturbation"
         )
     theta, cov, lags = idim.solve(rows)
-    return _result(rows, theta, cov, lags, _offset(data), robot, cutoff, band, time.perf_counter() - t0)
+    return _result(rows, theta, cov, lags, _offset(data), robot, (cutoff, band), time.perf_counter() - t0)
 
 
-def _result(rows, theta, cov, lags, offset, robot, cutoff, band, seconds) -> RobotCalibration:
+def _result(rows, theta, cov, lags, offset, robot, filtered, seconds) -> RobotCalibration:
+    cutoff, band = filtered
     samples = sum(r.keep.shape[0] for r in rows)
     kept = sum(r.keep.sum(axis=0) for r in rows)
     square = sum((r.residual(theta) ** 2).sum(axis=0) for r in rows)
@@ -322,14 +326,16 @@ def _result(rows, theta, cov, lags, offset, robot, cutoff, band, seconds) -> Rob
         band=band,
         lags=lags,
         angle_noise=np.sqrt(variance),
-        warnings=_warnings(values, se, fraction, cutoff, band),
+        warnings=_warnings(values, se, fraction, filtered, idim.noise_fraction(rows)),
         samples=samples,
         time_s=seconds,
     )
 
 
-def _warnings(values, se, fraction, cutoff: float, band: float) -> list[str]:
-    """Plain warnings: too little motion, too much time stuck, the cut-off in the band."""
+def _warnings(values, se, fraction, filtered, noise) -> list[str]:
+    """Plain warnings: too little motion, too much time stuck, the cut-off in the band, noisy
+    accelerations."""
+    cutoff, band = filtered
     out = []
     relative = se["robot.inertia"] / np.abs(values["robot.inertia"])
     weak = [f"{n} to {100 * r:.1f}%" for n, r in zip(INERTIA_NAMES, relative, strict=True) if r > MOTION_SE]
@@ -350,5 +356,10 @@ def _warnings(values, se, fraction, cutoff: float, band: float) -> list[str]:
             f"the filter's cut-off, {cutoff:.1f} Hz, is below {CUTOFF_WARN:g} times the command's band "
             f"({band:.1f} Hz): it discards part of the perturbation's motion, so the inertias are told less well; "
             "raise cutoff (the accelerations' noise grows with it) or perturb below half the cut-off"
+        )
+    if np.max(noise) > NOISE_WARN:
+        out.append(
+            f"the accelerations are {100 * np.max(noise):.0f}% encoder noise at this cut-off ({cutoff:.1f} Hz): the "
+            "inertias' correction for it is large; lower cutoff, record with finer encoders, or perturb harder"
         )
     return out
