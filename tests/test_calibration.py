@@ -105,7 +105,9 @@ def test_noise_free_synthetic_recovery_and_the_cutoff_rule():
     got = np.concatenate([cal.values[n] for n in ("robot.inertia", "friction.tau_c", "friction.viscous")])
     np.testing.assert_allclose(got, theta, rtol=5e-4)  # measured 1.8e-4: the period's second order
     assert cal.cutoff == pytest.approx(2.5 * cal.band)  # the default rule
-    assert 0.2 < cal.kept_fraction.min() and cal.kept_fraction.max() < 1.0
+    # joint 2 reverses often against this cut-off's reach (+-52 ms): kept 7%, and told so in a lab's terms
+    assert cal.kept_fraction[1] < 0.1 < cal.kept_fraction[0]
+    assert [w for w in cal.warnings if "stuck or slow" in w and "joint 2" in w and "joint 1" not in w]
 
 
 def test_newey_west_by_hand():
