@@ -23,7 +23,7 @@ from .._checks import as_float64, check_choice, check_int, is_concrete, require_
 from .._estimation.welch import check_finite
 from .._simulate import Trial
 from .._solver.numerics import Numerics
-from . import indirect
+from . import calibration_prior, indirect
 from . import layout as lay
 from .auxiliary import check_statistic_record
 from .bound import has_friction, is_near_linear
@@ -79,6 +79,7 @@ def predict_se(
     key=None,
     draws: int = 64,
     jacobian_draws: int = 8,
+    calibration=None,
 ) -> PredictedSE:
     """Predicted standard errors of ``identify`` for a planned experiment.
 
@@ -94,6 +95,8 @@ def predict_se(
         draws: as ``identify`` (its ``1 / R`` is in the prediction); also the draws behind
             ``Omega`` here, whose SEs then carry a Monte Carlo error of about ``1 / sqrt(2 R)``.
         jacobian_draws: as ``identify``.
+        calibration: as ``identify``'s: the free parameters it covers carry its information
+            (the trial's values stay the truth's; its covariance is what counts).
 
     Returns a ``PredictedSE``.
     """
@@ -116,6 +119,7 @@ def predict_se(
     n_draws, n_jac = indirect.draw_counts(trial, draws, jacobian_draws)
     keys = jax.random.split(key, n_draws)
     p = lay.pack(layout, trial)
+    info = calibration_prior.information(layout, trial, p, calibration)
     weight = None
     if efficient and has_friction(trial):
         if not is_concrete(f):
@@ -127,9 +131,9 @@ def predict_se(
             indirect.statistic_weight(layout, trial, p, f, keys[: indirect.weight_draws(n_draws)], numerics)
         )
     if is_concrete(f) and has_friction(trial):  # identify's slope through friction is the chord: so is this one's
-        cov, diverged = _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, efficient, weight)
+        cov, diverged = _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, efficient, weight, info)
     else:
-        cov, diverged = _prediction(layout, trial, p, f, keys, keys[:n_jac], numerics, n_draws, efficient, weight)
+        cov, diverged = _prediction(layout, trial, p, f, keys, keys[:n_jac], numerics, n_draws, efficient, weight, info)
     if is_concrete(f):
         # one program in flight at a time: two programs that split over the CPU devices and
         # meet at collectives, queued together, can each hold a thread the other waits for
@@ -155,14 +159,21 @@ _draws_and_tangent_jit = jax.jit(_draws_and_tangent, static_argnames=("layout", 
 
 
 @functools.partial(jax.jit, static_argnames=("layout", "numerics", "n_draws", "efficient"))
-def _prediction(layout, trial, p, f, keys, jac_keys, numerics, n_draws, efficient, weight):
+def _prediction(layout, trial, p, f, keys, jac_keys, numerics, n_draws, efficient, weight, info=None):
     """``(natural covariance, diverged)``: ``_draws_and_tangent`` and the covariance in one program."""
     _, stats, jac, diverged = _draws_and_tangent(layout, trial, p, f, keys, jac_keys, numerics, efficient, weight)
     g = lay.natural_jacobian(layout, p, trial)
-    return g @ indirect.covariance(jac, stats, n_draws) @ g.T, diverged
+    return g @ _covariance(jac, stats, n_draws, info) @ g.T, diverged
 
 
-def _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, efficient, weight):
+def _covariance(jac, stats, n_draws, info):
+    """``indirect.covariance``, with a calibration's information where ``info`` is given."""
+    if info is None:
+        return indirect.covariance(jac, stats, n_draws)
+    return calibration_prior.covariance(jac, stats, n_draws, info)
+
+
+def _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, efficient, weight, info=None):
     """``_prediction`` with ``identify``'s slope through friction: the binding's chord over +-1
     SE (the tangent's), on ``indirect.CHORD_DRAWS`` of the draws (``indirect.chord``). Concrete
     ``f`` only: under tracing ``predict_se`` keeps the tangent (its gradient is the tangent's)."""
@@ -170,7 +181,7 @@ def _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, effic
         layout, trial, p, f, keys, keys[:n_jac], numerics, efficient, weight
     )
     stats, tangent = np.asarray(stats), np.asarray(tangent)
-    half = np.sqrt(np.diag(np.asarray(indirect.covariance(tangent, stats, n_draws))))
+    half = np.sqrt(np.diag(np.asarray(_covariance(tangent, stats, n_draws, info))))
     chord_keys = keys[: indirect.chord_draws(n_draws)]
 
     def means_at(points):
@@ -178,4 +189,4 @@ def _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, effic
 
     slope = indirect.chord(means_at, np.asarray(p), half, tangent)
     g = lay.natural_jacobian(layout, p, trial)
-    return g @ indirect.covariance(jnp.asarray(slope), jnp.asarray(stats), n_draws) @ g.T, diverged
+    return g @ _covariance(jnp.asarray(slope), jnp.asarray(stats), n_draws, info) @ g.T, diverged

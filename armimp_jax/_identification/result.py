@@ -191,8 +191,9 @@ def _warnings(problem: search.Problem, pool: pl.Pool, p, labels, values, se, cov
     not_told = {}
     se_internal = np.sqrt(np.maximum(np.diag(cov_p), 0.0))
     nat_index = _natural_of_internal(pool)
-    for k, mean in zip(problem.prior_index, problem.prior_mean, strict=True):
-        if se_internal[k] > 0.5 * search.PRIOR_SD:
+    calibrated = problem.calibrated_prior
+    for i, (k, mean) in enumerate(zip(problem.prior_index, problem.prior_mean, strict=True)):
+        if se_internal[k] > 0.5 * search.PRIOR_SD and (calibrated is None or not calibrated.told[i]):
             ends = []
             for end in (-1.96, 1.96):  # the prior's 95% range, through the parameter's own map
                 q = np.array(p, dtype=float)

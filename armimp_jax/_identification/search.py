@@ -95,10 +95,20 @@ class Problem(NamedTuple):
     slack: float
     size: int
     chord: bool = False  # the fine slope is the binding's chord (friction in a noisy loop), not its tangent
+    # calibration_prior.CalibratedPrior: the prior's moments are ``root @ p[prior_index]`` (a lab's
+    # calibration: its mean and covariance) instead of ``p[prior_index]``; ``None``: the default's
+    calibrated_prior: object = None
 
     @property
     def n_draws(self) -> int:
         return self.parts[0].keys.shape[0]
+
+
+def prior_moments(problem: Problem, p):
+    """The nuisance prior's moments of ``p`` ``(..., n)``: its entries ``prior_index``, through a
+    calibration's root where one is given."""
+    q = p[..., problem.prior_index]
+    return q if problem.calibrated_prior is None else q @ problem.calibrated_prior.root.T
 
 
 class Search(NamedTuple):
@@ -126,10 +136,10 @@ def _with_prior(problem: Problem, p, mean, stats, jac=None):
     """The binding's mean, draws and slope with the nuisance prior's moments appended (each
     prior moment is its parameter, with no spread over the draws)."""
     k = problem.prior_index
-    mean = np.concatenate([mean, p[k]])
-    stats = np.concatenate([stats, np.broadcast_to(p[k], (stats.shape[0], k.size))], axis=1)
+    mean = np.concatenate([mean, prior_moments(problem, p)])
+    stats = np.concatenate([stats, np.broadcast_to(prior_moments(problem, p), (stats.shape[0], k.size))], axis=1)
     if jac is not None:
-        jac = np.concatenate([jac, np.eye(p.size)[k]])
+        jac = np.concatenate([jac, prior_moments(problem, np.eye(p.size)).T])
     return mean, stats, jac
 
 
@@ -236,7 +246,7 @@ def _chord_binding(problem: Problem, p):
                 )
                 diverged[moved] |= div
             blocks.append(means)
-        return np.concatenate([*blocks, points[:, problem.prior_index]], axis=1), diverged
+        return np.concatenate([*blocks, prior_moments(problem, points)], axis=1), diverged
 
     return means_at
 

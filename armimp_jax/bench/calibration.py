@@ -17,6 +17,7 @@ noise 0.05 N, 2^18-count encoders), two robot-alone recordings of 20 s under PD 
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 
@@ -198,4 +199,101 @@ def coverage_table(summary: dict) -> str:
         for i, c in enumerate(s["coverage"]):
             cells = f"{c:.2f} | {s['mean_z'][i]:+.2f} | {s['sd_z'][i]:.2f} | {s['mean_se'][i]:.2g}"
             lines.append(f"| {name}[{i}] | {cells} |")
+    return "\n".join(lines)
+
+
+# The arm through the calibration (``arm_study``): the protocol's human recording (IMBIC, arm 2,
+# LuGre 0.5 / 0.75 N m, the truth's robot 15% heavier, its sigma2 twice, the force 2 ms late) and
+# this seed's robot-alone pair, identified four ways.
+ARM_FREE = pr.ARM + ("sensors.force_delay",)
+CALIBRATED = ("robot.inertia", "friction.tau_c", "friction.sigma2")
+VARIANTS = ("calibrated", "nominal", "true", "motor-force")
+
+
+def _arm_case(variant: str, seed: int):
+    """``(model, recording, f, free, calibration, truth values)`` of one variant and seed."""
+    from armimp_jax import presets
+
+    motor = variant == "motor-force"
+    truth, model = pr.calibration_truth(motor)
+    cal = None
+    if variant in ("calibrated", "motor-force"):
+        cal = aj.calibrate_robot(as_recordings(alone_recordings(seed)))
+    if motor:  # the lab reads the hand force through its calibrated model of the robot
+        sensors = aj.Sensors(**pr.NOISE, force_model=cal.robot)
+        truth, model = (dataclasses.replace(t, sensors=sensors) for t in (truth, model))
+    free = (pr.ARM if motor else ARM_FREE) + (CALIBRATED if cal is not None else ())
+    if variant == "true":  # the lab knows its robot: the truth's inertia and friction, the delay still free
+        model = dataclasses.replace(model, robot=truth.robot, friction=truth.friction)
+    f = aj.perturbation(jax.random.key(7), int(round(SECONDS * 1000)), presets.perturbation_peak(1))
+    rec = pr._record(truth, f, 1000 + seed)
+    return model, rec, f, free, cal, pr._truth_values(truth, free)
+
+
+def arm_row(variant: str, seed: int, *, draws: int = 64) -> dict:
+    """One recording of ``variant`` identified (``protocol.one``'s row)."""
+    model, rec, f, free, cal, truth = _arm_case(variant, seed)
+    res = aj.identify(model, f, rec.x, rec.fh, free=free, calibration=cal, draws=draws, key=jax.random.key(seed))
+    return dict(
+        seed=seed,
+        diverged=False,
+        converged=bool(res.converged),
+        message=res.message,
+        warnings=list(res.warnings),
+        time_s=float(res.time_s),
+        iterations=int(res.iterations),
+        values={n: np.asarray(v).tolist() for n, v in res.values.items()},
+        se={n: np.asarray(v).tolist() for n, v in res.se.items()},
+        truth={n: np.asarray(v).tolist() for n, v in truth.items()},
+    )
+
+
+def arm_study(variants, seeds: int, out, *, draws: int = 64) -> dict:
+    """Run (or resume) ``variants`` x ``seeds`` in run folder ``out`` on the study engine; per
+    variant ``{seeds: rows, summary}`` (``protocol.summary``: coverage, SD of z), and the arm's
+    mean SEs over the true robot's where both ran (what the calibration's uncertainty costs)."""
+
+    def report(name, row):
+        steps = f"{row['iterations']} steps, converged {row['converged']}"
+        return f"  {name} seed {row['seed']}: {row['time_s']:.1f} s, {steps}"
+
+    def finish(run, rows):
+        done = {name: dict(seeds=rs, summary=pr.summary(rs)) for name, rs in rows.items()}
+        true = done.get("true", {}).get("summary", {}).get("parameters", {})
+        for name, d in done.items():
+            mine = d["summary"].get("parameters", {})
+            d["se_over_true"] = {
+                n: np.divide(mine[n]["mean_se"], true[n]["mean_se"]).tolist() for n in pr.ARM if n in mine and n in true
+            }
+        return done
+
+    settings = dict(draws=draws, seconds=SECONDS, study="calibration-arm")
+    spec = cov.Recordings(
+        "calibration-arm",
+        settings,
+        list(variants),
+        range(seeds),
+        lambda c: (c, None),
+        lambda c, _f, _n, s: arm_row(c, s, draws=draws),
+        report,
+    )
+    return cov.run_recordings(spec, out, finish=finish).finished
+
+
+def arm_table(done: dict) -> str:
+    """Per variant: converged, the arm's coverage, the SD of z per arm diagonal, the SE over the
+    true robot's."""
+    lines = [
+        "| variant | converged | arm coverage | SD of z, diagonals (M, B, K) | SE / true robot's, diagonals |",
+        "|---|---|---|---|---|",
+    ]
+    for name, d in done.items():
+        s = d["summary"]
+        sd = ratio = "-"
+        if "parameters" in s and s["parameters"]:
+            sd = " ".join(f"{s['parameters'][n]['sd_z'][i]:.2f}" for n in pr.ARM for i in (0, 3))
+        if d.get("se_over_true"):
+            ratio = " ".join(f"{d['se_over_true'][n][i]:.2f}" for n in pr.ARM for i in (0, 3))
+        cover = "-" if s.get("coverage_arm") is None else f"{s['coverage_arm']:.3f}"
+        lines.append(f"| {name} | {s['converged']}/{s['recordings']} | {cover} | {sd} | {ratio} |")
     return "\n".join(lines)
