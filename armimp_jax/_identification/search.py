@@ -58,6 +58,8 @@ HALVINGS = 6  # a step is halved at most this many times while a draw diverges o
 # The nuisance prior of each free friction parameter: this SD on its internal (log or logit) scale
 # about its start, a factor of e^2 ~ 7 either way.
 PRIOR_SD = 2.0
+# A calibrated nuisance's chord spans at least this on its internal scale (1% of a log-scale value)
+CALIBRATED_CHORD = 0.01
 # The stream (``jax.random.fold_in`` of a part's first key) of ``spread_ratio``'s prior draws: far from
 # the sample indices the draws' own noise folds in.
 SPREAD_STREAM = 2**31 - 1
@@ -222,7 +224,19 @@ def _slope(problem: Problem, p, se_p):
     widths, else (and for a column whose draws diverge) the tangent on every Jacobian draw."""
     if not (problem.chord and se_p is not None and np.all(np.isfinite(se_p)) and np.all(se_p > 0)):
         return _jacobian(problem, p)
-    return indirect.chord(_chord_binding(problem, p), p, np.asarray(se_p, dtype=float), lambda: _jacobian(problem, p))
+    widths = _chord_widths(problem, se_p)
+    return indirect.chord(_chord_binding(problem, p), p, widths, lambda: _jacobian(problem, p))
+
+
+def _chord_widths(problem: Problem, se_p):
+    """The chord's half-widths: each parameter's SE, a calibration's entries at least
+    ``CALIBRATED_CHORD`` on their internal scale (their SE, the calibration's, is far below the
+    scale over which the binding through friction is smooth)."""
+    widths = np.asarray(se_p, dtype=float).copy()
+    if problem.calibrated_prior is not None:
+        k = problem.prior_index[problem.calibrated_prior.told]
+        widths[k] = np.maximum(widths[k], CALIBRATED_CHORD)
+    return widths
 
 
 def _chord_binding(problem: Problem, p):

@@ -204,8 +204,10 @@ def coverage_table(summary: dict) -> str:
 
 # The arm through the calibration (``arm_study``): the protocol's human recording (IMBIC, arm 2,
 # LuGre 0.5 / 0.75 N m, the truth's robot 15% heavier, its sigma2 twice, the force 2 ms late) and
-# this seed's robot-alone pair, identified four ways.
-ARM_FREE = pr.ARM + ("sensors.force_delay",)
+# this seed's robot-alone pair, identified four ways. The force channel's delay is no part of the
+# robot's calibration: the lab measures it apart (a tap on the handle), so every model has the
+# truth's 2 ms (with it free from 1 ms the case was fragile on seed 0 with the true robot too: the
+# delay barely told, the fitted model diverging).
 CALIBRATED = ("robot.inertia", "friction.tau_c", "friction.sigma2")
 VARIANTS = ("calibrated", "nominal", "true", "motor-force")
 
@@ -221,9 +223,12 @@ def _arm_case(variant: str, seed: int):
         cal = aj.calibrate_robot(as_recordings(alone_recordings(seed)))
     if motor:  # the lab reads the hand force through its calibrated model of the robot
         sensors = aj.Sensors(**pr.NOISE, force_model=cal.robot)
-        truth, model = (dataclasses.replace(t, sensors=sensors) for t in (truth, model))
-    free = (pr.ARM if motor else ARM_FREE) + (CALIBRATED if cal is not None else ())
-    if variant == "true":  # the lab knows its robot: the truth's inertia and friction, the delay still free
+        truth = dataclasses.replace(truth, sensors=sensors)
+    else:  # the delay measured apart
+        sensors = aj.Sensors(**pr.NOISE, force_delay=pr.DELAY_S)
+    model = dataclasses.replace(model, sensors=sensors)
+    free = pr.ARM + (CALIBRATED if cal is not None else ())
+    if variant == "true":  # the lab knows its robot: the truth's inertia and friction
         model = dataclasses.replace(model, robot=truth.robot, friction=truth.friction)
     f = aj.perturbation(jax.random.key(7), int(round(SECONDS * 1000)), presets.perturbation_peak(1))
     rec = pr._record(truth, f, 1000 + seed)
