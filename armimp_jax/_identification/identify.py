@@ -111,15 +111,15 @@ def _recordings(model, f, x, fh) -> list[Recording]:
     return out
 
 
-def _calibrated(recordings, calibration):
+def _calibrated(recordings, calibration, free):
     """``(recordings, calibration_prior.Calibrated | None)``. A ``RobotCalibration``
     (``calibrate_robot``), a ``ForceCalibration`` (``calibrate_force``) or a list of them: every
-    model takes their values, and the free parameters they cover carry their mean and covariance
-    as prior, so the arm's intervals carry their uncertainty (``calibration_prior.py``); refused
-    in one line if it is of another robot (link lengths, base) than a model's."""
+    model takes their values and holds them, and their covariance is carried into the free
+    parameters' (``calibration_prior.py``); refused in one line if it is of another robot (link
+    lengths, base) than a model's, or covers a parameter named in ``free``."""
     if calibration is None:
         return recordings, None
-    return calibration_prior.apply(recordings, calibration)
+    return calibration_prior.apply(recordings, calibration, free)
 
 
 def _arrays(r: Recording, where: str) -> dict:
@@ -249,14 +249,14 @@ def identify(
         max_steps: Gauss-Newton steps at most.
         progress: a function called after each step with ``{"step", "cost", "step_se",
             "seconds"}``, or ``True`` for one line per step on stderr.
-        calibration: a ``RobotCalibration``, ``ForceCalibration`` or list: values and prior (``_calibrated``).
+        calibration: a ``RobotCalibration``, ``ForceCalibration`` or list: held, and carried (``_calibrated``).
 
     Returns an ``Identification``. Raises a one-line ``ValueError`` before any long computation for an
     unknown parameter, NaN or inf in a recording, mismatched lengths, a calibration of another robot, or a
     start at which a model diverges. A fit that does not converge has ``converged=False``, ``message`` why."""
     require_x64("identify")
     t_start = time.perf_counter()
-    recordings, calibrated = _calibrated(_recordings(model, f, x, fh), calibration)
+    recordings, calibrated = _calibrated(_recordings(model, f, x, fh), calibration, free)
     checked = _check(recordings, free, symmetric, shared, statistic, numerics, draws, jacobian_draws, max_steps)
     layout, shared, numerics, draws, jacobian_draws, max_steps = checked
     pool = pl.make_pool(recordings, layout.names, tuple(n for n, s in zip(layout.names, layout.symmetric) if s), shared)
@@ -267,7 +267,7 @@ def identify(
     )
     start = centred if not _diverges(parts, centred, numerics) else p
     n_jac = indirect.draw_counts(recordings[0].model, draws, jacobian_draws)[1]
-    problem = _problem(parts, groups, recordings, pool, p, numerics, n_jac, calibrated)
+    problem = _problem(parts, groups, recordings, pool, p, numerics, n_jac)._replace(calibration=calibrated)
     state = _init(problem, start, p)
     report = _reporter(progress, t_start)
     while not state.done:
@@ -349,10 +349,10 @@ def _checked_start(layout, model, p, f, numerics) -> float:
     return time.perf_counter() - t0
 
 
-def _problem(parts, groups, recordings, pool: pl.Pool, p0, numerics, n_jac, calibrated=None) -> search.Problem:
+def _problem(parts, groups, recordings, pool: pl.Pool, p0, numerics, n_jac) -> search.Problem:
     """What the search holds fixed: the recordings' statistics (the mean over a template's
-    recordings), the nuisance prior (a calibration's where ``calibrated`` covers a free
-    parameter) and the slack; a one-line error for statistics a recording leaves undefined."""
+    recordings), the nuisance prior and the slack; a one-line error for statistics a recording
+    leaves undefined."""
     bs = []
     for part, members in zip(parts, groups, strict=True):
         b = []
@@ -376,23 +376,11 @@ def _problem(parts, groups, recordings, pool: pl.Pool, p0, numerics, n_jac, cali
     prior_mean = p0[prior_index]
     n_draws = parts[0].keys.shape[0]
     slack = b.size / n_draws if noisy else 1e-24 * (1.0 + float(b @ b))  # the binding's own MC jitter
-    calibrated_prior = calibration_prior.prior(pool, p0, prior_index, calibrated)
-    moments = prior_mean if calibrated_prior is None else calibrated_prior.root @ prior_mean
-    statistics_and_prior = np.concatenate([b, moments])
+    statistics_and_prior = np.concatenate([b, prior_mean])
     # through friction the binding's tangent misses its chord over the SEs (search._slope)
     chord = noisy and any(has_friction(r.model) for r in recordings)
     return search.Problem(
-        tuple(parts),
-        numerics,
-        n_jac,
-        noisy,
-        statistics_and_prior,
-        prior_index,
-        prior_mean,
-        slack,
-        p0.size,
-        chord,
-        calibrated_prior,
+        tuple(parts), numerics, n_jac, noisy, statistics_and_prior, prior_index, prior_mean, slack, p0.size, chord
     )
 
 

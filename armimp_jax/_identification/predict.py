@@ -95,8 +95,8 @@ def predict_se(
         draws: as ``identify`` (its ``1 / R`` is in the prediction); also the draws behind
             ``Omega`` here, whose SEs then carry a Monte Carlo error of about ``1 / sqrt(2 R)``.
         jacobian_draws: as ``identify``.
-        calibration: as ``identify``'s: the free parameters it covers carry its information
-            (the trial's values stay the truth's; its covariance is what counts).
+        calibration: as ``identify``'s: its covariance carried into the prediction (the trial's
+            values stay the planned truth's); needs a concrete ``f``.
 
     Returns a ``PredictedSE``.
     """
@@ -119,7 +119,8 @@ def predict_se(
     n_draws, n_jac = indirect.draw_counts(trial, draws, jacobian_draws)
     keys = jax.random.split(key, n_draws)
     p = lay.pack(layout, trial)
-    info = calibration_prior.information(layout, trial, p, calibration)
+    if calibration is not None:  # refused before any simulation
+        _check_calibration(calibration, trial, f)
     weight = None
     if efficient and has_friction(trial):
         if not is_concrete(f):
@@ -131,9 +132,12 @@ def predict_se(
             indirect.statistic_weight(layout, trial, p, f, keys[: indirect.weight_draws(n_draws)], numerics)
         )
     if is_concrete(f) and has_friction(trial):  # identify's slope through friction is the chord: so is this one's
-        cov, diverged = _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, efficient, weight, info)
+        cov, diverged = _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, efficient, weight)
     else:
-        cov, diverged = _prediction(layout, trial, p, f, keys, keys[:n_jac], numerics, n_draws, efficient, weight, info)
+        cov, diverged = _prediction(layout, trial, p, f, keys, keys[:n_jac], numerics, n_draws, efficient, weight)
+    if calibration is not None:
+        slope = (layout, trial, p, f, keys, n_jac, numerics, n_draws, efficient, weight)
+        cov = cov + _calibration_share(*slope, calibration)
     if is_concrete(f):
         # one program in flight at a time: two programs that split over the CPU devices and
         # meet at collectives, queued together, can each hold a thread the other waits for
@@ -159,21 +163,14 @@ _draws_and_tangent_jit = jax.jit(_draws_and_tangent, static_argnames=("layout", 
 
 
 @functools.partial(jax.jit, static_argnames=("layout", "numerics", "n_draws", "efficient"))
-def _prediction(layout, trial, p, f, keys, jac_keys, numerics, n_draws, efficient, weight, info=None):
+def _prediction(layout, trial, p, f, keys, jac_keys, numerics, n_draws, efficient, weight):
     """``(natural covariance, diverged)``: ``_draws_and_tangent`` and the covariance in one program."""
     _, stats, jac, diverged = _draws_and_tangent(layout, trial, p, f, keys, jac_keys, numerics, efficient, weight)
     g = lay.natural_jacobian(layout, p, trial)
-    return g @ _covariance(jac, stats, n_draws, info) @ g.T, diverged
+    return g @ indirect.covariance(jac, stats, n_draws) @ g.T, diverged
 
 
-def _covariance(jac, stats, n_draws, info):
-    """``indirect.covariance``, with a calibration's information where ``info`` is given."""
-    if info is None:
-        return indirect.covariance(jac, stats, n_draws)
-    return calibration_prior.covariance(jac, stats, n_draws, info)
-
-
-def _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, efficient, weight, info=None):
+def _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, efficient, weight):
     """``_prediction`` with ``identify``'s slope through friction: the binding's chord over +-1
     SE (the tangent's), on ``indirect.CHORD_DRAWS`` of the draws (``indirect.chord``). Concrete
     ``f`` only: under tracing ``predict_se`` keeps the tangent (its gradient is the tangent's)."""
@@ -181,7 +178,7 @@ def _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, effic
         layout, trial, p, f, keys, keys[:n_jac], numerics, efficient, weight
     )
     stats, tangent = np.asarray(stats), np.asarray(tangent)
-    half = np.sqrt(np.diag(np.asarray(_covariance(tangent, stats, n_draws, info))))
+    half = np.sqrt(np.diag(np.asarray(indirect.covariance(tangent, stats, n_draws))))
     chord_keys = keys[: indirect.chord_draws(n_draws)]
 
     def means_at(points):
@@ -189,4 +186,35 @@ def _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, effic
 
     slope = indirect.chord(means_at, np.asarray(p), half, tangent)
     g = lay.natural_jacobian(layout, p, trial)
-    return g @ _covariance(jnp.asarray(slope), jnp.asarray(stats), n_draws, info) @ g.T, diverged
+    return g @ indirect.covariance(jnp.asarray(slope), jnp.asarray(stats), n_draws) @ g.T, diverged
+
+
+def _calibration_share(layout, trial, p, f, keys, n_jac, numerics, n_draws, efficient, weight, calibration):
+    """The calibration's share of the natural covariance (``calibration_prior``'s two-step term),
+    through ``identify``'s slope (the chord through friction). Concrete ``f`` only."""
+    cal = calibration_prior.combine(calibration, trial.friction)
+    arm_stat, stats, slope, _ = _draws_and_tangent_jit(
+        layout, trial, p, f, keys, keys[:n_jac], numerics, efficient, weight
+    )
+    stats, slope = np.asarray(stats), np.asarray(slope)
+    if has_friction(trial):
+        half = np.sqrt(np.diag(np.asarray(indirect.covariance(slope, stats, n_draws))))
+        chord_keys = keys[: indirect.chord_draws(n_draws)]
+
+        def means_at(points):
+            return indirect.binding_means(layout, trial, points, f, chord_keys, numerics, arm_stat)
+
+        slope = indirect.chord(means_at, np.asarray(p), half, slope)
+    _, sigma = calibration_prior.internal_covariance(cal, trial)
+    chord_keys = keys[: indirect.chord_draws(n_draws)]
+    a_c = calibration_prior.chord_columns(layout, trial, p, f, chord_keys, numerics, arm_stat, cal, sigma)
+    aw = slope.T * np.asarray(indirect.weights(stats))[None, :]
+    move = np.linalg.solve(aw @ slope, aw @ a_c)
+    g = np.asarray(lay.natural_jacobian(layout, p, trial))
+    return g @ move @ sigma @ move.T @ g.T
+
+
+def _check_calibration(calibration, trial, f) -> None:
+    if not is_concrete(f):
+        raise ValueError("predict_se: calibration= needs a concrete f (its chord is simulated)")
+    calibration_prior.check_robot(calibration, trial, "predict_se")

@@ -16,9 +16,9 @@ import scipy.stats
 from .._estimation.estimate import estimate
 from .._estimation.fit import ImpedanceFit, fit_impedance
 from .._simulate import Trial
+from . import calibration_prior, search
 from . import layout as lay
 from . import pool as pl
-from . import search
 from .auxiliary import statistic_labels
 from .diagnosis import motion_diagnosis
 from .indirect import predict
@@ -191,9 +191,8 @@ def _warnings(problem: search.Problem, pool: pl.Pool, p, labels, values, se, cov
     not_told = {}
     se_internal = np.sqrt(np.maximum(np.diag(cov_p), 0.0))
     nat_index = _natural_of_internal(pool)
-    calibrated = problem.calibrated_prior
-    for i, (k, mean) in enumerate(zip(problem.prior_index, problem.prior_mean, strict=True)):
-        if se_internal[k] > 0.5 * search.PRIOR_SD and (calibrated is None or not calibrated.told[i]):
+    for k, mean in zip(problem.prior_index, problem.prior_mean, strict=True):
+        if se_internal[k] > 0.5 * search.PRIOR_SD:
             ends = []
             for end in (-1.96, 1.96):  # the prior's 95% range, through the parameter's own map
                 q = np.array(p, dtype=float)
@@ -316,6 +315,7 @@ def assemble(problem: search.Problem, state: search.Search, pool: pl.Pool, recor
     x, fh)``, the index of its binding in ``problem.parts`` and its recording."""
     p = state.p
     cov_p, problems, check = search.final_covariance(problem, state)
+    cov_p = cov_p + calibration_prior.carried(problem, state)  # a lab's calibration's uncertainty
     fits, stuck = [], []
     for (t, x, fh), group in zip(recorded, pool.groups, strict=True):
         fit, diverged, st = _fit(problem.parts[t], p, problem.numerics, x, fh, group)

@@ -58,8 +58,6 @@ HALVINGS = 6  # a step is halved at most this many times while a draw diverges o
 # The nuisance prior of each free friction parameter: this SD on its internal (log or logit) scale
 # about its start, a factor of e^2 ~ 7 either way.
 PRIOR_SD = 2.0
-# A calibrated nuisance's chord spans at least this on its internal scale (1% of a log-scale value)
-CALIBRATED_CHORD = 0.01
 # The stream (``jax.random.fold_in`` of a part's first key) of ``spread_ratio``'s prior draws: far from
 # the sample indices the draws' own noise folds in.
 SPREAD_STREAM = 2**31 - 1
@@ -97,20 +95,11 @@ class Problem(NamedTuple):
     slack: float
     size: int
     chord: bool = False  # the fine slope is the binding's chord (friction in a noisy loop), not its tangent
-    # calibration_prior.CalibratedPrior: the prior's moments are ``root @ p[prior_index]`` (a lab's
-    # calibration: its mean and covariance) instead of ``p[prior_index]``; ``None``: the default's
-    calibrated_prior: object = None
+    calibration: object = None  # calibration_prior.Calibrated: held in the models, carried into the covariance
 
     @property
     def n_draws(self) -> int:
         return self.parts[0].keys.shape[0]
-
-
-def prior_moments(problem: Problem, p):
-    """The nuisance prior's moments of ``p`` ``(..., n)``: its entries ``prior_index``, through a
-    calibration's root where one is given."""
-    q = p[..., problem.prior_index]
-    return q if problem.calibrated_prior is None else q @ problem.calibrated_prior.root.T
 
 
 class Search(NamedTuple):
@@ -138,10 +127,10 @@ def _with_prior(problem: Problem, p, mean, stats, jac=None):
     """The binding's mean, draws and slope with the nuisance prior's moments appended (each
     prior moment is its parameter, with no spread over the draws)."""
     k = problem.prior_index
-    mean = np.concatenate([mean, prior_moments(problem, p)])
-    stats = np.concatenate([stats, np.broadcast_to(prior_moments(problem, p), (stats.shape[0], k.size))], axis=1)
+    mean = np.concatenate([mean, p[k]])
+    stats = np.concatenate([stats, np.broadcast_to(p[k], (stats.shape[0], k.size))], axis=1)
     if jac is not None:
-        jac = np.concatenate([jac, prior_moments(problem, np.eye(p.size)).T])
+        jac = np.concatenate([jac, np.eye(p.size)[k]])
     return mean, stats, jac
 
 
@@ -224,19 +213,7 @@ def _slope(problem: Problem, p, se_p):
     widths, else (and for a column whose draws diverge) the tangent on every Jacobian draw."""
     if not (problem.chord and se_p is not None and np.all(np.isfinite(se_p)) and np.all(se_p > 0)):
         return _jacobian(problem, p)
-    widths = _chord_widths(problem, se_p)
-    return indirect.chord(_chord_binding(problem, p), p, widths, lambda: _jacobian(problem, p))
-
-
-def _chord_widths(problem: Problem, se_p):
-    """The chord's half-widths: each parameter's SE, a calibration's entries at least
-    ``CALIBRATED_CHORD`` on their internal scale (their SE, the calibration's, is far below the
-    scale over which the binding through friction is smooth)."""
-    widths = np.asarray(se_p, dtype=float).copy()
-    if problem.calibrated_prior is not None:
-        k = problem.prior_index[problem.calibrated_prior.told]
-        widths[k] = np.maximum(widths[k], CALIBRATED_CHORD)
-    return widths
+    return indirect.chord(_chord_binding(problem, p), p, np.asarray(se_p, dtype=float), lambda: _jacobian(problem, p))
 
 
 def _chord_binding(problem: Problem, p):
@@ -260,7 +237,7 @@ def _chord_binding(problem: Problem, p):
                 )
                 diverged[moved] |= div
             blocks.append(means)
-        return np.concatenate([*blocks, prior_moments(problem, points)], axis=1), diverged
+        return np.concatenate([*blocks, points[:, problem.prior_index]], axis=1), diverged
 
     return means_at
 
