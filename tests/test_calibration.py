@@ -235,3 +235,31 @@ def test_identify_refuses_a_calibration_of_another_robot_in_one_line(synthetic_c
     assert "\n" not in str(info.value)
     with pytest.raises(ValueError, match="calibration must be a RobotCalibration"):
         aj.identify(trial, f, x, fh, free=("arm.stiffness",), calibration="robot.toml")
+
+
+def test_two_calibrations_of_the_offset_combine_as_independent_measurements():
+    from armimp_jax._identification import calibration_prior as cp
+
+    q, tau, _ = _synthetic(counts=2**16, seconds=8.0)
+    fh = np.array([0.2, -0.1]) + 0.05 * np.random.default_rng(4).standard_normal(q.shape)
+    robot = aj.calibrate_robot(aj.RobotRecording(q=q, torque=tau, fh=fh))
+    loads = np.array([[0.0, 0.0], [9.81, 0.0], [19.62, 0.0], [0.0, 9.81], [0.0, 19.62]])
+    readings = 1.02 * loads + np.array([0.21, -0.12]) + 0.01 * np.random.default_rng(5).standard_normal(loads.shape)
+    force = aj.calibrate_force(loads, readings)
+    both = cp.combine([robot, force], aj.LuGre(0.5, 0.75))
+    i = [both.labels.index(f"sensors.force_offset[{a}]") for a in range(2)]
+    j = [robot.labels.index(f"sensors.force_offset[{a}]") for a in range(2)]
+    k = [force.labels.index(f"sensors.force_offset[{a}]") for a in range(2)]
+    # the robot's offset block is independent of its dynamics; the force's correlates with its gain
+    info_robot = np.linalg.inv(robot.covariance[np.ix_(j, j)])
+    full = np.linalg.inv(force.prior_covariance())
+    schur = full[np.ix_(k, k)] - full[np.ix_(k, [0, 1])] @ np.linalg.solve(full[:2, :2], full[np.ix_([0, 1], k)])
+    # what the loads tell the offset once their gain is free: the Schur complement of its information
+    np.testing.assert_allclose(np.linalg.inv(both.covariance[np.ix_(i, i)]), info_robot + schur, rtol=1e-8)
+    assert set(both.names()) == {
+        "robot.inertia",
+        "friction.tau_c",
+        "friction.sigma2",
+        "sensors.force_offset",
+        "sensors.force_gain",
+    }
