@@ -315,7 +315,8 @@ def assemble(problem: search.Problem, state: search.Search, pool: pl.Pool, recor
     x, fh)``, the index of its binding in ``problem.parts`` and its recording."""
     p = state.p
     cov_p, problems, check = search.final_covariance(problem, state)
-    cov_p = cov_p + calibration_prior.carried(problem, state)  # a lab's calibration's uncertainty
+    if problem.calibration is not None:  # a lab's calibration's uncertainty, carried
+        cov_p = cov_p + calibration_prior.carried(problem, state)
     fits, stuck = [], []
     for (t, x, fh), group in zip(recorded, pool.groups, strict=True):
         fit, diverged, st = _fit(problem.parts[t], p, problem.numerics, x, fh, group)
