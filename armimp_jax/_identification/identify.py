@@ -52,7 +52,7 @@ from .._checks import as_float64, check_int, require_x64
 from .._estimation.welch import check_finite
 from .._simulate import Trial
 from .._solver.numerics import Numerics
-from . import efficient, indirect, linear, search
+from . import calibration_prior, efficient, indirect, linear, search
 from . import layout as lay
 from . import pool as pl
 from .auxiliary import check_statistic_record, statistic_labels, statistics
@@ -110,6 +110,17 @@ def _recordings(model, f, x, fh) -> list[Recording]:
     if len({r.model.noisy for r in out}) > 1:
         raise ValueError("identify: every recording's model must have noise (Sensors, VoluntaryForce), or none")
     return out
+
+
+def _calibrated(recordings, calibration, free):
+    """``(recordings, calibration_prior.Calibrated | None)``. A ``RobotCalibration``
+    (``calibrate_robot``), a ``ForceCalibration`` (``calibrate_force``) or a list of them: every
+    model takes their values and holds them, and their covariance is carried into the free
+    parameters' (``calibration_prior.py``); refused in one line if it is of another robot (link
+    lengths, base) than a model's, or covers a parameter named in ``free``."""
+    if calibration is None:
+        return recordings, None
+    return calibration_prior.apply(recordings, calibration, free)
 
 
 def _arrays(r: Recording, where: str) -> dict:
@@ -255,6 +266,7 @@ def identify(
     jacobian_draws: int = 8,
     max_steps: int = 20,
     progress: Callable[[dict], None] | bool | None = None,
+    calibration=None,
 ) -> Identification:
     """Estimate parameters from one recording, or several, through the closed-loop simulation.
 
@@ -291,15 +303,14 @@ def identify(
         max_steps: Gauss-Newton steps at most.
         progress: a function called after each step with ``{"step", "cost", "step_se",
             "seconds"}``, or ``True`` for one line per step on stderr.
+        calibration: a ``RobotCalibration``, ``ForceCalibration`` or list: held, and carried (``_calibrated``).
 
-    Returns an ``Identification``. Raises a one-line ``ValueError`` before any long
-    computation for an unknown parameter, NaN or inf in a recording, mismatched
-    lengths, or a start at which a model diverges. A fit that does not converge is
-    returned with ``converged=False`` and the reason in ``message``.
-    """
+    Returns an ``Identification``. Raises a one-line ``ValueError`` before any long computation for an
+    unknown parameter, NaN or inf in a recording, mismatched lengths, a calibration of another robot, or a
+    start at which a model diverges. A fit that does not converge has ``converged=False``, ``message`` why."""
     require_x64("identify")
     t_start = time.perf_counter()
-    recordings = _recordings(model, f, x, fh)
+    recordings, calibrated = _calibrated(_recordings(model, f, x, fh), calibration, free)
     checked = _check(recordings, free, symmetric, shared, statistic, numerics, draws, jacobian_draws, max_steps)
     layout, shared, numerics, draws, jacobian_draws, max_steps = checked
     pool = pl.make_pool(recordings, layout.names, tuple(n for n, s in zip(layout.names, layout.symmetric) if s), shared)
@@ -310,7 +321,7 @@ def identify(
     )
     start = centred if not _diverges(parts, centred, numerics) else p
     n_jac = indirect.draw_counts(recordings[0].model, draws, jacobian_draws)[1]
-    problem = _problem(parts, groups, recordings, pool, p, numerics, n_jac)
+    problem = _problem(parts, groups, recordings, pool, p, numerics, n_jac)._replace(calibration=calibrated)
     state = _init(problem, start, p)
     report = _reporter(progress, t_start)
     while not state.done:

@@ -16,9 +16,9 @@ import scipy.stats
 from .._estimation.estimate import estimate
 from .._estimation.fit import ImpedanceFit, fit_impedance
 from .._simulate import Trial
+from . import calibration_prior, search
 from . import layout as lay
 from . import pool as pl
-from . import search
 from .auxiliary import statistic_labels
 from .diagnosis import motion_diagnosis, plausibility
 from .indirect import predict
@@ -358,6 +358,8 @@ def assemble(problem: search.Problem, state: search.Search, pool: pl.Pool, recor
     x, fh)``, the index of its binding in ``problem.parts`` and its recording."""
     p = state.p
     cov_p, problems, check, sens = search.final_covariance(problem, state)
+    if problem.calibration is not None:  # a lab's calibration's uncertainty, carried
+        cov_p = cov_p + calibration_prior.carried(problem, state)
     fits, stuck = [], []
     for (t, x, fh), group in zip(recorded, pool.groups, strict=True):
         fit, diverged, st = _fit(problem.parts[t], p, problem.numerics, x, fh, group)
