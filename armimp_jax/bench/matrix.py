@@ -172,3 +172,29 @@ def verdict(s: dict) -> str:
     if s["beyond_4"] > 1:
         fails.append(f"{s['beyond_4']} diagonal z beyond 4")
     return "pass" if not fails else "; ".join(fails)
+
+
+_SYMBOL = dict(mass="M", damping="B", stiffness="K")
+
+
+def _line(name: str, s: dict, verdict: str) -> str:
+    if "coverage" not in s:
+        return f"| {name} | {s['converged']}/{s['recordings']} | {s['trusted']} | - | - | - | {verdict} |"
+    sd = ", ".join(f"{_SYMBOL[k.split('.')[1].split('[')[0]]}{k[-4]}{k[-2]} {v:.2f}" for k, v in s["sd_z"].items())
+    return (
+        f"| {name} | {s['converged']}/{s['recordings']} | {s['trusted']} | {s['coverage']:.3f} "
+        f"({s.get('coverage_all', float('nan')):.3f}) | {sd} | {s['beyond_4']} (max {s['max_abs_z']:.1f}) | {verdict} |"
+    )
+
+
+def table_lines(summaries: dict) -> list[str]:
+    """The cells' markdown table (``summary`` per cell, with its ``verdict``), then every fit
+    failed or warned of, with why."""
+    lines = [
+        "| cell | converged | trusted | coverage, diagonals (all converged) | SD of z | z beyond 4 | verdict |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    lines += [_line(name, s, verdict(s)) for name, s in summaries.items()]
+    for name, s in summaries.items():
+        lines += [f"{name} seed {r['seed']} {kind}: {r['why']}" for kind in ("failed", "warned") for r in s[kind]]
+    return lines

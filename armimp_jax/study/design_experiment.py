@@ -27,7 +27,6 @@ from .._identification.criterion import default_targets, relative_se
 from .._identification.design import AGGREGATES, CRITERIA, METHODS, Auto, CramerRao, MonteCarlo
 from .._identification.layout import make_layout, parameter_units
 from .._identification.limits import Limits
-from .._identification.record import design_lines as design_lines  # the script prints it
 from .._model.families import ShapedNoise, multisine
 from ..presets import arm as paper_arm
 from .config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
