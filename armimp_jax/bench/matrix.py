@@ -159,11 +159,21 @@ def summary(rows: list[dict]) -> dict:
     return out
 
 
+WARNED = "refused or warned"  # a cell the tool declines: the issue's honest outcome, listed
+
+
 def verdict(s: dict) -> str:
-    """The issue's bands on one cell's summary: ``"pass"`` or what fails."""
-    fails = []
+    """The issue's bands on one cell's summary: ``"pass"``; ``"refused or warned ..."`` where most
+    fits failed or were warned of (each with its reason) and no trusted fit lies beyond 4 SE (a
+    cell the tool declines, honestly); or what fails."""
+    declined = s["recordings"] - s["trusted"]
+    if declined > s["recordings"] / 2:
+        if s.get("beyond_4", 0) > 0:
+            return f"{declined} of {s['recordings']} declined, but {s['beyond_4']} trusted diagonal z beyond 4"
+        return f"{WARNED} on {declined} of {s['recordings']} recordings"
     if "coverage" not in s:
         return "too few trusted fits"
+    fails = []
     if not 0.92 <= s["coverage"] <= 0.98:
         fails.append(f"coverage {s['coverage']:.3f}")
     bad = {k: v for k, v in s["sd_z"].items() if not 0.8 <= v <= 1.25}
