@@ -8,7 +8,8 @@ arm's diagonals 0.92-0.98, per diagonal the SD of z 0.8-1.25, at most one diagon
 and at least 98% converged, or every failure warned of in a lab's terms (its message says what
 to change). A cell declined (not converged or warned of) on most of its recordings, each with its
 reason and no trusted fit beyond 4 SE, is the issue's other honest outcome: listed, not failed.
-About 12 hours on 2 cores for every cell; ``ARMIMP_JAX_MATRIX_RUN`` names a run folder to resume (``sweeps/bench_identify_matrix.py`` writes the same records)."""
+About 12 hours on 2 cores for every cell; ``ARMIMP_JAX_MATRIX_RUN`` names a run folder
+to resume (``sweeps/bench_identify_matrix.py`` writes the same records)."""
 
 import os
 
