@@ -185,3 +185,16 @@ def ratio_check(spread, reference, claims, n_records, corr, reference_dof=None, 
     )
     figures = dict(ratio=ratio.tolist(), claims=list(claims), rms=rms, dof=dof, band=band, entry_band=entry_band)
     return dict(figures, resolution=resolution, outside=outside)
+
+
+def diagonal_z(rows, names=ARM) -> np.ndarray:
+    """``z = (estimate - truth) / SE`` ``(n, 2 len(names))`` of the diagonals of ``names`` over the
+    converged rows of ``armimp_jax.bench.protocol.one`` (its ``values``, ``se``, ``truth``)."""
+    ok = [r for r in rows if r["converged"] and not r["diverged"]]
+
+    def diag(r, key, n):
+        return np.diagonal(np.asarray(r[key][n], dtype=float))
+
+    return np.array(
+        [np.concatenate([(diag(r, "values", n) - diag(r, "truth", n)) / diag(r, "se", n) for n in names]) for r in ok]
+    )
