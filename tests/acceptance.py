@@ -130,7 +130,7 @@ def detectable_scale(power_of: Callable[[float], float], power: float = POWER, l
 
 
 def recordings_needed(
-    power_at: Callable[[int, float], float], scale: float = SCALE, power: float = POWER, largest: int = 10**5
+    power_at: Callable[[int, float], float], scale: float = SCALE, power: float = POWER, largest: int = 10**4
 ) -> float:
     """The smallest Monte Carlo size ``n`` at which ``power_at(n, s)`` (the refusal probability of
     a factor ``s`` off at size ``n``, its band made at ``n``) reaches ``power`` for ``scale`` and
@@ -168,10 +168,10 @@ def effective_intervals(corr, n_records: int, coverage: float = 0.95) -> float:
     k = corr.shape[0]
     z = float(scipy.stats.norm.ppf(0.5 + coverage / 2))
     p = coverage
-    var = 0.0
+    var = k * p * (1 - p)
     for i in range(k):
-        for j in range(k):
-            var += p * (1 - p) if i == j else _inside_both(float(corr[i, j]), z) - p * p
+        for j in range(i + 1, k):  # symmetric; uncorrelated normals' indicators are independent
+            var += 0.0 if corr[i, j] == 0 else 2 * (_inside_both(float(corr[i, j]), z) - p * p)
     return n_records * k * k * p * (1 - p) / var
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import scipy.stats
 from acceptance import ALPHA, POWER, SCALE, coverage_band, coverage_power, recordings_needed, sd_band, sd_power
-from claims import calibration_check, convergence, ratio_check
+from claims import ARM, RESOLVES, calibration_check, convergence, diagonal_z, ratio_check
 
 RECORDINGS = 50
 DRAWS = 400  # draws per check of a stated probability
@@ -154,3 +154,22 @@ def test_a_failed_fit_counts_as_a_miss_unless_it_says_why():
     missed = calibration_check(z, unexplained=len(quiet["unexplained"]))
     assert ("coverage", missed["coverage"]) in missed["outside"], missed
     assert calibration_check(z, unexplained=len(told["unexplained"]))["outside"] == []
+
+
+def test_the_printed_precision_is_what_50_recordings_resolve():
+    """``RESOLVES`` (the precision docs/performance.md prints) against the resolution of 50
+    recordings correlated as an arm fit's: no finer than computed, and 1.2 out of reach per entry."""
+    rng = np.random.default_rng(10)
+    twelve = calibration_check(draws(rng, arm_correlation(12), RECORDINGS))["resolution"]
+    corr = arm_correlation(6)
+    six = ratio_check(draws(rng, corr, RECORDINGS).std(axis=0, ddof=1), np.ones(6), [1.0] * 6, RECORDINGS, corr)
+    assert twelve["rms_z"] <= RESOLVES["entries"] and six["resolution"]["rms"] <= RESOLVES["diagonals"]
+    assert SCALE < twelve["entry_rms_z"] <= RESOLVES["entry"], twelve
+
+
+def test_diagonal_z_reads_the_protocols_rows():
+    """z of the arm's diagonals from ``bench.protocol.one``'s rows; failed or diverged rows left out."""
+    truth = {n: [[1.0, 0.0], [0.0, 2.0]] for n in ARM}
+    row = dict(converged=True, diverged=False, truth=truth, se={n: [[0.5, 9.0], [9.0, 1.0]] for n in ARM})
+    rows = [dict(row, values={n: [[2.0, 5.0], [5.0, 1.0]] for n in ARM}), dict(row, converged=False, values=truth)]
+    assert diagonal_z(rows).tolist() == [[2.0, -1.0] * len(ARM)]

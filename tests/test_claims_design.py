@@ -29,7 +29,7 @@ import jax
 import numpy as np
 import pytest
 from acceptance import correlation, sd_band
-from claims import ARM, DIAGONAL, convergence, entries, noise, progress, ratio_check, report, truth_entries
+from claims import ARM, DIAGONAL, RESOLVES, convergence, entries, noise, progress, ratio_check, report, truth_entries
 
 import armimp_jax as aj
 from armimp_jax import presets
@@ -94,3 +94,5 @@ def test_the_spread_at_the_designs_record_is_its_prediction(designed):
     report("design-check", figures, dict(values=values, true=[true[k] for k in DIAGONAL], predicted=prediction))
     assert done["failed"] - len(done["unexplained"]) <= done["allowed"] and not done["unexplained"], figures
     assert not figures["outside"] and figures["largest_band"].holds(largest), figures
+    r = figures["resolution"]
+    assert r["rms"] <= RESOLVES["diagonals"] and r["entry"] <= RESOLVES["entry"], r

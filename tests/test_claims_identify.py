@@ -19,6 +19,7 @@ from acceptance import correlation
 from claims import (
     ARM,
     DIAGONAL,
+    RESOLVES,
     calibration_check,
     convergence,
     diagonal_z,
@@ -116,6 +117,8 @@ def test_intervals_hold_the_truth_95_percent_of_the_time(monte_carlo):
     raw = dict(values=values, se=se, true=true, labels=monte_carlo["labels"])
     report(f"identify-{monte_carlo['name']}-coverage", dict(check, labels=monte_carlo["labels"]), raw)
     assert not check["outside"], check
+    r = check["resolution"]
+    assert r["rms_z"] <= RESOLVES["entries"] and r["entry_rms_z"] <= RESOLVES["entry"], r
 
 
 def test_spread_is_at_the_bound(monte_carlo):
@@ -134,6 +137,8 @@ def test_spread_is_at_the_bound(monte_carlo):
     figures["entries"] = list(DIAGONAL)
     report(f"identify-{monte_carlo['name']}-efficiency", figures)
     assert not figures["outside"], figures
+    r = figures["resolution"]
+    assert r["rms"] <= RESOLVES["diagonals"] and r["entry"] <= RESOLVES["entry"], r
 
 
 def test_predict_se_is_the_spread(monte_carlo):
@@ -149,6 +154,8 @@ def test_predict_se_is_the_spread(monte_carlo):
     figures["entries"] = list(DIAGONAL)
     report(f"identify-{monte_carlo['name']}-predict_se", figures)
     assert not figures["outside"], figures
+    r = figures["resolution"]
+    assert r["rms"] <= RESOLVES["diagonals"] and r["entry"] <= RESOLVES["entry"], r
 
 
 # identification.md section 6b (issue 50): per cell, over its six diagonals, coverage 0.92-0.98,
@@ -174,3 +181,5 @@ def test_intervals_hold_entry_by_entry(cell):
     report(f"identify-entries-{cell}", dict(check, convergence=done, entries=list(DIAGONAL)))
     assert done["failed"] - len(done["unexplained"]) <= done["allowed"], done
     assert not check["outside"], check
+    r = check["resolution"]
+    assert r["rms_z"] <= RESOLVES["diagonals"] and r["entry_rms_z"] <= RESOLVES["entry"], r
