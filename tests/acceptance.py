@@ -24,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 import scipy.stats
 
-ALPHA = 1e-3  # two-sided: 99.9% bands, so a tier of ~30 assertions raises a false alarm ~3% of runs
+ALPHA = 1e-3  # two-sided: 99.9% bands; the tier's ~50 of them together raise a false alarm ~5% of runs
 Z95 = float(scipy.stats.norm.ppf(0.975))
 POWER = 0.9  # a band "detects" a broken variant it refuses with this probability
 SCALE = 1.2  # issue 65's broken variant: SEs, bounds, predictions 1.2 times off either way
