@@ -1,6 +1,6 @@
 """Statistics tier (``pytest -m stats``): the README's friction thresholds ("Under PD the minimum
-multiple coherence falls below 0.9 at 0.05-0.07 N m ... and phi_T doubles at 0.24-0.28 N m; under
-IMBIC phi_T doubles only at 3-3.7 N m"), on the study's own terms (docs/sweeps.md, "The friction
+multiple coherence falls below 0.9 at 0.05-0.08 N m ... and phi_T doubles at 0.24-0.28 N m; under
+IMBIC phi_T doubles only at 2.7-3.5 N m"), on the study's own terms (docs/sweeps.md, "The friction
 threshold"): stiction 1.5 ``tau_c`` with the paper's bristle and viscous parameters, PD and IMBIC
 (``Mhat = 0.25 I`` kg), the four paper arms, 50 s records at the paper's level 1, ideal sensors,
 ``aj.SWEEP_NUMERICS``, Table 4's Welch settings, 5 seeds with common random numbers (keys of this
