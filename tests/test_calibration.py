@@ -3,6 +3,8 @@ and the force transducer's against known loads (``calibrate_force``): closed for
 simulator's own records, recovery from noise-free ones, the encoder noise's compensation, the
 Newey-West sum by hand, and each one-line refusal (silent on the good cases)."""
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
@@ -277,3 +279,81 @@ def test_the_calibration_s_intervals_cover_over_50_seeds():
     assert 0.92 <= inertia <= 0.98 and 0.9 <= friction <= 1.0, (inertia, friction)
     force = bc.force_coverage(200)
     assert all(0.92 <= c <= 0.98 for c in force["coverage"][:2]), force
+
+
+@pytest.fixture(scope="module")
+def bound_case(synthetic_calibration):
+    """IMBIC at the paper's arm 2 through LuGre, 2.048 s; the synthetic calibration with its
+    covariance set to (1% of each value)^2 on the diagonal, so its share is large enough to see."""
+    from armimp_jax import presets
+
+    trial = aj.make_trial(
+        aj.IMBIC(),
+        arm=presets.arm(2),
+        friction=aj.LuGre(0.5, 0.75),
+        sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18),
+        voluntary=aj.VoluntaryForce(0.3, 2.0),
+    )
+    f = aj.perturbation(jax.random.key(11), 2048, 10.0)
+    mean = np.concatenate([np.ravel(v) for v in synthetic_calibration.values.values()])
+    cal = dataclasses.replace(synthetic_calibration, covariance=np.diag((0.01 * mean) ** 2))
+    return trial, f, cal
+
+
+def test_crlb_carries_a_calibration_and_equals_the_plain_bound_at_zero_covariance(bound_case):
+    """A calibration of zero covariance gives the plain bound back; one of 1% per value widens every
+    entry by the share ``Bound.calibration_share``, and the Coulomb torque (outside the linear loop)
+    is named as left out."""
+    trial, f, cal = bound_case
+    plain = aj.crlb(trial, f, check=False)
+    exact = aj.crlb(trial, f, check=False, calibration=dataclasses.replace(cal, covariance=0.0 * cal.covariance))
+    np.testing.assert_allclose(exact.covariance, plain.covariance, rtol=1e-9, atol=0)
+    carried = aj.crlb(trial, f, check=False, calibration=cal)
+    np.testing.assert_allclose(carried.covariance, plain.covariance + carried.calibration_share, rtol=1e-9, atol=0)
+    assert np.all(np.diag(carried.covariance) > np.diag(plain.covariance))
+    assert carried.calibration_outside == ("friction.tau_c[0]", "friction.tau_c[1]")
+    with pytest.raises(ValueError, match="the calibration is of another robot") as info:
+        aj.crlb(dataclasses.replace(trial, robot=aj.Robot(shoulder_link=0.35)), f, check=False, calibration=cal)
+    assert "\n" not in str(info.value)
+
+
+def test_crlb_s_calibration_gain_is_the_refit_s_move_by_finite_differences(bound_case):
+    """``G = I_aa^-1 I_ac``: refit the arm by whitened least squares to the loop's noise-free
+    response, the calibration held 0.1% off in each parameter, and the arm moves by ``-G dc``
+    (central differences; the refit three Gauss-Newton steps)."""
+    from armimp_jax._identification import bound, kalman, linear
+    from armimp_jax._identification import layout as lay
+
+    trial, f, _ = bound_case
+    names = ("robot.inertia", "friction.sigma2")
+    arm = lay.make_layout(bound.ARM, ())
+    joint = lay.Layout(arm.names + names, arm.symmetric + (False,) * 2)
+    p0 = np.asarray(lay.pack(joint, trial))
+    n = arm.size
+    info = np.asarray(bound._joint_fisher(joint, trial, f, p0))
+    gain = np.linalg.solve(info[:n, :n], info[:n, n:])
+    filt = kalman.innovations_filter(linear.linearise(trial))
+
+    @jax.jit
+    def response(p):
+        return bound.response_derivative(joint, trial, p, f)
+
+    observed = response(p0)[0]
+    lam_inv = np.linalg.inv(np.asarray(filt.cov))
+
+    def refit(c):
+        p = np.concatenate([p0[:n], c])
+        for _ in range(3):
+            y, dy = response(p)
+            e = np.asarray(kalman.whiten(filt, (observed - y)[..., None]))[..., 0]
+            d = np.asarray(kalman.whiten(filt, dy[..., :n]))
+            h = np.einsum("tip,ij,tjq->pq", d, lam_inv, d)
+            p[:n] += np.linalg.solve(h, np.einsum("tip,ij,tj->p", d, lam_inv, e))
+        return p[:n]
+
+    h = 1e-3
+    for j in range(len(p0) - n):
+        dc = np.zeros(len(p0) - n)
+        dc[j] = h
+        slope = (refit(p0[n:] + dc) - refit(p0[n:] - dc)) / (2 * h)
+        np.testing.assert_allclose(slope, -gain[:, j], rtol=2e-3, atol=1e-6 * np.abs(gain).max())

@@ -55,7 +55,11 @@ class Calibrated(NamedTuple):
         return np.array([m for lab, m in zip(self.labels, self.mean, strict=True) if lab.split("[")[0] == name])
 
     def without(self, prefix: str) -> Calibrated:
-        keep = [i for i, lab in enumerate(self.labels) if not lab.startswith(prefix)]
+        return self.only([n for n in self.names() if not n.startswith(prefix)])
+
+    def only(self, names) -> Calibrated:
+        """The calibrated parameters named in ``names`` (their marginal: mean and covariance block)."""
+        keep = [i for i, lab in enumerate(self.labels) if lab.split("[")[0] in names]
         return Calibrated(tuple(self.labels[i] for i in keep), self.mean[keep], self.covariance[np.ix_(keep, keep)])
 
 
@@ -84,6 +88,13 @@ def combine(calibration, friction) -> Calibrated:
         mean = np.concatenate([np.ravel(v) for v in c.values.values()])
         measured.append(([_renamed(lab, friction) for lab in c.labels], mean, cov))
     labels = list(dict.fromkeys(lab for m in measured for lab in m[0]))
+    if len(labels) == sum(len(m[0]) for m in measured):  # no parameter twice: their covariances side by side
+        covariance = np.zeros((len(labels),) * 2)
+        i = 0
+        for labs, _, cov in measured:
+            covariance[i : i + len(labs), i : i + len(labs)] = cov
+            i += len(labs)
+        return Calibrated(tuple(labels), np.concatenate([m[1] for m in measured]), covariance)
     info, h = np.zeros((len(labels),) * 2), np.zeros(len(labels))
     for labs, mean, cov in measured:
         sel = np.zeros((len(labs), len(labels)))
