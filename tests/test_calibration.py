@@ -357,3 +357,41 @@ def test_crlb_s_calibration_gain_is_the_refit_s_move_by_finite_differences(bound
         dc[j] = h
         slope = (refit(p0[n:] + dc) - refit(p0[n:] - dc)) / (2 * h)
         np.testing.assert_allclose(slope, -gain[:, j], rtol=2e-3, atol=1e-6 * np.abs(gain).max())
+
+
+@pytest.fixture(scope="module")
+def force_case():
+    """IMBIC at the paper's arm 2 without friction, 2.048 s of 10 N peak; a transducer calibrated
+    from five loads read at 0.5 N of noise (its gain and offset uncertain enough to see)."""
+    from armimp_jax import presets
+
+    trial = aj.make_trial(
+        aj.IMBIC(),
+        arm=presets.arm(2),
+        friction=aj.NO_FRICTION,
+        sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18),
+        voluntary=aj.VoluntaryForce(0.3, 2.0),
+    )
+    f = aj.perturbation(jax.random.key(12), 2048, 10.0)
+    loads = 9.81 * np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [0.0, 1.0], [0.0, 2.0]])
+    readings = loads + 0.5 * np.random.default_rng(8).standard_normal(loads.shape)
+    return trial, f, aj.calibrate_force(loads, readings)
+
+
+def test_predict_se_carries_a_calibration_as_crlb_does_in_a_linear_loop(force_case):
+    """Without friction the efficient statistic reaches the bound, so predict_se's calibration
+    share (the binding's chord in the gain and offset, simulated) is crlb's (``G Sigma_c G^T``
+    from the Fisher information, analytic); a calibration of zero covariance adds nothing; a
+    calibrated name in free other than the offset is refused in one line."""
+    trial, f, force = force_case
+    options = dict(free=("arm.stiffness",), statistic="efficient", draws=16, jacobian_draws=4)
+    plain = aj.predict_se(trial, f, **options)
+    zero = aj.predict_se(trial, f, **options, calibration=dataclasses.replace(force, covariance=0 * force.covariance))
+    np.testing.assert_array_equal(np.asarray(zero.covariance), np.asarray(plain.covariance))
+    carried = aj.predict_se(trial, f, **options, calibration=force)
+    share = np.asarray(carried.covariance) - np.asarray(plain.covariance)
+    bound = aj.crlb(trial, f, free=("arm.stiffness",), check=False, calibration=force)
+    np.testing.assert_allclose(np.sqrt(np.diag(share)), np.sqrt(np.diag(bound.calibration_share)), rtol=0.1)
+    with pytest.raises(ValueError, match="sensors.force_gain is calibrated") as info:
+        aj.predict_se(trial, f, **(options | dict(free=("arm.stiffness", "sensors.force_gain"))), calibration=force)
+    assert "\n" not in str(info.value)

@@ -284,9 +284,7 @@ def calibration_bound(layout: lay.Layout, trial: Trial, f, calibration) -> tuple
     return np.linalg.inv(info[:n, :n]) + share, share, outside
 
 
-def crlb(
-    trial: Trial, f, *, free=ARM, symmetric=(), check: bool = True, numerics=None, calibration=None
-) -> Bound:
+def crlb(trial: Trial, f, *, free=ARM, symmetric=(), check: bool = True, numerics=None, calibration=None) -> Bound:
     """The Cramér-Rao bound of the free arm parameters from one recording of ``trial`` under the
     perturbation ``f`` ``(N, 2)`` [N] (module docstring).
 
