@@ -378,6 +378,7 @@ def force_case():
     return trial, f, aj.calibrate_force(loads, readings)
 
 
+@pytest.mark.slow  # 97 s on two shared cores, compiled programs cached: predict_se three times and its chords
 def test_predict_se_carries_a_calibration_as_crlb_does_in_a_linear_loop(force_case):
     """Without friction the efficient statistic reaches the bound, so predict_se's calibration
     share (the binding's chord in the gain and offset, simulated) is crlb's (``G Sigma_c G^T``
@@ -394,4 +395,21 @@ def test_predict_se_carries_a_calibration_as_crlb_does_in_a_linear_loop(force_ca
     np.testing.assert_allclose(np.sqrt(np.diag(share)), np.sqrt(np.diag(bound.calibration_share)), rtol=0.1)
     with pytest.raises(ValueError, match="sensors.force_gain is calibrated") as info:
         aj.predict_se(trial, f, **(options | dict(free=("arm.stiffness", "sensors.force_gain"))), calibration=force)
+    assert "\n" not in str(info.value)
+
+
+def test_calibration_seconds_is_the_record_at_which_the_bound_widens_by_the_share_asked(bound_case):
+    """At the seconds ``calibration_seconds`` answers, the calibration's covariance scaled by the
+    reference seconds over them widens the worst diagonal's SE bound by exactly ``1 + widen``."""
+    from armimp_jax._identification.bound import DIAGONALS, calibration_seconds
+
+    trial, f, cal = bound_case
+    seconds = calibration_seconds(trial, f, cal, 10.0, widen=0.1)
+    plain = aj.crlb(trial, f, check=False)
+    scaled = dataclasses.replace(cal, covariance=cal.covariance * 10.0 / seconds)
+    widened = aj.crlb(trial, f, check=False, calibration=scaled)
+    ratio = {lab: widened.covariance[i, i] / plain.covariance[i, i] for i, lab in enumerate(plain.labels)}
+    assert max(ratio[d] for d in DIAGONALS) == pytest.approx(1.1**2, rel=1e-9)
+    with pytest.raises(ValueError, match="widen and seconds must be > 0") as info:
+        calibration_seconds(trial, f, cal, 10.0, widen=0.0)
     assert "\n" not in str(info.value)

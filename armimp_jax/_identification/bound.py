@@ -351,3 +351,22 @@ def crlb(trial: Trial, f, *, free=ARM, symmetric=(), check: bool = True, numeric
         calibration_share=share,
         calibration_outside=outside,
     )
+
+
+def calibration_seconds(trial: Trial, f, calibration, seconds: float, *, free=ARM, widen: float = 0.10) -> float:
+    """Seconds of robot-alone recording for every diagonal of the free arm matrices to keep its SE
+    bound within ``1 + widen`` of the bound with the robot known, through ``calibration`` (made from
+    ``seconds`` of such recording; ``calibration_bound``'s share, the inside of the linear loop).
+    A least squares' covariance falls as one over the record, so the share at ``T`` seconds is the
+    share at ``seconds`` times ``seconds / T``: ``T = seconds * max_i(share_i / bound_i) / ((1 +
+    widen)^2 - 1)``. One-line errors for ``widen`` or ``seconds`` not above 0."""
+    if not (np.isfinite(widen) and widen > 0) or not (np.isfinite(seconds) and seconds > 0):
+        raise ValueError(f"calibration_seconds: widen and seconds must be > 0, got {widen} and {seconds}")
+    layout, f = check_bound_inputs(trial, f, free, symmetric=(), where="calibration_seconds")
+    calibration_prior.check_robot(calibration, trial, "calibration_seconds")
+    cov_p, share_p, _ = calibration_bound(layout, trial, f, calibration)
+    g = np.asarray(lay.natural_jacobian(layout, lay.pack(layout, trial), trial))
+    own, share = np.diag(g @ (cov_p - share_p) @ g.T), np.diag(g @ share_p @ g.T)
+    diagonals = [i for i, lab in enumerate(layout.labels()) if lab in DIAGONALS]
+    worst = max(share[i] / own[i] for i in diagonals)
+    return float(seconds * worst / ((1.0 + widen) ** 2 - 1.0))
