@@ -466,7 +466,7 @@ def calibration_files(tmp_path_factory):
 
 
 def _calibrated_config(folder, **calibration) -> pathlib.Path:
-    config = _edit(identify={"free": ["arm.mass", "arm.damping", "arm.stiffness"]})
+    config = _edit(identify={"free": ["arm.mass", "arm.damping", "arm.stiffness", "sensors.force_offset"]})
     config["friction"] = {"tau_c": 0.8, "tau_s": 1.2}
     config["calibration"] = {"robot_files": ["alone0.csv", "alone1.csv"], "load_files": ["loads.csv"], **calibration}
     return write_toml(folder / "calibrated.toml", config)

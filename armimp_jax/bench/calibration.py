@@ -254,6 +254,7 @@ def arm_row(variant: str, seed: int, *, draws: int = 64) -> dict:
         values={n: np.asarray(v).tolist() for n, v in res.values.items()},
         se={n: np.asarray(v).tolist() for n, v in res.se.items()},
         truth={n: np.asarray(v).tolist() for n, v in truth.items()},
+        spread_ratio=dict(res.spread_ratio),
     )
 
 

@@ -19,6 +19,7 @@ import pathlib
 
 import numpy as np
 
+from .._identification.calibration_prior import ESTIMABLE
 from .._identification.force_calibration import calibrate_force
 from .._identification.robot_calibration import MIN_RATE, RobotRecording, calibrate_robot
 from .config import ConfigError
@@ -42,7 +43,8 @@ FORCE_NAMES = ("sensors.force_gain", "sensors.force_offset")
 
 def check(config: dict, path) -> None:
     """One-line ``ConfigError`` for a ``[calibration]`` with no files, a cut-off or ``min_rate``
-    that is not positive, or a calibrated parameter that ``[identify] free`` also names."""
+    that is not positive, or a calibrated parameter that ``[identify] free`` also names (but the
+    force offset, ``ESTIMABLE``: then estimated from the recording)."""
     section, where = config.get("calibration"), f"{path}: [calibration]"
     if section is None:
         return
@@ -55,7 +57,7 @@ def check(config: dict, path) -> None:
     held = [*(ROBOT_NAMES if section["robot_files"] else ())]
     held += ["sensors.force_offset"] if section["robot_files"] and section["robot_force"] == "recorded" else []
     held += list(FORCE_NAMES) if section["load_files"] else []
-    both = [n for n in config["identify"]["free"] if n in held]
+    both = [n for n in config["identify"]["free"] if n in held and n not in ESTIMABLE]
     if both:
         raise ConfigError(
             f"{path}: [identify] free names {both[0]}, which [calibration] calibrates: it is held at the "
