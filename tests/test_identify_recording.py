@@ -515,7 +515,7 @@ def test_bad_calibration_files_get_one_line_before_the_fit(calibration_files, re
         assert re.search(message, line), line
 
 
-@pytest.mark.slow  # an identification through the calibration (its chord in the calibrated parameters)
+@pytest.mark.slow  # 875 s on two cores shared with three other runs: an identification through the calibration
 def test_the_model_route_prints_the_calibration_before_the_arm_and_carries_it(
     calibration_files, recording_csv, tmp_path
 ):

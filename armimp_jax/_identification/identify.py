@@ -57,6 +57,7 @@ from . import layout as lay
 from . import pool as pl
 from .auxiliary import check_statistic_record, statistic_labels, statistics
 from .bound import has_friction, is_near_linear
+from .calibration_prior import ESTIMABLE
 from .pool import Recording
 from .predict import check_sampling
 from .result import Identification, assemble, classical_fit, predict_jit
@@ -164,7 +165,11 @@ def _arm_statistic(layout, model, p, f, x, fh, statistic, numerics, keys):
     innovations are weighed by their spread in recordings simulated at that centre
     (``efficient.excess_weight``)."""
     arm = indirect.arm_layout(layout)
-    calibration = arm is not None and any(n not in lay.ARM_PARAMETERS for n in arm.names)
+    # a free force offset (a constant on the recorded force) leaves the centre the arm's own, the
+    # classical fit's, which Welch's segment means make blind to it: the frictionless linear fit
+    # holds the offset at its start, and a start 1 SE of the robot alone's off (0.25 mN) widened the
+    # arm's SEs 2-3 times (docs/identification.md section 4d)
+    calibration = arm is not None and any(n not in (*lay.ARM_PARAMETERS, *ESTIMABLE) for n in arm.names)
     if (
         arm is None
         or statistic == "welch"
