@@ -165,17 +165,20 @@ def _arm_statistic(layout, model, p, f, x, fh, statistic, numerics, keys):
     innovations are weighed by their spread in recordings simulated at that centre
     (``efficient.excess_weight``)."""
     arm = indirect.arm_layout(layout)
-    # a free force offset (a constant on the recorded force) leaves the centre the arm's own, the
-    # classical fit's, which Welch's segment means make blind to it: the frictionless linear fit
-    # holds the offset at its start, and a start 1 SE of the robot alone's off (0.25 mN) widened the
-    # arm's SEs 2-3 times (docs/identification.md section 4d)
-    calibration = arm is not None and any(n not in (*lay.ARM_PARAMETERS, *ESTIMABLE) for n in arm.names)
+    calibration = arm is not None and any(n not in lay.ARM_PARAMETERS for n in arm.names)
     if (
         arm is None
         or statistic == "welch"
         or (statistic == "auto" and not calibration and not is_near_linear(model, f, numerics))
     ):
         return None, None, "welch"
+    # a free force offset (a constant on the recorded force) beside the arm leaves the centre the
+    # arm's own, the classical fit's, which Welch's segment means make blind to it: the
+    # frictionless linear fit holds the offset at its start, and a start 1 SE of the robot alone's
+    # off (0.25 mN) widened the arm's SEs 2-3 times (docs/identification.md section 4d)
+    others = [n for n in arm.names if n not in lay.ARM_PARAMETERS]
+    if others and len(others) < len(arm.names) and all(n in ESTIMABLE for n in others):
+        calibration = False
     centred, weight = _centre(layout, model, p, f, x, fh, keys, numerics, arm, calibration)
     stat = indirect.arm_statistic(layout, model, jnp.asarray(centred), f, weight)
     return jax.block_until_ready(stat), centred, "efficient"
