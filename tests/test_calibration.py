@@ -413,3 +413,35 @@ def test_calibration_seconds_is_the_record_at_which_the_bound_widens_by_the_shar
     with pytest.raises(ValueError, match="widen and seconds must be > 0") as info:
         calibration_seconds(trial, f, cal, 10.0, widen=0.0)
     assert "\n" not in str(info.value)
+
+
+def test_a_free_force_offset_starts_at_the_calibration_and_is_not_held():
+    """``sensors.force_offset`` in ``free`` beside a calibration that covers it: every model starts
+    at the calibration's offset, the held (carried) part leaves it out, and the rest is held."""
+    from armimp_jax._identification import calibration_prior as cp
+
+    q, tau, _ = _synthetic(counts=2**16, seconds=8.0)
+    fh = np.array([0.2, -0.1]) + 0.05 * np.random.default_rng(4).standard_normal(q.shape)
+    cal = aj.calibrate_robot(aj.RobotRecording(q=q, torque=tau, fh=fh))
+    arm = aj.Arm(np.eye(2), 5 * np.eye(2), 150 * np.eye(2), ENDPOINT)
+    trial = aj.make_trial(aj.PD(), arm=arm, friction=aj.LuGre(0.5, 0.75), sensors=aj.Sensors(force_noise=0.05))
+    zero = np.zeros((2048, 2))
+    recordings, held = cp.apply([aj.Recording(trial, zero, zero, zero)], cal, ("arm.stiffness", "sensors.force_offset"))
+    np.testing.assert_allclose(recordings[0].model.sensors.force_offset, cal.values["sensors.force_offset"])
+    assert held.names() == ["robot.inertia", "friction.tau_c", "friction.sigma2"]
+    assert held.labels == tuple(lab.replace("viscous", "sigma2") for lab in cal.labels[:7])
+
+
+def test_the_widening_advice_names_the_entries_and_the_parameter_that_takes_most():
+    """``calibration_prior.widening``: an arm entry whose SE a share widens past twice is named
+    with its factor and the parameter with the largest share of it, and the offset's remedy is to
+    free it; shares under the threshold say nothing."""
+    from armimp_jax._identification import calibration_prior as cp
+
+    labels = ["arm.stiffness[0,0]", "arm.stiffness[1,1]", "sensors.force_offset[0]"]
+    own, g = np.diag([1.0, 1.0, 1.0]), np.eye(3)
+    shares = {"robot.inertia": np.diag([0.5, 0.1, 0.0]), "sensors.force_offset": np.diag([7.5, 0.2, 0.0])}
+    (line,) = cp.widening(shares, own, g, labels)
+    assert "arm.stiffness[0,0] 3.0x" in line and "arm.stiffness[1,1]" not in line
+    assert "most through sensors.force_offset: free sensors.force_offset" in line
+    assert cp.widening({"robot.inertia": np.diag([2.9, 0.0, 0.0])}, own, g, labels) == []
