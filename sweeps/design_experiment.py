@@ -139,7 +139,14 @@ def main(argv=None) -> int:
             except RuntimeError as err:
                 return fail(f"{err} (the design, unvalidated, is in {args.out})")
         doc, paths = write(validation)
-    print("\n".join(dr.summary_lines(result, doc, config, limits)))
+    print(
+        "\n".join(
+            [
+                *dr.summary_lines(result, doc, config, limits),
+                dr.robot_alone_line(trials, result.signal, options["free"]),
+            ]
+        )
+    )
     if args.sensitivity is not None:
         labels = [row["label"] for row in doc["trials"]]
         print("\n".join(dx.sensitivity_report(trials, result.signal, options["free"], args.sensitivity, labels)))

@@ -3,6 +3,8 @@ and the force transducer's against known loads (``calibrate_force``): closed for
 simulator's own records, recovery from noise-free ones, the encoder noise's compensation, the
 Newey-West sum by hand, and each one-line refusal (silent on the good cases)."""
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
@@ -277,3 +279,169 @@ def test_the_calibration_s_intervals_cover_over_50_seeds():
     assert 0.92 <= inertia <= 0.98 and 0.9 <= friction <= 1.0, (inertia, friction)
     force = bc.force_coverage(200)
     assert all(0.92 <= c <= 0.98 for c in force["coverage"][:2]), force
+
+
+@pytest.fixture(scope="module")
+def bound_case(synthetic_calibration):
+    """IMBIC at the paper's arm 2 through LuGre, 2.048 s; the synthetic calibration with its
+    covariance set to (1% of each value)^2 on the diagonal, so its share is large enough to see."""
+    from armimp_jax import presets
+
+    trial = aj.make_trial(
+        aj.IMBIC(),
+        arm=presets.arm(2),
+        friction=aj.LuGre(0.5, 0.75),
+        sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18),
+        voluntary=aj.VoluntaryForce(0.3, 2.0),
+    )
+    f = aj.perturbation(jax.random.key(11), 2048, 10.0)
+    mean = np.concatenate([np.ravel(v) for v in synthetic_calibration.values.values()])
+    cal = dataclasses.replace(synthetic_calibration, covariance=np.diag((0.01 * mean) ** 2))
+    return trial, f, cal
+
+
+def test_crlb_carries_a_calibration_and_equals_the_plain_bound_at_zero_covariance(bound_case):
+    """A calibration of zero covariance gives the plain bound back; one of 1% per value widens every
+    entry by the share ``Bound.calibration_share``, and the Coulomb torque (outside the linear loop)
+    is named as left out."""
+    trial, f, cal = bound_case
+    plain = aj.crlb(trial, f, check=False)
+    exact = aj.crlb(trial, f, check=False, calibration=dataclasses.replace(cal, covariance=0.0 * cal.covariance))
+    np.testing.assert_allclose(exact.covariance, plain.covariance, rtol=1e-9, atol=0)
+    carried = aj.crlb(trial, f, check=False, calibration=cal)
+    np.testing.assert_allclose(carried.covariance, plain.covariance + carried.calibration_share, rtol=1e-9, atol=0)
+    assert np.all(np.diag(carried.covariance) > np.diag(plain.covariance))
+    assert carried.calibration_outside == ("friction.tau_c[0]", "friction.tau_c[1]")
+    with pytest.raises(ValueError, match="the calibration is of another robot") as info:
+        aj.crlb(dataclasses.replace(trial, robot=aj.Robot(shoulder_link=0.35)), f, check=False, calibration=cal)
+    assert "\n" not in str(info.value)
+
+
+def test_crlb_s_calibration_gain_is_the_refit_s_move_by_finite_differences(bound_case):
+    """``G = I_aa^-1 I_ac``: refit the arm by whitened least squares to the loop's noise-free
+    response, the calibration held 0.1% off in each parameter, and the arm moves by ``-G dc``
+    (central differences; the refit three Gauss-Newton steps)."""
+    from armimp_jax._identification import bound, kalman, linear
+    from armimp_jax._identification import layout as lay
+
+    trial, f, _ = bound_case
+    names = ("robot.inertia", "friction.sigma2")
+    arm = lay.make_layout(bound.ARM, ())
+    joint = lay.Layout(arm.names + names, arm.symmetric + (False,) * 2)
+    p0 = np.asarray(lay.pack(joint, trial))
+    n = arm.size
+    info = np.asarray(bound._joint_fisher(joint, trial, f, p0))
+    gain = np.linalg.solve(info[:n, :n], info[:n, n:])
+    filt = kalman.innovations_filter(linear.linearise(trial))
+
+    @jax.jit
+    def response(p):
+        return bound.response_derivative(joint, trial, p, f)
+
+    observed = response(p0)[0]
+    lam_inv = np.linalg.inv(np.asarray(filt.cov))
+
+    def refit(c):
+        p = np.concatenate([p0[:n], c])
+        for _ in range(3):
+            y, dy = response(p)
+            e = np.asarray(kalman.whiten(filt, (observed - y)[..., None]))[..., 0]
+            d = np.asarray(kalman.whiten(filt, dy[..., :n]))
+            h = np.einsum("tip,ij,tjq->pq", d, lam_inv, d)
+            p[:n] += np.linalg.solve(h, np.einsum("tip,ij,tj->p", d, lam_inv, e))
+        return p[:n]
+
+    h = 1e-3
+    for j in range(len(p0) - n):
+        dc = np.zeros(len(p0) - n)
+        dc[j] = h
+        slope = (refit(p0[n:] + dc) - refit(p0[n:] - dc)) / (2 * h)
+        np.testing.assert_allclose(slope, -gain[:, j], rtol=2e-3, atol=1e-6 * np.abs(gain).max())
+
+
+@pytest.fixture(scope="module")
+def force_case():
+    """IMBIC at the paper's arm 2 without friction, 2.048 s of 10 N peak; a transducer calibrated
+    from five loads read at 0.5 N of noise (its gain and offset uncertain enough to see)."""
+    from armimp_jax import presets
+
+    trial = aj.make_trial(
+        aj.IMBIC(),
+        arm=presets.arm(2),
+        friction=aj.NO_FRICTION,
+        sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18),
+        voluntary=aj.VoluntaryForce(0.3, 2.0),
+    )
+    f = aj.perturbation(jax.random.key(12), 2048, 10.0)
+    loads = 9.81 * np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [0.0, 1.0], [0.0, 2.0]])
+    readings = loads + 0.5 * np.random.default_rng(8).standard_normal(loads.shape)
+    return trial, f, aj.calibrate_force(loads, readings)
+
+
+@pytest.mark.slow  # 97 s on two shared cores, compiled programs cached: predict_se three times and its chords
+def test_predict_se_carries_a_calibration_as_crlb_does_in_a_linear_loop(force_case):
+    """Without friction the efficient statistic reaches the bound, so predict_se's calibration
+    share (the binding's chord in the gain and offset, simulated) is crlb's (``G Sigma_c G^T``
+    from the Fisher information, analytic); a calibration of zero covariance adds nothing; a
+    calibrated name in free other than the offset is refused in one line."""
+    trial, f, force = force_case
+    options = dict(free=("arm.stiffness",), statistic="efficient", draws=16, jacobian_draws=4)
+    plain = aj.predict_se(trial, f, **options)
+    zero = aj.predict_se(trial, f, **options, calibration=dataclasses.replace(force, covariance=0 * force.covariance))
+    np.testing.assert_array_equal(np.asarray(zero.covariance), np.asarray(plain.covariance))
+    carried = aj.predict_se(trial, f, **options, calibration=force)
+    share = np.asarray(carried.covariance) - np.asarray(plain.covariance)
+    bound = aj.crlb(trial, f, free=("arm.stiffness",), check=False, calibration=force)
+    np.testing.assert_allclose(np.sqrt(np.diag(share)), np.sqrt(np.diag(bound.calibration_share)), rtol=0.1)
+    with pytest.raises(ValueError, match="sensors.force_gain is calibrated") as info:
+        aj.predict_se(trial, f, **(options | dict(free=("arm.stiffness", "sensors.force_gain"))), calibration=force)
+    assert "\n" not in str(info.value)
+
+
+def test_calibration_seconds_is_the_record_at_which_the_bound_widens_by_the_share_asked(bound_case):
+    """At the seconds ``calibration_seconds`` answers, the calibration's covariance scaled by the
+    reference seconds over them widens the worst diagonal's SE bound by exactly ``1 + widen``."""
+    from armimp_jax._identification.bound import DIAGONALS, calibration_seconds
+
+    trial, f, cal = bound_case
+    seconds = calibration_seconds(trial, f, cal, 10.0, widen=0.1)
+    plain = aj.crlb(trial, f, check=False)
+    scaled = dataclasses.replace(cal, covariance=cal.covariance * 10.0 / seconds)
+    widened = aj.crlb(trial, f, check=False, calibration=scaled)
+    ratio = {lab: widened.covariance[i, i] / plain.covariance[i, i] for i, lab in enumerate(plain.labels)}
+    assert max(ratio[d] for d in DIAGONALS) == pytest.approx(1.1**2, rel=1e-9)
+    with pytest.raises(ValueError, match="widen and seconds must be > 0") as info:
+        calibration_seconds(trial, f, cal, 10.0, widen=0.0)
+    assert "\n" not in str(info.value)
+
+
+def test_a_free_force_offset_starts_at_the_calibration_and_is_not_held():
+    """``sensors.force_offset`` in ``free`` beside a calibration that covers it: every model starts
+    at the calibration's offset, the held (carried) part leaves it out, and the rest is held."""
+    from armimp_jax._identification import calibration_prior as cp
+
+    q, tau, _ = _synthetic(counts=2**16, seconds=8.0)
+    fh = np.array([0.2, -0.1]) + 0.05 * np.random.default_rng(4).standard_normal(q.shape)
+    cal = aj.calibrate_robot(aj.RobotRecording(q=q, torque=tau, fh=fh))
+    arm = aj.Arm(np.eye(2), 5 * np.eye(2), 150 * np.eye(2), ENDPOINT)
+    trial = aj.make_trial(aj.PD(), arm=arm, friction=aj.LuGre(0.5, 0.75), sensors=aj.Sensors(force_noise=0.05))
+    zero = np.zeros((2048, 2))
+    recordings, held = cp.apply([aj.Recording(trial, zero, zero, zero)], cal, ("arm.stiffness", "sensors.force_offset"))
+    np.testing.assert_allclose(recordings[0].model.sensors.force_offset, cal.values["sensors.force_offset"])
+    assert held.names() == ["robot.inertia", "friction.tau_c", "friction.sigma2"]
+    assert held.labels == tuple(lab.replace("viscous", "sigma2") for lab in cal.labels[:7])
+
+
+def test_the_widening_advice_names_the_entries_and_the_parameter_that_takes_most():
+    """``calibration_prior.widening``: an arm entry whose SE a share widens past twice is named
+    with its factor and the parameter with the largest share of it, and the offset's remedy is to
+    free it; shares under the threshold say nothing."""
+    from armimp_jax._identification import calibration_prior as cp
+
+    labels = ["arm.stiffness[0,0]", "arm.stiffness[1,1]", "sensors.force_offset[0]"]
+    own, g = np.diag([1.0, 1.0, 1.0]), np.eye(3)
+    shares = {"robot.inertia": np.diag([0.5, 0.1, 0.0]), "sensors.force_offset": np.diag([7.5, 0.2, 0.0])}
+    (line,) = cp.widening(shares, own, g, labels)
+    assert "arm.stiffness[0,0] 3.0x" in line and "arm.stiffness[1,1]" not in line
+    assert "most through sensors.force_offset: free sensors.force_offset" in line
+    assert cp.widening({"robot.inertia": np.diag([2.9, 0.0, 0.0])}, own, g, labels) == []

@@ -38,6 +38,11 @@ from .force_calibration import ForceCalibration
 from .robot_calibration import RobotCalibration
 
 GEOMETRY = ("shoulder_link", "elbow_link", "base")
+# Calibrated parameters that identify may free instead of holding (the calibration's value then its
+# start): the force channel's offset, which a person's recording tells far better than its
+# calibration does and which the arm's stiffness answers steeply when held wrong (measured:
+# docs/identification.md section 4d).
+ESTIMABLE = ("sensors.force_offset",)
 
 
 class Calibrated(NamedTuple):
@@ -55,7 +60,14 @@ class Calibrated(NamedTuple):
         return np.array([m for lab, m in zip(self.labels, self.mean, strict=True) if lab.split("[")[0] == name])
 
     def without(self, prefix: str) -> Calibrated:
-        keep = [i for i, lab in enumerate(self.labels) if not lab.startswith(prefix)]
+        return self.only([n for n in self.names() if not n.startswith(prefix)])
+
+    def without_names(self, names) -> Calibrated:
+        return self.only([n for n in self.names() if n not in names])
+
+    def only(self, names) -> Calibrated:
+        """The calibrated parameters named in ``names`` (their marginal: mean and covariance block)."""
+        keep = [i for i, lab in enumerate(self.labels) if lab.split("[")[0] in names]
         return Calibrated(tuple(self.labels[i] for i in keep), self.mean[keep], self.covariance[np.ix_(keep, keep)])
 
 
@@ -84,6 +96,13 @@ def combine(calibration, friction) -> Calibrated:
         mean = np.concatenate([np.ravel(v) for v in c.values.values()])
         measured.append(([_renamed(lab, friction) for lab in c.labels], mean, cov))
     labels = list(dict.fromkeys(lab for m in measured for lab in m[0]))
+    if len(labels) == sum(len(m[0]) for m in measured):  # no parameter twice: their covariances side by side
+        covariance = np.zeros((len(labels),) * 2)
+        i = 0
+        for labs, _, cov in measured:
+            covariance[i : i + len(labs), i : i + len(labs)] = cov
+            i += len(labs)
+        return Calibrated(tuple(labels), np.concatenate([m[1] for m in measured]), covariance)
     info, h = np.zeros((len(labels),) * 2), np.zeros(len(labels))
     for labs, mean, cov in measured:
         sel = np.zeros((len(labs), len(labels)))
@@ -126,20 +145,19 @@ def calibrated_model(trial, cal: Calibrated):
     return trial
 
 
-def apply(recordings, calibration, free):
-    """``(recordings, Calibrated)``: every recording's model with the calibration in place
-    (one-line errors for a calibration of another robot, of parameters the model lacks, or of
-    parameters also named in ``free``). The force channel's entries are left out where a model
-    records by interval means (the channel is simulated on instant samples only)."""
-    friction = recordings[0].model.friction
+def checked(calibration, friction, free, instant: bool, where: str) -> Calibrated:
+    """The calibrations as one ``Calibrated`` (``combine``) for a model of ``friction``, the force
+    channel's entries left out where it is not recorded on ``instant`` samples (the channel is
+    simulated on those only). One-line errors for a parameter the model lacks or also named in
+    ``free`` (but ``ESTIMABLE``'s, which ``free`` then estimates from the calibration's value)."""
     cal = combine(calibration, friction)
-    if any(r.model.acquisition != "instant" for r in recordings):
+    if not instant:
         cal = cal.without("sensors.")
     free = (free,) if isinstance(free, str) else tuple(free)
-    both = [n for n in cal.names() if n in free]
+    both = [n for n in cal.names() if n in free and n not in ESTIMABLE]
     if both:
         raise ValueError(
-            f"identify: {', '.join(both)} is calibrated: it is held at the calibration's value and its uncertainty "
+            f"{where}: {', '.join(both)} is calibrated: it is held at the calibration's value and its uncertainty "
             "carried into the intervals; leave it out of free"
         )
     known = {"robot.inertia", "sensors.force_gain", "sensors.force_offset"} | {
@@ -147,13 +165,22 @@ def apply(recordings, calibration, free):
     }
     missing = [n for n in cal.names() if n not in known]
     if missing:
-        raise ValueError(f"identify: the model's {type(friction).__name__} has no {', '.join(missing)} to calibrate")
+        raise ValueError(f"{where}: the model's {type(friction).__name__} has no {', '.join(missing)} to calibrate")
+    return cal
+
+
+def apply(recordings, calibration, free):
+    """``(recordings, Calibrated)``: every recording's model with the calibration in place, and
+    what of it is held (``checked``; a calibration of another robot refused in one line). A
+    calibrated parameter named in ``free`` (``ESTIMABLE``) starts at its calibration, and is not held."""
+    instant = all(r.model.acquisition == "instant" for r in recordings)
+    cal = checked(calibration, recordings[0].model.friction, free, instant, "identify")
     out = []
     for i, r in enumerate(recordings):
         where = "identify" if len(recordings) == 1 else f"identify: recording {i + 1}"
         check_robot(calibration, r.model, where)
         out.append(r._replace(model=calibrated_model(r.model, cal)))
-    return out, cal
+    return out, cal.without_names([n for n in cal.names() if n in free])
 
 
 # A calibrated parameter's chord spans at least this on its internal scale (1% of a log-scale
@@ -197,14 +224,14 @@ def chord_columns(stat_layout, model, p, f, keys, numerics, arm_stat, cal: Calib
     return (np.asarray(means[:k]) - np.asarray(means[k:])).T / (2.0 * half[p.size :])
 
 
-def carried(problem, state) -> np.ndarray:
-    """``(n, n)`` on the search's internal scale: the calibration's share of the free parameters'
-    covariance at the search's answer (module docstring, step 2); zeros without a calibration,
-    noise or slope."""
-    n = state.p.size
+def carried(problem, state) -> dict:
+    """``{name: (n, n)}`` on the search's internal scale: each calibrated parameter's share of the
+    free parameters' covariance at the search's answer (module docstring, step 2; the shares sum
+    to the whole, ``Sigma_c``'s correlations between parameters split evenly); ``{}`` without a
+    calibration, noise or slope."""
     cal = problem.calibration
-    if cal is None or not problem.noisy or state.jac is None:
-        return np.zeros((n, n))
+    if cal is None or not cal.labels or not problem.noisy or state.jac is None:
+        return {}
     _, sigma = internal_covariance(cal, problem.parts[0].model)
     draws = indirect.chord_draws(problem.n_draws)
     blocks = [
@@ -224,4 +251,38 @@ def carried(problem, state) -> np.ndarray:
     a_c = np.concatenate([*blocks, np.zeros((problem.prior_index.size, sigma.shape[0]))])
     w = search._weights(problem, state.stats, state.jac)
     move = search._sensitivity(state.jac, w) @ a_c
-    return move @ sigma @ move.T
+    layout = layout_of(cal)
+    out = {}
+    for k, name in enumerate(layout.names):
+        own = np.zeros(sigma.shape[0])
+        own[layout.index((name,))] = 1.0
+        half = 0.5 * (own[:, None] + own[None, :])  # a cross term counts half to each of its two parameters
+        out[name] = move @ (sigma * half) @ move.T
+    return out
+
+
+# An arm entry whose SE the calibration's uncertainty widens by more than this factor is warned of.
+WIDEN_WARN = 2.0
+
+
+def widening(shares: dict, cov_nat, g, labels) -> list[str]:
+    """One warning naming the arm entries whose SE the calibration's uncertainty widens more than
+    ``WIDEN_WARN`` times (``cov_nat``: the natural covariance without it; ``g``: natural over
+    internal), and the calibrated parameter that takes most of it, with what to do."""
+    if not shares:
+        return []
+    nat = {n: g @ s @ g.T for n, s in shares.items()}
+    base = np.maximum(np.diag(cov_nat), 1e-300)
+    ratio = np.sqrt(1.0 + sum(np.diag(s) for s in nat.values()) / base)
+    wide = [j for j, lab in enumerate(labels) if lab.split("[")[0] in lay.ARM_PARAMETERS and ratio[j] > WIDEN_WARN]
+    if not wide:
+        return []
+    worst = max(wide, key=lambda j: ratio[j])
+    top = max(nat, key=lambda n: nat[n][worst, worst])
+    entries = ", ".join(f"{labels[j]} {ratio[j]:.1f}x" for j in wide)
+    remedy = (
+        "free sensors.force_offset (the person's recording tells the offset far better than the robot alone does)"
+        if top == "sensors.force_offset"
+        else "calibrate with longer or livelier robot-alone recordings"
+    )
+    return [f"the calibration's uncertainty widens the arm's SEs ({entries}), most through {top}: {remedy}"]

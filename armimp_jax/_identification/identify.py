@@ -57,6 +57,7 @@ from . import layout as lay
 from . import pool as pl
 from .auxiliary import check_statistic_record, statistic_labels, statistics
 from .bound import has_friction, is_near_linear
+from .calibration_prior import ESTIMABLE
 from .pool import Recording
 from .predict import check_sampling
 from .result import Identification, assemble, classical_fit, predict_jit
@@ -171,6 +172,13 @@ def _arm_statistic(layout, model, p, f, x, fh, statistic, numerics, keys):
         or (statistic == "auto" and not calibration and not is_near_linear(model, f, numerics))
     ):
         return None, None, "welch"
+    # a free force offset (a constant on the recorded force) beside the arm leaves the centre the
+    # arm's own, the classical fit's, which Welch's segment means make blind to it: the
+    # frictionless linear fit holds the offset at its start, and a start 1 SE of the robot alone's
+    # off (0.25 mN) widened the arm's SEs 2-3 times (docs/identification.md section 4d)
+    others = [n for n in arm.names if n not in lay.ARM_PARAMETERS]
+    if others and len(others) < len(arm.names) and all(n in ESTIMABLE for n in others):
+        calibration = False
     centred, weight = _centre(layout, model, p, f, x, fh, keys, numerics, arm, calibration)
     stat = indirect.arm_statistic(layout, model, jnp.asarray(centred), f, weight)
     return jax.block_until_ready(stat), centred, "efficient"

@@ -120,7 +120,7 @@ def predict_se(
     keys = jax.random.split(key, n_draws)
     p = lay.pack(layout, trial)
     if calibration is not None:  # refused before any simulation
-        _check_calibration(calibration, trial, f)
+        _check_calibration(calibration, trial, f, layout.names)
     weight = None
     if efficient and has_friction(trial):
         if not is_concrete(f):
@@ -192,7 +192,10 @@ def _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, effic
 def _calibration_share(layout, trial, p, f, keys, n_jac, numerics, n_draws, efficient, weight, calibration):
     """The calibration's share of the natural covariance (``calibration_prior``'s two-step term),
     through ``identify``'s slope (the chord through friction). Concrete ``f`` only."""
-    cal = calibration_prior.combine(calibration, trial.friction)
+    cal = calibration_prior.checked(calibration, trial.friction, layout.names, trial.acquisition == "instant", "")
+    cal = cal.without_names(layout.names)  # a calibrated name that is free is estimated, not held
+    if not cal.labels:
+        return np.zeros((len(layout.labels()),) * 2)
     arm_stat, stats, slope, _ = _draws_and_tangent_jit(
         layout, trial, p, f, keys, keys[:n_jac], numerics, efficient, weight
     )
@@ -214,7 +217,8 @@ def _calibration_share(layout, trial, p, f, keys, n_jac, numerics, n_draws, effi
     return g @ move @ sigma @ move.T @ g.T
 
 
-def _check_calibration(calibration, trial, f) -> None:
+def _check_calibration(calibration, trial, f, free) -> None:
     if not is_concrete(f):
         raise ValueError("predict_se: calibration= needs a concrete f (its chord is simulated)")
     calibration_prior.check_robot(calibration, trial, "predict_se")
+    calibration_prior.checked(calibration, trial.friction, free, trial.acquisition == "instant", "predict_se")

@@ -9,6 +9,8 @@ beside it, and the summary printed after.
   or the one its answer predicts), every number recomputed there.
 - ``paper_reference``: per arm, the paper's perturbation at the same peak and length.
 - ``summary_lines``: the criterion, the controller and minutes, the limits met, the check.
+- ``robot_alone_line``: how long to record the robot alone for the arms' intervals to widen by at
+  most 10% through its calibration (``bound.calibration_seconds``).
 """
 
 from __future__ import annotations
@@ -16,17 +18,23 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-from .._identification.bound import crlb
+from .._identification.bound import calibration_seconds, crlb
 from .._identification.bound_design import BoundDesign
 from .._identification.criterion import default_targets
 from .._identification.design import design
 from .._identification.layout import make_layout
 from .._identification.predict import predict_se
 from .._identification.record import design_lines
+from .._identification.robot_calibration import RobotRecording, calibrate_robot
+from .._model.arm import no_arm
+from .._model.controllers.pd import PD
 from .._model.families import PaperNoise
+from .._model.perturbation import perturbation
+from .._simulate import make_trial
 from . import design_check as dc
 from . import design_experiment as dx
 from .cli import Z95
+from .coverage import record
 
 
 def describe(trials, family, limits, options) -> str:
@@ -180,3 +188,35 @@ def summary_lines(result, doc, config, limits) -> list[str]:
         f"perturbation at the same peak and length {worst_paper:.4g}"
     )
     return lines + [_limits_line(result.achieved)] + _validation_lines(doc, precision)
+
+
+ALONE_S = 8.0  # [s] the robot-alone record simulated to calibrate (the covariance then scales as 1 / T)
+ALONE_PEAK = 10.0  # [N] its perturbation's peak, under PD (protocol.py's)
+WIDEN = 0.10
+
+
+def robot_alone_line(trials, signal, free) -> str:
+    """How long to record the robot alone (under PD at ``ALONE_PEAK``) for every arm's SE bounds to
+    widen by at most ``WIDEN`` through its calibration: ``ALONE_S`` of it simulated with the first
+    arm's robot, friction and sensors, calibrated (``calibrate_robot``, no force: the person's
+    recording tells the offset), and ``calibration_seconds`` per arm, the longest."""
+    first = trials[0]
+    alone = make_trial(
+        PD(), arm=no_arm(first.x0), robot=first.robot, friction=first.friction, sensors=first.sensors, voluntary=None
+    )
+    f = perturbation(jax.random.key(70), int(round(ALONE_S / alone.period)), ALONE_PEAK)
+    sim = record(alone, f, 80)
+    cal = calibrate_robot(RobotRecording(x=np.asarray(sim.x), command=np.asarray(sim.fu)), robot=first.robot)
+    arm_free = tuple(n for n in free if n.startswith("arm."))
+    seconds = max(calibration_seconds(t, signal, cal, ALONE_S, free=arm_free, widen=WIDEN) for t in trials)
+    what = f"under PD ({ALONE_PEAK:g} N peak)"
+    head = (
+        f"the robot alone: {seconds:.3g} s of recording {what} calibrate it"
+        if seconds > ALONE_S
+        else f"the robot alone: any recording {what} that calibrate_robot takes (a few seconds; {seconds:.2g} s by the "
+        "bound) calibrates it"
+    )
+    return (
+        f"{head} for every arm's SE bound to widen by at most {WIDEN:.0%} (its inertias and viscous friction; the "
+        "Coulomb torque's share lies outside the bound; free sensors.force_offset: the person's recording tells it)"
+    )
