@@ -317,6 +317,7 @@ def test_crlb_carries_a_calibration_and_equals_the_plain_bound_at_zero_covarianc
     assert "\n" not in str(info.value)
 
 
+@pytest.mark.slow  # 32 s cold in the suite; fast: the share and the zero-covariance bound above
 def test_crlb_s_calibration_gain_is_the_refit_s_move_by_finite_differences(bound_case):
     """``G = I_aa^-1 I_ac``: refit the arm by whitened least squares to the loop's noise-free
     response, the calibration held 0.1% off in each parameter, and the arm moves by ``-G dc``
