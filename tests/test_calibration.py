@@ -446,3 +446,28 @@ def test_the_widening_advice_names_the_entries_and_the_parameter_that_takes_most
     assert "arm.stiffness[0,0] 3.0x" in line and "arm.stiffness[1,1]" not in line
     assert "most through sensors.force_offset: free sensors.force_offset" in line
     assert cp.widening({"robot.inertia": np.diag([2.9, 0.0, 0.0])}, own, g, labels) == []
+
+
+@pytest.mark.slow  # 19 min on two cores shared with four other runs (the weight's simulations compiled twice)
+def test_a_free_offset_beside_the_arm_leaves_the_statistic_centred_at_the_classical_fit(bound_case):
+    """Through friction, with the offset free beside the arm, the efficient statistic is centred at
+    the recording's classical fit whatever the offset's start (a start 1 mN off gives the same
+    centre), not at the frictionless linear fit that holds the offset there."""
+    from armimp_jax._identification import identify as idm
+    from armimp_jax._identification import layout as lay
+    from armimp_jax._identification.indirect import IDENTIFY_NUMERICS
+
+    trial, f, _ = bound_case
+    rec = record(trial, f, 5)
+    x, fh = np.asarray(rec.x), np.asarray(rec.fh)
+    layout = lay.make_layout(("arm.mass", "arm.damping", "arm.stiffness", "sensors.force_offset"), ())
+    keys = jax.random.split(jax.random.key(0), 8)
+    centres = []
+    for start in (0.0, 1e-3):
+        model = dataclasses.replace(trial, sensors=dataclasses.replace(trial.sensors, force_offset=start))
+        p = np.asarray(lay.pack(layout, model))
+        _, centre, name = idm._arm_statistic(layout, model, p, f, x, fh, "auto", IDENTIFY_NUMERICS, keys)
+        assert name == "efficient"
+        np.testing.assert_array_equal(centre[:12], idm.classical_centre(layout, model, p, f, x, fh)[:12])
+        centres.append(centre)
+    np.testing.assert_array_equal(centres[0][:12], centres[1][:12])
