@@ -157,6 +157,7 @@ def test_the_information_differentiates_in_the_perturbation_and_the_gains():
     assert np.isfinite(float(value))
 
 
+@pytest.mark.slow  # 30 s cold (the suite's budget)
 def test_no_bound_through_stick_slip_and_plain_refusals():
     stuck = aj.crlb(_trial(aj.PD(), friction=aj.LuGre(0.3, 0.45), **NOISE), F)
     assert not stuck.near_linear and "not near-linear" in stuck.message and "stick-slip" in stuck.message

@@ -300,6 +300,7 @@ def bound_case(synthetic_calibration):
     return trial, f, cal
 
 
+@pytest.mark.slow  # 35 s cold (the suite's budget); predict_se's calibration tests stay fast
 def test_crlb_carries_a_calibration_and_equals_the_plain_bound_at_zero_covariance(bound_case):
     """A calibration of zero covariance gives the plain bound back; one of 1% per value widens every
     entry by the share ``Bound.calibration_share``, and the Coulomb torque (outside the linear loop)
