@@ -11,6 +11,8 @@ through the checks unchanged. What is checked where: docs/design.md.
 
 from __future__ import annotations
 
+import warnings
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -24,6 +26,18 @@ def require_x64(where: str) -> None:
             f"{where} needs float64, but jax_enable_x64 is off (arrays would be float32). "
             'Call jax.config.update("jax_enable_x64", True) at program start.'
         )
+
+
+# Every deprecated name or keyword warns through ``deprecated`` and goes in this version;
+# docs/CHANGELOG.md says what replaces each.
+DEPRECATIONS_END = "3.0"
+
+
+def deprecated(what: str, instead: str) -> None:
+    """Warn that ``what`` is deprecated (a ``DeprecationWarning`` at the caller's caller, the
+    user's line) and goes in ``DEPRECATIONS_END``; ``instead`` says what replaces it."""
+    message = f"{what} is deprecated and goes in armimp_jax {DEPRECATIONS_END}: {instead}"
+    warnings.warn(message, DeprecationWarning, stacklevel=3)
 
 
 def check_choice(name: str, value, allowed) -> None:

@@ -13,7 +13,6 @@ z beyond 4).
 
 from __future__ import annotations
 
-import json
 import sys
 
 from armimp_jax.study.cli import Parser, fail, parse_names, script
@@ -21,59 +20,38 @@ from armimp_jax.study.cli import Parser, fail, parse_names, script
 PROG = "bench_identify_matrix"
 
 
-def parse(argv, cells):
+def parse(argv):
     p = Parser(prog=PROG, description=__doc__.split("\n\n")[0])
-    p.add_argument("--cells", default="new-user", help=f"comma list of {', '.join(cells)}, or all (default new-user)")
+    p.add_argument("--cells", default="new-user", help="comma list of cells (armimp_jax.bench.matrix.CELLS), or all")
     p.add_argument("--seeds", type=int, default=50, help="recordings per cell (default 50)")
     p.add_argument("--draws", type=int, default=64, help="identify's noise draws (default 64)")
     p.add_argument("--out", default="results/matrix", help="run folder (resumed)")
     p.add_argument("--json", metavar="FILE", help="also write every cell's summary to FILE")
     a = p.parse_args(argv)
-    a.cells = tuple(cells) if a.cells == "all" else parse_names(a.cells, tuple(cells), PROG, option="--cells")
     if a.seeds < 2 or a.draws < 8:
         fail(f"need --seeds >= 2 and --draws >= 8; got {a.seeds} and {a.draws}", PROG)
     return a
 
 
-def _line(name: str, s: dict, verdict: str) -> str:
-    if "coverage" not in s:
-        return f"| {name} | {s['converged']}/{s['recordings']} | {s['trusted']} | - | - | - | {verdict} |"
-    sd = ", ".join(f"{k.split('.')[1][0].upper()}{k[-4]}{k[-2]} {v:.2f}" for k, v in s["sd_z"].items())
-    return (
-        f"| {name} | {s['converged']}/{s['recordings']} | {s['trusted']} | {s['coverage']:.3f} "
-        f"({s.get('coverage_all', float('nan')):.3f}) | {sd} | {s['beyond_4']} (max {s['max_abs_z']:.1f}) | {verdict} |"
-    )
-
-
 @script(PROG)
 def main(argv=None):
-    from armimp_jax.bench.matrix import CELLS
-
-    a = parse(sys.argv[1:] if argv is None else argv, CELLS)
+    a = parse(sys.argv[1:] if argv is None else argv)
     from armimp_jax.runtime import configure
 
     configure()
     from armimp_jax.bench import matrix, protocol
 
+    names = tuple(matrix.CELLS)  # checked before any fit
+    cells = names if a.cells == "all" else parse_names(a.cells, names, PROG, option="--cells")
     done = protocol.study(
-        a.cells, a.seeds, a.out, draws=a.draws, catalogue=matrix.cells(a.cells), catalogue_settings=matrix.settings()
+        cells, a.seeds, a.out, draws=a.draws, catalogue=matrix.cells(cells), catalogue_settings=matrix.settings()
     )
-    print("| cell | converged | trusted | coverage, diagonals (all converged) | SD of z | z beyond 4 | verdict |")
-    print("|---|---|---|---|---|---|---|")
-    summaries = {}
-    for name, c in done.items():
-        s = matrix.summary(c["seeds"])
-        summaries[name] = dict(s, verdict=matrix.verdict(s))
-        print(_line(name, s, summaries[name]["verdict"]))
-    for name, s in summaries.items():
-        for kind in ("failed", "warned"):
-            for r in s[kind]:
-                print(f"{name} seed {r['seed']} {kind}: {r['why']}")
+    summaries = {name: matrix.summary(c["seeds"]) for name, c in done.items()}
+    print("\n".join(matrix.table_lines(summaries)))
     if a.json:
         from armimp_jax.study.results import atomic_write_json
 
-        atomic_write_json(a.json, summaries)
-        print(json.dumps({k: v["verdict"] for k, v in summaries.items()}))
+        atomic_write_json(a.json, {k: dict(s, verdict=matrix.verdict(s)) for k, s in summaries.items()})
     return 0
 
 

@@ -35,7 +35,7 @@ import pathlib
 import sys
 import time
 
-from armimp_jax.study.cli import Z95, Parser, error_line
+from armimp_jax.study.cli import Parser, error_line
 
 PROG = "design_experiment"
 
@@ -77,170 +77,17 @@ def fail(message: str) -> int:
     return error_line(message, PROG)
 
 
-def describe(trials, family, limits, options) -> str:
-    """The one line said before the design starts."""
-    candidates = family if isinstance(family, list) else [family]
-    what = type(candidates[0]).__name__ + (f" ({len(candidates)} candidate starts)" if len(candidates) > 1 else "")
-    method = options["method"]
-    bound = method if method.name == "bound" else getattr(method, "bound", None)
-    monte_carlo = method if method.name == "monte_carlo" else getattr(method, "monte_carlo", None)
-    how = {
-        "bound": "on the Cramér-Rao bound",
-        "monte_carlo": f"of {getattr(monte_carlo, 'draws', 0)} noise draws per arm",
-        "auto": f"on the bound where the loops are near-linear, else of {getattr(monte_carlo, 'draws', 0)} noise "
-        "draws per arm",
-    }[method.name]
-    gains = " and the controller's gains" if bound is not None and bound.controller else ""
-    rounds = bound.calibrate if bound is not None else 0
-    calibrated = f", then {rounds} round(s) of {options['steps']} calibrated through the friction" if rounds else ""
-    return (
-        f"designing {what}{gains} for {len(trials)} arm(s), {limits.record:g} s records, {options['steps']} steps {how}"
-        f"{calibrated}"
-    )
-
-
-def run_design(aj, trials, family, limits, options):
-    """``aj.design`` with a progress bar in steps (opened at the first step: a config the design
-    refuses stays one line)."""
-    from tqdm import tqdm
-
-    bars = []
-
-    def progress(step, steps, value):
-        if not bars:
-            bars.append(tqdm(total=steps, unit="step"))
-        bars[0].n = step
-        bars[0].set_postfix_str(f"criterion {value:.3g}", refresh=False)
-        bars[0].refresh()
-
-    try:
-        return aj.design(trials[0], family, limits=limits, progress=progress, **options)
-    finally:
-        for bar in bars:
-            bar.close()
-
-
-def paper_reference(aj, jax, result, trials, limits, options) -> list:
-    """Per arm, the paper's perturbation at the same peak and length: its Cramér-Rao bound (a
-    design on the bound, with the designed controller's trials) or its predicted SEs."""
-    free = options["free"]
-    signal = aj.PaperNoise(limits.peak_force).signal(jax.random.key(2024), result.signal.shape[0])
-    if isinstance(result, aj.BoundDesign):
-        return [aj.crlb(t, signal, free=free, check=False) for t in trials]
-    method = options["method"]
-    draws = (method if method.name == "monte_carlo" else method.monte_carlo).predict_draws
-    return [aj.predict_se(t, signal, free=free, draws=draws) for t in trials]
-
-
-def print_summary(np, result, doc, config, limits, *, on_bound: bool) -> None:
-    """The criterion before and after, the controller and minutes (on the bound), the paper's
-    perturbation, the limits met, and the Monte Carlo check per arm (where it ran)."""
-    what = "bound on the relative SE" if on_bound else "relative SE"
-    print(
-        f"criterion (largest {what} over targets and arms, {limits.record:g} s): start "
-        f"{result.criterion_before:.4g}, designed {result.criterion_after:.4g}"
-    )
-    if on_bound:
-        p = config["design"]["precision"]
-        print(f"controller (each arm resolves the rest itself): {doc['controller']}")
-        print(
-            f"minutes for +-{p:.0%} at 95% on every target, per arm ({', '.join(r['label'] for r in doc['trials'])}): "
-            f"start {np.round(result.start_minutes, 2).tolist()}, designed {np.round(result.minutes, 2).tolist()} (at "
-            f"the {doc['record_s']:g} s signal written); drift {1e3 * result.achieved['drift']:.3f} mm"
-        )
-        from armimp_jax.study.design_experiment import friction_note
-
-        note = friction_note(result)
-        if note:
-            print(note)
-    print(f"routes: the model route, or the classical route at {doc['routes']['classical']}")
-    worst_paper = max(max(row["relative_se_paper"].values()) for row in doc["trials"])
-    worst = max(max(row["relative_se_after"].values()) for row in doc["trials"])
-    print(
-        f"at the {doc['record_s']:g} s signal written, largest {what}: designed {worst:.4g}, the paper's "
-        f"perturbation at the same peak and length {worst_paper:.4g}"
-    )
-    print(
-        f"limits met: RMS {np.round(result.achieved['rms_force'], 4).tolist()} N, peak "
-        f"{np.round(result.achieved['peak_force'], 4).tolist()} N, displacement "
-        f"{1e3 * result.achieved['peak_displacement']:.3f} mm (noise-free)"
-        + (
-            f"; with the person's own force about {1e3 * result.achieved['peak_displacement_plus_3_drift']:.3f} mm "
-            "(plus three RMS drifts)"
-            if "peak_displacement_plus_3_drift" in result.achieved
-            else ""
-        )
-    )
-    if "validation" in doc:
-        v, p = doc["validation"], config["design"]["precision"]
-        print(
-            f"checked at a {v['record_s']:g} s record: RMS {np.round(v['rms_force'], 4).tolist()} N, peak "
-            f"{np.round(v['peak_force'], 4).tolist()} N; the predictions made there (asked: +-{p:.0%} at 95%)"
-        )
-    for k, row in enumerate(doc["trials"]):
-        if "validation" in row:
-            check = row["validation"]
-            spread, predicted = check["relative_spread"], check["relative_se_predicted"]
-            worst = max(spread, key=spread.get)
-            print(
-                f"{row['label']}: largest relative spread {spread[worst]:.4g} ({worst}) / largest predicted "
-                f"{max(predicted.values()):.4g} = {spread[worst] / max(predicted.values()):.2f}; +-"
-                f"{Z95 * spread[worst]:.1%} at 95% ({check['converged']} of {check['recordings']} recordings "
-                "converged)"
-            )
-
-
-def targets_of(dx, options) -> list[str]:
-    """The target labels of ``options`` (the config's, or the default ones)."""
-    from armimp_jax.study.design_experiment import default_targets, make_layout
-
-    layout = make_layout(options["free"])
-    return list(options["targets"] or [layout.labels()[i] for i in default_targets(layout)])
-
-
-def written_record(dc, dx, result, trials, settings, options, asked, design_record, precision) -> float:
-    """The record [s] the design is written at: ``asked`` seconds, the design's own, or the one
-    its answer predicts for ``precision`` (``dc.predicted_record``)."""
-    if asked == "design":
-        return design_record
-    if asked != "predicted":
-        return float(asked)
-    doc = dx.result_dict(result, trials, settings=settings, free=options["free"], targets=options["targets"])
-    return dc.predicted_record(doc, design_record=design_record, precision=precision)
-
-
-def at_written_record(dc, dx, result, trials, limits, settings, options, config, asked):
-    """``(result at the record written, that record [s])``: the signal at the record asked
-    (``written_record``), every number of the design recomputed there (``dc.at_record``)."""
-    precision = config["design"]["precision"]
-    record = written_record(dc, dx, result, trials, settings, options, asked, limits.record, precision)
-    signal = dc.validation_signal(result, limits, record, trials=trials, key=options["key"])
-    print(f"writing the design at a {record:g} s record ({asked})", flush=True)
-    at = dc.at_record(
-        result,
-        signal,
-        trials,
-        free=options["free"],
-        targets=targets_of(dx, options),
-        precision=precision,
-        draws=config["design"]["predict_draws"],
-        key=options["key"],
-    )
-    return at, record
-
-
 def main(argv=None) -> int:
     args = parse(argv)
     from armimp_jax import runtime  # after the arguments: --help stays fast
 
     runtime.configure()  # float64, the devices, XLA:CPU's options, the compilation cache
-    import jax
-    import numpy as np
     from tqdm import tqdm
 
     import armimp_jax as aj
     from armimp_jax.study import design_check as dc
     from armimp_jax.study import design_experiment as dx
+    from armimp_jax.study import design_report as dr
 
     try:
         config = dx.read_design_config(args.config)
@@ -252,9 +99,9 @@ def main(argv=None) -> int:
     except ValueError as err:  # ConfigError included
         return fail(str(err))
     start = time.perf_counter()
-    print(describe(trials, family, limits, options), flush=True)
+    print(dr.describe(trials, family, limits, options), flush=True)
     try:
-        result = run_design(aj, trials, family, limits, options)
+        result = dr.run_design(trials, family, limits, options)
     except ValueError as err:
         return fail(str(err))
     if isinstance(result, aj.BoundDesign):
@@ -262,20 +109,15 @@ def main(argv=None) -> int:
     seeds = config["validate"]["seeds"] if args.validate is None else args.validate
     settings = dict(config_path=str(args.config), config=config, validate_seeds=seeds, record=args.record)
     try:  # the signal at the record asked, and every number there
-        result, record = at_written_record(dc, dx, result, trials, limits, settings, options, config, args.record)
+        result, record = dr.at_written_record(result, trials, limits, settings, options, config, args.record)
     except ValueError as err:  # the family or the limits at that length
         return fail(str(err))
-    paper = paper_reference(aj, jax, result, trials, limits, options)
+    paper = dr.paper_reference(result, trials, limits, options)
 
     def write(validation):
+        free, targets = options["free"], options["targets"]
         doc = dx.result_dict(
-            result,
-            trials,
-            settings=settings,
-            free=options["free"],
-            targets=options["targets"],
-            validation=validation,
-            paper=paper,
+            result, trials, settings=settings, free=free, targets=targets, validation=validation, paper=paper
         )
         return doc, dx.write_results(args.out, result, trials, limits, doc=doc)
 
@@ -284,26 +126,30 @@ def main(argv=None) -> int:
     doc, paths = write(None)
     if seeds:
         print(f"validating at the {record:g} s record: {seeds} recordings per arm", flush=True)
-        vbar = tqdm(total=seeds * len(trials), unit="fit", desc="validating")
-        try:
-            validation = dc.validate(
-                result.signal,
-                trials,
-                options["free"],
-                seeds=seeds,
-                draws=config["validate"]["draws"],
-                progress=vbar.update,
-            )
-        except RuntimeError as err:
-            vbar.close()
-            return fail(f"{err} (the design, unvalidated, is in {args.out})")
-        vbar.close()
+        with tqdm(total=seeds * len(trials), unit="fit", desc="validating") as vbar:
+            try:
+                validation = dc.validate(
+                    result.signal,
+                    trials,
+                    options["free"],
+                    seeds=seeds,
+                    draws=config["validate"]["draws"],
+                    progress=vbar.update,
+                )
+            except RuntimeError as err:
+                return fail(f"{err} (the design, unvalidated, is in {args.out})")
         doc, paths = write(validation)
-    print_summary(np, result, doc, config, limits, on_bound=isinstance(result, aj.BoundDesign))
+    print(
+        "\n".join(
+            [
+                *dr.summary_lines(result, doc, config, limits),
+                dr.robot_alone_line(trials, result.signal, options["free"]),
+            ]
+        )
+    )
     if args.sensitivity is not None:
         labels = [row["label"] for row in doc["trials"]]
-        lines = dx.sensitivity_report(trials, result.signal, options["free"], args.sensitivity, labels)
-        print("\n".join(lines))
+        print("\n".join(dx.sensitivity_report(trials, result.signal, options["free"], args.sensitivity, labels)))
     print(f"{time.perf_counter() - start:.0f} s; wrote " + ", ".join(p.name for p in paths))
     return 0
 

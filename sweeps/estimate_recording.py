@@ -253,10 +253,11 @@ def model_route(args) -> int:
     """Identify through the closed-loop model (armimp_jax.study.identify_recording), with the
     Welch route's answer at its defaults beside it (the classical column)."""
     start_jax()
+    from armimp_jax.study import calibration_files as cf
     from armimp_jax.study import identify_recording as idr
     from armimp_jax.study import recording, recording_report
 
-    try:  # every check before the fit: the config, the rate, the recording
+    try:  # every check before the fit: the config, the rate, the recording, the calibration
         config = idr.read_identify_config(args.model)
         model, options = idr.build_model(config, where=str(args.model))
         idr.check_rate(args.fs, model)
@@ -271,11 +272,12 @@ def model_route(args) -> int:
         if args.sensitivity is not None:
             idr.check_sensitivity(model, options["free"])
         columns, rec = load(args, recording)
+        options["calibration"], lines = cf.calibrate(config, args.model, args.fs, columns, model.robot)
     except ValueError as err:  # IdentifyConfigError and RecordingError included
         return fail(str(err))
     n, clock = rec["x"].shape[0], recording.timestamp_warnings(rec, args.fs)
     start = f"{n} samples ({n / args.fs:g} s); identifying {', '.join(options['free'])} ..."
-    print("\n".join([f"WARNING: {w}" for w in clock] + [start]), flush=True)
+    print("\n".join(lines + [f"WARNING: {w}" for w in clock] + [start]), flush=True)
     try:
         res = idr.run(rec, model, options)
     except ValueError as err:  # identify's own refusals (e.g. a start at which the model diverges)
@@ -285,6 +287,7 @@ def model_route(args) -> int:
     settings = dict(
         recording=str(args.recording), columns=columns, fs_hz=args.fs, config_path=str(args.model), config=config
     )
+    settings["calibration"] = cf.record(options["calibration"])
     try:
         paths = idr.write_results(
             args.out,
@@ -312,6 +315,7 @@ def pooled_route(args, config: dict, options: dict) -> int:
     """Every recording of the config's [recordings] in one identification (study.identify_pool):
     one table of the arm per group and the shared robot."""
     import armimp_jax as aj
+    from armimp_jax.study import calibration_files as cf
     from armimp_jax.study import identify_pool, recording, recording_report
     from armimp_jax.study import identify_recording as idr
 
@@ -320,6 +324,8 @@ def pooled_route(args, config: dict, options: dict) -> int:
         listed = identify_pool.files(config, args.model)
         loaded = [(g, recording.load_recording(path, columns=columns)) for path, g in listed]
         recordings = identify_pool.build_recordings(config, loaded, str(args.model))
+        robot = recordings[0].model.robot
+        options["calibration"], lines = cf.calibrate(config, args.model, args.fs, columns, robot)
     except ValueError as err:  # ConfigError and RecordingError included
         return fail(str(err))
     names = [p.name for p, _ in listed]
@@ -327,7 +333,7 @@ def pooled_route(args, config: dict, options: dict) -> int:
         f"recording {n}: {w}" for n, (_, r) in zip(names, loaded) for w in recording.timestamp_warnings(r, args.fs)
     ]
     start = f"{len(recordings)} recordings in {len(set(g for _, g in listed))} groups; identifying ..."
-    print("\n".join([f"WARNING: {w}" for w in clock] + [start]), flush=True)
+    print("\n".join(lines + [f"WARNING: {w}" for w in clock] + [start]), flush=True)
     try:
         res = aj.identify(recordings, **options, shared=config["recordings"]["shared"], progress=True)
     except ValueError as err:
@@ -335,7 +341,7 @@ def pooled_route(args, config: dict, options: dict) -> int:
     classical = [idr.classical_fit(rec, args.fs) for _, rec in loaded]
     warnings = clock + idr.pooled_warnings(res, names, loaded, classical)
     settings = dict(recordings=[str(p) for p, _ in listed], columns=columns, fs_hz=args.fs, config_path=str(args.model))
-    settings["config"] = config
+    settings["config"], settings["calibration"] = config, cf.record(options["calibration"])
     try:
         paths = identify_pool.write_results(args.out, res, settings=settings, warnings=warnings, classical=classical)
     except OSError as err:

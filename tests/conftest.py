@@ -3,6 +3,8 @@ import pathlib
 
 import jax
 
+pytest_plugins = ("pytester",)  # tests/test_isolation.py runs a deliberate offender under the fixture below
+
 # Entry points switch float64 on; the library never does it on import.
 jax.config.update("jax_enable_x64", True)
 # Catch silent broadcasting between arrays of different rank.
@@ -15,15 +17,23 @@ os.environ.setdefault("ARMIMP_JAX_CACHE_DIR", str(pathlib.Path(__file__).resolve
 from armimp_jax import runtime  # noqa: E402  (after the cache folder is chosen)
 
 # The suite's set-up, explicit (importing armimp_jax sets none): one device per core (the
-# sharded tests), XLA:CPU's small-loop kernel without LLVM unrolling, XLA's own vector width.
-runtime.configure(vector_width=None, compilation_cache=False)
+# sharded tests), XLA:CPU's small-loop kernel without LLVM unrolling, XLA's own vector width
+# (256 bits) written out: flags already in XLA_FLAGS win, so a script's main() that a test runs
+# in-process finds every option its configure() sets already set (on an AVX-512 host it would
+# add 512-bit vectors, and vector_lanes() would go from 4 to 8 for the rest of the worker).
+runtime.configure(vector_width=256, compilation_cache=False)
 runtime.use_compilation_cache(runtime.compilation_cache_dir())
+
+# Every test leaves that set-up as it found it: an autouse fixture fails one that does not
+# (tests/helpers.py); so no test runs differently by which tests its worker ran before it.
+from helpers import global_state_unchanged, suite_state  # noqa: E402, F401
 
 # The suite runs file by file on two workers (``--dist loadfile``: a module's fixtures and
 # compiled programs are made once). Its heaviest files go first, so the last file a worker
 # takes is a short one: by worker seconds on a cold cache (docs/performance.md, version 1.1).
 HEAVY_FIRST = (
     # the statistics tier (pytest -m stats), longest first
+    "test_claims_matrix.py",
     "test_claims_identify.py",
     "test_claims_design.py",
     "test_claims_friction.py",

@@ -4,6 +4,7 @@ import pathlib
 
 import jax
 import numpy as np
+import pytest
 import scipy.signal
 
 
@@ -55,3 +56,70 @@ def write_toml(path, config: dict) -> pathlib.Path:
         lines += [f"{key} = {json.dumps(value)}" for key, value in table.items()]
     path.write_text("\n".join(lines) + "\n")
     return path
+
+
+def global_state() -> dict:
+    """What a test must leave as it found it: the XLA flags (every later compilation of the
+    worker, and every process it starts, reads them), the suite's JAX settings, the devices JAX
+    sees, and the SIMD lanes that ``simulate_batch`` pads a batch to. Cheap: no JAX computation."""
+    from armimp_jax import runtime
+
+    return {
+        "XLA_FLAGS": os.environ.get("XLA_FLAGS"),
+        "jax_enable_x64": jax.config.jax_enable_x64,
+        "jax_numpy_rank_promotion": jax.config.jax_numpy_rank_promotion,
+        "device count": jax.device_count(),
+        "runtime.vector_lanes()": runtime.vector_lanes(),
+    }
+
+
+def state_changes(before: dict, after: dict) -> list[str]:
+    """One line per entry of ``global_state`` that differs: ``"name: before -> after"``, or for
+    ``XLA_FLAGS`` the flags added and removed."""
+    out = []
+    for name in before:
+        if after[name] == before[name]:
+            continue
+        if name == "XLA_FLAGS":
+            was, now = (set((flags or "").split()) for flags in (before[name], after[name]))
+            out.append(f"XLA_FLAGS added {sorted(now - was)}, removed {sorted(was - now)}")
+        else:
+            out.append(f"{name}: {before[name]!r} -> {after[name]!r}")
+    return out
+
+
+def restore_state(state: dict) -> None:
+    """Put back what a process can put back (the device count cannot change once JAX started)."""
+    if state["XLA_FLAGS"] is None:
+        os.environ.pop("XLA_FLAGS", None)
+    else:
+        os.environ["XLA_FLAGS"] = state["XLA_FLAGS"]
+    jax.config.update("jax_enable_x64", state["jax_enable_x64"])
+    jax.config.update("jax_numpy_rank_promotion", state["jax_numpy_rank_promotion"])
+
+
+@pytest.fixture(scope="session")
+def suite_state() -> dict:
+    """``global_state`` as the session's first test finds it: the suite's set-up."""
+    return global_state()
+
+
+def _fail_and_restore(what: str, changes: list[str], state: dict) -> None:
+    restore_state(state)
+    pytest.fail(f"{what}, so later tests on this worker would run differently: " + "; ".join(changes), pytrace=False)
+
+
+@pytest.fixture(autouse=True)
+def global_state_unchanged(suite_state):
+    """Fails a test that leaves ``global_state`` changed (at its teardown), then puts it back, so
+    the tests after it on the same worker run as they would alone. Its own fixtures
+    (``monkeypatch``) have restored what they set by then: they are torn down before this autouse
+    fixture. A change made between tests (a module's fixture) fails the next test's set-up."""
+    before = global_state()
+    changes = state_changes(suite_state, before)
+    if changes:
+        _fail_and_restore("the set-up changed between tests (a fixture of a wider scope)", changes, suite_state)
+    yield
+    changes = state_changes(before, global_state())
+    if changes:
+        _fail_and_restore("the test left the process's set-up changed", changes, before)

@@ -95,6 +95,7 @@ def test_agrees_with_rk4_at_the_paper_friction_levels():
     np.testing.assert_allclose(ark, rk4, rtol=1e-6)
 
 
+@pytest.mark.slow  # 20 s cold (the suite's budget); test_simulate's gradient tests stay fast
 def test_gradients_near_zero_friction_are_finite_and_match_central_differences():
     """d phi_T / d tau_c (stiction 1.5 tau_c): at 1e-3 N m equal to a central difference; at
     exactly 0 (no bristles) finite: there the function has no derivative from the right

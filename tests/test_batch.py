@@ -116,6 +116,7 @@ def test_wide_vectors_change_no_bit():
 CODEGEN_BOUND = 1e-11
 
 
+@pytest.mark.slow  # 17 s cold (the suite's budget); the sharded entry point stays fast
 def test_entry_point_codegen_options_agree_with_plain_xla_to_round_off():
     plain, tuned = _run_sharded(2, PLAIN_XLA), _library_batch()
     for name in ("x", "fh", "fu"):

@@ -157,6 +157,7 @@ def test_the_information_differentiates_in_the_perturbation_and_the_gains():
     assert np.isfinite(float(value))
 
 
+@pytest.mark.slow  # 30 s cold (the suite's budget)
 def test_no_bound_through_stick_slip_and_plain_refusals():
     stuck = aj.crlb(_trial(aj.PD(), friction=aj.LuGre(0.3, 0.45), **NOISE), F)
     assert not stuck.near_linear and "not near-linear" in stuck.message and "stick-slip" in stuck.message
@@ -183,6 +184,23 @@ def test_no_bound_through_stick_slip_and_plain_refusals():
     mean = aj.crlb(_trial(aj.IMBIC(), acquisition="interval_mean", **NOISE), F, check=False)
     assert not mean.near_linear and "x1, x2 carry no reading noise" in mean.message
     assert all(np.all(np.isnan(v)) for v in mean.se.values())
+
+
+def test_the_information_is_quadratic_in_the_perturbation_and_the_bound_is_its_inverse():
+    """``I = sum_t de_t^T Lambda^-1 de_t`` with ``de`` the whitened derivative of the linearised
+    loop's response, which is linear in ``f``: twice the perturbation, four times the information.
+    Symmetric positive definite, and ``crlb``'s covariance is its inverse (full matrices: the
+    internal parameters are the entries). The trial is the test's above: its compiled programs serve."""
+    trial = _trial(aj.IMBIC(), friction=aj.LuGre(1.0, 1.5), **NOISE)
+    info = np.asarray(aj.fisher_information(trial, F))
+    assert info.shape == (12, 12)
+    np.testing.assert_allclose(info, info.T, rtol=0, atol=1e-12 * np.abs(info).max())
+    assert np.linalg.eigvalsh(info).min() > 0
+    np.testing.assert_allclose(aj.fisher_information(trial, 2.0 * F), 4.0 * info, rtol=1e-12)
+    bound = aj.crlb(trial, F)
+    np.testing.assert_allclose(bound.information, info, rtol=1e-14)
+    se = np.concatenate([np.ravel(v) for v in bound.se.values()])
+    np.testing.assert_allclose(se, np.sqrt(np.diag(np.linalg.inv(info))), rtol=1e-10)
 
 
 def test_the_hands_drift_under_the_persons_force_is_the_simulations():

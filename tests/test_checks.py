@@ -1,13 +1,20 @@
 """Parameter rules hold under transformations: a bad value built inside jit, vmap or grad
-raises when the program runs, with the same message a concrete value gets at once."""
+raises when the program runs, with the same message a concrete value gets at once. And, as
+properties (hypothesis) of concrete values: any finite value inside a parameter's range is
+taken as given, any outside is refused in one line naming the value and the range."""
+
+import math
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import armimp_jax as aj
 from armimp_jax import paper
+from armimp_jax._checks import check_int
 
 F = aj.perturbation(jax.random.PRNGKey(0), 300, paper.perturbation_peak(1))
 NUMERICS = aj.SWEEP_NUMERICS
@@ -73,3 +80,114 @@ def test_every_rule_of_a_parameter_holds_under_jit(build, rule):
     with pytest.raises(Exception, match=rule):
         jax.jit(leaf)(-1.0)
     assert np.isfinite(jax.jit(leaf)(1.0))
+
+
+# The properties build parameters from host values (NumPy: no JAX computation, nothing compiled);
+# a fixed example sequence (derandomize) keeps the suite's result the same from run to run.
+PROPERTY = settings(max_examples=100, deadline=None, derandomize=True, database=None)
+
+# (class, field, other arguments, minimum, exclusive, unit): every range a constructor checks
+RANGES = [
+    (aj.CoulombViscous, "tau_c", {}, 0.0, False, " N m"),
+    (aj.CoulombViscous, "viscous", dict(tau_c=0.06), 0.0, False, " N m s/rad"),
+    (aj.CoulombViscous, "v_s", dict(tau_c=0.06), 0.0, True, " rad/s"),
+    (aj.LuGre, "tau_s", dict(tau_c=0.0), 0.0, False, " N m"),
+    (aj.LuGre, "sigma0", dict(tau_c=1.0, tau_s=1.5), 0.0, False, " N m/rad"),
+    (aj.LuGre, "sigma1", dict(tau_c=1.0, tau_s=1.5), 0.0, False, " N m s/rad"),
+    (aj.LuGre, "sigma2", dict(tau_c=1.0, tau_s=1.5), 0.0, False, " N m s/rad"),
+    (aj.LuGre, "v_s", dict(tau_c=1.0, tau_s=1.5), 0.0, True, " rad/s"),
+    (aj.Sensors, "force_noise", {}, 0.0, False, " N"),
+    (aj.Sensors, "velocity_noise", {}, 0.0, False, " rad/s"),
+    (aj.Sensors, "encoder_counts", {}, 1.0, False, " counts per revolution"),
+    (aj.Sensors, "force_gain", {}, 0.0, True, ""),
+    (aj.Sensors, "force_delay", {}, 0.0, False, " s"),
+    (aj.VoluntaryForce, "std", dict(cutoff=2.0), 0.0, False, " N"),
+    (aj.Robot, "shoulder_link", {}, 0.0, True, " m"),
+    (aj.Robot, "elbow_link", {}, 0.0, True, " m"),
+]
+SCALAR = {"encoder_counts", "force_delay", "shoulder_link", "elbow_link"}  # one value; the others per joint/axis
+finite = st.floats(allow_nan=False, allow_infinity=False)
+
+
+def _one_line_refusal(build, message_start):
+    with pytest.raises(ValueError) as err:
+        build()
+    text = str(err.value)
+    assert text.startswith(message_start) and "\n" not in text, text
+    return text
+
+
+@PROPERTY
+@given(case=st.sampled_from(RANGES), value=finite)
+def test_any_finite_value_inside_a_range_is_taken_and_any_outside_refused_in_one_line(case, value):
+    cls, name, others, minimum, exclusive, unit = case
+    build = lambda: cls(**others, **{name: value})  # noqa: E731
+    inside = value > minimum if exclusive else value >= minimum
+    if inside:
+        stored = np.asarray(getattr(build(), name))
+        assert stored.dtype == np.float64 and np.all(stored == value)
+        assert stored.shape == (() if name in SCALAR else (2,))
+    else:
+        op = ">" if exclusive else ">="
+        text = _one_line_refusal(build, f"{cls.__name__}: {name} must be {op} {minimum:g}{unit}, got ")
+        assert repr(float(value)) in text
+
+
+@PROPERTY
+@given(case=st.sampled_from([c for c in RANGES if c[1] not in SCALAR]), pair=st.lists(finite, min_size=2, max_size=2))
+def test_a_per_joint_pair_is_refused_when_either_value_is_outside(case, pair):
+    cls, name, others, minimum, exclusive, unit = case
+    inside = [(v > minimum if exclusive else v >= minimum) for v in pair]
+    build = lambda: cls(**others, **{name: pair})  # noqa: E731
+    if all(inside):
+        np.testing.assert_array_equal(getattr(build(), name), pair)
+    else:
+        _one_line_refusal(build, f"{cls.__name__}: {name} must be {'>' if exclusive else '>='} {minimum:g}{unit}")
+
+
+@PROPERTY
+@given(case=st.sampled_from(RANGES), value=st.sampled_from([math.nan, math.inf, -math.inf]))
+def test_a_non_finite_value_is_refused_in_one_line(case, value):
+    cls, name, others, *_ = case
+    text = _one_line_refusal(lambda: cls(**others, **{name: value}), f"{cls.__name__}: {name}")
+    assert "must be finite, got" in text and repr(value) in text
+
+
+@PROPERTY
+@given(value=st.integers(-(2**70), 2**70), minimum=st.integers(-5, 30))
+def test_an_integer_option_is_taken_from_its_minimum_up(value, minimum):
+    if value >= minimum:
+        assert check_int("draws", value, minimum=minimum) == value
+        if abs(value) < 2**63:
+            assert check_int("draws", np.int64(value), minimum=minimum) == value
+    else:
+        refused = f"draws must be >= {minimum}, got {value}"
+        _one_line_refusal(lambda: check_int("draws", value, minimum=minimum), refused)
+    for other in (float(value), True, str(value)):
+        _one_line_refusal(lambda: check_int("draws", other, minimum=minimum), f"draws must be an integer >= {minimum}")
+
+
+def _symmetric_part_with_eigenvalues(e1, e2, angle, skew):
+    c, s = math.cos(angle), math.sin(angle)
+    r = np.array([[c, -s], [s, c]])
+    return r @ np.diag([e1, e2]) @ r.T + np.array([[0.0, skew], [-skew, 0.0]])
+
+
+eigenvalue = st.one_of(st.floats(1e-3, 1e3), st.floats(-1e3, -1e-3), st.just(0.0))
+
+
+@PROPERTY
+@given(e1=eigenvalue, e2=eigenvalue, angle=st.floats(0.0, math.pi), skew=st.floats(-1e3, 1e3))
+def test_a_gain_is_taken_iff_its_symmetric_part_is_definite_and_a_mass_iff_semidefinite(e1, e2, angle, skew):
+    """Whatever its antisymmetric part: PD's ``kp`` needs both eigenvalues of ``(K + K^T) / 2``
+    above 0, the arm's mass both at or above 0 (a zero one's round-off within the check's 1e-12)."""
+    k = _symmetric_part_with_eigenvalues(e1, e2, angle, skew)
+    if min(e1, e2) > 0:
+        np.testing.assert_array_equal(aj.PD(kp=k).kp, k)
+    elif min(e1, e2) < 0:  # an eigenvalue of exactly 0 is the boundary: round-off decides, as it may
+        _one_line_refusal(lambda: aj.PD(kp=k), "PD: kp must have a positive definite symmetric part")
+    arm = lambda: aj.Arm(mass=k, damping=np.zeros((2, 2)), stiffness=np.zeros((2, 2)), endpoint=[0.0, 0.4])  # noqa: E731
+    if min(e1, e2) >= 0:
+        np.testing.assert_array_equal(arm().mass, k)
+    else:
+        _one_line_refusal(arm, "Arm: mass must have a positive semi-definite symmetric part")

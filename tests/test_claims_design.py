@@ -10,10 +10,13 @@ their multisine family and limits, the gains and spectrum designed together on t
 (``aj.design(..., method=aj.CramerRao(controller=True))``), one arm (location 2), a 10 s record, 10
 Adam steps. Then 50 recordings of the designed experiment under new noise, each identified from
 the truth (``aj.identify``, 64 draws), and the spread of the six diagonal entries against the
-design's own prediction at its record (its bound, exact: no draws). Asserted: the RMS over the
-targets of spread / prediction within the 99.9% band (``tests/acceptance.py``) of a true ratio in
-0.94-1.16, and the largest spread over the largest prediction within its chi-square interval of
-that range.
+design's own prediction at its record (its bound, exact: no draws). Asserted: the spread is the
+prediction, held as a point (a range as wide as the README's 0.94-1.16 would pass a prediction
+1.2 times off): the RMS over the targets of spread / prediction within the chi-square band of a
+true 1 at their effective dof, each diagonal within its own band (``ALPHA / 6``), and the largest
+spread over the largest prediction within its band; failed fits that do not say why in a lab's
+terms count against the convergence claim. Reported: the smallest factor on the prediction each
+band refuses with power 0.9, and the recordings it would need to refuse 1.2.
 
 Not this case: the calibrated design through IMBIC's friction. On a one-arm 10 s version of it
 (10 steps a round, one calibrated round) ``identify`` from the truth converged in 1 of the first
@@ -25,8 +28,8 @@ of 50 recordings (docs/performance.md, "The statistics tier")."""
 import jax
 import numpy as np
 import pytest
-from acceptance import ALPHA, correlation, entry_ratio_interval
-from claims import ARM, DIAGONAL, entries, noise, progress, ratio_check, report, truth_entries
+from acceptance import correlation, sd_band
+from claims import ARM, DIAGONAL, RESOLVES, convergence, entries, noise, progress, ratio_check, report, truth_entries
 
 import armimp_jax as aj
 from armimp_jax import presets
@@ -35,7 +38,6 @@ pytestmark = pytest.mark.stats
 
 RECORD = 10.0  # [s]
 RECORDINGS = 50
-CLAIM = (0.94, 1.16)
 
 
 @pytest.fixture(scope="module")
@@ -63,12 +65,13 @@ def test_the_spread_at_the_designs_record_is_its_prediction(designed):
     truth, signal = res.trials[0], res.signal
     assert signal.shape == (int(RECORD * 1000), 2)
     sim = jax.jit(aj.simulate, static_argnames="numerics")
-    rows, fits = [], 0
+    rows, messages, converged = [], [], []
     for seed in range(RECORDINGS):
         rec = sim(truth, signal, key=jax.random.key(50_000 + seed), numerics=aj.IDENTIFY_NUMERICS)
         assert not bool(rec.diverged), seed
         fit = aj.identify(truth, signal, rec.x, rec.fh, free=ARM, draws=64, key=jax.random.key(seed))
-        fits += 1
+        messages.append(fit.message)
+        converged.append(bool(fit.converged))
         progress(f"design check seed {seed}: {fit.time_s:.1f} s, converged {fit.converged}")
         if fit.converged:
             rows.append(entries(fit.values))
@@ -77,19 +80,19 @@ def test_the_spread_at_the_designs_record_is_its_prediction(designed):
     relative_spread = values.std(axis=0, ddof=1) / np.abs([true[k] for k in DIAGONAL])
     prediction = np.array([predicted[k] for k in DIAGONAL])
     n = len(values)
-    figures = ratio_check(relative_spread, prediction, [CLAIM] * len(DIAGONAL), n, correlation(values), per_entry=False)
+    figures = ratio_check(relative_spread, prediction, [1.0] * len(DIAGONAL), n, correlation(values))
     largest = float(relative_spread.max() / prediction.max())
-    low, high = entry_ratio_interval(largest, n, ALPHA)
+    done = convergence(messages, converged)
     figures.update(
         entries=list(DIAGONAL),
-        converged=n,
-        fits=fits,
+        convergence=done,
         largest_over_largest=largest,
-        largest_interval=(low, high),
+        largest_band=sd_band(n - 1),
         minutes=res.minutes,
         controller={k: np.asarray(v).tolist() for k, v in res.controller.items() if k != "type"},
     )
     report("design-check", figures, dict(values=values, true=[true[k] for k in DIAGONAL], predicted=prediction))
-    assert n >= 0.9 * fits, figures
-    assert figures["band"][0] <= figures["rms"] <= figures["band"][1], figures
-    assert high >= CLAIM[0] and low <= CLAIM[1], figures
+    assert done["failed"] - len(done["unexplained"]) <= done["allowed"] and not done["unexplained"], figures
+    assert not figures["outside"] and figures["largest_band"].holds(largest), figures
+    r = figures["resolution"]
+    assert r["rms"] <= RESOLVES["diagonals"] and r["entry"] <= RESOLVES["entry"], r

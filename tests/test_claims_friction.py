@@ -1,12 +1,14 @@
 """Statistics tier (``pytest -m stats``): the README's friction thresholds ("Under PD the minimum
-multiple coherence falls below 0.9 at 0.05-0.07 N m ... and phi_T doubles at 0.24-0.28 N m; under
-IMBIC phi_T doubles only at 3-3.7 N m"), on the study's own terms (docs/sweeps.md, "The friction
+multiple coherence falls below 0.9 at 0.05-0.08 N m ... and phi_T doubles at 0.24-0.28 N m; under
+IMBIC phi_T doubles only at 2.7-3.5 N m"), on the study's own terms (docs/sweeps.md, "The friction
 threshold"): stiction 1.5 ``tau_c`` with the paper's bristle and viscous parameters, PD and IMBIC
 (``Mhat = 0.25 I`` kg), the four paper arms, 50 s records at the paper's level 1, ideal sensors,
 ``aj.SWEEP_NUMERICS``, Table 4's Welch settings, 5 seeds with common random numbers (keys of this
 file's own), on a grid dense where the claims sit. A threshold is where the seed-mean curve
-crosses (linear in ``log tau_c`` between grid points, linear from 0); per controller and arm its
-99% bootstrap interval over the seeds (seeds resampled whole) must meet the claimed range."""
+crosses (linear in ``log tau_c`` between grid points, linear from 0); per controller and arm the
+threshold must lie in the claimed range and its 99% bootstrap interval over the seeds (seeds
+resampled whole), reported beside it, is the precision the claim can be printed at (PD's
+arm 1 phi_T: 0.260-0.300 N m, about +-0.02)."""
 
 import jax
 import numpy as np
@@ -25,10 +27,12 @@ GRIDS = {
     "pd": (0.0, 0.03, 0.04, 0.05, 0.06, 0.07, 0.08, 0.1, 0.2, 0.24, 0.26, 0.28, 0.3, 0.4),
     "imbic": (0.0, 2.0, 2.5, 3.0, 3.5, 4.0),
 }
-# (controller, curve): the claimed range [N m] of every arm's threshold
-# (the README said "phi_T doubles at 0.25 N m" under PD: on this grid the arms' thresholds were
-# 0.244-0.276 N m, arm 1's 99% interval 0.260-0.300, so the README now says 0.24-0.28)
-CLAIMS = {("pd", "coherence"): (0.05, 0.07), ("pd", "phi"): (0.24, 0.28), ("imbic", "phi"): (3.0, 3.7)}
+# (controller, curve): the claimed range [N m] of every arm's threshold. Measured on this grid
+# (2026-11-27, arms 1-4): PD coherence 0.077, 0.073, 0.072, 0.051; PD phi_T 0.276, 0.268, 0.263,
+# 0.244 (arm 1's 99% interval 0.260-0.300); IMBIC phi_T 2.74, 3.45, 3.23, 3.17. The README's
+# 0.05-0.07 and 3-3.7 left PD's coherence and IMBIC's arm 1 outside (issue 65): the ranges that
+# hold them are 0.05-0.08 and 2.7-3.5, and the README is to print those.
+CLAIMS = {("pd", "coherence"): (0.05, 0.08), ("pd", "phi"): (0.24, 0.28), ("imbic", "phi"): (2.7, 3.5)}
 BOOTSTRAP = 4000
 LEVEL = 0.01  # two-sided: 99% bootstrap intervals
 
@@ -97,7 +101,7 @@ def test_thresholds_are_where_the_readme_says(curves):
             interval = np.quantile(boot[:, k], [LEVEL / 2, 1 - LEVEL / 2], method="inverted_cdf").tolist()
             figures[f"arm {loc} {curve}"] = dict(threshold=point[k], interval=interval)
             claim = CLAIMS.get((controller, curve))
-            if claim is not None and (interval[1] < claim[0] or interval[0] > claim[1]):
+            if claim is not None and not claim[0] <= point[k] <= claim[1]:
                 misses.append((loc, curve, point[k], interval, claim))
         figures[f"arm {loc} coh_min at 0"] = float(coh[:, 0].mean())
     raw = {f"arm {loc} {k}": v for loc, (taus, phi, coh) in per_arm.items() for k, v in (("phi", phi), ("coh", coh))}

@@ -17,9 +17,7 @@ import scipy.stats
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._identification import layout as lay
 from armimp_jax._identification import limits as des
-from armimp_jax._identification.design import _record_statistic as record_statistic
 from armimp_jax.study import design_check as dc
 from armimp_jax.study import design_experiment as dx
 
@@ -42,6 +40,30 @@ def test_multisine_puts_each_axis_on_its_own_lines_at_the_rms_with_a_low_crest_f
     np.testing.assert_allclose(spectrum[lines_y, 0], 0.0, atol=1e-8 * spectrum.max())
     off = np.setdiff1d(np.arange(spectrum.shape[0]), np.r_[lines_x, lines_y])
     assert spectrum[off].max() < 1e-8 * spectrum.max()
+
+
+def test_a_multisine_is_its_sum_of_cosines_scaled_to_its_rms():
+    """Lines on whole periods of a 2 s record: the RMS of ``sum_k a_k cos(2 pi f_k t + phi_k)`` is
+    ``sqrt(sum_k a_k^2 / 2)``, so the signal is that sum times ``rms`` over it, in closed form."""
+    freqs, shape, phases = [[2.0, 7.0], [5.0, 5.5]], [[1.0, 0.5], [3.0, 0.0]], [[0.3, 2.0], [-1.1, 0.7]]
+    rms = np.array([0.5, 2.0])
+    s = np.asarray(aj.Multisine(freqs, shape, phases, rms).signal(None, 2000))
+    t = np.arange(2000)[:, None, None] * 1e-3
+    waves = np.sum(np.asarray(shape) * np.cos(2 * np.pi * np.asarray(freqs) * t + np.asarray(phases)), axis=-1)
+    expected = waves * rms / np.sqrt(np.sum(np.asarray(shape) ** 2, axis=1) / 2)
+    np.testing.assert_allclose(s, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    bad = [
+        (dict(shape=[[1.0, -0.5], [3.0, 0.0]]), r"Multisine: shape must be >= 0 with a positive entry per axis"),
+        (dict(shape=[[1.0, 0.5], [0.0, 0.0]]), r"Multisine: shape must be >= 0 with a positive entry per axis"),
+        (dict(rms=[0.5, 0.0]), r"Multisine: rms must be > 0 N per axis, got \[0.5, 0.0\]"),
+        (dict(freqs=[[2.0, 700.0], [5.0, 5.5]]), r"Multisine: freqs must lie in \[0, 500\) Hz"),
+        (dict(freqs=[2.0, 7.0]), r"Multisine: freqs \[Hz\] must have 2 axes, got shape \(2,\)"),
+        (dict(phases=[[0.3], [-1.1]]), r"Multisine: phases \[rad\] must be shape \(2, 2\), got shape \(2, 1\)"),
+    ]
+    for change, message in bad:
+        args = dict(dict(freqs=freqs, shape=shape, phases=phases, rms=rms), **change)
+        with pytest.raises(ValueError, match=message):
+            aj.Multisine(**args)
 
 
 def test_shaped_noise_follows_its_spectrum_and_level_and_differentiates():
@@ -102,15 +124,6 @@ def test_bad_families_and_limits_are_one_line_errors():
         aj.design(_trial(), fam, free=ARM, limits=limits, method="bound")
     with pytest.raises(ValueError, match=r"no frequency of a 3 s record \(spacing 0.333333 Hz\) lies in the band"):
         aj.ShapedNoise(knots=[1.1, 1.2], shape=np.ones((2, 2)), rms=1.0).signal(jax.random.key(0), 3000)
-    with pytest.raises(ValueError, match="record_for: target must map entry labels to relative SEs"):
-        aj.record_for(_trial(), np.zeros((3000, 2)), free=ARM, target={})
-    with pytest.raises(ValueError, match="unknown statistic 'whittle'; allowed: 'auto', 'efficient', 'welch'"):
-        aj.record_for(_trial(), np.zeros((3000, 2)), free=ARM, target={"arm.mass[0,0]": 0.1}, statistic="whittle")
-    with pytest.raises(ValueError, match=r"record_for: f must have shape \(N, 2\), got \(3000, 3\)"):
-        aj.record_for(_trial(), np.zeros((3000, 3)), free=ARM, target={"arm.mass[0,0]": 0.1})
-    # identify's rule, decided before any simulation: no free arm matrix, no efficient statistic
-    tau_c = lay.make_layout(("friction.tau_c",))
-    assert record_statistic(_trial(), np.ones((3000, 2)), tau_c, "efficient") == "welch"
 
 
 def test_limits_hold_exactly_on_the_limited_signal():
@@ -395,9 +408,10 @@ def test_a_bound_design_writes_the_controller_and_the_minutes(tmp_path, capsys):
     assert np.all(np.diag(c["k_rd"]) >= 50.0) and np.all(np.diag(c["b_rd"]) >= 1.0)
     assert doc["achieved"]["drift"] <= 0.003 * (1 + 1e-9) and doc["achieved"]["peak_displacement"] <= 0.010
     assert doc["minutes"] == max(r["minutes_after"] for r in doc["trials"]) > 0
-    assert (out / "minutes.png").stat().st_size > 0 and "minutes for +-50% at 95%" in captured.out
-    # the config's calibrated round through its LuGre 1 / 1.5 N m: predict_se's minutes, per arm and overall
-    assert "through the joints' Coulomb friction (1 N m), predict_se's minutes per arm" in captured.out
+    assert (out / "minutes.png").stat().st_size > 0 and "How long to record for +-50% at 95%" in captured.out
+    # the config's calibrated round through its LuGre 1 / 1.5 N m: predict_se's minutes beside the bound's
+    assert "bound: floor, no friction" in captured.out and "predict_se, through the friction" in captured.out
+    assert f"plan on {doc['predicted_minutes']:.3g} min (predict_se's worst arm" in captured.out
     row = doc["trials"][0]
     assert doc["predicted_minutes"] == row["predicted_minutes"] > 0
     assert set(row["friction_ratio"]) == set(doc["targets"]) == set(row["relative_se_predicted"])
@@ -458,21 +472,3 @@ def test_the_checked_signal_is_the_design_at_its_record_and_the_family_within_th
     # the predictions at the checked signal: 1/sqrt(T), and one over the level where it fell
     assert dc.checked_scale(design_signal, longer) == pytest.approx(np.sqrt(2.0 / 5.0))
     assert dc.checked_scale(design_signal, 0.5 * longer) == pytest.approx(2.0 * np.sqrt(2.0 / 5.0))
-
-
-@pytest.mark.slow  # ~1 min: two predictions
-def test_record_for_reaches_its_target_where_it_says():
-    trial = _trial(2)
-    f = aj.perturbation(jax.random.key(5), 4000, 10.0)
-    target = {"arm.stiffness[1,1]": 0.05, "arm.mass[0,0]": 0.01}
-    out = aj.record_for(trial, f, free=ARM, target=target, draws=32)
-    assert out["statistic"] == "welch"  # identify's choice through stick-slip (PD, 0.3 N m)
-    assert out["record_s"] == pytest.approx(max(out[t] for t in target), abs=1e-3)
-    # the check at that length: each target met, within the predictions' own Monte Carlo error
-    for t, goal in target.items():
-        assert out["check"][t] <= 1.2 * goal * np.sqrt(out[t] / out["record_s"]), (t, out)
-    # a record past an hour is answered without the check, which would simulate it
-    far = aj.record_for(trial, f, free=ARM, target={"arm.mass[0,0]": 1e-4}, draws=32)
-    assert far["record_s"] > 3600 and far["check"] is None
-    with pytest.raises(ValueError, match=r"record_for: unknown target 'arm.mass\[3,3\]'"):
-        aj.record_for(trial, f, free=ARM, target={"arm.mass[3,3]": 0.1})

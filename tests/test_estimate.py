@@ -207,6 +207,10 @@ def test_window_and_nfft_give_scipy_csd_h1(window, nfft):
 
 
 def test_window_array_and_welch_settings_pass_through_assess():
+    """And ``assess`` scores the estimate as the paper defines it (eqs. 1-2), computed here: phi_T the
+    mean over the bins of the largest singular value of Z_h(j 2 pi f) - Z_hat(f), Z_h = K + j w B -
+    w^2 M of the trial's arm; phi_ij each entry's mean modulus; the largest input coherence; the
+    simulation's divergence passed on."""
     u, y, _ = _synthetic(n=6000, noise=0.1)
     kw = dict(nperseg=512, noverlap=256, fmax=50.0, nfft=640)
     named = aj.estimate(u, y, 2.0 * y + u, window=("kaiser", 6.0), **kw)
@@ -215,10 +219,18 @@ def test_window_array_and_welch_settings_pass_through_assess():
     _, g = cross_spectral_matrix(jnp.asarray(u), nperseg=512, noverlap=256, window="hann", nfft=640)
     np.testing.assert_allclose(g[:, 0, 1], scipy.signal.csd(u[:, 0], u[:, 1], fs=1000.0, nperseg=512, nfft=640)[1])
     zeros = jnp.zeros_like(jnp.asarray(y))
-    sim = aj.SimResult(y, zeros, 2.0 * y + u, zeros, zeros, zeros, jnp.bool_(False), jnp.int32(-1))
+    sim = aj.SimResult(y, zeros, 2.0 * y + u, zeros, zeros, zeros, jnp.bool_(True), jnp.int32(4321))
     welch = aj.Welch(512, 256, 50.0, window=("kaiser", 6.0), nfft=640)
-    out = aj.assess(paper.trial("pd", 0, 1), u, sim, welch)
+    trial = paper.trial("pd", 0, 1)
+    out = aj.assess(trial, u, sim, welch)
     np.testing.assert_array_equal(out.estimate.Z, named.Z)
+    s = 2j * np.pi * np.asarray(named.f)[:, None, None]
+    z_h = np.asarray(trial.arm.mass) * s**2 + np.asarray(trial.arm.damping) * s + np.asarray(trial.arm.stiffness)
+    err = z_h - np.asarray(named.Z)
+    np.testing.assert_allclose(out.phi_T, np.linalg.norm(err, 2, axis=(1, 2)).mean(), rtol=1e-12)
+    np.testing.assert_allclose(out.phi_ij, np.abs(err).mean(axis=0), rtol=1e-12)
+    assert float(out.input_coherence) == float(np.max(np.asarray(out.estimate.coh_inputs)))
+    assert bool(out.diverged) and int(out.diverged_at) == 4321
     with pytest.raises(ValueError, match="which give 1 Welch segment"):
         aj.Welch(512, 256).check(767)
 

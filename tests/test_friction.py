@@ -1,4 +1,6 @@
-"""LuGre: steady sliding friction, pre-sliding stiffness, and the exact zero of level 0."""
+"""LuGre: steady sliding friction, pre-sliding stiffness, and the exact zero of level 0.
+CoulombViscous: its torque and slope in closed form, the plant's joint accelerations it gives,
+and its one-line refusals."""
 
 import math
 
@@ -10,6 +12,8 @@ import pytest
 import armimp_jax as aj
 from armimp_jax import paper
 from armimp_jax._model.friction import steady_state_friction, stribeck
+from armimp_jax._model.plant import PlantState, plant_derivative, plant_model
+from armimp_jax._model.robot import jacobian
 
 # The paper's Table 1 (docs/model.md section 4), written out here: (tau_c, tau_s) [N m] per
 # level; sigma0 = 1e5 N m/rad, sigma1 = sqrt(1e5) N m s/rad, sigma2 = 0.5 N m s/rad, v_s = 1e-3 rad/s.
@@ -96,3 +100,75 @@ def test_without_bristles_friction_is_viscous_only():
 def test_unknown_level_is_rejected():
     with pytest.raises(ValueError, match="unknown friction level 3; allowed: 0, 1, 2"):
         paper.friction(3)
+
+
+# KINARM's model (the law's docstring): tau_c 0.06 N m, viscous 0.0025 N m s/rad, v_s 0.01 rad/s;
+# the second joint's values differ, so a law that mixed the joints up would show.
+KINARM = dict(tau_c=[0.06, 0.09], viscous=[0.0025, 0.004], v_s=[0.01, 0.02])
+
+
+def _coulomb_viscous_torque(v, joint):
+    """``tau_c tanh(v / v_s) + viscous v`` [N m] from its formula (module docstring), and its slope."""
+    tau_c, viscous, v_s = (KINARM[n][joint] for n in ("tau_c", "viscous", "v_s"))
+    t = np.tanh(v / v_s)
+    return tau_c * t + viscous * v, tau_c / v_s * (1.0 - t * t)
+
+
+def test_coulomb_viscous_is_the_smoothed_coulomb_torque_plus_viscous_friction():
+    law = aj.CoulombViscous(**KINARM)
+    v = np.array([-0.5, -0.013, -1e-4, 0.0, 2e-3, 0.01, 0.3, 4.0])  # [rad/s], within and beyond v_s
+    for i in range(2):
+        joint = law.joint(i)
+        tau, zd = joint.torque_and_rate(jnp.asarray(v), jnp.zeros_like(v))
+        expected, slope = _coulomb_viscous_torque(v, i)
+        np.testing.assert_allclose(tau, expected, rtol=1e-14, atol=1e-18)
+        assert np.all(np.asarray(zd) == 0.0)  # no internal state
+        # 1 - tanh^2 loses its digits far out on the tanh: round-off relative to the slope at rest
+        atol = 1e-14 * slope.max()
+        np.testing.assert_allclose(joint.static_slope(jnp.asarray(v)), slope, rtol=1e-13, atol=atol)
+        # the slope the implicit integrators take is the torque's own derivative
+        grad = jax.vmap(jax.grad(joint.static_torque))(jnp.asarray(v))
+        np.testing.assert_allclose(grad, slope, rtol=1e-13, atol=atol)
+        assert float(joint.viscous_coefficient()) == KINARM["viscous"][i]
+    assert float(law.joint(0).static_slope(0.0)) == pytest.approx(0.06 / 0.01, rel=1e-15)  # stiff at rest
+    assert law.has_coulomb() and not law.without_coulomb().has_coulomb()
+    np.testing.assert_array_equal(law.without_coulomb().viscous, KINARM["viscous"])
+    np.testing.assert_array_equal(aj.CoulombViscous(0.06).viscous, [0.0, 0.0])  # a scalar serves both joints
+
+
+def test_the_plant_feels_coulomb_viscous_as_a_torque_resisting_each_joints_motion():
+    """``M qdd + h + tau_f = J^T F``: at any state the law's joint accelerations are those of the
+    frictionless plant under the extra hand force ``-J^-T tau_f(qd)``, with ``tau_f`` the formula."""
+    endpoint = paper.arm(2).endpoint
+    law, free = aj.CoulombViscous(**KINARM), aj.CoulombViscous(0.0)
+    trials = [aj.make_trial(aj.PD(), arm=aj.no_arm(endpoint), friction=f) for f in (law, free)]
+    models = [plant_model(t.q0, t.x0, t.arm, t.friction, t.robot) for t in trials]
+    q0 = np.asarray(trials[0].q0)
+    fu = np.array([1.5, -0.7])  # [N]
+    for qd in ([0.004, -0.03], [-0.8, 0.25], [0.0, 1e-3]):
+        state = PlantState(*(jnp.asarray(v) for v in (*q0, *qd, 0.0, 0.0, 0.0, 0.0)))
+        tau_f = np.array([_coulomb_viscous_torque(qd[i], i)[0] for i in range(2)])
+        extra = -np.linalg.solve(np.asarray(jacobian(jnp.asarray(q0), trials[0].robot)).T, tau_f)
+        with_law = plant_derivative(state, jnp.asarray(fu), models[0])
+        without = plant_derivative(state, jnp.asarray(fu + extra), models[1])
+        np.testing.assert_allclose([with_law.qd1, with_law.qd2], [without.qd1, without.qd2], rtol=1e-12, atol=1e-12)
+        np.testing.assert_array_equal([with_law.z1, with_law.z2], [0.0, 0.0])
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(tau_c=-0.06), r"CoulombViscous: tau_c must be >= 0 N m, got \[-0.06, -0.06\]"),
+        (dict(tau_c=0.06, viscous=[0.0025, -1e-3]), r"CoulombViscous: viscous must be >= 0 N m s/rad, got"),
+        (dict(tau_c=0.06, v_s=0.0), r"CoulombViscous: v_s must be > 0 rad/s, got \[0.0, 0.0\]"),
+        (dict(tau_c=0.06, v_s=-0.01), r"CoulombViscous: v_s must be > 0 rad/s"),
+        (dict(tau_c=[0.06, 0.06, 0.06]), r"CoulombViscous: tau_c \[N m\] must be a scalar or shape \(2,\), got"),
+        (dict(tau_c=np.zeros((2, 2))), r"tau_c \[N m\] must be a scalar or shape \(2,\), got shape \(2, 2\)"),
+        (dict(tau_c=0.06, viscous=math.nan), r"CoulombViscous: viscous \[N m s/rad\] must be finite, got"),
+        (dict(tau_c="0.06 N m"), r"CoulombViscous: tau_c \[N m\] must be numeric, got '0.06 N m'"),
+    ],
+)
+def test_coulomb_viscous_refuses_bad_values_in_one_line(kwargs, message):
+    with pytest.raises(ValueError, match=message) as err:
+        aj.CoulombViscous(**kwargs)
+    assert "\n" not in str(err.value)

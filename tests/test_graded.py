@@ -83,6 +83,7 @@ def test_the_frozen_frame_is_a_second_order_error():
     assert np.all((ratios > 7.0) & (ratios < 9.0)), ratios
 
 
+@pytest.mark.slow  # 20 s cold (the suite's budget)
 def test_the_graded_tail_keeps_the_sampled_force_accurate():
     """At tau_c = 1e-4 N m the bristles flip within tens of microseconds after a velocity
     reversal, and a step that ends at a sample during the flip leaves the sampled force

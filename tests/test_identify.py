@@ -70,7 +70,8 @@ def test_recovers_known_parameters_from_noise_free_data():
 def test_an_answer_no_human_arm_gives_is_warned_with_its_likely_cause():
     """Noise-free data of an arm with 8 times paper arm 2's mass (the programs of the recovery
     above): its answer's mass[1,1], 12.5 kg, is named with units first among the causes; per
-    group of a pool, only the group whose arm is implausible is named."""
+    group of a pool, only the group whose arm is implausible is named, and not where the interval
+    reaches plausible values."""
     arm = paper.arm(2)
     heavy = aj.Arm(8.0 * np.asarray(arm.mass), arm.damping, arm.stiffness, arm.endpoint)
     with pytest.warns(UserWarning, match=r"an arm no human has: mass\[1,1\] 1[23]\.\d+ kg \(over 10 kg\)"):
@@ -86,6 +87,8 @@ def test_an_answer_no_human_arm_gives_is_warned_with_its_likely_cause():
     values = {"arm.stiffness@1": arm.stiffness, "arm.stiffness@2": -np.asarray(arm.stiffness), "robot.inertia": 1.0}
     (pooled,) = plausibility(values, {name: 0.0 * np.asarray(v) for name, v in values.items()})
     assert "arm.stiffness@2[0,0] -31.53 N/m (negative), arm.stiffness@2[1,1]" in pooled and "@1" not in pooled
+    # a negative stiffness whose 95% interval reaches positive values is noise: the interval tells it
+    assert plausibility(values, {name: np.abs(np.asarray(v)) for name, v in values.items()}) == []
 
 
 @pytest.mark.slow  # ~40 s; the full-matrix fit is checked fast above

@@ -1,8 +1,10 @@
 """Several recordings through sweeps/estimate_recording.py --model (armimp_jax.study.identify_pool):
 a config's [recordings] (postures and the robot alone) becomes one Recording each, at the
-recording's own rest position; bad lists get one line; slow: the script's pooled table."""
+recording's own rest position; bad lists get one line; slow: the script's pooled table. And
+``aj.identify`` with a list of ``Recording``: every refusal, in one line, before long work."""
 
 import contextlib
+import functools
 import importlib.util
 import io
 import json
@@ -237,3 +239,136 @@ def test_a_robot_alone_recording_does_not_see_the_force_channels_gain_or_delay()
     pool = pl.make_pool(recs, free, (), tuple(free[1:]))
     assert pool.layouts[0].names == free
     assert pool.layouts[1].names == ("robot.inertia", "sensors.force_offset")
+
+
+@functools.cache
+def _pooled_refusals():
+    """``(recordings, identify's options, message)`` of each refusal of a pooled ``identify``
+    (armimp_jax/_identification/identify.py and pool.py): recordings of random (not constant)
+    channels, so each case trips one check alone."""
+    rng = np.random.default_rng(0)
+    f, x, fh = (rng.standard_normal((1024, 2)) for _ in range(3))
+    end = presets.location_endpoint(2)
+    sensors = aj.Sensors(force_noise=0.05)
+
+    def trial(arm=None, friction=aj.NO_FRICTION, sensors=sensors, **kw):
+        arm = presets.arm(2) if arm is None else arm
+        return aj.make_trial(aj.PD(), arm=arm, friction=friction, sensors=sensors, **kw)
+
+    human, alone, lugre = trial(), trial(aj.no_arm(end)), trial(friction=aj.LuGre(0.3, 0.45))
+    boxcar = trial(acquisition="interval_mean")
+
+    def rec(model, group=None, **arrays):
+        return aj.Recording(model, arrays.get("f", f), arrays.get("x", x), arrays.get("fh", fh), group)
+
+    nan = x.copy()
+    nan[123, 1] = np.nan
+    k, calibrated = ("arm.stiffness",), ("arm.stiffness", "sensors.force_offset")
+    two = [rec(human), rec(human)]
+    return {
+        "a list of Trial": ([human], {}, r"model must be a Trial \(from make_trial\) or a list of Recording, got list"),
+        "an empty list": ([], {}, r"model must be a Trial \(from make_trial\) or a list of Recording, got list"),
+        "arrays beside": (two, dict(f=f), "with a list of Recording, give f, x and fh in each Recording, not beside"),
+        "no Trial": ([rec(human), rec("arm 2")], {}, "identify: recording 2's model must be a Trial, got str"),
+        "lengths": (
+            [rec(human), rec(human, x=x[:-1])],
+            {},
+            r"identify: recording 2: f, x and fh must have the same length, got \{'f': 1024, 'x': 1023, 'fh': 1024\}",
+        ),
+        "short": (
+            [rec(human), rec(human, f=f[:1000], x=x[:1000], fh=fh[:1000])],
+            {},
+            "identify: recording 2: the record must hold at least 1024 samples, got 1000",
+        ),
+        "nan": ([rec(human), rec(human, x=nan)], {}, r"identify: recording 2: x holds a non-finite value.*sample 123"),
+        "friction kinds": (
+            [rec(human), rec(trial(friction=aj.CoulombViscous(0.06)))],
+            {},
+            r"every recording's robot must have the same kind of friction law \(one robot\)",
+        ),
+        "noise": (
+            [rec(human), rec(trial(sensors=None))],
+            {},
+            r"every recording's model must have noise \(Sensors, VoluntaryForce\), or none",
+        ),
+        "sample rate": (
+            [rec(human), rec(trial(period=5e-4))],
+            {},
+            r"identify: recording 2: a record of 1024 samples at 2000 Hz leaves .* 1 frequency bin\(s\) up to 15 Hz; "
+            "it needs 3: record at least 2048 samples",
+        ),
+        "constant": (
+            [rec(human), rec(human, x=np.ones((1024, 2)))],
+            {},
+            r"identify: recording 2: the recorded channel\(s\) \['x\[:, 0\]', 'x\[:, 1\]'\] are constant; nothing",
+        ),
+        "box-car calibration": (
+            [rec(boxcar), rec(boxcar)],
+            dict(free=calibrated),
+            "identify: recording 1: the force channel's calibration needs acquisition 'instant'",
+        ),
+        "welch calibration": (
+            two,
+            dict(free=calibrated, statistic="welch"),
+            r"identify: sensors.force_offset need the efficient statistic; use statistic='auto'",
+        ),
+        "shared not free": (
+            two,
+            dict(shared=("arm.damping",)),
+            r"identify: shared names \['arm.damping'\], which are not free; free: \['arm.stiffness'\]",
+        ),
+        "max_steps": (two, dict(max_steps=0), "max_steps must be >= 1, got 0"),
+        "friction split": (
+            [rec(lugre, "a"), rec(lugre, "b")],
+            dict(free=("arm.stiffness", "friction.tau_c", "friction.tau_s"), shared=("friction.tau_c",)),
+            r"identify: the friction parameters must be all shared or all per group \(their maps join them\)",
+        ),
+        "shared arm, no arm": (
+            [rec(alone, "a"), rec(alone, "b")],
+            dict(shared=k),
+            "identify: the arm is free but every recording is of the robot alone",
+        ),
+        "group mixes": (
+            [rec(human, "a"), rec(alone, "a")],
+            {},
+            "identify: group 'a' mixes recordings with and without an arm on the handle",
+        ),
+        "nothing to free": (
+            [rec(alone, "a"), rec(alone, "a")],
+            {},
+            r"identify: no recording has a parameter to free \(the arm is free, but no arm is held\)",
+        ),
+    }
+
+
+POOLED_REFUSALS = (
+    "a list of Trial",
+    "an empty list",
+    "arrays beside",
+    "no Trial",
+    "lengths",
+    "short",
+    "nan",
+    "friction kinds",
+    "noise",
+    "sample rate",
+    "constant",
+    "box-car calibration",
+    "welch calibration",
+    "shared not free",
+    "max_steps",
+    "friction split",
+    "shared arm, no arm",
+    "group mixes",
+    "nothing to free",
+)
+
+
+@pytest.mark.parametrize("case", POOLED_REFUSALS)
+def test_a_pooled_identify_refuses_a_bad_list_in_one_line_before_long_work(case):
+    assert set(_pooled_refusals()) == set(POOLED_REFUSALS)  # every case runs
+    recordings, options, message = _pooled_refusals()[case]
+    options = dict(dict(free=("arm.stiffness",)), **options)
+    with pytest.raises(ValueError, match=message) as err:
+        aj.identify(recordings, options.pop("f", None), **options)
+    assert "\n" not in str(err.value)

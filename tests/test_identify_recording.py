@@ -250,6 +250,22 @@ BAD_CONFIGS = {
         _edit(arm={"mass": [[1.0, 0.0], [0.0, -1.0]]}),
         r"\[arm\] Arm: mass .*positive semi-definite",
     ),
+    "calibration's unknown key": (
+        _edit(calibration={"robot_file": ["alone.csv"]}),
+        r"\[calibration\] unknown key 'robot_file'; allowed: robot_files, robot_force, cutoff, min_rate, load_files",
+    ),
+    "calibration of nothing": (
+        _edit(calibration={"cutoff": 40.0}),
+        r"\[calibration\] calibrates nothing: give robot_files \(the robot alone\), load_files, or both",
+    ),
+    "calibration's cut-off not positive": (
+        _edit(calibration={"robot_files": ["alone.csv"], "cutoff": -5.0}),
+        r"\[calibration\] cutoff must be > 0 Hz, got -5",
+    ),
+    "a calibrated parameter free": (
+        _edit(calibration={"robot_files": ["alone.csv"]}),
+        r"\[identify\] free names friction.tau_c, which \[calibration\] calibrates: it is held",
+    ),
 }
 
 
@@ -418,3 +434,100 @@ def test_the_sensitivity_table_prints_robot_sensitivitys_numbers_for_what_was_no
         numerics=aj.Numerics(solver=aj.GradedARK4(), substeps=SUBSTEPS),
     )
     assert sens.table() in text
+
+
+@pytest.fixture(scope="module")
+def calibration_files(tmp_path_factory):
+    """The recording's robot alone (no_arm at its rest, the same LuGre and noise), two 3 s PD records
+    of 10 N peak as command_x, command_y, x, y, fh_x, fh_y; five known loads read 20 times each through
+    a gain of 1.03 and 0.97 and an offset of 0.2 and -0.1 N (load_x, load_y, fh_x, fh_y)."""
+    folder = tmp_path_factory.mktemp("calibration")
+    alone = aj.make_trial(
+        aj.PD(),
+        arm=aj.no_arm(ARM.endpoint),
+        friction=aj.LuGre(0.8, 1.2),
+        sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18),
+    )
+    run = jax.jit(aj.simulate, static_argnames="numerics")
+    numerics = aj.Numerics(solver=aj.GradedARK4(), substeps=SUBSTEPS)
+    head = "command_x,command_y,x,y,fh_x,fh_y"
+    for i in range(2):
+        f = aj.perturbation(jax.random.key(20 + i), N_SAMPLES, 10.0)
+        sim = run(alone, f, key=jax.random.key(30 + i), numerics=numerics)
+        assert not bool(sim.diverged)
+        data = np.column_stack([sim.fu, sim.x, sim.fh])
+        np.savetxt(folder / f"alone{i}.csv", data, delimiter=",", fmt="%.17g", header=head, comments="")
+    loads = np.repeat(9.81 * np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [0.0, 1.0], [0.0, 2.0]]), 20, axis=0)
+    noise = 0.05 * np.random.default_rng(7).standard_normal(loads.shape)
+    readings = np.array([1.03, 0.97]) * loads + np.array([0.2, -0.1]) + noise
+    header = "load_x,load_y,fh_x,fh_y"
+    np.savetxt(folder / "loads.csv", np.column_stack([loads, readings]), delimiter=",", header=header, comments="")
+    return folder
+
+
+def _calibrated_config(folder, **calibration) -> pathlib.Path:
+    config = _edit(identify={"free": ["arm.mass", "arm.damping", "arm.stiffness", "sensors.force_offset"]})
+    config["friction"] = {"tau_c": 0.8, "tau_s": 1.2}
+    config["calibration"] = {"robot_files": ["alone0.csv", "alone1.csv"], "load_files": ["loads.csv"], **calibration}
+    return write_toml(folder / "calibrated.toml", config)
+
+
+def test_the_calibration_section_calibrates_the_robot_and_the_transducer_from_files(calibration_files):
+    """``[calibration]``'s files (relative to the config) give ``calibrate_robot``'s and
+    ``calibrate_force``'s answers on the same arrays, and their tables in that order."""
+    from armimp_jax.study import calibration_files as cf
+
+    path = _calibrated_config(calibration_files)
+    config = idr.read_identify_config(path)
+    model, _ = idr.build_model(config)
+    cals, lines = cf.calibrate(config, path, 1000.0, {}, model.robot)
+    robot, force = cals
+    data = [np.loadtxt(calibration_files / f"alone{i}.csv", delimiter=",", skiprows=1) for i in range(2)]
+    direct = aj.calibrate_robot([aj.RobotRecording(x=d[:, 2:4], command=d[:, :2], fh=d[:, 4:]) for d in data])
+    np.testing.assert_array_equal(robot.covariance, direct.covariance)
+    gain, se = force.values["sensors.force_gain"], force.se["sensors.force_gain"]
+    assert np.all(np.abs(gain - [1.03, 0.97]) <= 5 * se), (gain, se)
+    text = "\n".join(lines)
+    assert text.index("| robot.inertia[0] (c1) |") < text.index("| sensors.force_gain[0] |")
+    json.dumps(cf.record(cals), default=lambda a: np.asarray(a).tolist())  # every number serialisable
+
+
+def test_bad_calibration_files_get_one_line_before_the_fit(calibration_files, recording_csv, tmp_path, capsys):
+    """A missing file, a robot that does not move, loads all equal and a cut-off above the Nyquist
+    rate: one line each, exit status 2, nothing written."""
+    still = np.loadtxt(calibration_files / "alone0.csv", delimiter=",", skiprows=1)
+    still[:, 2:4] = still[0, 2:4]
+    head = "command_x,command_y,x,y,fh_x,fh_y"
+    np.savetxt(calibration_files / "still.csv", still, delimiter=",", fmt="%.17g", header=head, comments="")
+    loads = np.loadtxt(calibration_files / "loads.csv", delimiter=",", skiprows=1)
+    loads[:, 0] = 9.81
+    header = "load_x,load_y,fh_x,fh_y"
+    np.savetxt(calibration_files / "equal.csv", loads, delimiter=",", header=header, comments="")
+    cases = (
+        (dict(robot_files=["nope.csv"]), r"cannot read .*nope.csv: it does not exist"),
+        (dict(robot_files=["still.csv"]), r"recording 1: the robot does not move: joint 1 never turns"),
+        (dict(load_files=["equal.csv"]), r"calibrate_force: the loads along x are all equal"),
+        (dict(cutoff=600.0), r"cutoff must be in \(0, 500\) Hz, below its samples' Nyquist rate"),
+    )
+    for change, message in cases:
+        path = _calibrated_config(calibration_files, **change)
+        line = _run_bad([recording_csv, "--fs", "1000", "--model", path], tmp_path, capsys)
+        assert re.search(message, line), line
+
+
+@pytest.mark.slow  # 875 s on two cores shared with three other runs: an identification through the calibration
+def test_the_model_route_prints_the_calibration_before_the_arm_and_carries_it(
+    calibration_files, recording_csv, tmp_path
+):
+    """The script prints the calibrations' tables before the arm's, and identification.json holds them."""
+    path = _calibrated_config(calibration_files)
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        code = script.main([str(recording_csv), "--fs", "1000", "--model", str(path), "--out", str(tmp_path / "o")])
+    text = stdout.getvalue()
+    assert code == 0, text
+    assert text.index("| robot.inertia[0] (c1) |") < text.index("identifying") < text.index("arm.stiffness")
+    doc = _strict(tmp_path / "o" / "identification.json")
+    kinds = [c["kind"] for c in doc["settings"]["calibration"]]
+    assert kinds == ["RobotCalibration", "ForceCalibration"]
+    assert _finite(doc["parameters"]["arm.stiffness"]["se"])

@@ -108,6 +108,22 @@ def test_the_toy_kinds_have_a_bound_and_identify_through_the_loop():
     np.testing.assert_allclose(res.values["friction.tau_c"], [0.1, 0.1], rtol=1e-5)
 
 
+def test_intervals_of_a_pair_no_monte_carlo_measured_come_with_a_warning():
+    """identify's warning (``measured.unmeasured``): a kind of a lab's own, or a package pair
+    whose coverage cell has not passed at 50 recordings; none for the measured pairs."""
+    from armimp_jax._identification.measured import unmeasured
+
+    arm = paper.arm(2)
+    # a noisy model of these kinds: the intervals come with the warning that no coverage cell measured them
+    (warning,) = unmeasured(aj.make_trial(Damper(), arm=arm, friction=SmoothCoulomb(0.06), **NOISE))
+    assert "a controller of kind 'toy_damper'" in warning and "friction law of kind 'toy_smooth_coulomb'" in warning
+    assert unmeasured(aj.make_trial(aj.Admittance(), arm=arm, friction=aj.CoulombViscous(0.05), **NOISE)) == []
+    assert unmeasured(aj.make_trial(aj.IMBIC(), arm=arm, friction=aj.NO_FRICTION, **NOISE)) == []
+    # a package pair whose coverage cell has not yet passed at 50 recordings: provisional, said so
+    (pending,) = unmeasured(aj.make_trial(aj.PD(), arm=arm, friction=aj.CoulombViscous(0.05), **NOISE))
+    assert "under pd through coulomb_viscous friction has not yet been measured" in pending
+
+
 def test_the_toy_kinds_sweep_from_a_config(tmp_path):
     config = tmp_path / "toy.toml"
     config.write_text(

@@ -46,6 +46,7 @@ def test_a_force_from_the_motor_torques_is_the_command_less_the_models_inertial_
     np.testing.assert_allclose(np.asarray(sim.fh)[1:], want, rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.slow  # 50 s cold: the pooled layout's compile (the suite's 10-minute budget)
 def test_two_postures_in_one_identification_share_the_robot_and_keep_their_own_arms():
     """Noise-free: each posture's stiffness its own, the robot's inertia (15% off the model's)
     one value for both, every entry the truth; one joint covariance over all of them."""

@@ -249,6 +249,7 @@ def test_a_folder_in_use_by_another_run_is_refused_at_once(tmp_path):
     assert not (tmp_path / "run.json").exists()
 
 
+@pytest.mark.slow  # 16 s cold (the suite's budget)
 def test_resume_finishes_exactly_the_recorded_run_and_refuses_other_options(tmp_path, script):
     # The defects: a 4-condition run resumed into 21; "--frictions 0" resumed was marked
     # complete with trials missing; --resume ignored conflicting options.

@@ -139,6 +139,7 @@ def test_short_tuning_run_lowers_the_loss_from_a_poor_start():
     assert np.all(np.diag(tune.mhat_from_theta(state.theta, "diagonal")) < 1.5)
 
 
+@pytest.mark.slow  # 18 s cold (the suite's budget)
 def test_divergence_guard_on_unstable_start_and_on_unstable_steps(tmp_path):
     params, f_delta = paper_tune.training_batch((1,), (1,), (0,), seconds=1.6)
     logs = []

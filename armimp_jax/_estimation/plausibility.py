@@ -64,13 +64,17 @@ def _symbol(matrix: str, axis: int) -> str:
     return f"{dict(mass='M', damping='B', stiffness='K')[matrix]}{'xy'[axis] * 2}"
 
 
-def plausibility_warnings(matrices: dict, se: dict | None = None, *, classical: bool = False, label=None) -> list[str]:
+def plausibility_warnings(
+    matrices: dict, se: dict | None = None, *, classical: bool = False, label=None, beyond_noise: bool = False
+) -> list[str]:
     """One warning naming every implausible diagonal entry of ``matrices`` (``{"mass": (2, 2),
     "damping": ..., "stiffness": ...}``; ``_model.plausibility.findings``, the classical rule
     with ``classical``) and its likely causes (``likely_causes``), or none. ``se``: their
-    standard errors (optional); ``label(matrix, axis)`` names an entry (default ``Mxx``)."""
+    standard errors (optional); ``label(matrix, axis)`` names an entry (default ``Mxx``).
+    ``beyond_noise``: none where every such entry's 95% interval reaches plausible values (a
+    small stiffness estimated below zero within its interval is the interval's to tell)."""
     found = findings(matrices, se, classical=classical)
-    if not found:
+    if not found or (beyond_noise and all(f.reaches for f in found)):
         return []
     label = label or _symbol
     entries = ", ".join(f"{label(f.matrix, f.axis)} {f.value:.4g} {UNITS[f.matrix]} ({f.why})" for f in found)

@@ -34,7 +34,7 @@ from .._estimation.welch import check_finite
 from .._model.sensors import IDEAL
 from .._pytree import replace_unchecked
 from .._simulate import Trial, simulate
-from . import kalman, linear
+from . import calibration_prior, kalman, linear
 from . import layout as lay
 from .criterion import record_seconds
 from .indirect import IDENTIFY_NUMERICS
@@ -124,6 +124,9 @@ class Bound:
             the reference loop's, relative to their RMS (NaN when not checked).
         spectral_radius: of the linearised loop per control period (stable below 1).
         message: empty, or why no bound is given.
+        calibration_share: ``(n, n)`` the calibration's share of ``covariance`` (``crlb(...,
+            calibration=)``; zeros without one); calibration_outside: the calibrated labels
+            outside the linearised loop (the Coulomb torque), whose share the bound leaves out.
     """
 
     se: dict
@@ -138,6 +141,8 @@ class Bound:
     nonlinearity: np.ndarray
     spectral_radius: float
     message: str
+    calibration_share: np.ndarray | None = None
+    calibration_outside: tuple = ()
 
     def record_for(self, precision: float = 0.1, *, level: float = 0.95, entries=None) -> float:
         """Seconds of recording for ``+- precision`` (relative) at ``level`` on every entry named
@@ -239,7 +244,47 @@ def has_friction(trial: Trial) -> bool:
     return trial.friction.has_coulomb()
 
 
-def crlb(trial: Trial, f, *, free=ARM, symmetric=(), check: bool = True, numerics=None) -> Bound:
+# The calibrated parameters inside the linearised loop (the viscous friction under either law's name)
+LINEAR_CALIBRATED = (
+    "robot.inertia",
+    "sensors.force_gain",
+    "sensors.force_offset",
+    "friction.sigma2",
+    "friction.viscous",
+)
+
+
+@functools.partial(jax.jit, static_argnames="layout")
+def _joint_fisher(layout, trial, f, p):
+    """The Fisher information of ``layout``'s internal parameters at ``p`` (any of ``LINEAR`` and
+    the viscous friction: ``pack_arm`` takes the arm's only, so ``p`` is given)."""
+    _, dy = response_derivative(layout, trial, p, f)
+    return kalman.information(kalman.innovations_filter(linear.linearise(trial)), dy)
+
+
+def calibration_bound(layout: lay.Layout, trial: Trial, f, calibration) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """``(I_aa^-1 + G Sigma_c G^T, G Sigma_c G^T, outside)`` on ``layout``'s internal scale: the
+    bound of an estimator that holds the calibration at its values (``identify``'s), a two-step
+    estimator's (Murphy and Topel): held wrong by ``d c``, the efficient estimate moves by
+    ``-G d c``, ``G = I_aa^-1 I_ac`` from the joint information of the arm and the calibrated
+    parameters inside the linearised loop. ``outside``: the calibrated labels the linear loop
+    lacks (the Coulomb torque), whose share only ``predict_se`` measures."""
+    cal = calibration_prior.combine(calibration, trial.friction)
+    if trial.acquisition != "instant":  # as identify: the force channel is simulated on instant samples only
+        cal = cal.without("sensors.")
+    inside = cal.only([n for n in cal.names() if n in LINEAR_CALIBRATED])
+    outside = tuple(lab for lab in cal.labels if lab not in inside.labels)
+    names = tuple(inside.names())
+    joint = lay.Layout(layout.names + names, layout.symmetric + (False,) * len(names))
+    info = np.asarray(_joint_fisher(joint, trial, f, lay.pack(joint, trial)))
+    n = lay.pack(layout, trial).size
+    gain = np.linalg.solve(info[:n, :n], info[:n, n:])
+    _, sigma = calibration_prior.internal_covariance(inside, trial)
+    share = gain @ sigma @ gain.T
+    return np.linalg.inv(info[:n, :n]) + share, share, outside
+
+
+def crlb(trial: Trial, f, *, free=ARM, symmetric=(), check: bool = True, numerics=None, calibration=None) -> Bound:
     """The Cramér-Rao bound of the free arm parameters from one recording of ``trial`` under the
     perturbation ``f`` ``(N, 2)`` [N] (module docstring).
 
@@ -252,12 +297,19 @@ def crlb(trial: Trial, f, *, free=ARM, symmetric=(), check: bool = True, numeric
             give no bound where its hand motion departs from the reference loop's by more than
             ``NEAR_LINEAR`` (stick-slip, or an amplitude that leaves the linear range).
         numerics: the simulation's integrator for that check (default ``IDENTIFY_NUMERICS``).
+        calibration: a ``RobotCalibration``, ``ForceCalibration`` or list (as ``identify``'s):
+            the bound of an estimator that holds it, its covariance carried (``calibration_bound``;
+            the trial's values stay the planned truth's). The Coulomb torque lies outside the
+            linearised loop: its share is left out (``Bound.calibration_outside``; ``predict_se``
+            measures it).
 
     Returns a ``Bound``. Raises a one-line ``ValueError`` for a free name that is not an arm
     matrix, a bad ``f``, or an unstable loop (its spectral radius).
     """
     require_x64("crlb")
     layout, f = check_bound_inputs(trial, f, free, symmetric, "crlb")
+    if calibration is not None:
+        calibration_prior.check_robot(calibration, trial, "crlb")
     if not trial.noisy or not np.any(np.asarray(f) != 0):
         raise ValueError("crlb: the trial has no noise, or f is zero: the bound is 0 or undefined")
     p = lay.pack(layout, trial)
@@ -270,9 +322,13 @@ def crlb(trial: Trial, f, *, free=ARM, symmetric=(), check: bool = True, numeric
     # several times longer, which a bound that will not be given should not pay.
     message, departure = _no_bound(trial, f, check, numerics, friction)
     values, g = (np.asarray(v) for v in lay.natural_with_jacobian(layout, p, trial))
+    share, outside = np.zeros((values.size, values.size)), ()
     if message:
         info = np.full((p.size, p.size), np.nan)
         cov = np.full((values.size, values.size), np.nan)
+    elif calibration is not None:
+        cov_p, share_p, outside = calibration_bound(layout, trial, f, calibration)
+        info, cov, share = np.linalg.inv(cov_p - share_p), g @ cov_p @ g.T, g @ share_p @ g.T
     else:
         info = np.asarray(_fisher(layout, trial, f))  # one program with fisher_information's
         cov = g @ np.linalg.inv(info) @ g.T
@@ -292,4 +348,25 @@ def crlb(trial: Trial, f, *, free=ARM, symmetric=(), check: bool = True, numeric
         nonlinearity=departure,
         spectral_radius=radius,
         message=message,
+        calibration_share=share,
+        calibration_outside=outside,
     )
+
+
+def calibration_seconds(trial: Trial, f, calibration, seconds: float, *, free=ARM, widen: float = 0.10) -> float:
+    """Seconds of robot-alone recording for every diagonal of the free arm matrices to keep its SE
+    bound within ``1 + widen`` of the bound with the robot known, through ``calibration`` (made from
+    ``seconds`` of such recording; ``calibration_bound``'s share, the inside of the linear loop).
+    A least squares' covariance falls as one over the record, so the share at ``T`` seconds is the
+    share at ``seconds`` times ``seconds / T``: ``T = seconds * max_i(share_i / bound_i) / ((1 +
+    widen)^2 - 1)``. One-line errors for ``widen`` or ``seconds`` not above 0."""
+    if not (np.isfinite(widen) and widen > 0) or not (np.isfinite(seconds) and seconds > 0):
+        raise ValueError(f"calibration_seconds: widen and seconds must be > 0, got {widen} and {seconds}")
+    layout, f = check_bound_inputs(trial, f, free, symmetric=(), where="calibration_seconds")
+    calibration_prior.check_robot(calibration, trial, "calibration_seconds")
+    cov_p, share_p, _ = calibration_bound(layout, trial, f, calibration)
+    g = np.asarray(lay.natural_jacobian(layout, lay.pack(layout, trial), trial))
+    own, share = np.diag(g @ (cov_p - share_p) @ g.T), np.diag(g @ share_p @ g.T)
+    diagonals = [i for i, lab in enumerate(layout.labels()) if lab in DIAGONALS]
+    worst = max(share[i] / own[i] for i in diagonals)
+    return float(seconds * worst / ((1.0 + widen) ** 2 - 1.0))

@@ -61,7 +61,8 @@ class BoundDesign(NamedTuple):
     peak hand displacement [m] (full simulation) and drift [m] over the trials; ``time_s``.
     With ``calibrate`` rounds (else ``None``): ``predicted_minutes``, per trial the minutes of
     ``predict_se`` (through the friction) on the returned design; ``friction_ratio`` ``(T, k)``:
-    its relative SEs of the targets over the bound's there."""
+    its relative SEs of the targets over the bound's there. ``targets``: the labels of the
+    entries the criterion weighs (the order of ``friction_ratio``'s columns)."""
 
     family: object
     signal: np.ndarray
@@ -79,6 +80,7 @@ class BoundDesign(NamedTuple):
     time_s: float
     predicted_minutes: list | None = None
     friction_ratio: np.ndarray | None = None
+    targets: tuple = ()
 
 
 def _linear_peak(trial, f):
@@ -325,4 +327,5 @@ def _assemble(
         trace=trace,
         achieved=achieved,
         time_s=time.perf_counter() - t_start,
+        targets=tuple(entries),
     )

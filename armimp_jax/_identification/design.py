@@ -1,5 +1,5 @@
 """Experiment design by gradient: the perturbation that gives the tightest estimates within a
-patient's limits (``design``), and the record length a target needs (``record_for``).
+patient's limits (``design``; the record length a precision needs is ``record.py``'s).
 
 A design moves a perturbation family's ``shape`` (its spectrum, ``_model/families.py``) to
 minimise a criterion of ``identify``'s predicted standard errors, for one trial or over a
@@ -25,29 +25,25 @@ inputs and chooses the method.
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import ClassVar
 
 import jax
 import numpy as np
 
-from .._checks import check_choice, require_x64
+from .._checks import require_x64
 from .._model.families import Multisine, PaperNoise, ShapedNoise
 from .._simulate import Trial
-from . import indirect, linear
 from . import layout as lay
+from . import linear
 from .bound import is_near_linear, silent_readings
 from .bound_design import BoundDesign, design_calibrated
-from .criterion import DesignPlan, _targets, relative_se
-from .identify import MIN_SAMPLES
+from .criterion import DesignPlan, _targets
 from .limits import DISPLACEMENT_TOLERANCE, Limits, _limited_signal, _peak_displacement
 from .monte_carlo_design import Design, design_monte_carlo
-from .predict import STATISTICS, check_signal, predict_se
 
 CRITERIA = ("max_relative_se", "d_optimal")
 METHODS = ("auto", "bound", "monte_carlo")  # the methods' names (configs, design.json)
 AGGREGATES = ("worst", "mean")
-CHECK_LIMIT_S = 3600.0  # [s] record_for predicts again at its answer only up to an hour
 
 
 def _count(where: str, name: str, value, low: int) -> None:
@@ -310,70 +306,3 @@ def _check_displacement(candidates, key, limits: Limits, trials) -> None:
                 f"design: the hand's displacement stays above peak_displacement {limits.peak_displacement} m even at "
                 f"{smallest:g} of the force limits ({1e3 * max(peaks):.3g} mm); raise it or lower the force limits"
             )
-
-
-def record_for(
-    trial: Trial,
-    f,
-    *,
-    free,
-    target: dict,
-    statistic: str = "auto",
-    draws: int = 64,
-    key=None,
-) -> dict:
-    """The shortest record [s] at which ``identify``'s relative SE of each ``target`` entry
-    reaches its goal, for the perturbation ``f`` ``(N, 2)`` (repeated or cut to length).
-
-    ``target`` maps entry labels to relative SEs (``{"arm.stiffness[1,1]": 0.05}``: +-5% at
-    one SE, about +-10% at 95%). ``statistic`` as ``identify``'s: ``"auto"`` (its default) takes
-    the efficient statistic where the trial's loop is near-linear under ``f``, else Welch's;
-    both predictions use the one chosen. From ``predict_se`` at the given length, SEs fall as
-    one over the square root of the length (``tests/test_identify.py`` checks that law); the
-    answer is then predicted again at that length (a second ``predict_se``, reported, not
-    enforced: the law holds to the draws' noise). Returns ``{label: seconds}`` and
-    ``"record_s"``, the longest of them, with the relative SEs predicted there (``"check"``;
-    ``None`` past ``CHECK_LIMIT_S``, an hour: a record no session holds, which the check would
-    simulate ``draws`` times) and the statistic used (``"statistic"``; Welch's where no arm
-    matrix is free, as ``identify``)."""
-    require_x64("record_for")
-    check_choice("statistic", statistic, STATISTICS)
-    layout = lay.make_layout(free, friction=getattr(trial, "friction", None), where="record_for")
-    labels = layout.labels()
-    if not isinstance(target, dict) or not target:
-        raise ValueError(f"record_for: target must map entry labels to relative SEs, got {target!r}")
-    bad = [t for t in target if t not in labels]
-    if bad:
-        raise ValueError(f"record_for: unknown target {bad[0]!r}; the free parameters' entries are {', '.join(labels)}")
-    if not all(0 < float(v) < 1 for v in target.values()):
-        raise ValueError(f"record_for: target relative SEs must lie in (0, 1), got {target}")
-    f = np.asarray(f, dtype=float)
-    period = trial.period
-    statistic = _record_statistic(trial, f, layout, statistic)
-
-    def relative(pred):
-        return relative_se(pred, trial, free=free, targets=target)
-
-    given = relative(predict_se(trial, f, free=free, statistic=statistic, draws=draws, key=key))
-    seconds = f.shape[0] * period
-    need = {t: seconds * (given[t] / float(target[t])) ** 2 for t in target}
-    record_s = max(need.values())
-    n = max(int(math.ceil(record_s / period)), MIN_SAMPLES)
-    if n * period > CHECK_LIMIT_S:  # the check would simulate every draw over that record
-        return {**need, "record_s": n * period, "check": None, "statistic": statistic}
-    longer = np.resize(f, (n, 2))  # repeats the perturbation (or cuts it)
-    check = relative(predict_se(trial, longer, free=free, statistic=statistic, draws=draws, key=key))
-    return {**need, "record_s": n * period, "check": check, "statistic": statistic}
-
-
-def _record_statistic(trial: Trial, f, layout, statistic: str) -> str:
-    """The statistic both of ``record_for``'s predictions use, decided once on the record given
-    (the repeated one is the same signal) as ``identify`` decides it: Welch's where no arm
-    matrix is free or the loop is not near-linear. ``f``'s own checks come first, one line
-    each, before the simulation that decides."""
-    check_signal(trial, f, "record_for")
-    if indirect.arm_layout(layout) is None:
-        return "welch"
-    if statistic == "auto":
-        return "efficient" if is_near_linear(trial, f) else "welch"
-    return statistic

@@ -64,7 +64,7 @@ def motion_diagnosis(trial, x) -> Motion:
 def plausibility(values: dict, se: dict) -> list[str]:
     """Per group of recordings, a warning where its arm's estimated diagonals are no human
     arm's (``plausibility_warnings``: a mass outside 0.05-10 kg, a negative damping or
-    stiffness), with the likely cause; ``values``, ``se``: ``{name: array}`` as
+    stiffness, beyond what their 95% intervals reach), with the likely cause; ``values``, ``se``: ``{name: array}`` as
     ``Identification``'s (``"arm.mass"`` or ``"arm.mass@<group>"``)."""
     groups: dict[str, dict] = {}
     for name, value in values.items():
@@ -78,5 +78,6 @@ def plausibility(values: dict, se: dict) -> list[str]:
             {m: v for m, (v, _) in found.items()},
             {m: s for m, (_, s) in found.items()},
             label=lambda matrix, axis, suffix=suffix: f"arm.{matrix}{suffix}[{axis},{axis}]",
+            beyond_noise=True,  # an interval that reaches plausible values stands: no warning
         )
     return out

@@ -52,11 +52,12 @@ from .._checks import as_float64, check_int, require_x64
 from .._estimation.welch import check_finite
 from .._simulate import Trial
 from .._solver.numerics import Numerics
-from . import efficient, indirect, linear, search
+from . import calibration_prior, efficient, indirect, linear, search
 from . import layout as lay
 from . import pool as pl
 from .auxiliary import check_statistic_record, statistic_labels, statistics
 from .bound import has_friction, is_near_linear
+from .calibration_prior import ESTIMABLE
 from .pool import Recording
 from .predict import check_sampling
 from .result import Identification, assemble, classical_fit, predict_jit
@@ -112,6 +113,17 @@ def _recordings(model, f, x, fh) -> list[Recording]:
     return out
 
 
+def _calibrated(recordings, calibration, free):
+    """``(recordings, calibration_prior.Calibrated | None)``. A ``RobotCalibration``
+    (``calibrate_robot``), a ``ForceCalibration`` (``calibrate_force``) or a list of them: every
+    model takes their values and holds them, and their covariance is carried into the free
+    parameters' (``calibration_prior.py``); refused in one line if it is of another robot (link
+    lengths, base) than a model's, or covers a parameter named in ``free``."""
+    if calibration is None:
+        return recordings, None
+    return calibration_prior.apply(recordings, calibration, free)
+
+
 def _arrays(r: Recording, where: str) -> dict:
     f, x, fh = check_recording(r.f, r.x, r.fh, where)
     return dict(f=f, x=x, fh=fh)
@@ -160,6 +172,13 @@ def _arm_statistic(layout, model, p, f, x, fh, statistic, numerics, keys):
         or (statistic == "auto" and not calibration and not is_near_linear(model, f, numerics))
     ):
         return None, None, "welch"
+    # a free force offset (a constant on the recorded force) beside the arm leaves the centre the
+    # arm's own, the classical fit's, which Welch's segment means make blind to it: the
+    # frictionless linear fit holds the offset at its start, and a start 1 SE of the robot alone's
+    # off (0.25 mN) widened the arm's SEs 2-3 times (docs/identification.md section 4d)
+    others = [n for n in arm.names if n not in lay.ARM_PARAMETERS]
+    if others and len(others) < len(arm.names) and all(n in ESTIMABLE for n in others):
+        calibration = False
     centred, weight = _centre(layout, model, p, f, x, fh, keys, numerics, arm, calibration)
     stat = indirect.arm_statistic(layout, model, jnp.asarray(centred), f, weight)
     return jax.block_until_ready(stat), centred, "efficient"
@@ -255,6 +274,7 @@ def identify(
     jacobian_draws: int = 8,
     max_steps: int = 20,
     progress: Callable[[dict], None] | bool | None = None,
+    calibration=None,
 ) -> Identification:
     """Estimate parameters from one recording, or several, through the closed-loop simulation.
 
@@ -291,15 +311,14 @@ def identify(
         max_steps: Gauss-Newton steps at most.
         progress: a function called after each step with ``{"step", "cost", "step_se",
             "seconds"}``, or ``True`` for one line per step on stderr.
+        calibration: a ``RobotCalibration``, ``ForceCalibration`` or list: held, and carried (``_calibrated``).
 
-    Returns an ``Identification``. Raises a one-line ``ValueError`` before any long
-    computation for an unknown parameter, NaN or inf in a recording, mismatched
-    lengths, or a start at which a model diverges. A fit that does not converge is
-    returned with ``converged=False`` and the reason in ``message``.
-    """
+    Returns an ``Identification``. Raises a one-line ``ValueError`` before any long computation for an
+    unknown parameter, NaN or inf in a recording, mismatched lengths, a calibration of another robot, or a
+    start at which a model diverges. A fit that does not converge has ``converged=False``, ``message`` why."""
     require_x64("identify")
     t_start = time.perf_counter()
-    recordings = _recordings(model, f, x, fh)
+    recordings, calibrated = _calibrated(_recordings(model, f, x, fh), calibration, free)
     checked = _check(recordings, free, symmetric, shared, statistic, numerics, draws, jacobian_draws, max_steps)
     layout, shared, numerics, draws, jacobian_draws, max_steps = checked
     pool = pl.make_pool(recordings, layout.names, tuple(n for n, s in zip(layout.names, layout.symmetric) if s), shared)
@@ -310,7 +329,7 @@ def identify(
     )
     start = centred if not _diverges(parts, centred, numerics) else p
     n_jac = indirect.draw_counts(recordings[0].model, draws, jacobian_draws)[1]
-    problem = _problem(parts, groups, recordings, pool, p, numerics, n_jac)
+    problem = _problem(parts, groups, recordings, pool, p, numerics, n_jac)._replace(calibration=calibrated)
     state = _init(problem, start, p)
     report = _reporter(progress, t_start)
     while not state.done:

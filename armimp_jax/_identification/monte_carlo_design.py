@@ -48,7 +48,9 @@ class Design(NamedTuple):
     axis [N] and the largest peak hand displacement over the trials [m] of the designed
     signal; ``improved``: whether the design beat the start (if not, ``family`` and
     ``signal`` are the start's); ``skipped``: steps skipped for diverged draws; ``time_s``;
-    ``start_criteria``: the criterion of each candidate start (the family argument's order)."""
+    ``start_criteria``: the criterion of each candidate start (the family argument's order);
+    ``trials``, ``free`` and ``targets``: the trials designed for, the free parameters and the
+    labels of the entries the criterion weighs."""
 
     family: object
     signal: np.ndarray
@@ -64,6 +66,9 @@ class Design(NamedTuple):
     skipped: int
     time_s: float
     start_criteria: list
+    trials: list | None = None
+    free: tuple = ()
+    targets: tuple = ()
 
 
 class _MonteCarlo(NamedTuple):
@@ -251,4 +256,7 @@ def _assemble(mc: _MonteCarlo, family, designed, start_signal, before, start_cri
         skipped=state.skipped,
         start_criteria=start_criteria,
         time_s=time.perf_counter() - t_start,
+        trials=list(mc.plan.trials),
+        free=tuple(mc.plan.free),
+        targets=tuple(mc.plan.layout.labels()[i] for i in mc.plan.idx),
     )

@@ -23,7 +23,7 @@ from .._checks import as_float64, check_choice, check_int, is_concrete, require_
 from .._estimation.welch import check_finite
 from .._simulate import Trial
 from .._solver.numerics import Numerics
-from . import indirect
+from . import calibration_prior, indirect
 from . import layout as lay
 from .auxiliary import check_statistic_record
 from .bound import has_friction, is_near_linear
@@ -79,6 +79,7 @@ def predict_se(
     key=None,
     draws: int = 64,
     jacobian_draws: int = 8,
+    calibration=None,
 ) -> PredictedSE:
     """Predicted standard errors of ``identify`` for a planned experiment.
 
@@ -94,6 +95,8 @@ def predict_se(
         draws: as ``identify`` (its ``1 / R`` is in the prediction); also the draws behind
             ``Omega`` here, whose SEs then carry a Monte Carlo error of about ``1 / sqrt(2 R)``.
         jacobian_draws: as ``identify``.
+        calibration: as ``identify``'s: its covariance carried into the prediction (the trial's
+            values stay the planned truth's); needs a concrete ``f``.
 
     Returns a ``PredictedSE``.
     """
@@ -116,6 +119,8 @@ def predict_se(
     n_draws, n_jac = indirect.draw_counts(trial, draws, jacobian_draws)
     keys = jax.random.split(key, n_draws)
     p = lay.pack(layout, trial)
+    if calibration is not None:  # refused before any simulation
+        _check_calibration(calibration, trial, f, layout.names)
     weight = None
     if efficient and has_friction(trial):
         if not is_concrete(f):
@@ -130,6 +135,9 @@ def predict_se(
         cov, diverged = _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, efficient, weight)
     else:
         cov, diverged = _prediction(layout, trial, p, f, keys, keys[:n_jac], numerics, n_draws, efficient, weight)
+    if calibration is not None:
+        slope = (layout, trial, p, f, keys, n_jac, numerics, n_draws, efficient, weight)
+        cov = cov + _calibration_share(*slope, calibration)
     if is_concrete(f):
         # one program in flight at a time: two programs that split over the CPU devices and
         # meet at collectives, queued together, can each hold a thread the other waits for
@@ -179,3 +187,38 @@ def _chord_prediction(layout, trial, p, f, keys, n_jac, numerics, n_draws, effic
     slope = indirect.chord(means_at, np.asarray(p), half, tangent)
     g = lay.natural_jacobian(layout, p, trial)
     return g @ indirect.covariance(jnp.asarray(slope), jnp.asarray(stats), n_draws) @ g.T, diverged
+
+
+def _calibration_share(layout, trial, p, f, keys, n_jac, numerics, n_draws, efficient, weight, calibration):
+    """The calibration's share of the natural covariance (``calibration_prior``'s two-step term),
+    through ``identify``'s slope (the chord through friction). Concrete ``f`` only."""
+    cal = calibration_prior.checked(calibration, trial.friction, layout.names, trial.acquisition == "instant", "")
+    cal = cal.without_names(layout.names)  # a calibrated name that is free is estimated, not held
+    if not cal.labels:
+        return np.zeros((len(layout.labels()),) * 2)
+    arm_stat, stats, slope, _ = _draws_and_tangent_jit(
+        layout, trial, p, f, keys, keys[:n_jac], numerics, efficient, weight
+    )
+    stats, slope = np.asarray(stats), np.asarray(slope)
+    if has_friction(trial):
+        half = np.sqrt(np.diag(np.asarray(indirect.covariance(slope, stats, n_draws))))
+        chord_keys = keys[: indirect.chord_draws(n_draws)]
+
+        def means_at(points):
+            return indirect.binding_means(layout, trial, points, f, chord_keys, numerics, arm_stat)
+
+        slope = indirect.chord(means_at, np.asarray(p), half, slope)
+    _, sigma = calibration_prior.internal_covariance(cal, trial)
+    chord_keys = keys[: indirect.chord_draws(n_draws)]
+    a_c = calibration_prior.chord_columns(layout, trial, p, f, chord_keys, numerics, arm_stat, cal, sigma)
+    aw = slope.T * np.asarray(indirect.weights(stats))[None, :]
+    move = np.linalg.solve(aw @ slope, aw @ a_c)
+    g = np.asarray(lay.natural_jacobian(layout, p, trial))
+    return g @ move @ sigma @ move.T @ g.T
+
+
+def _check_calibration(calibration, trial, f, free) -> None:
+    if not is_concrete(f):
+        raise ValueError("predict_se: calibration= needs a concrete f (its chord is simulated)")
+    calibration_prior.check_robot(calibration, trial, "predict_se")
+    calibration_prior.checked(calibration, trial.friction, free, trial.acquisition == "instant", "predict_se")

@@ -16,12 +16,13 @@ import scipy.stats
 from .._estimation.estimate import estimate
 from .._estimation.fit import ImpedanceFit, fit_impedance
 from .._simulate import Trial
+from . import calibration_prior, search
 from . import layout as lay
 from . import pool as pl
-from . import search
 from .auxiliary import statistic_labels
 from .diagnosis import motion_diagnosis, plausibility
 from .indirect import predict
+from .measured import unmeasured
 from .selfcheck import cross_check
 
 # An entry whose SE exceeds this multiple of its parameter's scale is reported as barely identifiable.
@@ -66,7 +67,8 @@ class Identification:
         labels: names of the entries, e.g. ``"arm.mass[0,1]"``.
         converged: whether the search settled (``message`` says why not).
         intervals_reliable: converged and nothing in ``warnings`` but the ``not_told`` note
-            (whose intervals are the ranges those entries were allowed).
+            (whose intervals are the ranges those entries were allowed) and the advice on a
+            calibration that widens the arm's SEs (``calibration_prior.widening``: they hold, wide).
         warnings: plain sentences on what not to trust.
         not_told: ``{label: (low, high)}``, entries of friction parameters the recording barely
             tells, with the range they were allowed (the nuisance prior's 95% range, within the
@@ -357,6 +359,9 @@ def assemble(problem: search.Problem, state: search.Search, pool: pl.Pool, recor
     x, fh)``, the index of its binding in ``problem.parts`` and its recording."""
     p = state.p
     cov_p, problems, check, sens = search.final_covariance(problem, state)
+    shares = calibration_prior.carried(problem, state)  # a lab's calibration's uncertainty, carried
+    cov_own = cov_p
+    cov_p = cov_p + sum(shares.values(), np.zeros_like(cov_p))
     fits, stuck = [], []
     for (t, x, fh), group in zip(recorded, pool.groups, strict=True):
         fit, diverged, st = _fit(problem.parts[t], p, problem.numerics, x, fh, group)
@@ -372,6 +377,9 @@ def assemble(problem: search.Problem, state: search.Search, pool: pl.Pool, recor
     spread_ratio = _by_label(pool, labels, None if check is None else check[0])
     seconds = sum(x.shape[0] for _, x, _ in recorded) * problem.parts[0].model.period
     warnings = warnings + _bent(spread_ratio, seconds) + _unchecked(check)
+    widened = calibration_prior.widening(shares, g @ cov_own @ g.T, g, labels)  # advice: the intervals hold
+    if problem.noisy:  # without noise there are no intervals to have measured
+        warnings = warnings + unmeasured(problem.parts[0].model)
     disagreements = _cross_check(problem, state, sens, recorded, pool, labels)
     warnings = warnings + _disagree(
         disagreements, dict(zip(labels, values, strict=True)), dict(zip(labels, se, strict=True))
@@ -395,7 +403,7 @@ def assemble(problem: search.Problem, state: search.Search, pool: pl.Pool, recor
         converged=not problems,
         message=message,
         intervals_reliable=not problems and len(warnings) == bool(not_told),
-        warnings=warnings,
+        warnings=warnings + widened,
         not_told=not_told,
         statistic=statistic,
         cost=state.cost,

@@ -95,6 +95,7 @@ class Problem(NamedTuple):
     slack: float
     size: int
     chord: bool = False  # the fine slope is the binding's chord (friction in a noisy loop), not its tangent
+    calibration: object = None  # calibration_prior.Calibrated: held in the models, carried into the covariance
 
     @property
     def n_draws(self) -> int:

@@ -5,6 +5,11 @@
 - ``pooled``: eight recordings of 20 s (the paper's four postures, two trials at each, every
   recording its own perturbation), one arm per posture and the torques shared, from the same
   generic start; target 3 min warm;
+- ``checked``: issue 61's lab for 20 s (admittance through ``CoulombViscous(0.05)``, a non-paper
+  arm at location 1's posture, the arm free from a generic start): the self-check runs; target
+  1.5 times 2.4.0's; ``linear``: PD without friction at paper arm 2, 20 s, the same start: the
+  loop is linear, nothing is checked; target no slower than 2.4.0. Each three warm calls
+  (``REPEATS``), their median reported;
 - ``script``: a 48 s IMBIC recording at 1 N m (LuGre 1 / 1.5 N m, the paper's level-1
   perturbation, arm 2) through ``estimate_recording.py --model`` as a lab runs it, twice (the
   second loads the compiled programs from the cache); target 60 s on the second run.
@@ -30,7 +35,12 @@ from armimp_jax.study import coverage as cov
 from armimp_jax.study.results import atomic_write_json
 
 FREE = (*cov.ARM, "friction.tau_c")
-TARGETS_S = dict(single=30.0, pooled=180.0, script=60.0)
+TARGETS_S = dict(single=30.0, pooled=180.0, script=60.0, checked=None, linear=None)
+REPEATS = 3  # warm calls of the checked and linear cases
+# issue 61's lab's subject (bench.matrix's OTHER_ARM): heavier along x, with off-diagonal terms
+LAB_ARM = dict(
+    mass=[[1.6, 0.25], [0.2, 1.1]], damping=[[14.0, 3.0], [2.5, 10.0]], stiffness=[[260.0, 60.0], [45.0, 180.0]]
+)
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 
 
@@ -84,6 +94,41 @@ def pooled(seconds: float = 20.0, trials: int = 2, draws: int = 64) -> dict:
     return out | dict(recordings=len(recordings), seconds=seconds, draws=draws)
 
 
+def _repeated(controller, arm, friction, seconds: float, draws: int) -> dict:
+    """A first call (compiling) then ``REPEATS`` warm calls of ``identify`` on one recording of
+    ``arm`` from a generic start: their times and the warm median."""
+    truth = _trial(controller, arm, friction)
+    start = _trial(controller, _generic(arm.endpoint), friction)
+    f = aj.perturbation(jax.random.key(2024), int(round(seconds * 1000)), presets.perturbation_peak(1))
+    rec = cov.record(truth, f, 3)
+    times = []
+    for _ in range(1 + REPEATS):
+        t0 = time.perf_counter()
+        res = aj.identify(start, f, rec.x, rec.fh, free=cov.ARM, draws=draws)
+        times.append(time.perf_counter() - t0)
+    return dict(
+        first_s=times[0],
+        warm_s=times[1:],
+        second_s=float(np.median(times[1:])),
+        converged=bool(res.converged),
+        iterations=int(res.iterations),
+        seconds=seconds,
+        draws=draws,
+        version=aj.__version__,
+    )
+
+
+def checked(seconds: float = 20.0, draws: int = 64) -> dict:
+    """The ``checked`` case (module docstring)."""
+    arm = aj.Arm(**LAB_ARM, endpoint=presets.location_endpoint(1))
+    return _repeated(aj.Admittance(), arm, aj.CoulombViscous(0.05), seconds, draws)
+
+
+def linear(seconds: float = 20.0, draws: int = 64) -> dict:
+    """The ``linear`` case (module docstring)."""
+    return _repeated(aj.PD(), presets.arm(2), aj.NO_FRICTION, seconds, draws)
+
+
 def _write_lab_files(folder: pathlib.Path, seconds: float) -> tuple[pathlib.Path, pathlib.Path]:
     """The ``script`` case's recording (NPZ) and model config (TOML) in ``folder``."""
     arm = presets.arm(2)
@@ -135,7 +180,9 @@ def run(cases, out) -> dict:
     """Each of ``cases`` (``single``, ``pooled``, ``script``); JSON in ``out`` (the script's files
     beside it)."""
     out = pathlib.Path(out)
-    measure = dict(single=single, pooled=pooled, script=lambda: script(out.parent / "script"))
+    measure = dict(
+        single=single, pooled=pooled, checked=checked, linear=linear, script=lambda: script(out.parent / "script")
+    )
     results = {}
     for name in cases:
         results[name] = measure[name]()

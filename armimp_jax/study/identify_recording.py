@@ -37,6 +37,7 @@ from .._identification.layout import ARM_PARAMETERS, parameter_units
 from .._model.sensors import Sensors
 from .._simulate import simulate
 from .._solver.numerics import METHODS, Numerics, named_solver
+from . import calibration_files
 from .config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
 from .estimate_recording import analyse, route_settings, settings_record
 from .figures import save_figure
@@ -59,6 +60,7 @@ SECTIONS = {
         "substeps": ("int", 1, IDENTIFY_NUMERICS.substeps),
     },
     "recordings": RECORDINGS_SECTION,  # several recordings in one identification (study.identify_pool)
+    "calibration": calibration_files.SECTION,  # the robot alone and known loads, calibrated first
 }
 REQUIRED_SECTIONS = ("controller", "arm", "friction", "identify")
 CHANNELS = ("x", "y", "fh_x", "fh_y")  # identify's whiteness_p order: x1, x2, fh1, fh2
@@ -83,6 +85,7 @@ def read_identify_config(path) -> dict:
             f"{path}: [identify] symmetric names {not_free[0]!r}, which is not a free arm matrix; "
             f"allowed: {', '.join(arm_free) or 'none (free names no arm matrix)'}"
         )
+    calibration_files.check(config, path)
     return config
 
 

@@ -58,12 +58,13 @@ def parse_columns(text: str) -> dict[str, str]:
     return _check_mapping(mapping)
 
 
-def _check_mapping(columns) -> dict[str, str]:
+def _check_mapping(columns, groups=GROUPS) -> dict[str, str]:
     columns = dict(columns or {})
-    unknown = [k for k in columns if k not in (*COLUMNS, TIME)]
+    names = [c for pair in groups.values() for c in pair]
+    unknown = [k for k in columns if k not in (*names, TIME)]
     if unknown:
         raise RecordingError(
-            f"unknown standard column(s) {', '.join(map(repr, unknown))}; they are {', '.join(COLUMNS)} "
+            f"unknown standard column(s) {', '.join(map(repr, unknown))}; they are {', '.join(names)} "
             f"(and {TIME}, optional)"
         )
     return columns
@@ -124,7 +125,7 @@ def _finite_or_raise(values: np.ndarray, where) -> None:
         raise RecordingError(f"{where(int(bad[0]))}: {float(values[bad[0]])} is not finite (NaN or inf)")
 
 
-def _read_csv(path: pathlib.Path, columns: dict[str, str]) -> dict[str, np.ndarray]:
+def _read_csv(path: pathlib.Path, columns: dict[str, str], groups=GROUPS) -> dict[str, np.ndarray]:
     try:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
@@ -143,7 +144,8 @@ def _read_csv(path: pathlib.Path, columns: dict[str, str]) -> dict[str, np.ndarr
         raise RecordingError(f"cannot parse {path} as CSV: {err}") from None
     header = [h.strip() for h in rows[0]]
     time_name, mapped = _time_name(header, columns)
-    wanted = [(std, columns.get(std, std)) for std in COLUMNS] + ([(TIME, time_name)] if mapped else [])
+    names = [c for pair in groups.values() for c in pair]
+    wanted = [(std, columns.get(std, std)) for std in names] + ([(TIME, time_name)] if mapped else [])
     missing = [(std, name) for std, name in wanted if name not in header]
     if missing:
         raise MissingColumnsError(path, missing, header, [n for _, n in wanted])
@@ -187,13 +189,13 @@ def _read_csv(path: pathlib.Path, columns: dict[str, str]) -> dict[str, np.ndarr
         out[std] = values
     if time_name is not None and not mapped:
         i = header.index(time_name)
-        found = _optional_time([row[i].strip() if i < len(row) else "" for row in data], len(out[COLUMNS[0]]))
+        found = _optional_time([row[i].strip() if i < len(row) else "" for row in data], len(out[names[0]]))
         if found is not None:
             out[TIME] = found
     return out
 
 
-def _read_npz(path: pathlib.Path, columns: dict[str, str]) -> dict[str, np.ndarray]:
+def _read_npz(path: pathlib.Path, columns: dict[str, str], groups=GROUPS) -> dict[str, np.ndarray]:
     try:
         # our own handle: np.load leaks its own when the zip is corrupt
         with open(path, "rb") as fh:
@@ -204,13 +206,13 @@ def _read_npz(path: pathlib.Path, columns: dict[str, str]) -> dict[str, np.ndarr
                 arrays = {k: npz[k] for k in npz.files}
     except (ValueError, OSError, zipfile.BadZipFile, EOFError) as err:
         raise RecordingError(f"cannot read {path} as NPZ: {err}") from None
-    return _from_arrays(path, arrays, columns)
+    return _from_arrays(path, arrays, columns, groups)
 
 
 V73 = "re-save it in MATLAB with save(file, ..., '-v7') (v7.3 MAT-files are HDF5, which scipy.io cannot read)"
 
 
-def _read_mat(path: pathlib.Path, columns: dict[str, str]) -> dict[str, np.ndarray]:
+def _read_mat(path: pathlib.Path, columns: dict[str, str], groups=GROUPS) -> dict[str, np.ndarray]:
     import scipy.io
 
     with open(path, "rb") as fh:
@@ -233,17 +235,17 @@ def _read_mat(path: pathlib.Path, columns: dict[str, str]) -> dict[str, np.ndarr
         if a.ndim == 2 and 1 in a.shape:
             a = a.reshape(-1)  # a MATLAB vector is a 1 x N or N x 1 matrix
         arrays[name] = a
-    return _from_arrays(path, arrays, columns)
+    return _from_arrays(path, arrays, columns, groups)
 
 
-def _from_arrays(path: pathlib.Path, arrays: dict[str, np.ndarray], columns: dict[str, str]) -> dict[str, np.ndarray]:
-    """The six channels from an NPZ's or MAT-file's named arrays, checked."""
-    names = {std: columns.get(std, std) for std in COLUMNS}
+def _from_arrays(path: pathlib.Path, arrays: dict, columns: dict[str, str], groups=GROUPS) -> dict[str, np.ndarray]:
+    """The channels of ``groups`` (default the six) from an NPZ's or MAT-file's named arrays, checked."""
+    names = {std: columns.get(std, std) for pair in groups.values() for std in pair}
     by_column = [n for n in names.values() if n in arrays and np.ndim(arrays[n]) == 1]
-    grouped = all(g in arrays for g in GROUPS) and not by_column
+    grouped = all(g in arrays for g in groups) and not by_column
     if grouped:
         chans = {}
-        for group, stds in GROUPS.items():
+        for group, stds in groups.items():
             a = arrays[group]
             if a.ndim != 2 or a.shape[1] != 2:
                 raise RecordingError(f"{path}: array {group!r} must have shape (N, 2), got {a.shape}")
@@ -252,7 +254,7 @@ def _from_arrays(path: pathlib.Path, arrays: dict[str, np.ndarray], columns: dic
     else:
         missing = [(std, n) for std, n in names.items() if n not in arrays]
         if missing:
-            tail = " (or give f_delta, x, fh as (N, 2) arrays)"
+            tail = f" (or give {', '.join(groups)} as (N, 2) arrays)"
             raise MissingColumnsError(path, missing, list(arrays), names.values(), noun="array", tail=tail)
         chans = {std: (n, arrays[n]) for std, n in names.items()}
         for label, a in chans.values():
@@ -270,7 +272,7 @@ def _from_arrays(path: pathlib.Path, arrays: dict[str, np.ndarray], columns: dic
         values = a.astype(np.float64)
         _finite_or_raise(values, lambda k, label=label: f"{path}: array {label!r}, index {k}")
         out[std] = values
-    return out | _array_time(path, arrays, columns, len(out[COLUMNS[0]]))
+    return out | _array_time(path, arrays, columns, len(next(iter(out.values()))))
 
 
 def _array_time(path, arrays: dict, columns: dict[str, str], n: int) -> dict:
@@ -287,13 +289,15 @@ def _array_time(path, arrays: dict, columns: dict[str, str], n: int) -> dict:
     return {} if t is None else {TIME: t}
 
 
-def load_recording(path, *, columns=None) -> dict[str, np.ndarray]:
+def load_recording(path, *, columns=None, groups=None) -> dict[str, np.ndarray]:
     """Read and check a recording: NPZ (suffix ``.npz``), MAT-file (``.mat``) or else CSV.
 
     Args:
         path: the file.
         columns: ``{standard name: the file's name}`` for columns named otherwise (the
             standard names are ``COLUMNS``); unmapped columns keep their standard names.
+        groups: ``{name: (x column, y column)}`` of another kind of file (a robot-alone record's
+            command, known loads: ``study.calibration_files``); default ``GROUPS``, the six.
 
     Returns ``{"f_delta": (N, 2), "x": (N, 2), "fh": (N, 2)}`` float64 NumPy arrays
     (``[:, 0]`` the x axis, ``[:, 1]`` the y axis), ready for ``estimate``, and ``"time"``
@@ -304,20 +308,20 @@ def load_recording(path, *, columns=None) -> dict[str, np.ndarray]:
     missing or misnamed columns, non-numeric or empty cells, NaN or inf, unequal lengths,
     no data.
     """
-    path = pathlib.Path(path)
-    columns = _check_mapping(columns)
+    path, groups = pathlib.Path(path), GROUPS if groups is None else groups
+    columns = _check_mapping(columns, groups)
     if not path.is_file():
         why = "is a folder" if path.is_dir() else "does not exist"
         raise RecordingError(f"cannot read {path}: it {why}")
     try:
         read = {".npz": _read_npz, ".mat": _read_mat}.get(path.suffix.lower(), _read_csv)
-        chans = read(path, columns)
+        chans = read(path, columns, groups)
     except OSError as err:
         raise RecordingError(f"cannot read {path}: {err.strerror or err}") from None
-    n = len(chans[COLUMNS[0]])
+    n = len(chans[next(iter(groups.values()))[0]])
     if n == 0:
         raise RecordingError(f"{path}: the recording holds no samples")
-    out = {group: np.stack([chans[a], chans[b]], axis=1) for group, (a, b) in GROUPS.items()}
+    out = {group: np.stack([chans[a], chans[b]], axis=1) for group, (a, b) in groups.items()}
     return out | ({TIME: chans[TIME]} if TIME in chans else {})
 
 
