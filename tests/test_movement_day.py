@@ -61,6 +61,7 @@ def test_the_base_config_builds_the_base_case():
         ("level = 1", "level = 1\npeak = 2.0", "[perturbation] give level"),
         ("location = 3", "location = 7", "[arm] unknown arm location 7"),
         ("window = 0.1", "widow = 0.1", "[estimate] unknown key 'widow'"),
+        ("# files = [", 'columns = ["fh_x"]\n# files = [', "[ensemble] columns: column mapping 'fh_x'"),
     ],
 )
 def test_a_bad_value_is_refused_in_one_line_naming_it(tmp_path, capsys, old, new, named):

@@ -35,7 +35,7 @@ from .._model.movement import MinimumJerk, Profile
 from .config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
 from .figures import save_figure
 from .movement_figures import path_figure, profile_figure
-from .recording import load_ensemble
+from .recording import load_ensemble, parse_columns
 from .results import atomic_write_json, stamped
 from .tables import table, write_table
 
@@ -64,6 +64,7 @@ SECTIONS = {
         "repetitions": ("int", 2, 50),
         "seed": ("int", 0, 0),
         "files": ("texts", None, []),
+        "columns": ("texts", None, []),  # ["fh_x=Fx", ...]: the files' names of the standard columns
         "period": ("scalar", "s", None),
     },
     "estimate": {
@@ -102,6 +103,10 @@ def read_movement_config(path) -> dict:
             f"{path}: [ensemble] repetitions = {config['ensemble']['repetitions']} is fewer than the {least} the "
             f"classical route needs for {knots.size} knots (4 J + 3)"
         )
+    try:
+        parse_columns(",".join(config["ensemble"]["columns"]))
+    except ValueError as err:
+        raise ConfigError(f"{path}: [ensemble] columns: {err}") from None
     for key in ("window", "cutoff"):
         if not config["estimate"][key] > 0:
             raise ConfigError(f"{path}: [estimate] {key} must be > 0, got {config['estimate'][key]}")
@@ -175,7 +180,8 @@ def gather(config: dict, config_path, *, trial=None, plan: Plan | None = None):
     e = config["ensemble"]
     if trial is None:
         base = pathlib.Path(config_path).parent
-        return load_ensemble([base / f for f in e["files"]], period=e["period"])
+        columns = parse_columns(",".join(e["columns"])) or None
+        return load_ensemble([base / f for f in e["files"]], columns=columns, period=e["period"])
     samples = int(round(config["reach"]["record"] / trial.period))
     return simulate_ensemble(
         trial, plan.perturbation, key=jax.random.key(e["seed"]), repetitions=plan.repetitions, samples=samples
