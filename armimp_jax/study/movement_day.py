@@ -114,12 +114,19 @@ def read_movement_config(path) -> dict:
         config["perturbation"]["peak"] is None
     ):
         raise ConfigError(f"{path}: [perturbation] give level (the paper's, 1-3) or peak [N], not both nor neither")
+    level = config.get("perturbation", {}).get("level")
+    if level is not None and level not in presets.PERTURBATION_LEVELS:
+        raise ConfigError(f"{path}: [perturbation] level must be one of the paper's 1-3, got {level}")
     if "reach" in config:
         r = config["reach"]
         if not (r["onset"] >= 0 and r["duration"] > 0 and r["onset"] + r["duration"] <= r["record"]):
             raise ConfigError(
                 f"{path}: [reach] needs onset >= 0, duration > 0 and onset + duration <= record, got onset "
                 f"{r['onset']:g} s, duration {r['duration']:g} s, record {r['record']:g} s"
+            )
+        if knots[0] < 0 or knots[-1] > r["record"]:
+            raise ConfigError(
+                f"{where} knots [s] must lie in the record (0 to {r['record']:g} s), got {knots.tolist()}"
             )
     return config
 
