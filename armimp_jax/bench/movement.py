@@ -18,6 +18,7 @@ import numpy as np
 import armimp_jax as aj
 from armimp_jax import presets
 from armimp_jax.study import coverage as cov
+from armimp_jax.study.movement_day import truth  # the arm at the knots: the lab's day's own
 
 ONSET, DURATION, RECORD = 0.4, 0.8, 1.6  # [s]
 REACH = (0.0, 0.12)  # [m]
@@ -44,16 +45,6 @@ def base_trial(controller=None, friction=None, *, noise: bool = True) -> aj.Tria
         arm=base_arm(),
         friction=aj.NO_FRICTION if friction is None else friction,
         **extra,
-    )
-
-
-def truth(trial: aj.Trial, knots) -> dict:
-    """``{"mass": (2, 2), "damping": (J, 2, 2), "stiffness": (J, 2, 2)}``: the arm at ``knots`` [s]."""
-    arms = [trial.arm.at(t) for t in knots]
-    return dict(
-        mass=np.asarray(trial.arm.mass),
-        damping=np.stack([np.asarray(a.damping) for a in arms]),
-        stiffness=np.stack([np.asarray(a.stiffness) for a in arms]),
     )
 
 

@@ -20,7 +20,9 @@ for measured data), ``recording_figures`` and ``recording_report`` (both routes'
 text), ``identify_recording`` (the model route for measured data: its config, ``identify``,
 its results on disk), ``design_experiment`` (experiment design's config and its files),
 ``design_check`` (the record a design is written at, its numbers there, its Monte Carlo
-check) and ``tuning`` (the tuner, and its state on disk).
+check), ``movement_day`` and ``movement_figures`` (a lab's day for a movement: its config, the
+ensemble, the classical route's table and figures) and ``tuning`` (the tuner, and its state on
+disk).
 
 The names below (one list, ``_EXPORTS``) are imported on first use (so
 ``armimp_jax.study.distributed``'s option helpers and ``cli`` stay importable without JAX).

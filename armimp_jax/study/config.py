@@ -213,11 +213,12 @@ def _kind(lookup, table: dict):
     return lookup(values.pop("type"))(**values)
 
 
-def trial_parts(config: dict, *, where: str | None = "config", arm=None) -> dict:
+def trial_parts(config: dict, *, where: str | None = "config", arm=None, friction=None) -> dict:
     """The parameter values of ``config``'s trial sections, built by their constructors (the
     only validators): ``controller``, ``robot``, ``sensors``, ``voluntary``, ``arm``,
-    ``friction`` (``make_trial``'s keywords). ``arm`` (an ``Arm``) stands in for the ``[arm]``
-    section when given. A constructor's one-line error comes back as ``ConfigError``,
+    ``friction`` (``make_trial``'s keywords). ``arm`` (an ``Arm``) and ``friction`` (a friction
+    law) stand in for the ``[arm]`` and ``[friction]`` sections when given. A constructor's
+    one-line error comes back as ``ConfigError``,
     prefixed with ``where`` and the section (``where=None``: the constructor's line alone)."""
 
     def make(section, build):
@@ -244,15 +245,17 @@ def trial_parts(config: dict, *, where: str | None = "config", arm=None) -> dict
         arm=arm
         if arm is not None
         else make("arm", lambda t: Arm(t["mass"], t["damping"], t["stiffness"], t["endpoint"])),
-        friction=make("friction", lambda t: _kind(friction_kind, {"type": "lugre", **t})),
+        friction=friction
+        if friction is not None
+        else make("friction", lambda t: _kind(friction_kind, {"type": "lugre", **t})),
     )
 
 
-def build_trial(config: dict, *, where: str | None = "config", arm=None):
+def build_trial(config: dict, *, where: str | None = "config", arm=None, friction=None):
     """The ``Trial`` of ``config``'s trial sections (``trial_parts``, then ``make_trial`` with
-    the ``[acquisition]`` mode); ``arm`` (an ``Arm``) in place of the ``[arm]`` section when
-    given. Needs float64."""
-    parts = trial_parts(config, where=where, arm=arm)
+    the ``[acquisition]`` mode); ``arm`` (an ``Arm``) and ``friction`` in place of the ``[arm]``
+    and ``[friction]`` sections when given. Needs float64."""
+    parts = trial_parts(config, where=where, arm=arm, friction=friction)
     acquisition = config.get("acquisition", {}).get("mode", "instant")
     ctrl = parts.pop("controller")
     try:

@@ -1,0 +1,30 @@
+"""``sweeps/bench_movement.py``'s options, parsed and checked before JAX is set up (``--help`` and
+a bad value answer at once)."""
+
+from __future__ import annotations
+
+import sys
+
+from armimp_jax.study.cli import Parser, fail
+
+
+def setup(argv=None, description: str = ""):
+    """The options (``--ensembles``, ``--repetitions``, ``--peak``, ``--windows`` as floats, ``--out``),
+    then JAX set up (``runtime.configure``); one line and exit status 2 for a bad value."""
+    p = Parser(prog="bench_movement", description=description)
+    p.add_argument("--ensembles", type=int, default=50, help="ensembles (default 50)")
+    p.add_argument("--repetitions", type=int, default=50, help="reaches per ensemble (default 50)")
+    p.add_argument("--peak", type=float, default=2.25, help="perturbation peak [N] per axis (default 2.25)")
+    p.add_argument("--windows", default="0.1", help="windows [s] beyond the end knots, comma list (default 0.1)")
+    p.add_argument("--out", default="results/movement-coverage", help="run folder (resumed)")
+    a = p.parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        a.windows = [float(w) for w in a.windows.split(",")]
+    except ValueError:
+        fail(f"--windows takes a comma list of seconds, got {a.windows!r}", p.prog)
+    if a.ensembles < 2 or a.repetitions < 23:
+        fail("need --ensembles >= 2, --repetitions >= 23 (five knots)", p.prog)
+    from armimp_jax.runtime import configure
+
+    configure()
+    return a

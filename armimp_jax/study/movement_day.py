@@ -1,0 +1,282 @@
+"""A lab's day for a movement (``sweeps/movement.py``; docs/movement.md, "A lab's day"): the
+TOML config read and checked, the ensemble (simulated from the config's reach, or the lab's own
+files), the classical route (``estimate_ensemble``) and what it writes.
+
+The day, step by step (``run_day``):
+
+1. ``read_movement_config``: the config as plain values, every bad value one line
+   (``ConfigError``) naming the file, the section and the key.
+2. ``movement_trial``: the config's moving arm and trial (``[arm]``, ``[reach]``, ``[profile]``
+   and the trial sections of ``study.config``), when the day simulates.
+3. ``plan_reaches``: the perturbation and the number of reaches. **The hook**: today the
+   config's (``[perturbation]``, ``[ensemble] repetitions``); the design of a movement
+   experiment and the number of reaches its precision needs slot in here.
+4. ``gather``: the ensemble, simulated (``simulate_ensemble``) or read (``load_ensemble``).
+5. ``estimate_ensemble`` at the config's knots, then ``write_day``: ``movement.csv`` (and
+   ``movement.parquet`` with pyarrow), ``movement.json`` and the two figures
+   (``study.movement_figures``), each written atomically.
+"""
+
+from __future__ import annotations
+
+import pathlib
+from typing import Any, NamedTuple
+
+import jax
+import numpy as np
+
+from .. import presets
+from .._batch import simulate_ensemble
+from .._estimation.ensemble_fit import estimate_ensemble
+from .._model.arm import Arm
+from .._model.families import PaperNoise
+from .._model.friction import NO_FRICTION
+from .._model.movement import MinimumJerk, Profile
+from .config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
+from .figures import save_figure
+from .movement_figures import path_figure, profile_figure
+from .recording import load_ensemble, parse_columns
+from .results import atomic_write_json, stamped
+from .tables import table, write_table
+
+SECTIONS = {
+    **{k: v for k, v in TRIAL_SECTIONS.items() if k != "arm"},
+    "arm": {  # the still arm the reach starts from: a paper location, any key given overriding it
+        "location": ("int", 1, None),
+        "mass": ("matrix", "kg", None),
+        "damping": ("matrix", "N s/m", None),
+        "stiffness": ("matrix", "N/m", None),
+        "endpoint": ("vector", "m", None),
+    },
+    "reach": {
+        "displacement": ("vector", "m", REQUIRED),
+        "onset": ("scalar", "s", REQUIRED),
+        "duration": ("scalar", "s", REQUIRED),
+        "record": ("scalar", "s", REQUIRED),
+    },
+    "profile": {
+        "knots": ("numbers", "s", REQUIRED),
+        "stiffness_scale": ("numbers", "times [arm] stiffness", None),
+        "damping_scale": ("numbers", "times [arm] damping", None),
+    },
+    "perturbation": {"level": ("int", 1, None), "peak": ("pair", "N", None), "cutoff": ("scalar", "Hz", None)},
+    "ensemble": {
+        "repetitions": ("int", 2, 50),
+        "seed": ("int", 0, 0),
+        "files": ("texts", None, []),
+        "columns": ("texts", None, []),  # ["fh_x=Fx", ...]: the files' names of the standard columns
+        "period": ("scalar", "s", None),
+    },
+    "estimate": {
+        "window": ("scalar", "s", 0.1),
+        "cutoff": ("scalar", "Hz", 30.0),
+        "acquisition": ("text", ("instant", "plain"), "instant"),
+    },
+}
+SIMULATED = ("arm", "reach", "controller", "perturbation")  # the sections a simulated day needs
+LEVEL = 0.95
+COLUMNS = ("parameter", "time", "entry", "value", "se", "low", "high", "truth", "unit")
+
+
+class Plan(NamedTuple):
+    """What the day records: the perturbation family and the number of reaches."""
+
+    perturbation: Any
+    repetitions: int
+
+
+def read_movement_config(path) -> dict:
+    """The config at ``path``, checked (module docstring); ``ConfigError`` (one line) otherwise."""
+    config = read_config(path, SECTIONS, ("profile",))
+    for section in ("ensemble", "estimate"):
+        config.setdefault(section, {k: v[2] for k, v in SECTIONS[section].items()})
+    knots, where = np.asarray(config["profile"]["knots"]), f"{path}: [profile]"
+    if np.any(np.diff(knots) <= 0):
+        raise ConfigError(f"{where} knots [s] must increase, got {knots.tolist()}")
+    for key in ("stiffness_scale", "damping_scale"):
+        scale = config["profile"][key]
+        if scale is not None and (len(scale) != knots.size or min(scale) <= 0):
+            raise ConfigError(f"{where} {key} needs one number > 0 per knot ({knots.size}), got {scale}")
+    least = 4 * knots.size + 3  # estimate_ensemble's unknowns of one force axis, plus one
+    if config["ensemble"]["repetitions"] < least:
+        raise ConfigError(
+            f"{path}: [ensemble] repetitions = {config['ensemble']['repetitions']} is fewer than the {least} the "
+            f"classical route needs for {knots.size} knots (4 J + 3)"
+        )
+    try:
+        parse_columns(",".join(config["ensemble"]["columns"]))
+    except ValueError as err:
+        raise ConfigError(f"{path}: [ensemble] columns: {err}") from None
+    for key in ("window", "cutoff"):
+        if not config["estimate"][key] > 0:
+            raise ConfigError(f"{path}: [estimate] {key} must be > 0, got {config['estimate'][key]}")
+    if "perturbation" in config and (config["perturbation"]["level"] is None) == (
+        config["perturbation"]["peak"] is None
+    ):
+        raise ConfigError(f"{path}: [perturbation] give level (the paper's, 1-3) or peak [N], not both nor neither")
+    level = config.get("perturbation", {}).get("level")
+    if level is not None and level not in presets.PERTURBATION_LEVELS:
+        raise ConfigError(f"{path}: [perturbation] level must be one of the paper's 1-3, got {level}")
+    if "reach" in config:
+        r = config["reach"]
+        if not (r["onset"] >= 0 and r["duration"] > 0 and r["onset"] + r["duration"] <= r["record"]):
+            raise ConfigError(
+                f"{path}: [reach] needs onset >= 0, duration > 0 and onset + duration <= record, got onset "
+                f"{r['onset']:g} s, duration {r['duration']:g} s, record {r['record']:g} s"
+            )
+        if knots[0] < 0 or knots[-1] > r["record"]:
+            raise ConfigError(
+                f"{where} knots [s] must lie in the record (0 to {r['record']:g} s), got {knots.tolist()}"
+            )
+    return config
+
+
+def _still_arm(config: dict, where: str) -> Arm:
+    """``[arm]``: the paper's arm at ``location`` with the keys given in its place, or all four keys."""
+    t = config["arm"]
+    try:
+        base = presets.arm(t["location"]) if t["location"] is not None else None
+    except ValueError as err:
+        raise ConfigError(f"{where}: [arm] {err}") from None
+    names = ("mass", "damping", "stiffness", "endpoint")
+    if base is None and any(t[n] is None for n in names):
+        raise ConfigError(f"{where}: [arm] give location (the paper's arm, 1-4) or mass, damping, stiffness, endpoint")
+    return Arm(*[np.asarray(getattr(base, n) if t[n] is None else t[n], dtype=float) for n in names])
+
+
+def movement_trial(config: dict, *, where: str = "config"):
+    """The config's trial: the still ``[arm]`` reaching ``[reach]`` displacement along a minimum-jerk
+    path, ``K`` (and ``B``) scaled at the ``[profile]`` knots; no joint friction without a
+    ``[friction]`` section. Needs float64."""
+    missing = [s for s in SIMULATED if s not in config]
+    if missing:
+        raise ConfigError(f"{where}: missing section [{missing[0]}]; a simulated day needs {', '.join(SIMULATED)}")
+    still, reach, profile = _still_arm(config, where), config["reach"], config["profile"]
+
+    def along(key, matrix):
+        scale = profile[key]
+        return matrix if scale is None else Profile(profile["knots"], np.asarray(scale)[:, None, None] * matrix)
+
+    try:
+        start = np.asarray(still.endpoint)
+        path = MinimumJerk(start, start + np.asarray(reach["displacement"]), reach["onset"], reach["duration"])
+        arm = Arm(
+            still.mass,
+            along("damping_scale", np.asarray(still.damping)),
+            along("stiffness_scale", np.asarray(still.stiffness)),
+            path,
+        )
+    except ValueError as err:
+        raise ConfigError(f"{where}: [profile] or [reach]: {err}") from None
+    return build_trial(config, where=where, arm=arm, friction=None if "friction" in config else NO_FRICTION)
+
+
+def plan_reaches(config: dict, trial) -> Plan:
+    """The hook of the day: the perturbation and the number of reaches to record. Today the
+    config's (``[perturbation]``, ``[ensemble] repetitions``); later the design of a movement
+    experiment and the reaches its precision needs, from ``trial``."""
+    p = config["perturbation"]
+    peak = presets.perturbation_peak(p["level"]) if p["level"] is not None else p["peak"]
+    family = PaperNoise(peak) if p["cutoff"] is None else PaperNoise(peak, p["cutoff"])
+    return Plan(family, config["ensemble"]["repetitions"])
+
+
+def gather(config: dict, config_path, *, trial=None, plan: Plan | None = None):
+    """The day's ensemble: ``plan``'s reaches of ``trial`` simulated (seed ``[ensemble] seed``),
+    or, without a trial, the lab's ``[ensemble] files`` (relative to the config's folder)."""
+    e = config["ensemble"]
+    if trial is None:
+        base = pathlib.Path(config_path).parent
+        columns = parse_columns(",".join(e["columns"])) or None
+        return load_ensemble([base / f for f in e["files"]], columns=columns, period=e["period"])
+    samples = int(round(config["reach"]["record"] / trial.period))
+    return simulate_ensemble(
+        trial, plan.perturbation, key=jax.random.key(e["seed"]), repetitions=plan.repetitions, samples=samples
+    )
+
+
+def truth(trial, knots) -> dict:
+    """``{"mass": (2, 2), "damping": (J, 2, 2), "stiffness": (J, 2, 2)}``: the arm at ``knots`` [s]."""
+    arms = [trial.arm.at(t) for t in knots]
+    return dict(
+        mass=np.asarray(trial.arm.mass),
+        damping=np.stack([np.asarray(a.damping) for a in arms]),
+        stiffness=np.stack([np.asarray(a.stiffness) for a in arms]),
+    )
+
+
+def table_rows(fit, true: dict | None = None) -> list[dict]:
+    """``fit.table()``'s rows (95% intervals) with the simulated arm's value (``truth``: NaN when unknown)."""
+    rows = fit.table(LEVEL).to_dict("records")
+    names = dict(M="mass", B="damping", K="stiffness")
+    knots = list(np.asarray(fit.knots))
+    for row in rows:
+        i, k = ("xy".index(c) for c in row["entry"])
+        value = None if true is None else np.asarray(true[names[row["parameter"]]])
+        if value is not None and value.ndim == 3:
+            value = value[knots.index(row["time"])]
+        row["truth"] = np.nan if value is None else float(value[i, k])
+    return rows
+
+
+def write_day(out, ens, fit, *, true=None, settings: dict) -> list[pathlib.Path]:
+    """Write ``movement.csv`` (one row per entry, ``COLUMNS``), ``movement.json`` (the same rows,
+    strict JSON, with the settings, the package version, the ensemble and the covariance) and
+    ``stiffness_ellipses.png``, ``impedance_time.png`` under ``out``, each atomically."""
+    out = pathlib.Path(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        rows = table_rows(fit, true)
+        frame = table(rows, {k: "string" for k in ("parameter", "entry", "unit")}, columns=COLUMNS)
+        paths = write_table(frame, out / "movement.csv")
+        sound = ens.sound()
+        doc = dict(
+            settings=stamped(settings),
+            ensemble=dict(
+                repetitions=ens.repetitions, sound=sound.repetitions, samples=ens.samples, period_s=ens.period
+            ),
+            convention=(
+                "matrices indexed [output, input] (row: force axis, column: displacement axis); M shared by every "
+                f"knot (time null); low, high: the {100 * LEVEL:g}% interval (Student's t, dof), clustered by "
+                "repetition; truth: the simulated arm's value (null for a lab's recordings); covariance: per force "
+                "axis, of [M row, (B_j row, K_j row) per knot] (docs/movement.md)"
+            ),
+            knots_s=np.asarray(fit.knots),
+            dof=fit.dof,
+            window_s=fit.window,
+            cutoff_hz=fit.cutoff,
+            entries=rows,
+            covariance=np.asarray(fit.covariance),
+            warnings=list(fit.warnings),
+        )
+        atomic_write_json(out / "movement.json", doc)
+        paths.append(out / "movement.json")
+        for name, fig in (("stiffness_ellipses.png", path_figure), ("impedance_time.png", profile_figure)):
+            paths.append(save_figure(fig(sound, fit, true), out / name, dpi=150))
+    except OSError as err:
+        raise ValueError(f"cannot write to {out}: {err.strerror or err}") from None
+    return paths
+
+
+def run_day(config_path, out, *, simulate: bool = False, echo=print) -> tuple:
+    """The day of ``config_path`` (module docstring), written to ``out``; ``simulate``: simulate the
+    config's reach even where ``[ensemble] files`` are listed (a dry run). Says what it does
+    through ``echo``; returns ``(ensemble, fit, paths)``."""
+    config = read_movement_config(config_path)
+    simulated = simulate or not config["ensemble"]["files"]
+    trial = movement_trial(config, where=str(config_path)) if simulated else None
+    plan = plan_reaches(config, trial) if simulated else None
+    if simulated:
+        echo(f"simulating {plan.repetitions} reaches of {config_path} (seed {config['ensemble']['seed']}) ...")
+    else:
+        echo(f"reading {len(config['ensemble']['files'])} repetitions listed in {config_path} ...")
+    ens = gather(config, config_path, trial=trial, plan=plan)
+    knots = config["profile"]["knots"]
+    fit = estimate_ensemble(ens, knots=knots, **config["estimate"])
+    settings = dict(config_path=str(config_path), config=config, simulated=simulated)
+    true = truth(trial, knots) if simulated else None
+    paths = write_day(out, ens, fit, true=true, settings=settings)
+    lost = ens.repetitions - ens.sound().repetitions
+    echo("\n".join([fit.summary(LEVEL)] + ([f"{lost} diverged repetitions left out"] if lost else [])))
+    echo(f"wrote {', '.join(str(p) for p in paths)}")
+    return ens, fit, paths
