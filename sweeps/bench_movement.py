@@ -6,21 +6,20 @@ Each ensemble: ``--repetitions`` reaches, each with its own perturbation and noi
 one record per ensemble in ``--out`` (resumed), and ``movement_coverage.json``: each knot's K, B diagonal coverage.
 
     python sweeps/bench_movement.py --ensembles 50 --repetitions 50 --out results/movement-coverage
+    python sweeps/bench_movement.py --route model --case imbic --repetitions 40 --out results/movement-model-imbic
 """
 
 import json
 import sys
 
-from armimp_jax.bench.movement_options import setup
+from armimp_jax.bench.movement_options import coverage, setup
 from armimp_jax.study.cli import script
 
 
 @script("bench_movement")
 def main(argv=None):
     a = setup(argv, __doc__.split("\n\n")[0])  # the options, then JAX: --help answers at once
-    from armimp_jax.bench import movement
-
-    print(json.dumps(movement.classical_coverage(a, a.out)["summary"], indent=1))
+    print(json.dumps(coverage(a), indent=1))
     return 0
 
 

@@ -303,10 +303,20 @@ def crlb(trial: Trial, f, *, free=ARM, symmetric=(), check: bool = True, numeric
             linearised loop: its share is left out (``Bound.calibration_outside``; ``predict_se``
             measures it).
 
+    A moving arm (``Arm`` with profiles or a path): ``f`` ``(N, 2)`` or draws ``(D, N, 2)``, and the
+    answer is ``path_bound.PathBound``, the bound of ONE reach along the path (``R`` reaches:
+    ``se / sqrt(R)``; ``reaches_for`` counts them).
+
     Returns a ``Bound``. Raises a one-line ``ValueError`` for a free name that is not an arm
     matrix, a bad ``f``, or an unstable loop (its spectral radius).
     """
     require_x64("crlb")
+    if isinstance(trial, Trial) and trial.arm.moving:  # a reach: the bound of one repetition along its path
+        if symmetric or calibration is not None:
+            raise ValueError("crlb: for a moving arm, symmetric and calibration are not taken (every knot's full matrix)")
+        from .path_bound import path_crlb
+
+        return path_crlb(trial, f, free=free, numerics=numerics)
     layout, f = check_bound_inputs(trial, f, free, symmetric, "crlb")
     if calibration is not None:
         calibration_prior.check_robot(calibration, trial, "crlb")

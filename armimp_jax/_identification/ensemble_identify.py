@@ -244,11 +244,11 @@ def identify_ensemble(model: Trial, ensemble: Ensemble, *, free=ph.ARM, numerics
     if layout.tau_c:
         prior[-2:] = 1.0 / (PRIOR_SD * np.maximum(prior_p[-2:], 1e-3)) ** 2
     filt, mu, jac = _binding(layout, model, jnp.asarray(p), f, numerics)
-    wy, wj = _whiten_centred(filt, y), _whiten_centred(filt, jac)
+    wj = _whiten_centred(filt, jac)
     h = np.asarray(jnp.einsum("rkip,rkiq->pq", wj, wj)) + np.diag(prior)
     steps, converged, message = 0, False, ""
     for steps in range(1, max_steps + 1):
-        resid = wy - _whiten_centred(filt, mu)
+        resid = _whiten_centred(filt, y - mu)
         g = np.asarray(jnp.einsum("rkip,rki->p", wj, resid)) + prior * (prior_p - p)
         delta = np.linalg.solve(h, g)
         se = np.sqrt(np.diag(np.linalg.inv(h)))
@@ -266,7 +266,7 @@ def identify_ensemble(model: Trial, ensemble: Ensemble, *, free=ph.ARM, numerics
     if not message:
         filt, mu, jac = _binding(layout, model, jnp.asarray(p), f, numerics)
         wj = _whiten_centred(filt, jac)
-        resid = wy - _whiten_centred(filt, mu)
+        resid = _whiten_centred(filt, y - mu)  # the filter at the answer whitens the data anew
         h = np.asarray(jnp.einsum("rkip,rkiq->pq", wj, wj)) + np.diag(prior)
         noise_ratio = float(jnp.sum(resid**2)) / ((sound.repetitions - 1) * resid.shape[1] * 4 - p.size)
         cov = np.linalg.inv(h) * max(noise_ratio, 1.0)

@@ -58,6 +58,7 @@ from . import pool as pl
 from .auxiliary import check_statistic_record, statistic_labels, statistics
 from .bound import has_friction, is_near_linear
 from .calibration_prior import ESTIMABLE
+from .ensemble_identify import identify_ensemble
 from .pool import Recording
 from .predict import check_sampling
 from .result import Identification, assemble, classical_fit, predict_jit
@@ -275,6 +276,7 @@ def identify(
     max_steps: int = 20,
     progress: Callable[[dict], None] | bool | None = None,
     calibration=None,
+    ensemble=None,
 ) -> Identification:
     """Estimate parameters from one recording, or several, through the closed-loop simulation.
 
@@ -312,11 +314,18 @@ def identify(
         progress: a function called after each step with ``{"step", "cost", "step_se",
             "seconds"}``, or ``True`` for one line per step on stderr.
         calibration: a ``RobotCalibration``, ``ForceCalibration`` or list: held, and carried (``_calibrated``).
+        ensemble: an ``Ensemble`` of reaches (``f``, ``x``, ``fh`` then ``None``): the model route
+            over it (``ensemble_identify.py``): every knot of ``model``'s profiles free, an
+            ``EnsembleIdentification`` returned; ``numerics`` and ``max_steps`` apply.
 
     Returns an ``Identification``. Raises a one-line ``ValueError`` before any long computation for an
     unknown parameter, NaN or inf in a recording, mismatched lengths, a calibration of another robot, or a
     start at which a model diverges. A fit that does not converge has ``converged=False``, ``message`` why."""
     require_x64("identify")
+    if ensemble is not None:
+        if f is not None or x is not None or fh is not None or calibration is not None:
+            raise ValueError("identify: give an ensemble, or f, x, fh (or recordings), not both; no calibration over an ensemble")
+        return identify_ensemble(model, ensemble, free=free, numerics=numerics, max_steps=min(max_steps, 8))
     t_start = time.perf_counter()
     recordings, calibrated = _calibrated(_recordings(model, f, x, fh), calibration, free)
     checked = _check(recordings, free, symmetric, shared, statistic, numerics, draws, jacobian_draws, max_steps)

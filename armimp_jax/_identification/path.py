@@ -171,12 +171,12 @@ class PathFilter(NamedTuple):
 def path_filter(loop: PathLoop) -> PathFilter:
     """The filter from the reach's exact start (the state known, its noise not yet), over the record."""
     bw, dw = loop.b[:, :, 2:], loop.d[:, :, 2:]
-    bs, ds = bw * loop.noise_var, dw * loop.noise_var
+    bs, ds = bw * loop.noise_var[None, None, :], dw * loop.noise_var[None, None, :]
     q, r, cross = (jnp.einsum("kij,klj->kil", x, y) for x, y in ((bs, bw), (ds, dw), (bs, dw)))
     floor = jnp.asarray(kalman.READING_FLOOR, dtype=r.dtype)
-    scale = jnp.sqrt(jnp.mean(jnp.diagonal(r, axis1=1, axis2=2), axis=0) + floor * floor)
+    scale = jnp.sqrt(jnp.mean(jnp.diagonal(r, axis1=1, axis2=2), axis=0) + floor * floor)  # (4,)
     c = loop.c / scale[None, :, None]
-    r = r / jnp.outer(scale, scale) + jnp.diag((floor / scale) ** 2)
+    r = r / jnp.outer(scale, scale)[None] + jnp.diag((floor / scale) ** 2)[None]
     cross = cross / scale[None, None, :]
 
     def step(p, mats):

@@ -17,14 +17,24 @@ def setup(argv=None, description: str = ""):
     p.add_argument("--peak", type=float, default=2.25, help="perturbation peak [N] per axis (default 2.25)")
     p.add_argument("--windows", default="0.1", help="windows [s] beyond the end knots, comma list (default 0.1)")
     p.add_argument("--out", default="results/movement-coverage", help="run folder (resumed)")
+    p.add_argument("--route", choices=("classical", "model"), default="classical", help="the route measured")
+    p.add_argument("--case", choices=("imbic", "imbic-lugre", "pd"), default="imbic", help="the model route's case")
     a = p.parse_args(sys.argv[1:] if argv is None else argv)
     try:
         a.windows = [float(w) for w in a.windows.split(",")]
     except ValueError:
         fail(f"--windows takes a comma list of seconds, got {a.windows!r}", p.prog)
-    if a.ensembles < 2 or a.repetitions < 23:
-        fail("need --ensembles >= 2, --repetitions >= 23 (five knots)", p.prog)
+    if a.ensembles < 2 or a.repetitions < (23 if a.route == "classical" else 8):
+        fail("need --ensembles >= 2, --repetitions >= 23 (five knots; 8 for the model route)", p.prog)
     from armimp_jax.runtime import configure
 
     configure()
     return a
+
+
+def coverage(a) -> dict:
+    """The measured route's summary (``a.route``): the classical route's or the model route's."""
+    from armimp_jax.bench import movement, movement_model
+
+    run = movement_model.model_coverage if a.route == "model" else movement.classical_coverage
+    return run(a, a.out)["summary"]

@@ -1,0 +1,141 @@
+"""The model route during a movement (``identify`` over an ensemble) and the bound along the path,
+measured over Monte Carlo ensembles of the base case (``bench.movement``): coverage, the SD of z,
+the spread against ``crlb``, and ``reaches_for`` against the spread (``sweeps/bench_movement.py
+--route model``).
+
+Cases: ``imbic`` (no friction) and ``imbic-lugre`` (LuGre 0.5 N m, its Coulomb torque free from a
+start at half of it), ``pd`` (no friction). The model's damping is a profile on the stiffness's
+knots (constant values: the truth), so every knot's ``B`` and ``K`` are free, with ``M``.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+
+import armimp_jax as aj
+from armimp_jax._identification import ensemble_identify as ei
+from armimp_jax._identification import path as ph
+from armimp_jax._identification import path_bound as pb
+from armimp_jax.study import coverage as cov
+
+from .movement import KNOTS, PEAK, RECORD, base_arm, measured
+
+CASES = ("imbic", "imbic-lugre", "pd")
+TAU_C = 0.5  # [N m] the friction case's Coulomb torque (tau_s 1.5 times it)
+BOUND_DRAWS = 32  # perturbation draws behind the bound's expectation
+
+
+def _knotted(arm: aj.Arm) -> aj.Arm:
+    damping = aj.Profile(times=KNOTS, values=np.broadcast_to(np.asarray(arm.damping), (len(KNOTS), 2, 2)))
+    return aj.Arm(mass=arm.mass, damping=damping, stiffness=arm.stiffness, endpoint=arm.endpoint)
+
+
+def case_trials(case: str) -> tuple[aj.Trial, aj.Trial, tuple]:
+    """``(truth, model, free)``: the simulated reach, the model ``identify`` starts from, the free names."""
+    controller = aj.PD() if case == "pd" else aj.IMBIC()
+    arm = _knotted(base_arm())
+    friction, start = aj.NO_FRICTION, aj.NO_FRICTION
+    free = ph.ARM
+    if case == "imbic-lugre":
+        friction, start = aj.LuGre(TAU_C, 1.5 * TAU_C), aj.LuGre(TAU_C / 2, 1.5 * TAU_C)
+        free = (*ph.ARM, "friction.tau_c")
+    truth = aj.make_trial(controller, arm=arm, friction=friction, **cov.noise())
+    model = aj.make_trial(controller, arm=arm, friction=start, **cov.noise())
+    return truth, model, free
+
+
+def bound_draws(seed: int = 10_000, draws: int = BOUND_DRAWS) -> np.ndarray:
+    """``(draws, N, 2)`` the paper's perturbation at level 1, the bound's expectation's draws."""
+    fam, n = aj.PaperNoise(peak=PEAK), int(round(RECORD / 0.001))
+    return np.stack([np.asarray(fam.signal(jax.random.key(seed + i), n, 0.001)) for i in range(draws)])
+
+
+def ensemble_row(case: str, seed: int, repetitions: int) -> dict:
+    """One ensemble of ``case`` identified through the model: the estimate, SEs and diagnostics."""
+    truth, model, free = case_trials(case)
+    ens = aj.simulate_ensemble(
+        truth, aj.PaperNoise(peak=PEAK), key=jax.random.key(seed), repetitions=repetitions,
+        samples=int(round(RECORD / truth.period)),
+    )
+    fit = ei.identify_ensemble(model, ens, free=free)
+    return dict(
+        seed=seed,
+        diverged=bool(ens.diverged.any()),
+        labels=fit.labels,
+        estimate=fit.estimate.tolist(),
+        se=fit.se.tolist(),
+        start=fit.start.tolist(),
+        converged=fit.converged,
+        message=fit.message,
+        noise_ratio=fit.noise_ratio,
+        warnings=list(fit.warnings),
+        seconds=fit.seconds,
+        steps=fit.steps,
+    )
+
+
+def summary(case: str, rows, repetitions: int, bound: pb.PathBound, level: float = 0.95, precision: float = 0.1) -> dict:
+    """Per diagonal entry over the converged ensembles: coverage, SD of z, bias over spread, the
+    spread over the bound of ``repetitions`` reaches; the reaches ``reaches_for`` predicts for
+    ``precision`` and those the spread needs; pooled coverage."""
+    truth, _, _ = case_trials(case)
+    ok = [r for r in rows if r["converged"] and not r["diverged"]]
+    labels = ok[0]["labels"]
+    true = np.asarray(ph.pack(ph.knot_layout(truth, ph.ARM, tau_c="friction.tau_c" in labels), truth))
+    e, s = np.array([r["estimate"] for r in ok]), np.array([r["se"] for r in ok])
+    z = (e - true) / s
+    q = 1.959963984540054
+    diag = [i for i, lab in enumerate(labels) if lab.endswith(("[0,0]", "[1,1]")) and lab.startswith("arm.")]
+    spread = e.std(axis=0, ddof=1)
+    bound_se = dict(zip(bound.labels, bound.se / np.sqrt(repetitions), strict=True))
+    predicted = bound.reaches_for(precision, level=level)
+    entries = {}
+    for i in diag:
+        lab = labels[i]
+        need = repetitions * (q * spread[i] / (precision * abs(true[i]))) ** 2
+        entries[lab] = dict(
+            coverage=float(np.mean(np.abs(z[:, i]) <= q)),
+            sd_z=float(z[:, i].std(ddof=1)),
+            bias_over_spread=float((e[:, i].mean() - true[i]) / spread[i]),
+            spread_over_bound=float(spread[i] / bound_se[lab]) if lab in bound_se else None,
+            reaches_predicted=predicted.get(lab),
+            reaches_from_spread=float(need),
+        )
+    covered = np.abs(z[:, diag]) <= q
+    return dict(
+        ensembles=len(rows),
+        converged=len(ok),
+        pooled_coverage=float(covered.mean()),
+        noise_ratio=[float(np.min([r["noise_ratio"] for r in ok])), float(np.max([r["noise_ratio"] for r in ok]))],
+        seconds_median=float(np.median([r["seconds"] for r in ok])),
+        entries=entries,
+    )
+
+
+def model_coverage(a, out, *, console=None) -> dict:
+    """The model route's Monte Carlo over ``a.ensembles`` ensembles of ``a.case`` with ``a.repetitions``
+    reaches each, in run folder ``out`` (one record per ensemble, resumable): ``{rows, summary}``,
+    written to ``out/movement_model.json`` with the settings and the bound."""
+    from armimp_jax.study.results import atomic_write_json, stamped
+
+    settings = dict(case=a.case, repetitions=a.repetitions, peak=PEAK, bound_draws=BOUND_DRAWS)
+
+    def make(case):
+        return None, None
+
+    def one(_t, _f, case, seed):
+        return ensemble_row(case, seed, a.repetitions)
+
+    def report(case, row):
+        return f"  {case} ensemble {row['seed']}: converged {row['converged']}, {row['seconds']:.0f} s"
+
+    def finish(run, rows):
+        truth, _, _ = case_trials(a.case)
+        bound = pb.path_crlb(truth, bound_draws())
+        result = dict(measured=measured(), summary=summary(a.case, rows[a.case], a.repetitions, bound))
+        atomic_write_json(run.path / "movement_model.json", dict(settings=stamped(settings), **result))
+        return result
+
+    spec = cov.Recordings("movement-model", settings, [a.case], range(a.ensembles), make, one, report)
+    return cov.run_recordings(spec, out, console=console, finish=finish).finished

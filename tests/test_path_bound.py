@@ -1,0 +1,117 @@
+"""The bound along a reach (``crlb`` of a moving arm, ``reaches_for``) and the model route over an
+ensemble (``identify(model, ensemble=...)``): the time-varying filter against the still arm's
+steady one, whitened noise of unit variance, refusals in one line before any computation."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import armimp_jax as aj
+from armimp_jax._identification import ensemble_identify as ei
+from armimp_jax._identification import bound, indirect, kalman, linear
+from armimp_jax._identification import layout as lay
+from armimp_jax._identification import path as ph
+from armimp_jax._identification import path_bound as pb
+from armimp_jax.bench import movement as mv
+from armimp_jax.study import coverage as cov
+
+NUM = indirect.IDENTIFY_NUMERICS
+
+
+def _still_trial():
+    arm = mv.base_arm()
+    still = aj.Arm(mass=arm.mass, damping=arm.damping, stiffness=arm.stiffness.values[0], endpoint=arm.start)
+    return aj.make_trial(aj.PD(), arm=still, friction=aj.NO_FRICTION, **cov.noise())
+
+
+def _draws(n, count=2, peak=mv.PEAK):
+    fam = aj.PaperNoise(peak=peak)
+    return np.stack([np.asarray(fam.signal(jax.random.key(100 + i), n, 0.001)) for i in range(count)])
+
+
+@pytest.mark.slow  # 32 s: the loop along 4 s compiled
+def test_held_still_the_filter_along_the_path_is_the_steady_filter_and_the_response_the_linear_one():
+    # Held still, the loop along the path is the loop at rest: the time-varying filter from the exact
+    # start tends to the steady-state one (innovations' covariance at the end of 4 s equal to 1e-6),
+    # and whitens the linear loop's response derivative to the still bound's SEs (0.3%: the starts differ).
+    # The simulator's own response derivative differs from the linearised loop's by 0.2-0.5% (the
+    # robot's kinematics at the paper's amplitude, second order; the same with the paper's RK4).
+    trial, f = _still_trial(), _draws(4000, 1)[0]
+    layout = bound._bound_layout(bound.ARM, (), "test")
+    dy = jax.jit(lambda tr: bound.response_derivative(layout, tr, lay.pack_arm(layout, tr), f)[1])(trial)
+    steady = kalman.innovations_filter(linear.loop_of(trial))
+    along = jax.jit(lambda tr: ph.path_filter(ph.path_loop(tr, f.shape[0], NUM)))(trial)
+    end = np.asarray(along.chol[-1] @ along.chol[-1].T) * np.outer(along.scale, along.scale)
+    np.testing.assert_allclose(end, np.asarray(steady.cov) * np.outer(steady.scale, steady.scale), rtol=1e-6)
+    w = ph.whiten(along, dy)
+    se_along = np.sqrt(np.diag(np.linalg.inv(np.asarray(jnp.einsum("kip,kiq->pq", w, w)))))
+    se_steady = np.sqrt(np.diag(np.linalg.inv(np.asarray(kalman.information(steady, dy)))))
+    np.testing.assert_allclose(se_along, se_steady, rtol=5e-3)  # the starts differ: exact vs steady (0.3% on M)
+    knots = ph.knot_layout(trial)
+    jac = jax.jit(lambda tr: ph.response_jacobians(knots, tr, ph.pack(knots, tr), f[None], NUM)[1][0])(trial)
+    gap = np.linalg.norm(np.asarray(jac - dy), axis=(0, 1)) / np.linalg.norm(np.asarray(dy), axis=(0, 1))
+    assert np.all(gap < 0.01), gap
+
+
+@pytest.mark.slow  # 40 s: an ensemble and the loop along the reach compiled
+def test_the_time_varying_filter_whitens_a_reachs_noise_to_unit_variance():
+    # 20 reaches without perturbation: what is left is the noise alone, non-stationary along the
+    # path; its innovations must be white of unit variance on every channel (a variance estimate
+    # over 20 x 1600 samples has an SE of about 0.008).
+    trial = mv.base_trial(aj.IMBIC())
+    n, r = 1600, 20
+    ens = aj.simulate_ensemble(trial, np.zeros((r, n, 2)), key=jax.random.key(1), numerics=NUM)
+    y = jnp.asarray(np.concatenate([ens.x - np.asarray(trial.x0), ens.fh], axis=2))
+    filt = jax.jit(lambda t: ph.path_filter(ph.path_loop(t, n, NUM)))(trial)
+    w = np.asarray(ei._whiten_centred(filt, y))
+    variance = np.mean(w**2, axis=(0, 1)) * r / (r - 1)
+    np.testing.assert_allclose(variance, 1.0, atol=0.05)
+    lag1 = np.mean(w[:, 1:] * w[:, :-1], axis=(0, 1))
+    np.testing.assert_allclose(lag1, 0.0, atol=0.05)
+
+
+def test_reaches_for_counts_from_the_bound_and_refuses_a_bad_precision_at_once():
+    labels = ["arm.stiffness@t=0.8[0,0]", "arm.stiffness@t=0.8[1,1]"]
+    bound = pb.PathBound(labels, np.array([100.0, 50.0]), np.array([150.0, 30.0]), np.eye(2), np.eye(2), 8, "x")
+    # R = (1.96 * relative SE / precision)^2, rounded up
+    assert bound.reaches_for(0.1) == {labels[0]: int(np.ceil((1.959963984540054 * 1.5 / 0.1) ** 2)),
+                                      labels[1]: int(np.ceil((1.959963984540054 * 0.6 / 0.1) ** 2))}
+    with pytest.raises(ValueError, match=r"precision must lie in \(0, 1\).*got 10"):
+        aj.reaches_for(mv.base_trial(), np.ones((8, 2)), precision=10)
+    with pytest.raises(ValueError, match="level must lie"):
+        aj.reaches_for(mv.base_trial(), np.ones((8, 2)), level=95)
+
+
+def _ensemble(reps=10, f=True, period=0.001):
+    n = 64
+    x = np.zeros((reps, n, 2)) + np.linspace(0, 1e-3, n)[None, :, None]
+    return aj.Ensemble(x=x, fh=np.zeros((reps, n, 2)), f_delta=np.ones((reps, n, 2)) if f else None, period=period)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(ensemble=_ensemble(f=False)), "holds no perturbations"),
+        (dict(ensemble=_ensemble(reps=5)), "5 sound repetitions; the model route needs at least 8"),
+        (dict(ensemble=_ensemble(period=0.002)), "sampled every 0.002 s"),
+        (dict(ensemble=_ensemble(), free=("arm.stiffness", "friction.tau_c")), "no Coulomb friction"),
+        (dict(ensemble=_ensemble(), free=("robot.inertia",)), "free takes arm matrices"),
+        (dict(ensemble=_ensemble(), f=np.ones((64, 2))), "not both"),
+    ],
+)
+def test_identify_over_an_ensemble_refuses_bad_input_in_one_line(kwargs, match):
+    free = kwargs.pop("free", ph.ARM)
+    with pytest.raises(ValueError, match=match) as info:
+        aj.identify(mv.base_trial(), free=free, **kwargs)
+    assert "\n" not in str(info.value)
+
+
+def test_knot_names_carry_the_knot_and_round_trip():
+    trial = mv.base_trial()
+    layout = ph.knot_layout(trial)
+    assert layout.matrix_names()[:3] == ["arm.mass", "arm.damping", "arm.stiffness@t=0.4"]
+    assert "arm.stiffness@t=0.8[1,1]" in layout.labels()
+    p = ph.pack(layout, trial)
+    again = ph.pack(layout, ph.with_values(layout, trial, p * 2.0))
+    np.testing.assert_array_equal(np.asarray(again), 2.0 * np.asarray(p))
