@@ -64,6 +64,7 @@ def test_the_base_config_builds_the_base_case():
         ("1.0, 1.2]           #", "1.0, 1.7]           #", "[profile] knots [s] must lie in the record"),
         ("location = 3", "location = 7", "[arm] unknown arm location 7"),
         ("window = 0.1", "widow = 0.1", "[estimate] unknown key 'widow'"),
+        ("[estimate]  ", "[plan]\nprecision = 10\n\n[estimate]  ", "[plan] precision must lie in (0, 1)"),
         ("# files = [", 'columns = ["fh_x"]\n# files = [', "[ensemble] columns: column mapping 'fh_x'"),
     ],
 )

@@ -45,7 +45,7 @@ MEASURED_REPETITIONS = 40  # the Monte Carlo's ensembles (docs/movement.md); few
 PRIOR_SD = 1.0  # the Coulomb torque's prior SD, relative to its start: wide (a nuisance)
 TOLERANCE = 0.01  # a step below this fraction of every SE ends the search
 # The pairs (controller, friction or "none") whose intervals the Monte Carlo measured over ensembles.
-MEASURED = {("imbic", "none"), ("imbic", "lugre"), ("pd", "none")}
+MEASURED = {("imbic", "none"), ("pd", "none")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -229,6 +229,12 @@ def identify_ensemble(model: Trial, ensemble: Ensemble, *, free=ph.ARM, numerics
     numerics = numerics or IDENTIFY_NUMERICS
     f = jnp.asarray(sound.f_delta)
     if has_friction(model):
+        raise ValueError(
+            "identify: over an ensemble, the model route does not yet go through Coulomb friction (measured: under "
+            "IMBIC through LuGre 0.5 N m it walked off the classical answer, M 12-17% low, on 5 of 5 ensembles of "
+            "40 reaches); use estimate_ensemble (the classical route), or identify each still posture"
+        )
+    if has_friction(model):  # kept for when the route is measured through friction
         gone = departure(model, f[0], numerics)
         if gone > NEAR_LINEAR:
             raise ValueError(

@@ -8,9 +8,9 @@ The day, step by step (``run_day``):
    (``ConfigError``) naming the file, the section and the key.
 2. ``movement_trial``: the config's moving arm and trial (``[arm]``, ``[reach]``, ``[profile]``
    and the trial sections of ``study.config``), when the day simulates.
-3. ``plan_reaches``: the perturbation and the number of reaches. **The hook**: today the
-   config's (``[perturbation]``, ``[ensemble] repetitions``); the design of a movement
-   experiment and the number of reaches its precision needs slot in here.
+3. ``plan_reaches``: the perturbation and the number of reaches, the config's (``[perturbation]``,
+   ``[ensemble] repetitions``); with a ``[plan]`` section, ``reaches_needed``: the reaches its
+   ``precision`` needs on each knot's diagonals (``aj.reaches_for``, the bound along the path).
 4. ``gather``: the ensemble, simulated (``simulate_ensemble``) or read (``load_ensemble``).
 5. ``estimate_ensemble`` at the config's knots, then ``write_day``: ``movement.csv`` (and
    ``movement.parquet`` with pyarrow), ``movement.json`` and the two figures
@@ -67,6 +67,10 @@ SECTIONS = {
         "columns": ("texts", None, []),  # ["fh_x=Fx", ...]: the files' names of the standard columns
         "period": ("scalar", "s", None),
     },
+    "plan": {  # the reaches a precision needs, on the bound along the path (aj.reaches_for)
+        "precision": ("scalar", "fraction of each value", None),
+        "draws": ("int", 2, 8),  # perturbation draws behind the bound's expectation
+    },
     "estimate": {
         "window": ("scalar", "s", 0.1),
         "cutoff": ("scalar", "Hz", 30.0),
@@ -107,6 +111,9 @@ def read_movement_config(path) -> dict:
         parse_columns(",".join(config["ensemble"]["columns"]))
     except ValueError as err:
         raise ConfigError(f"{path}: [ensemble] columns: {err}") from None
+    precision = config.get("plan", {}).get("precision")
+    if precision is not None and not 0 < precision < 1:
+        raise ConfigError(f"{path}: [plan] precision must lie in (0, 1) (a fraction of each value), got {precision}")
     for key in ("window", "cutoff"):
         if not config["estimate"][key] > 0:
             raise ConfigError(f"{path}: [estimate] {key} must be > 0, got {config['estimate'][key]}")
@@ -179,6 +186,20 @@ def plan_reaches(config: dict, trial) -> Plan:
     peak = presets.perturbation_peak(p["level"]) if p["level"] is not None else p["peak"]
     family = PaperNoise(peak) if p["cutoff"] is None else PaperNoise(peak, p["cutoff"])
     return Plan(family, config["ensemble"]["repetitions"])
+
+
+def reaches_needed(config: dict, trial, plan: Plan):
+    """``[plan] precision``'s reaches on the bound along the path (``aj.reaches_for``, the config's
+    perturbation drawn ``[plan] draws`` times), or ``None`` without a ``[plan]`` section."""
+    from .._identification.path_bound import reaches_for
+
+    wanted = config.get("plan", {}).get("precision")
+    if wanted is None:
+        return None
+    n, draws = int(round(config["reach"]["record"] / trial.period)), config["plan"]["draws"]
+    keys = jax.random.split(jax.random.key(config["ensemble"]["seed"] + 7919), draws)
+    f = np.stack([np.asarray(plan.perturbation.signal(k, n, trial.period)) for k in keys])
+    return reaches_for(trial, f, precision=wanted)
 
 
 def gather(config: dict, config_path, *, trial=None, plan: Plan | None = None):
@@ -264,16 +285,22 @@ def run_day(config_path, out, *, simulate: bool = False, echo=print) -> tuple:
     through ``echo``; returns ``(ensemble, fit, paths)``."""
     config = read_movement_config(config_path)
     simulated = simulate or not config["ensemble"]["files"]
-    trial = movement_trial(config, where=str(config_path)) if simulated else None
-    plan = plan_reaches(config, trial) if simulated else None
+    planned = simulated or "plan" in config  # the planned reach: for the simulation, or for [plan]
+    trial = movement_trial(config, where=str(config_path)) if planned else None
+    plan = plan_reaches(config, trial) if planned else None
+    reaches = reaches_needed(config, trial, plan) if planned else None
+    if reaches is not None:
+        echo(reaches.summary())
     if simulated:
         echo(f"simulating {plan.repetitions} reaches of {config_path} (seed {config['ensemble']['seed']}) ...")
     else:
         echo(f"reading {len(config['ensemble']['files'])} repetitions listed in {config_path} ...")
-    ens = gather(config, config_path, trial=trial, plan=plan)
+    ens = gather(config, config_path, trial=trial if simulated else None, plan=plan)
     knots = config["profile"]["knots"]
     fit = estimate_ensemble(ens, knots=knots, **config["estimate"])
     settings = dict(config_path=str(config_path), config=config, simulated=simulated)
+    if reaches is not None:
+        settings["reaches_for"] = dict(precision=reaches.precision, per_entry=reaches.per_entry, worst=reaches.worst)
     true = truth(trial, knots) if simulated else None
     paths = write_day(out, ens, fit, true=true, settings=settings)
     lost = ens.repetitions - ens.sound().repetitions
