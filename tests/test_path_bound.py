@@ -95,15 +95,15 @@ def _ensemble(reps=10, f=True, period=0.001):
         (dict(ensemble=_ensemble(f=False)), "holds no perturbations"),
         (dict(ensemble=_ensemble(reps=5)), "5 sound repetitions; the model route needs at least 8"),
         (dict(ensemble=_ensemble(period=0.002)), "sampled every 0.002 s"),
-        (dict(ensemble=_ensemble(), free=("arm.stiffness", "friction.tau_c")), "no Coulomb friction"),
+        (dict(ensemble=_ensemble(), free=("arm.stiffness", "friction.tau_c")), "free takes arm matrices"),
         (dict(ensemble=_ensemble(), free=("robot.inertia",)), "free takes arm matrices"),
-        (dict(ensemble=_ensemble(), f=np.ones((64, 2))), "not both"),
+        (dict(ensemble=_ensemble(), x=np.ones((64, 2))), "x, fh and calibration stay None"),
     ],
 )
 def test_identify_over_an_ensemble_refuses_bad_input_in_one_line(kwargs, match):
     free = kwargs.pop("free", ph.ARM)
     with pytest.raises(ValueError, match=match) as info:
-        aj.identify(mv.base_trial(), free=free, **kwargs)
+        aj.identify(mv.base_trial(), kwargs.pop("ensemble"), free=free, **kwargs)
     assert "\n" not in str(info.value)
 
 
@@ -115,3 +115,37 @@ def test_knot_names_carry_the_knot_and_round_trip():
     p = ph.pack(layout, trial)
     again = ph.pack(layout, ph.with_values(layout, trial, p * 2.0))
     np.testing.assert_array_equal(np.asarray(again), 2.0 * np.asarray(p))
+
+
+def test_identify_over_an_ensemble_refuses_coulomb_friction_saying_what_to_do():
+    trial = aj.make_trial(aj.IMBIC(), arm=mv.base_arm(), friction=aj.LuGre(0.5, 0.75), **cov.noise())
+    with pytest.raises(ValueError, match="does not yet go through Coulomb friction.*estimate_ensemble"):
+        aj.identify(trial, _ensemble(), free=ph.ARM)
+
+
+def test_an_envelope_moves_the_perturbation_into_the_reach_keeping_its_rms_and_peak():
+    raw_family, n = aj.PaperNoise(peak=mv.PEAK), 1600
+    shape = aj.Envelope(raw_family, 0.4, 1.2, 0.3, 1.0)
+    key = jax.random.key(3)
+    raw, shaped = np.asarray(raw_family.signal(key, n, 0.001)), shape.signal(key, n, 0.001)
+    assert np.all(np.max(np.abs(shaped), axis=0) <= np.max(np.abs(raw), axis=0))
+    # the RMS over the record is the raw draw's, less what the clip at the peak takes (a few percent)
+    np.testing.assert_allclose(np.sqrt(np.mean(shaped**2, 0)), np.sqrt(np.mean(raw**2, 0)), rtol=0.05)
+    inside = slice(450, 1150)  # past the ramps
+    gain = np.sqrt(np.mean(shaped[inside] ** 2) / np.mean(raw[inside] ** 2))
+    outside = np.r_[0:300, 1300:1600]
+    assert gain / np.sqrt(np.mean(shaped[outside] ** 2) / np.mean(raw[outside] ** 2)) == pytest.approx(1 / 0.3, rel=0.05)
+    uniform = aj.Envelope(raw_family, 0.4, 1.2, 1.0, 1.0).signal(key, n, 0.001)
+    np.testing.assert_allclose(uniform, raw, rtol=1e-12)
+
+
+@pytest.mark.slow  # about 2 minutes: the bound of four designs
+def test_design_reach_scores_designs_on_the_bound_and_keeps_the_paper_s_as_reference():
+    trial = aj.make_trial(aj.PD(), arm=mv.base_arm(), friction=aj.NO_FRICTION, **cov.noise())
+    shapes = (("uniform", 1.0, 1.0), ("reach", 0.3, 1.0))
+    d = aj.design_reach(trial, aj.PaperNoise(peak=mv.PEAK), samples=1600, shapes=shapes, gain_scales=(1.0, 0.5), draws=2)
+    assert len(d.candidates) == 4 and d.paper["shape"] == "uniform" and d.paper["gain_scale"] == 1.0
+    assert d.best["worst"] == min(c["worst"] for c in d.candidates if c["within"])
+    assert d.ratio == pytest.approx(d.best["worst"] / d.paper["worst"])
+    # the reach's own perturbation tells the mid-reach stiffness better than the paper's even spread
+    assert next(c for c in d.candidates if c["shape"] == "reach" and c["gain_scale"] == 1.0)["worst"] < d.paper["worst"]

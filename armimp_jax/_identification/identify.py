@@ -49,6 +49,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import as_float64, check_int, require_x64
+from .._estimation.ensemble import Ensemble
 from .._estimation.welch import check_finite
 from .._simulate import Trial
 from .._solver.numerics import Numerics
@@ -58,7 +59,7 @@ from . import pool as pl
 from .auxiliary import check_statistic_record, statistic_labels, statistics
 from .bound import has_friction, is_near_linear
 from .calibration_prior import ESTIMABLE
-from .ensemble_identify import identify_ensemble
+from .ensemble_identify import identify_over
 from .pool import Recording
 from .predict import check_sampling
 from .result import Identification, assemble, classical_fit, predict_jit
@@ -276,7 +277,6 @@ def identify(
     max_steps: int = 20,
     progress: Callable[[dict], None] | bool | None = None,
     calibration=None,
-    ensemble=None,
 ) -> Identification:
     """Estimate parameters from one recording, or several, through the closed-loop simulation.
 
@@ -286,7 +286,7 @@ def identify(
             starting values of the free parameters; or a list of ``Recording`` (each its own
             ``Trial``, perturbation and recording, of any length; ``f``, ``x``, ``fh`` then
             ``None``): postures, repeated trials, the robot alone (``aj.no_arm``).
-        f: the commanded perturbation ``F_Delta`` ``(N, 2)`` [N].
+        f: the commanded perturbation ``F_Delta`` ``(N, 2)`` [N]; or an ``Ensemble`` of reaches.
         x, fh: the recorded hand position [m] and force [N], ``(N, 2)`` each.
         free: names of the parameters to estimate, from ``"arm.mass"``, ``"arm.damping"``,
             ``"arm.stiffness"`` (full 2x2), the friction law's ``IDENTIFIABLE`` ones as
@@ -302,30 +302,23 @@ def identify(
         statistic: the statistic of the arm (and of the calibration's parameters):
             ``"efficient"`` (module docstring), ``"welch"``, or ``"auto"`` (default: efficient
             unless a loop is far from linear).
-        numerics: integration settings (default ``IDENTIFY_NUMERICS``, ``GradedARK4`` at 4
-            substeps: converged at every friction in [0, 4] N m).
+        numerics: integration settings (default ``IDENTIFY_NUMERICS``: converged at every friction in [0, 4] N m).
         key: ``jax.random`` key of the simulated noise draws (default ``key(0)``: the result
             is deterministic); each recording draws on a stream of its own.
         draws: noise draws ``R`` behind the binding and the covariance (>= 8; rounded up to
             a multiple of the local devices). The SEs carry a Monte Carlo error of about
             ``1 / sqrt(2 R)``, the estimate's variance ``1 / R`` more; friction's check needs 11.
-        jacobian_draws: draws averaged in the Jacobian ``A`` (1 to ``draws``).
-        max_steps: Gauss-Newton steps at most.
+        jacobian_draws, max_steps: draws averaged in the Jacobian ``A`` (1 to ``draws``); Gauss-Newton steps at most.
         progress: a function called after each step with ``{"step", "cost", "step_se",
             "seconds"}``, or ``True`` for one line per step on stderr.
         calibration: a ``RobotCalibration``, ``ForceCalibration`` or list: held, and carried (``_calibrated``).
-        ensemble: an ``Ensemble`` of reaches (``f``, ``x``, ``fh`` then ``None``): the model route
-            over it (``ensemble_identify.py``): every knot of ``model``'s profiles free, an
-            ``EnsembleIdentification`` returned; ``numerics`` and ``max_steps`` apply.
 
     Returns an ``Identification``. Raises a one-line ``ValueError`` before any long computation for an
     unknown parameter, NaN or inf in a recording, mismatched lengths, a calibration of another robot, or a
     start at which a model diverges. A fit that does not converge has ``converged=False``, ``message`` why."""
     require_x64("identify")
-    if ensemble is not None:
-        if f is not None or x is not None or fh is not None or calibration is not None:
-            raise ValueError("identify: give an ensemble, or f, x, fh (or recordings), not both; no calibration over an ensemble")
-        return identify_ensemble(model, ensemble, free=free, numerics=numerics, max_steps=min(max_steps, 8))
+    if isinstance(f, Ensemble):  # the reaches of a movement, every knot free (ensemble_identify.py)
+        return identify_over(model, f, x, fh, calibration, free=free, numerics=numerics, max_steps=max_steps)
     t_start = time.perf_counter()
     recordings, calibrated = _calibrated(_recordings(model, f, x, fh), calibration, free)
     checked = _check(recordings, free, symmetric, shared, statistic, numerics, draws, jacobian_draws, max_steps)

@@ -17,7 +17,7 @@ model route over an ensemble (``ensemble_identify.py``).
 
 The knots' layout (``KnotLayout``): the free arm matrices' entries, one ``(2, 2)`` per knot of a
 profile (named ``arm.stiffness@t=0.6``, as pooled names carry their group) or one for a constant
-matrix, and optionally the friction's Coulomb torque as a nuisance.
+matrix.
 """
 
 from __future__ import annotations
@@ -42,31 +42,28 @@ N_NOISE = 12
 
 
 class KnotLayout(NamedTuple):
-    """The free arm matrices of a (moving) trial: per name, its knot times (``()``: a constant
-    matrix); ``tau_c``: the friction's Coulomb torque free too (a nuisance, two joints)."""
+    """The free arm matrices of a (moving) trial: per name, its knot times (``()``: a constant matrix)."""
 
     names: tuple
     knots: tuple
-    tau_c: bool = False
 
     def blocks(self) -> list[tuple[str, float | None]]:
         """``(name, knot time or None)`` per free ``(2, 2)`` matrix, in the vector's order."""
         return [(n, t) for n, ks in zip(self.names, self.knots) for t in (ks or (None,))]
 
     def size(self) -> int:
-        return 4 * len(self.blocks()) + (2 if self.tau_c else 0)
+        return 4 * len(self.blocks())
 
     def matrix_names(self) -> list[str]:
         """``"arm.stiffness@t=0.6"`` per knot of a profile, ``"arm.mass"`` for a constant matrix."""
         return [n if t is None else f"{n}@t={t:g}" for n, t in self.blocks()]
 
     def labels(self) -> list[str]:
-        """Every entry's label, row by row: ``"arm.stiffness@t=0.6[0,0]"``; then ``friction.tau_c[j]``."""
-        out = [f"{m}[{i},{j}]" for m in self.matrix_names() for i in range(2) for j in range(2)]
-        return out + (["friction.tau_c[0]", "friction.tau_c[1]"] if self.tau_c else [])
+        """Every entry's label, row by row: ``"arm.stiffness@t=0.6[0,0]"``."""
+        return [f"{m}[{i},{j}]" for m in self.matrix_names() for i in range(2) for j in range(2)]
 
 
-def knot_layout(trial: Trial, free=ARM, *, tau_c: bool = False, where: str = "identify") -> KnotLayout:
+def knot_layout(trial: Trial, free=ARM, *, where: str = "identify") -> KnotLayout:
     """The layout of ``free`` (arm matrices) on ``trial``'s arm: a profile's knots each free."""
     free = (free,) if isinstance(free, str) else tuple(free)
     bad = [n for n in free if n not in ARM]
@@ -76,7 +73,7 @@ def knot_layout(trial: Trial, free=ARM, *, tau_c: bool = False, where: str = "id
     for name in free:
         value = getattr(trial.arm, name.split(".")[1])
         knots.append(tuple(float(t) for t in np.asarray(value.times)) if isinstance(value, Profile) else ())
-    return KnotLayout(tuple(free), tuple(knots), tau_c)
+    return KnotLayout(tuple(free), tuple(knots))
 
 
 def pack(layout: KnotLayout, trial: Trial) -> jnp.ndarray:
@@ -85,8 +82,6 @@ def pack(layout: KnotLayout, trial: Trial) -> jnp.ndarray:
     for name in layout.names:
         value = getattr(trial.arm, name.split(".")[1])
         parts.append(jnp.reshape(value.values if isinstance(value, Profile) else value, (-1,)))
-    if layout.tau_c:
-        parts.append(jnp.reshape(trial.friction.tau_c, (-1,)))
     return jnp.concatenate(parts)
 
 
@@ -100,11 +95,7 @@ def with_values(layout: KnotLayout, trial: Trial, p) -> Trial:
         value = getattr(arm, attr)
         new = replace_unchecked(value, values=block) if isinstance(value, Profile) else block[0]
         arm = replace_unchecked(arm, **{attr: new})
-    trial = replace_unchecked(trial, arm=arm)
-    if layout.tau_c:
-        tau = jnp.broadcast_to(p[at : at + 2], jnp.shape(trial.friction.tau_c))
-        trial = replace_unchecked(trial, friction=replace_unchecked(trial.friction, tau_c=tau))
-    return trial
+    return replace_unchecked(trial, arm=arm)
 
 
 class PathLoop(NamedTuple):

@@ -28,7 +28,6 @@ from .._checks import as_float64, require_x64
 from .._estimation.welch import check_finite
 from .._simulate import Trial
 from . import path as ph
-from .bound import has_friction
 from .indirect import IDENTIFY_NUMERICS
 
 MAX_REACHES = 100_000  # beyond this a precision is out of a lab's reach; reported as such
@@ -131,7 +130,7 @@ def path_crlb(trial: Trial, f, *, free=ph.ARM, numerics=None) -> PathBound:
     info = information(trial, f, free=free, numerics=numerics)
     cov = np.linalg.inv(info)
     values = np.asarray(ph.pack(layout, trial))
-    reference = "the trial's loop without its Coulomb friction" if has_friction(trial) else "the trial's loop"
+    reference = "the trial's loop without its Coulomb friction" if trial.friction.has_coulomb() else "the trial's loop"
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     return PathBound(layout.labels(), values, se, cov, info, int(f.shape[0]), reference)
 

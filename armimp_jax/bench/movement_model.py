@@ -3,8 +3,8 @@ measured over Monte Carlo ensembles of the base case (``bench.movement``): cover
 the spread against ``crlb``, and ``reaches_for`` against the spread (``sweeps/bench_movement.py
 --route model``).
 
-Cases: ``imbic`` (no friction) and ``imbic-lugre`` (LuGre 0.5 N m, its Coulomb torque free from a
-start at half of it), ``pd`` (no friction). The model's damping is a profile on the stiffness's
+Cases: ``imbic`` and ``pd``, without friction (through friction the route refuses:
+``ensemble_identify``). The model's damping is a profile on the stiffness's
 knots (constant values: the truth), so every knot's ``B`` and ``K`` are free, with ``M``.
 """
 
@@ -21,8 +21,7 @@ from armimp_jax.study import coverage as cov
 
 from .movement import KNOTS, PEAK, RECORD, base_arm, measured
 
-CASES = ("imbic", "imbic-lugre", "pd")
-TAU_C = 0.5  # [N m] the friction case's Coulomb torque (tau_s 1.5 times it)
+CASES = ("imbic", "pd")
 BOUND_DRAWS = 32  # perturbation draws behind the bound's expectation
 
 
@@ -35,14 +34,8 @@ def case_trials(case: str) -> tuple[aj.Trial, aj.Trial, tuple]:
     """``(truth, model, free)``: the simulated reach, the model ``identify`` starts from, the free names."""
     controller = aj.PD() if case == "pd" else aj.IMBIC()
     arm = _knotted(base_arm())
-    friction, start = aj.NO_FRICTION, aj.NO_FRICTION
-    free = ph.ARM
-    if case == "imbic-lugre":
-        friction, start = aj.LuGre(TAU_C, 1.5 * TAU_C), aj.LuGre(TAU_C / 2, 1.5 * TAU_C)
-        free = (*ph.ARM, "friction.tau_c")
-    truth = aj.make_trial(controller, arm=arm, friction=friction, **cov.noise())
-    model = aj.make_trial(controller, arm=arm, friction=start, **cov.noise())
-    return truth, model, free
+    trial = aj.make_trial(controller, arm=arm, friction=aj.NO_FRICTION, **cov.noise())
+    return trial, trial, ph.ARM
 
 
 def bound_draws(seed: int = 10_000, draws: int = BOUND_DRAWS) -> np.ndarray:
@@ -82,7 +75,7 @@ def summary(case: str, rows, repetitions: int, bound: pb.PathBound, level: float
     truth, _, _ = case_trials(case)
     ok = [r for r in rows if r["converged"] and not r["diverged"]]
     labels = ok[0]["labels"]
-    true = np.asarray(ph.pack(ph.knot_layout(truth, ph.ARM, tau_c="friction.tau_c" in labels), truth))
+    true = np.asarray(ph.pack(ph.knot_layout(truth, ph.ARM), truth))
     e, s = np.array([r["estimate"] for r in ok]), np.array([r["se"] for r in ok])
     z = (e - true) / s
     q = 1.959963984540054
