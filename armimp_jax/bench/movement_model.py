@@ -4,7 +4,8 @@ the spread against ``crlb``, and ``reaches_for`` against the spread (``sweeps/be
 --route model``).
 
 Cases: ``imbic`` and ``pd``, without friction (through friction the route refuses:
-``ensemble_identify``). The model's damping is a profile on the stiffness's
+``ensemble_identify``), and ``pd-designed``: PD at half its gains, the perturbation moved into the
+reach (``Envelope``: 0.3 outside it), the best of ``design_reach``'s grid for the base case. The model's damping is a profile on the stiffness's
 knots (constant values: the truth), so every knot's ``B`` and ``K`` are free, with ``M``.
 """
 
@@ -14,14 +15,16 @@ import jax
 import numpy as np
 
 import armimp_jax as aj
+from armimp_jax._identification import controller_design as cd
 from armimp_jax._identification import ensemble_identify as ei
 from armimp_jax._identification import path as ph
 from armimp_jax._identification import path_bound as pb
 from armimp_jax.study import coverage as cov
 
-from .movement import KNOTS, PEAK, RECORD, base_arm, measured
+from .movement import DURATION, KNOTS, ONSET, PEAK, RECORD, base_arm, measured
 
-CASES = ("imbic", "pd")
+CASES = ("imbic", "pd", "pd-designed")
+DESIGNED = dict(gain_scale=0.5, rest=0.3)  # design_reach's best for the PD base case (docs/movement.md)
 BOUND_DRAWS = 32  # perturbation draws behind the bound's expectation
 
 
@@ -32,15 +35,25 @@ def _knotted(arm: aj.Arm) -> aj.Arm:
 
 def case_trials(case: str) -> tuple[aj.Trial, aj.Trial, tuple]:
     """``(truth, model, free)``: the simulated reach, the model ``identify`` starts from, the free names."""
-    controller = aj.PD() if case == "pd" else aj.IMBIC()
+    controller = aj.PD() if case.startswith("pd") else aj.IMBIC()
     arm = _knotted(base_arm())
     trial = aj.make_trial(controller, arm=arm, friction=aj.NO_FRICTION, **cov.noise())
+    if case == "pd-designed":
+        trial = cd.with_gains(trial, cd.initial_log_gains(trial) + np.log(DESIGNED["gain_scale"]))
     return trial, trial, ph.ARM
 
 
-def bound_draws(seed: int = 10_000, draws: int = BOUND_DRAWS) -> np.ndarray:
-    """``(draws, N, 2)`` the paper's perturbation at level 1, the bound's expectation's draws."""
-    fam, n = aj.PaperNoise(peak=PEAK), int(round(RECORD / 0.001))
+def perturbation(case: str):
+    """The case's perturbation family: the paper's, or moved into the reach (``pd-designed``)."""
+    paper = aj.PaperNoise(peak=PEAK)
+    if case != "pd-designed":
+        return paper
+    return aj.Envelope(paper, ONSET, ONSET + DURATION, DESIGNED["rest"], 1.0)
+
+
+def bound_draws(seed: int = 10_000, draws: int = BOUND_DRAWS, case: str = "imbic") -> np.ndarray:
+    """``(draws, N, 2)`` the case's perturbation, the bound's expectation's draws."""
+    fam, n = perturbation(case), int(round(RECORD / 0.001))
     return np.stack([np.asarray(fam.signal(jax.random.key(seed + i), n, 0.001)) for i in range(draws)])
 
 
@@ -48,7 +61,7 @@ def ensemble_row(case: str, seed: int, repetitions: int) -> dict:
     """One ensemble of ``case`` identified through the model: the estimate, SEs and diagnostics."""
     truth, model, free = case_trials(case)
     ens = aj.simulate_ensemble(
-        truth, aj.PaperNoise(peak=PEAK), key=jax.random.key(seed), repetitions=repetitions,
+        truth, perturbation(case), key=jax.random.key(seed), repetitions=repetitions,
         samples=int(round(RECORD / truth.period)),
     )
     fit = ei.identify_ensemble(model, ens, free=free)
@@ -125,7 +138,7 @@ def model_coverage(a, out, *, console=None) -> dict:
 
     def finish(run, rows):
         truth, _, _ = case_trials(a.case)
-        bound = pb.path_crlb(truth, bound_draws())
+        bound = pb.path_crlb(truth, bound_draws(case=a.case))
         result = dict(measured=measured(), summary=summary(a.case, rows[a.case], a.repetitions, bound))
         atomic_write_json(run.path / "movement_model.json", dict(settings=stamped(settings), **result))
         return result
