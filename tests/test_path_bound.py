@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import armimp_jax as aj
-from armimp_jax._identification import ensemble_identify as ei
 from armimp_jax._identification import bound, indirect, kalman, linear
+from armimp_jax._identification import ensemble_identify as ei
 from armimp_jax._identification import layout as lay
 from armimp_jax._identification import path as ph
 from armimp_jax._identification import path_bound as pb
@@ -75,8 +75,10 @@ def test_reaches_for_counts_from_the_bound_and_refuses_a_bad_precision_at_once()
     labels = ["arm.stiffness@t=0.8[0,0]", "arm.stiffness@t=0.8[1,1]"]
     bound = pb.PathBound(labels, np.array([100.0, 50.0]), np.array([150.0, 30.0]), np.eye(2), np.eye(2), 8, "x")
     # R = (1.96 * relative SE / precision)^2, rounded up
-    assert bound.reaches_for(0.1) == {labels[0]: int(np.ceil((1.959963984540054 * 1.5 / 0.1) ** 2)),
-                                      labels[1]: int(np.ceil((1.959963984540054 * 0.6 / 0.1) ** 2))}
+    assert bound.reaches_for(0.1) == {
+        labels[0]: int(np.ceil((1.959963984540054 * 1.5 / 0.1) ** 2)),
+        labels[1]: int(np.ceil((1.959963984540054 * 0.6 / 0.1) ** 2)),
+    }
     with pytest.raises(ValueError, match=r"precision must lie in \(0, 1\).*got 10"):
         aj.reaches_for(mv.base_trial(), np.ones((8, 2)), precision=10)
     with pytest.raises(ValueError, match="level must lie"):
@@ -134,7 +136,9 @@ def test_an_envelope_moves_the_perturbation_into_the_reach_keeping_its_rms_and_p
     inside = slice(450, 1150)  # past the ramps
     gain = np.sqrt(np.mean(shaped[inside] ** 2) / np.mean(raw[inside] ** 2))
     outside = np.r_[0:300, 1300:1600]
-    assert gain / np.sqrt(np.mean(shaped[outside] ** 2) / np.mean(raw[outside] ** 2)) == pytest.approx(1 / 0.3, rel=0.05)
+    assert gain / np.sqrt(np.mean(shaped[outside] ** 2) / np.mean(raw[outside] ** 2)) == pytest.approx(
+        1 / 0.3, rel=0.05
+    )
     uniform = aj.Envelope(raw_family, 0.4, 1.2, 1.0, 1.0).signal(key, n, 0.001)
     np.testing.assert_allclose(uniform, raw, rtol=1e-12)
 
@@ -143,7 +147,9 @@ def test_an_envelope_moves_the_perturbation_into_the_reach_keeping_its_rms_and_p
 def test_design_reach_scores_designs_on_the_bound_and_keeps_the_paper_s_as_reference():
     trial = aj.make_trial(aj.PD(), arm=mv.base_arm(), friction=aj.NO_FRICTION, **cov.noise())
     shapes = (("uniform", 1.0, 1.0), ("reach", 0.3, 1.0))
-    d = aj.design_reach(trial, aj.PaperNoise(peak=mv.PEAK), samples=1600, shapes=shapes, gain_scales=(1.0, 0.5), draws=2)
+    d = aj.design_reach(
+        trial, aj.PaperNoise(peak=mv.PEAK), samples=1600, shapes=shapes, gain_scales=(1.0, 0.5), draws=2
+    )
     assert len(d.candidates) == 4 and d.paper["shape"] == "uniform" and d.paper["gain_scale"] == 1.0
     assert d.best["worst"] == min(c["worst"] for c in d.candidates if c["within"])
     assert d.ratio == pytest.approx(d.best["worst"] / d.paper["worst"])

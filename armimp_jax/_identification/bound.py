@@ -313,7 +313,9 @@ def crlb(trial: Trial, f, *, free=ARM, symmetric=(), check: bool = True, numeric
     require_x64("crlb")
     if isinstance(trial, Trial) and trial.arm.moving:  # a reach: the bound of one repetition along its path
         if symmetric or calibration is not None:
-            raise ValueError("crlb: for a moving arm, symmetric and calibration are not taken (every knot's full matrix)")
+            raise ValueError(
+                "crlb: for a moving arm, symmetric and calibration are not taken (every knot's full matrix)"
+            )
         from .path_bound import path_crlb
 
         return path_crlb(trial, f, free=free, numerics=numerics)

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import importlib.metadata
 import time
 
 import jax
@@ -31,7 +32,6 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.stats import norm
 
-import importlib.metadata
 from .._checks import require_x64
 from .._estimation.ensemble import Ensemble
 from .._estimation.ensemble_fit import estimate_ensemble
@@ -132,15 +132,21 @@ def _check(model, ensemble, free, where: str) -> tuple[Ensemble, ph.KnotLayout]:
     if not isinstance(model, Trial):
         raise ValueError(f"{where}: over an ensemble, model must be a Trial (the reach, its profiles' knots free)")
     if not isinstance(ensemble, Ensemble):
-        raise ValueError(f"{where}: ensemble must be an Ensemble (simulate_ensemble, load_ensemble), got {type(ensemble).__name__}")
+        raise ValueError(
+            f"{where}: ensemble must be an Ensemble (simulate_ensemble, load_ensemble), got {type(ensemble).__name__}"
+        )
     if ensemble.f_delta is None:
         raise ValueError(f"{where}: the ensemble holds no perturbations: the model route needs each reach's F_Delta")
     if abs(ensemble.period - float(model.period)) > 1e-12:
-        raise ValueError(f"{where}: the ensemble is sampled every {ensemble.period:g} s and the model's loop every {float(model.period):g} s")
+        raise ValueError(
+            f"{where}: the ensemble is sampled every {ensemble.period:g} s and the model's loop every "
+            f"{float(model.period):g} s"
+        )
     sound = ensemble.sound()
     if sound.repetitions < MIN_REPETITIONS:
         raise ValueError(
-            f"{where}: {sound.repetitions} sound repetitions; the model route needs at least {MIN_REPETITIONS} (the ensemble's "
+            f"{where}: {sound.repetitions} sound repetitions; the model route needs at least {MIN_REPETITIONS} "
+            "(the ensemble's "
             "mean path takes one repetition's worth of the data)"
         )
     layout = ph.knot_layout(model, free, where=where)
@@ -161,7 +167,9 @@ def _classical_start(layout: ph.KnotLayout, model: Trial, ensemble: Ensemble) ->
     for name, ks in zip(layout.names, layout.knots):
         attr = name.split(".")[1]
         values = fit.mass[None] if attr == "mass" else getattr(fit, attr)
-        block = values if attr == "mass" else np.stack([values[knots.index(t)] for t in ks]) if ks else values.mean(0)[None]
+        block = (
+            values if attr == "mass" else np.stack([values[knots.index(t)] for t in ks]) if ks else values.mean(0)[None]
+        )
         n = 4 * block.shape[0]
         p[at : at + n] = block.reshape(-1)
         at += n
@@ -182,7 +190,8 @@ def _warnings(model, sound, noise_ratio) -> list[str]:
         )
     if sound.repetitions < MEASURED_REPETITIONS / 2:
         out.append(
-            f"{sound.repetitions} reaches: the intervals were measured with {MEASURED_REPETITIONS}; record more reaches "
+            f"{sound.repetitions} reaches: the intervals were measured with {MEASURED_REPETITIONS}; "
+            "record more reaches "
             "(reaches_for says how many a precision needs)"
         )
     if noise_ratio > 1.5 or noise_ratio < 0.5:
@@ -193,8 +202,9 @@ def _warnings(model, sound, noise_ratio) -> list[str]:
     return out
 
 
-def identify_ensemble(model: Trial, ensemble: Ensemble, *, free=ph.ARM, numerics=None, max_steps: int = 8,
-                      start=None) -> EnsembleIdentification:
+def identify_ensemble(
+    model: Trial, ensemble: Ensemble, *, free=ph.ARM, numerics=None, max_steps: int = 8, start=None
+) -> EnsembleIdentification:
     """The arm's ``M``, and ``B`` and ``K`` at every knot of the model's profiles, from an ensemble
     of reaches through the model (module docstring).
 
@@ -250,7 +260,9 @@ def identify_ensemble(model: Trial, ensemble: Ensemble, *, free=ph.ARM, numerics
         noise_ratio = float(jnp.sum(resid**2)) / ((sound.repetitions - 1) * resid.shape[1] * 4 - p.size)
         cov = np.linalg.inv(h) * max(noise_ratio, 1.0)
     warnings = tuple(_warnings(model, sound, noise_ratio)) if not message else ()
-    settings = dict(free=list(free), numerics=repr(numerics), max_steps=max_steps, version=importlib.metadata.version("armimp_jax"))
+    settings = dict(
+        free=list(free), numerics=repr(numerics), max_steps=max_steps, version=importlib.metadata.version("armimp_jax")
+    )
     return EnsembleIdentification(
         labels=layout.labels(),
         estimate=p,

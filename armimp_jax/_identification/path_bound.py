@@ -155,8 +155,9 @@ class Reaches:
         return "\n".join(lines)
 
 
-def reaches_for(trial: Trial, f, *, precision: float = 0.1, level: float = 0.95, free=ph.ARM, entries=None,
-                numerics=None) -> Reaches:
+def reaches_for(
+    trial: Trial, f, *, precision: float = 0.1, level: float = 0.95, free=ph.ARM, entries=None, numerics=None
+) -> Reaches:
     """The repetitions of the reach ``trial`` a lab needs for ``+- precision`` (relative) at
     ``level`` on each knot's diagonals, on the bound (``path_crlb``; an efficient estimator such as
     ``identify`` over the ensemble reaches it), and the worst.

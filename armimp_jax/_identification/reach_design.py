@@ -87,9 +87,20 @@ def _departure(trial: Trial, f, numerics) -> float:
     return float(max(np.max(np.hypot(m[:, 0], m[:, 1])) for m in moved))
 
 
-def design_reach(trial: Trial, family, *, samples: int, precision: float = 0.1, shapes=SHAPES,
-                 gain_scales=GAIN_SCALES, peak_departure: float | None = None, draws: int = 8, key=None,
-                 numerics=None, entries=None) -> ReachDesign:
+def design_reach(
+    trial: Trial,
+    family,
+    *,
+    samples: int,
+    precision: float = 0.1,
+    shapes=SHAPES,
+    gain_scales=GAIN_SCALES,
+    peak_departure: float | None = None,
+    draws: int = 8,
+    key=None,
+    numerics=None,
+    entries=None,
+) -> ReachDesign:
     """Score each shape of ``family`` over the reach and each scale of the robot's designed gains
     on the bound along the path (module docstring); the best within ``peak_departure`` [m].
 
@@ -116,8 +127,15 @@ def design_reach(trial: Trial, family, *, samples: int, precision: float = 0.1, 
             t = cd.with_gains(trial, log_gains + np.log(scale)) if scale != 1.0 else trial
             count = pb.path_crlb(t, f, numerics=numerics).reaches_for(precision, entries=entries)
             limiting = max(count, key=count.get)
-            candidates.append(dict(shape=name, gain_scale=scale, worst=count[limiting], limiting=limiting,
-                                   departure=_departure(t, f, numerics)))
+            candidates.append(
+                dict(
+                    shape=name,
+                    gain_scale=scale,
+                    worst=count[limiting],
+                    limiting=limiting,
+                    departure=_departure(t, f, numerics),
+                )
+            )
     paper = next((c for c in candidates if c["shape"] == "uniform" and c["gain_scale"] == 1.0), candidates[0])
     limit = 1.5 * paper["departure"] if peak_departure is None else float(peak_departure)
     for c in candidates:

@@ -5,8 +5,9 @@ the spread against ``crlb``, and ``reaches_for`` against the spread (``sweeps/be
 
 Cases: ``imbic`` and ``pd``, without friction (through friction the route refuses:
 ``ensemble_identify``), and ``pd-designed``: PD at half its gains, the perturbation moved into the
-reach (``Envelope``: 0.3 outside it), the best of ``design_reach``'s grid for the base case. The model's damping is a profile on the stiffness's
-knots (constant values: the truth), so every knot's ``B`` and ``K`` are free, with ``M``.
+reach (``Envelope``: 0.3 outside it), the best of ``design_reach``'s grid for the base case.
+The model's damping is a profile on the stiffness's knots (constant values: the truth), so every
+knot's ``B`` and ``K`` are free, with ``M``.
 """
 
 from __future__ import annotations
@@ -61,7 +62,10 @@ def ensemble_row(case: str, seed: int, repetitions: int) -> dict:
     """One ensemble of ``case`` identified through the model: the estimate, SEs and diagnostics."""
     truth, model, free = case_trials(case)
     ens = aj.simulate_ensemble(
-        truth, perturbation(case), key=jax.random.key(seed), repetitions=repetitions,
+        truth,
+        perturbation(case),
+        key=jax.random.key(seed),
+        repetitions=repetitions,
         samples=int(round(RECORD / truth.period)),
     )
     fit = ei.identify_ensemble(model, ens, free=free)
@@ -81,7 +85,9 @@ def ensemble_row(case: str, seed: int, repetitions: int) -> dict:
     )
 
 
-def summary(case: str, rows, repetitions: int, bound: pb.PathBound, level: float = 0.95, precision: float = 0.1) -> dict:
+def summary(
+    case: str, rows, repetitions: int, bound: pb.PathBound, level: float = 0.95, precision: float = 0.1
+) -> dict:
     """Per diagonal entry over the converged ensembles: coverage, SD of z, bias over spread, the
     spread over the bound of ``repetitions`` reaches; the reaches ``reaches_for`` predicts for
     ``precision`` and those the spread needs; pooled coverage."""
