@@ -74,21 +74,32 @@ def test_the_time_varying_filter_whitens_a_reachs_noise_to_unit_variance():
 def test_reaches_for_counts_from_the_bound_and_refuses_a_bad_precision_at_once():
     labels = ["arm.stiffness@t=0.8[0,0]", "arm.stiffness@t=0.8[1,1]"]
     bound = pb.PathBound(labels, np.array([100.0, 50.0]), np.array([150.0, 30.0]), np.eye(2), np.eye(2), 8, "x")
-    # R = (1.96 * relative SE / precision)^2, rounded up
-    assert bound.reaches_for(0.1) == {
-        labels[0]: int(np.ceil((1.959963984540054 * 1.5 / 0.1) ** 2)),
-        labels[1]: int(np.ceil((1.959963984540054 * 0.6 / 0.1) ** 2)),
-    }
+    # R - 1 = (1.96 * relative SE / precision)^2, rounded up: the mean path takes one reach
+    z = 1.959963984540054
+    expected = {labels[0]: int(np.ceil((z * 1.5 / 0.1) ** 2)) + 1, labels[1]: int(np.ceil((z * 0.6 / 0.1) ** 2)) + 1}
+    assert bound.reaches_for(0.1) == expected
     with pytest.raises(ValueError, match=r"precision must lie in \(0, 1\).*got 10"):
         aj.reaches_for(mv.base_trial(), np.ones((8, 2)), precision=10)
     with pytest.raises(ValueError, match="level must lie"):
         aj.reaches_for(mv.base_trial(), np.ones((8, 2)), level=95)
 
 
-def _ensemble(reps=10, f=True, period=0.001):
-    n = 64
+def _ensemble(reps=10, f=True, period=0.001, same=False):
+    n = 1600  # the base reach's record: 1.6 s
     x = np.zeros((reps, n, 2)) + np.linspace(0, 1e-3, n)[None, :, None]
-    return aj.Ensemble(x=x, fh=np.zeros((reps, n, 2)), f_delta=np.ones((reps, n, 2)) if f else None, period=period)
+    draws = np.random.default_rng(0).normal(size=(1 if same else reps, n, 2))
+    fd = np.broadcast_to(draws, (reps, n, 2)) if f else None
+    return aj.Ensemble(x=x, fh=np.zeros((reps, n, 2)), f_delta=fd, period=period)
+
+
+def _sensors(**kw):
+    return aj.make_trial(
+        aj.PD(),
+        arm=mv.base_arm(),
+        friction=aj.NO_FRICTION,
+        sensors=aj.Sensors(**kw),
+        voluntary=aj.VoluntaryForce(0.3, 2.0),
+    )
 
 
 @pytest.mark.parametrize(
@@ -100,12 +111,28 @@ def _ensemble(reps=10, f=True, period=0.001):
         (dict(ensemble=_ensemble(), free=("arm.stiffness", "friction.tau_c")), "free takes arm matrices"),
         (dict(ensemble=_ensemble(), free=("robot.inertia",)), "free takes arm matrices"),
         (dict(ensemble=_ensemble(), x=np.ones((64, 2))), "x, fh and calibration stay None"),
+        (dict(ensemble=_ensemble(same=True)), "every reach has the same perturbation"),
+        (dict(ensemble=_ensemble(), trial=_sensors(force_noise=0.05)), "must each carry reading noise"),
+        (
+            dict(ensemble=_ensemble(), trial=_sensors(force_noise=0.05, encoder_counts=2**18, force_gain=1.02)),
+            "uncalibrated force transducer",
+        ),
+        (
+            dict(
+                ensemble=aj.Ensemble(
+                    x=np.zeros((10, 600, 2)),
+                    fh=np.zeros((10, 600, 2)),
+                    f_delta=np.random.default_rng(1).normal(size=(10, 600, 2)),
+                )
+            ),
+            "knot at 0.6 s lies outside the record",
+        ),
     ],
 )
 def test_identify_over_an_ensemble_refuses_bad_input_in_one_line(kwargs, match):
-    free = kwargs.pop("free", ph.ARM)
+    free, trial = kwargs.pop("free", ph.ARM), kwargs.pop("trial", mv.base_trial())
     with pytest.raises(ValueError, match=match) as info:
-        aj.identify(mv.base_trial(), kwargs.pop("ensemble"), free=free, **kwargs)
+        aj.identify(trial, kwargs.pop("ensemble"), free=free, **kwargs)
     assert "\n" not in str(info.value)
 
 

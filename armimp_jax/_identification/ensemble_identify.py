@@ -7,10 +7,12 @@ Kalman filter of the loop linearised along the path (``path.py``):
 
     min_theta sum_r || W(theta) [ (y_r - y_bar) - (mu(theta, f_r) - mu_bar(theta)) ] ||^2,
 
-by Gauss-Newton from the classical route's answer (``estimate_ensemble``), the Jacobian and the
-filter held between steps (one binding serves every repetition and every step) and computed anew
-at the answer for the covariance ``(sum_r J_r^T J_r)^-1``: the bound (``path_bound.py``) at the
-estimate. The whitened residuals' variance is checked against the model's noise (1 when the trial's
+by a chord iteration from the classical route's answer (``estimate_ensemble``): the Jacobian and
+the filter held at the start (one binding serves every repetition and every step), so its fixed
+point solves ``J_0^T W_0 r(p) = 0``; at the answer both are computed anew for the covariance
+``(sum_r J_r^T J_r)^-1`` (the bound at the estimate), and the step they would still take is
+reported (``refreshed_step``, in SEs) and warned of above ``REFRESH_WARN``. The whitened
+residuals' variance is checked against the model's noise (1 when the trial's
 noise levels are the lab's): above it the intervals are widened by it and a warning says why.
 
 Friction: refused. With ``mu`` the noise-free simulation through the friction, the noise whitened
@@ -37,12 +39,14 @@ from .._estimation.ensemble import Ensemble
 from .._estimation.ensemble_fit import estimate_ensemble
 from .._simulate import Trial
 from . import path as ph
+from . import path_bound as pb
 from .bound import has_friction
 from .indirect import IDENTIFY_NUMERICS
 
 MIN_REPETITIONS = 8  # below this the ensemble's mean path (a nuisance per sample) takes too much of the data
 MEASURED_REPETITIONS = 40  # the Monte Carlo's ensembles (docs/movement.md); fewer are warned of
 TOLERANCE = 0.01  # a step below this fraction of every SE ends the search
+REFRESH_WARN = 0.1  # [SE] a step the refreshed Jacobian would still take beyond this is warned of
 # The pairs (controller, friction or "none") whose intervals the Monte Carlo measured over ensembles.
 MEASURED = {("imbic", "none"), ("pd", "none")}
 
@@ -53,6 +57,7 @@ class EnsembleIdentification:
 
     ``labels`` (``"arm.stiffness@t=0.6[0,0]"``, row by row per knot), ``estimate``, ``se``,
     ``start`` ``(n,)``; ``covariance`` ``(n, n)``; ``converged``, ``steps``, ``message``;
+    ``refreshed_step``: the largest step, in SEs, the Jacobian and filter at the answer would take;
     ``noise_ratio``: the whitened residuals' variance over the model's (1 when the trial's noise is
     the lab's; the intervals are widened by it above 1); ``warnings`` in a lab's terms;
     ``repetitions``, ``seconds`` (wall time), ``settings`` (everything the call was given, and the version)."""
@@ -66,6 +71,7 @@ class EnsembleIdentification:
     steps: int
     message: str
     noise_ratio: float
+    refreshed_step: float
     warnings: tuple
     repetitions: int
     seconds: float
@@ -114,7 +120,8 @@ def _binding(layout, trial, p, f, numerics):
 
 @functools.partial(jax.jit, static_argnames=("layout", "numerics"))
 def _responses(layout, trial, p, f, numerics):
-    return jax.lax.map(lambda fr: ph.deterministic(ph.with_values(layout, trial, p), fr, numerics), f)
+    """``(mu (R, N, 4), diverged (R,))`` at ``p``."""
+    return jax.lax.map(lambda fr: ph.deterministic(ph.with_values(layout, trial, p), fr, numerics, diverged=True), f)
 
 
 @jax.jit
@@ -150,6 +157,13 @@ def _check(model, ensemble, free, where: str) -> tuple[Ensemble, ph.KnotLayout]:
             "mean path takes one repetition's worth of the data)"
         )
     layout = ph.knot_layout(model, free, where=where)
+    ph.check_reach_model(model, layout, sound.samples, where)
+    if np.allclose(sound.f_delta, sound.f_delta[:1]):
+        raise ValueError(
+            f"{where}: every reach has the same perturbation: less the ensemble's mean nothing is left to tell "
+            "the arm; "
+            "draw each reach's perturbation anew"
+        )
     if not model.noisy:
         raise ValueError(f"{where}: the model has no noise (Sensors, VoluntaryForce): the intervals rest on it")
     return sound, layout
@@ -161,7 +175,7 @@ def _classical_start(layout: ph.KnotLayout, model: Trial, ensemble: Ensemble) ->
     knots = sorted({t for ks in layout.knots for t in ks})
     try:
         fit = estimate_ensemble(ensemble, knots=knots or None)
-    except ValueError:
+    except ValueError:  # too few reaches, or knots the window cannot hold: the model's own values
         return p
     at = 0
     for name, ks in zip(layout.names, layout.knots):
@@ -180,7 +194,7 @@ def _controller_name(model: Trial) -> str:
     return type(model.controller).__name__.lower()
 
 
-def _warnings(model, sound, noise_ratio) -> list[str]:
+def _warnings(model, sound, noise_ratio, refreshed) -> list[str]:
     out = []
     kind = (_controller_name(model), type(model.friction).__name__.lower() if has_friction(model) else "none")
     if kind not in MEASURED:
@@ -193,6 +207,11 @@ def _warnings(model, sound, noise_ratio) -> list[str]:
             f"{sound.repetitions} reaches: the intervals were measured with {MEASURED_REPETITIONS}; "
             "record more reaches "
             "(reaches_for says how many a precision needs)"
+        )
+    if refreshed > REFRESH_WARN:
+        out.append(
+            f"the answer is {refreshed:.2f} SE from where the Jacobian at it points (more than {REFRESH_WARN:g}): the "
+            "fit is not linear across its intervals; record more reaches, or start nearer (start=)"
         )
     if noise_ratio > 1.5 or noise_ratio < 0.5:
         out.append(
@@ -229,37 +248,14 @@ def identify_ensemble(
             "IMBIC through LuGre 0.5 N m it walked off the classical answer, M 12-17% low, on 5 of 5 ensembles of "
             "40 reaches); use estimate_ensemble (the classical route), or identify each still posture"
         )
-    p = _classical_start(layout, model, sound) if start is None else np.asarray(start, dtype=np.float64)
-    p_start = p.copy()
+    p_start = _classical_start(layout, model, sound) if start is None else np.asarray(start, dtype=np.float64)
     y = jnp.asarray(_recorded(sound, model))
-    filt, mu, jac = _binding(layout, model, jnp.asarray(p), f, numerics)
-    wj = _whiten_centred(filt, jac)
-    h = np.asarray(jnp.einsum("rkip,rkiq->pq", wj, wj))
-    steps, converged, message = 0, False, ""
-    for steps in range(1, max_steps + 1):
-        resid = _whiten_centred(filt, y - mu)
-        g = np.asarray(jnp.einsum("rkip,rki->p", wj, resid))
-        delta = np.linalg.solve(h, g)
-        se = np.sqrt(np.diag(np.linalg.inv(h)))
-        p = p + delta
-        mu = _responses(layout, model, jnp.asarray(p), f, numerics)
-        if not np.all(np.isfinite(np.asarray(mu))):
-            message = "a step took the simulated reaches to divergence: start nearer (start=) or check the model"
-            break
-        if np.max(np.abs(delta) / se) < TOLERANCE:
-            converged = True
-            break
-    else:
-        message = f"no convergence in {max_steps} steps"
-    cov, noise_ratio = np.full((p.size, p.size), np.nan), float("nan")
+    p, steps, converged, message = _search(layout, model, p_start, f, y, numerics, max_steps)
+    cov, noise_ratio, refreshed = np.full((p.size, p.size), np.nan), float("nan"), float("nan")
     if not message:
-        filt, mu, jac = _binding(layout, model, jnp.asarray(p), f, numerics)
-        wj = _whiten_centred(filt, jac)
-        resid = _whiten_centred(filt, y - mu)  # the filter at the answer whitens the data anew
-        h = np.asarray(jnp.einsum("rkip,rkiq->pq", wj, wj))
-        noise_ratio = float(jnp.sum(resid**2)) / ((sound.repetitions - 1) * resid.shape[1] * 4 - p.size)
-        cov = np.linalg.inv(h) * max(noise_ratio, 1.0)
-    warnings = tuple(_warnings(model, sound, noise_ratio)) if not message else ()
+        cov, noise_ratio, refreshed = _at_answer(layout, model, p, f, y, numerics, sound.repetitions)
+    warnings = tuple(_warnings(model, sound, noise_ratio, refreshed)) if not message else ()
+    free = (free,) if isinstance(free, str) else tuple(free)
     settings = dict(
         free=list(free), numerics=repr(numerics), max_steps=max_steps, version=importlib.metadata.version("armimp_jax")
     )
@@ -273,11 +269,51 @@ def identify_ensemble(
         steps=steps,
         message=message,
         noise_ratio=noise_ratio,
+        refreshed_step=refreshed,
         warnings=warnings,
         repetitions=sound.repetitions,
         seconds=time.perf_counter() - t0,
         settings=settings,
     )
+
+
+def _search(layout, model, p, f, y, numerics, max_steps):
+    """The chord iteration (module docstring): ``(p, steps, converged, message)``; a step that takes a
+    simulated reach to divergence ends it at the last sound ``p``."""
+    filt, mu, jac = _binding(layout, model, jnp.asarray(p), f, numerics)
+    if np.any(np.asarray(_responses(layout, model, jnp.asarray(p), f, numerics)[1])):
+        return p, 0, False, "the simulated reaches diverge at the start: check the model, or give start="
+    wj = _whiten_centred(filt, jac)
+    h = np.asarray(jnp.einsum("rkip,rkiq->pq", wj, wj))
+    h_inv = pb.inverse(h, layout.labels(), "identify")
+    se = np.sqrt(np.diag(h_inv))
+    for steps in range(1, max_steps + 1):
+        delta = h_inv @ np.asarray(jnp.einsum("rkip,rki->p", wj, _whiten_centred(filt, y - mu)))
+        mu_new, diverged = _responses(layout, model, jnp.asarray(p + delta), f, numerics)
+        if np.any(np.asarray(diverged)):
+            return (
+                p,
+                steps,
+                False,
+                "a step took the simulated reaches to divergence: start nearer (start=) or check the model",
+            )
+        p, mu = p + delta, mu_new
+        if np.max(np.abs(delta) / se) < TOLERANCE:
+            return p, steps, True, ""
+    return p, max_steps, False, f"no convergence in {max_steps} steps"
+
+
+def _at_answer(layout, model, p, f, y, numerics, repetitions):
+    """The covariance at ``p`` (widened by the noise ratio above 1), the noise ratio, and the step,
+    in SEs, the Jacobian and filter at ``p`` would still take."""
+    filt, mu, jac = _binding(layout, model, jnp.asarray(p), f, numerics)
+    wj = _whiten_centred(filt, jac)
+    resid = _whiten_centred(filt, y - mu)  # the filter at the answer whitens the data anew
+    h_inv = pb.inverse(np.asarray(jnp.einsum("rkip,rkiq->pq", wj, wj)), layout.labels(), "identify")
+    step = h_inv @ np.asarray(jnp.einsum("rkip,rki->p", wj, resid))
+    noise_ratio = float(jnp.sum(resid**2)) / ((repetitions - 1) * resid.shape[1] * 4 - p.size)
+    refreshed = float(np.max(np.abs(step) / np.sqrt(np.diag(h_inv))))
+    return h_inv * max(noise_ratio, 1.0), noise_ratio, refreshed
 
 
 def identify_over(model, ensemble, x, fh, calibration, *, free, numerics, max_steps) -> EnsembleIdentification:

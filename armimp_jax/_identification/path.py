@@ -76,6 +76,29 @@ def knot_layout(trial: Trial, free=ARM, *, where: str = "identify") -> KnotLayou
     return KnotLayout(tuple(free), tuple(knots))
 
 
+def check_reach_model(trial: Trial, layout: KnotLayout, samples: int, where: str) -> None:
+    """One-line refusals of what the reach's bound and model route do not model: a calibrated force
+    channel or a force from the motor torques (the loop along the path carries neither), a recorded
+    channel without reading noise (a bound would rest on ``kalman.READING_FLOOR``), a knot outside
+    the record (nothing would tell its matrix)."""
+    s = trial.sensors
+    if s.calibrated or s.motor_force:
+        raise ValueError(
+            f"{where}: a reach's model takes an uncalibrated force transducer (no gain, offset, delay or motor force)"
+        )
+    if not (s.encoder_on and s.force_on):
+        raise ValueError(
+            f"{where}: the recorded position and force must each carry reading noise (Sensors(encoder_counts=, "
+            "force_noise=)): without it a bound would rest on the 1 nm / 1 uN reading floor, not on the experiment"
+        )
+    end = (samples - 1) * float(trial.period)
+    outside = [t for ks in layout.knots for t in ks if not 0.0 <= t <= end]
+    if outside:
+        raise ValueError(
+            f"{where}: knot at {outside[0]:g} s lies outside the record (0 to {end:g} s): nothing tells its matrix"
+        )
+
+
 def pack(layout: KnotLayout, trial: Trial) -> jnp.ndarray:
     """The vector of ``layout``'s values in ``trial`` (entries row by row, knot by knot)."""
     parts = []
@@ -196,10 +219,12 @@ def whiten(filt: PathFilter, z):
     return jax.lax.scan(step, start, (filt.a, filt.c, filt.gain, filt.chol, zs))[1]
 
 
-def deterministic(trial: Trial, f, numerics):
-    """The noise-free recording ``(N, 4)`` (``x - x0`` [m], ``F_h`` [N]) of ``trial`` under ``f``."""
+def deterministic(trial: Trial, f, numerics, *, diverged: bool = False):
+    """The noise-free recording ``(N, 4)`` (``x - x0`` [m], ``F_h`` [N]) of ``trial`` under ``f``
+    (and, with ``diverged``, whether it diverged: the simulation then freezes, finite)."""
     sim = simulate(replace_unchecked(trial, sensors=IDEAL, voluntary=None), f, numerics=numerics)
-    return jnp.concatenate([sim.x - trial.x0[None, :], sim.fh], axis=1)
+    y = jnp.concatenate([sim.x - trial.x0[None, :], sim.fh], axis=1)
+    return (y, sim.diverged) if diverged else y
 
 
 def response_jacobians(layout: KnotLayout, trial: Trial, p, f, numerics):

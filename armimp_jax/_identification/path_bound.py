@@ -9,8 +9,9 @@ through the response to the perturbation alone. With the noise whitened by the t
     I_1(theta) = E_f [ sum_k de_k^T de_k ],   de = whiten(d mu(theta, f) / d theta - d mu(theta, 0) / d theta),
 
 the information of one repetition (the expectation over the perturbation's draws, estimated by the
-draws given), and ``R`` independent repetitions carry ``R I_1`` (docs/model.md section 19): the bound
-on a knot's entry falls as ``1 / sqrt(R)``. ``reaches_for`` inverts that for a precision.
+draws given). ``R`` independent repetitions less their mean carry ``(R - 1) I_1`` (the mean path, a
+nuisance per sample, takes one repetition's worth; docs/model.md section 19): the bound on a knot's
+entry is ``se_1 / sqrt(R - 1)``. ``reaches_for`` inverts that for a precision.
 """
 
 from __future__ import annotations
@@ -69,8 +70,9 @@ class PathBound:
 
     Attributes:
         labels: entry names (``"arm.stiffness@t=0.6[0,0]"``); values: ``(n,)`` the trial's values.
-        se: ``(n,)`` the bound on each entry's standard error from one reach [the entry's unit]
-            (``R`` reaches: ``se / sqrt(R)``); covariance ``(n, n)`` and information of one reach.
+        se: ``(n,)`` the bound on each entry's standard error from one reach's information [the
+            entry's unit] (``R`` reaches less their mean: ``se / sqrt(R - 1)``); covariance ``(n, n)``
+            and information of one reach.
         draws: the perturbation draws the expectation was taken over; reference: the loop it is of.
     """
 
@@ -84,7 +86,8 @@ class PathBound:
 
     def relative(self, entries=None) -> dict:
         """``{label: se / |value|}`` of one reach, for ``entries`` (default: every diagonal)."""
-        rel = dict(zip(self.labels, self.se / np.abs(self.values), strict=True))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = dict(zip(self.labels, self.se / np.abs(self.values), strict=True))
         entries = diagonals(self.labels) if entries is None else list(entries)
         unknown = [e for e in entries if e not in rel]
         if unknown:
@@ -104,6 +107,19 @@ class PathBound:
         return "\n".join(lines)
 
 
+def inverse(info: np.ndarray, labels, where: str) -> np.ndarray:
+    """``info``'s inverse; a one-line error naming the entry the reaches cannot tell (a knot the
+    perturbation misses, or two that nothing separates)."""
+    w, v = np.linalg.eigh(0.5 * (info + info.T))
+    if not np.all(np.isfinite(w)) or w[0] <= 1e-12 * w[-1]:
+        worst = labels[int(np.argmax(np.abs(v[:, 0])))]
+        raise ValueError(
+            f"{where}: the reaches do not tell {worst} (the information is singular there): move that knot or "
+            "the perturbation"
+        )
+    return (v / w[None, :]) @ v.T
+
+
 def diagonals(labels) -> list[str]:
     return [x for x in labels if x.endswith(("[0,0]", "[1,1]")) and x.startswith("arm.")]
 
@@ -117,7 +133,8 @@ def _z(precision, level, where) -> float:
 
 
 def _count(ratio: float) -> int:
-    return MAX_REACHES if not ratio**2 < MAX_REACHES else max(1, math.ceil(ratio**2))
+    """Reaches ``R`` with ``ratio / sqrt(R - 1)`` at most 1 (the mean path takes one)."""
+    return MAX_REACHES if not ratio**2 < MAX_REACHES else max(2, math.ceil(ratio**2) + 1)
 
 
 def path_crlb(trial: Trial, f, *, free=ph.ARM, numerics=None) -> PathBound:
@@ -127,8 +144,9 @@ def path_crlb(trial: Trial, f, *, free=ph.ARM, numerics=None) -> PathBound:
     if not trial.noisy:
         raise ValueError("crlb: the trial has no noise: the bound is 0")
     layout = ph.knot_layout(trial, free, where="crlb")
+    ph.check_reach_model(trial, layout, f.shape[1], "crlb")
     info = information(trial, f, free=free, numerics=numerics)
-    cov = np.linalg.inv(info)
+    cov = inverse(info, layout.labels(), "crlb")
     values = np.asarray(ph.pack(layout, trial))
     reference = "the trial's loop without its Coulomb friction" if trial.friction.has_coulomb() else "the trial's loop"
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))

@@ -32,8 +32,9 @@ RAMP = 0.05  # [s] the envelope's rise into the reach and fall after it
 @dataclasses.dataclass(frozen=True)
 class Envelope:
     """``family``'s signal times a weight over time: ``rest`` outside ``[start, end]`` [s], ``reach``
-    inside (ramps of ``RAMP``), rescaled per axis to the unshaped draw's RMS and clipped at its peak
-    (the same force RMS and peak over the record)."""
+    inside (ramps of ``RAMP``), rescaled per axis to the unshaped draw's RMS and clipped at its peak:
+    the same peak, and a force RMS over the record at most the unshaped draw's (the clip takes a few
+    percent at ``rest = 0.3``)."""
 
     family: object
     start: float
@@ -44,8 +45,14 @@ class Envelope:
     def signal(self, key, n_samples: int, period: float):
         raw = np.asarray(self.family.signal(key, n_samples, period))
         t = np.arange(n_samples) * period
-        knots = [0.0, self.start - RAMP, self.start, self.end, self.end + RAMP, max(t[-1], self.end + RAMP) + 1.0]
-        w = np.interp(t, knots, [self.rest, self.rest, self.reach, self.reach, self.rest, self.rest])
+        # np.interp holds the end values beyond the knots; a reach starting within RAMP of 0 ramps from 0
+        knots = [
+            max(self.start - RAMP, 0.0),
+            self.start + (RAMP if self.start < RAMP else 0.0),
+            self.end,
+            self.end + RAMP,
+        ]
+        w = np.interp(t, knots, [self.rest, self.reach, self.reach, self.rest])
         shaped = raw * w[:, None]
         shaped *= np.sqrt(np.mean(raw**2, axis=0) / np.maximum(np.mean(shaped**2, axis=0), 1e-300))[None, :]
         peak = np.max(np.abs(raw), axis=0)
@@ -112,6 +119,10 @@ def design_reach(
             simulation (``None``: the paper's perturbation's at the trial's gains, times 1.5).
     """
     pb._z(precision, 0.95, "design_reach")
+    if ("uniform", 1.0, 1.0) not in [tuple(s) for s in shapes] or 1.0 not in gain_scales:
+        raise ValueError(
+            "design_reach: the grid must hold the paper's design (shape 'uniform', gain scale 1.0), its reference"
+        )
     path = trial.arm.endpoint
     if not isinstance(path, MinimumJerk):
         raise ValueError("design_reach: the trial's arm does not reach (its endpoint is no MinimumJerk path)")
@@ -136,9 +147,9 @@ def design_reach(
                     departure=_departure(t, f, numerics),
                 )
             )
-    paper = next((c for c in candidates if c["shape"] == "uniform" and c["gain_scale"] == 1.0), candidates[0])
+    paper = next(c for c in candidates if c["shape"] == "uniform" and c["gain_scale"] == 1.0)
     limit = 1.5 * paper["departure"] if peak_departure is None else float(peak_departure)
     for c in candidates:
         c["within"] = c["departure"] <= limit
-    best = min((c for c in candidates if c["within"]), key=lambda c: c["worst"])
+    best = min((c for c in candidates if c["within"]), key=lambda c: c["worst"])  # the paper's is within
     return ReachDesign(candidates, best, paper, best["worst"] / paper["worst"], precision)

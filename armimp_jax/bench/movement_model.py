@@ -82,6 +82,8 @@ def ensemble_row(case: str, seed: int, repetitions: int) -> dict:
         warnings=list(fit.warnings),
         seconds=fit.seconds,
         steps=fit.steps,
+        repetitions=fit.repetitions,
+        refreshed_step=getattr(fit, "refreshed_step", None),
     )
 
 
@@ -92,7 +94,9 @@ def summary(
     spread over the bound of ``repetitions`` reaches; the reaches ``reaches_for`` predicts for
     ``precision`` and those the spread needs; pooled coverage."""
     truth, _, _ = case_trials(case)
-    ok = [r for r in rows if r["converged"] and not r["diverged"]]
+    ok = [r for r in rows if r["converged"]]  # each fitted its sound reaches
+    if not ok:
+        return dict(ensembles=len(rows), converged=0)
     labels = ok[0]["labels"]
     true = np.asarray(ph.pack(ph.knot_layout(truth, ph.ARM), truth))
     e, s = np.array([r["estimate"] for r in ok]), np.array([r["se"] for r in ok])
@@ -100,12 +104,14 @@ def summary(
     q = 1.959963984540054
     diag = [i for i, lab in enumerate(labels) if lab.endswith(("[0,0]", "[1,1]")) and lab.startswith("arm.")]
     spread = e.std(axis=0, ddof=1)
-    bound_se = dict(zip(bound.labels, bound.se / np.sqrt(repetitions), strict=True))
+    reps = np.array([r.get("repetitions", repetitions) for r in ok], dtype=float)
+    eff = float(np.mean(reps - 1.0))  # the mean path takes one reach's worth
+    bound_se = dict(zip(bound.labels, bound.se / np.sqrt(eff), strict=True))
     predicted = bound.reaches_for(precision, level=level)
     entries = {}
     for i in diag:
         lab = labels[i]
-        need = repetitions * (q * spread[i] / (precision * abs(true[i]))) ** 2
+        need = 1.0 + eff * (q * spread[i] / (precision * abs(true[i]))) ** 2
         entries[lab] = dict(
             coverage=float(np.mean(np.abs(z[:, i]) <= q)),
             sd_z=float(z[:, i].std(ddof=1)),
