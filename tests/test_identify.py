@@ -47,6 +47,7 @@ F_BINDING = aj.perturbation(jax.random.key(0), 2000, 10.0)
 FREE_BINDING = ARM + ("friction.tau_c",)
 
 
+@pytest.mark.slow  # 25-55 s, for the suite's budget (test_identify_recording.py recovers K by the model route)
 def test_recovers_known_parameters_from_noise_free_data():
     truth = _trial()
     f = F_BINDING

@@ -107,8 +107,19 @@ def _still_cases():
     return module
 
 
-@pytest.mark.parametrize("numerics", ["rk4", "rk4ref", "ark3", "gark4"])
-@pytest.mark.parametrize("controller", sorted(CONTROLLERS))
+# The default numerics for every controller and the paper's RK4 under PD in the default tier; the
+# other eight pairs (2-5 s each, cold) in the slow tier, for the suite's 10-minute budget.
+_DEFAULT_PAIRS = {("admittance", "gark4"), ("imbic", "gark4"), ("pd", "gark4"), ("pd", "rk4")}
+
+
+@pytest.mark.parametrize(
+    "controller, numerics",
+    [
+        pytest.param(c, n, marks=() if (c, n) in _DEFAULT_PAIRS else pytest.mark.slow)
+        for c in sorted(CONTROLLERS)
+        for n in ("rk4", "rk4ref", "ark3", "gark4")
+    ],
+)
 def test_a_still_arm_is_bitwise_as_before_arms_could_move(controller, numerics):
     """``tests/data/still_reference.npz``: made by ``still_reference.py`` under commit d0a3dee's
     package (friction, sensor noise, the person's force; every solver)."""
@@ -231,6 +242,7 @@ def _fidelity(controller, friction, numerics):
     return q, fh
 
 
+@pytest.mark.slow  # 13 s cold: the suite's 10-minute budget
 def test_the_base_reach_at_the_papers_numerics_is_within_1e7_and_the_default_within_1e3():
     """PD, no friction (measured: 3e-13 and 8e-13 at RK4/100; 3e-8 and 4e-8 by default)."""
     assert max(_fidelity(aj.PD(), aj.NO_FRICTION, PAPER)) < 1e-7
@@ -283,6 +295,7 @@ def _force_energy(dip, onset, f):
     return jnp.sum(aj.simulate(trial, f, numerics=SHORT).fh ** 2)
 
 
+@pytest.mark.slow  # 9 s cold: the suite's 10-minute budget
 def test_grad_through_a_profile_and_a_path_matches_finite_differences():
     f = aj.perturbation(jax.random.PRNGKey(4), 400, 2.25)
     grad = jax.jit(jax.grad(_force_energy, argnums=(0, 1)))(0.4, 0.1, f)
@@ -297,6 +310,7 @@ def test_grad_through_a_profile_and_a_path_matches_finite_differences():
         assert abs(float(grad[i])) > 0
 
 
+@pytest.mark.slow  # 10 s cold: the suite's 10-minute budget
 def test_vmap_over_moving_arms_and_simulate_batch_agree_with_single_runs():
     arms = [_short_arm(dip=d) for d in (0.4, 0.8)]
     trials = [aj.make_trial(aj.IMBIC(), arm=a, friction=aj.NO_FRICTION) for a in arms]
