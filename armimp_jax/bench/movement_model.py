@@ -134,7 +134,8 @@ def summary(
 def model_coverage(a, out, *, console=None) -> dict:
     """The model route's Monte Carlo over ``a.ensembles`` ensembles of ``a.case`` with ``a.repetitions``
     reaches each, in run folder ``out`` (one record per ensemble, resumable): ``{rows, summary}``,
-    written to ``out/movement_model.json`` with the settings and the bound."""
+    written to ``out/movement_model.json`` with the settings (the answer also holds ``rows`` and the
+    ``bound``)."""
     from armimp_jax.study.results import atomic_write_json, stamped
 
     settings = dict(case=a.case, repetitions=a.repetitions, peak=PEAK, bound_draws=BOUND_DRAWS)
@@ -153,7 +154,7 @@ def model_coverage(a, out, *, console=None) -> dict:
         bound = pb.path_crlb(truth, bound_draws(case=a.case))
         result = dict(measured=measured(), summary=summary(a.case, rows[a.case], a.repetitions, bound))
         atomic_write_json(run.path / "movement_model.json", dict(settings=stamped(settings), **result))
-        return result
+        return dict(result, rows=rows[a.case], bound=bound)
 
     spec = cov.Recordings("movement-model", settings, [a.case], range(a.ensembles), make, one, report)
     return cov.run_recordings(spec, out, console=console, finish=finish).finished
