@@ -184,9 +184,9 @@ class PathFilter(NamedTuple):
 
 def path_filter(loop: PathLoop) -> PathFilter:
     """The filter from the reach's exact start (the state known, its noise not yet), over the record."""
-    bw, dw = loop.b[:, :, 2:], loop.d[:, :, 2:]
-    bs, ds = bw * loop.noise_var[None, None, :], dw * loop.noise_var[None, None, :]
-    q, r, cross = (jnp.einsum("kij,klj->kil", x, y) for x, y in ((bs, bw), (ds, dw), (bs, dw)))
+    # each period's (Q, R, S) as the still filter's: the noise's share of that period's loop
+    periods = linear.LinearLoop(loop.a, loop.b, loop.c, loop.d, loop.noise_var)
+    q, r, cross = jax.vmap(kalman.noise_covariances, in_axes=(linear.LinearLoop(0, 0, 0, 0, None),))(periods)
     floor = jnp.asarray(kalman.READING_FLOOR, dtype=r.dtype)
     scale = jnp.sqrt(jnp.mean(jnp.diagonal(r, axis1=1, axis2=2), axis=0) + floor * floor)  # (4,)
     c = loop.c / scale[None, :, None]
@@ -217,6 +217,13 @@ def whiten(filt: PathFilter, z):
 
     start = jnp.zeros((filt.a.shape[1],) + z.shape[2:], dtype=zs.dtype)
     return jax.lax.scan(step, start, (filt.a, filt.c, filt.gain, filt.chol, zs))[1]
+
+
+def perturbation_draws(family, key, count: int, samples: int, period: float) -> np.ndarray:
+    """``(count, samples, 2)`` draws of a perturbation family (``signal(key, n, period)``), one per
+    key of ``jax.random.split(key, count)``."""
+    keys = jax.random.split(key, count)
+    return np.stack([np.asarray(family.signal(k, samples, period)) for k in keys])
 
 
 def deterministic(trial: Trial, f, numerics, *, diverged: bool = False):

@@ -127,13 +127,13 @@ def design_reach(
     if not isinstance(path, MinimumJerk):
         raise ValueError("design_reach: the trial's arm does not reach (its endpoint is no MinimumJerk path)")
     start, end = float(path.onset), float(path.onset + path.duration)
-    keys = jax.random.split(jax.random.key(0) if key is None else key, draws)
+    key = jax.random.key(0) if key is None else key
     log_gains = cd.initial_log_gains(trial)
     numerics = numerics or pb.IDENTIFY_NUMERICS
     candidates = []
     for name, rest, reach in shapes:
         shape = Envelope(family, start, end, rest, reach)
-        f = np.stack([shape.signal(k, samples, float(trial.period)) for k in keys])
+        f = ph.perturbation_draws(shape, key, draws, samples, float(trial.period))
         for scale in gain_scales:
             t = cd.with_gains(trial, log_gains + np.log(scale)) if scale != 1.0 else trial
             count = pb.path_crlb(t, f, numerics=numerics).reaches_for(precision, entries=entries)

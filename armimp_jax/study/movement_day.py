@@ -191,14 +191,15 @@ def plan_reaches(config: dict, trial) -> Plan:
 def reaches_needed(config: dict, trial, plan: Plan):
     """``[plan] precision``'s reaches on the bound along the path (``aj.reaches_for``, the config's
     perturbation drawn ``[plan] draws`` times), or ``None`` without a ``[plan]`` section."""
+    from .._identification.path import perturbation_draws
     from .._identification.path_bound import reaches_for
 
     wanted = config.get("plan", {}).get("precision")
     if wanted is None:
         return None
     n, draws = int(round(config["reach"]["record"] / trial.period)), config["plan"]["draws"]
-    keys = jax.random.split(jax.random.key(config["ensemble"]["seed"] + 7919), draws)
-    f = np.stack([np.asarray(plan.perturbation.signal(k, n, trial.period)) for k in keys])
+    key = jax.random.key(config["ensemble"]["seed"] + 7919)
+    f = perturbation_draws(plan.perturbation, key, draws, n, trial.period)
     return reaches_for(trial, f, precision=wanted)
 
 
