@@ -1,7 +1,8 @@
 """Statistics tier (``pytest -m stats``): the model route during a movement, ``identify`` over
 ensembles of 40 reaches of the base case (``armimp_jax.bench.movement_model``: paper arm 3's
 matrices, a 12 cm reach in 0.8 s, K dipping to 40% at mid-reach through five knots, every knot's
-B and K free with M), 50 ensembles per case, against issue 62's claims:
+B and K free with M; through LuGre 0.5 N m under IMBIC, ``tau_c`` free too), 50 ensembles per case,
+against issue 62's claims:
 
 - its 95% intervals hold each knot diagonal's truth as often as they claim, and z's RMS is 1
   (``claims.calibration_check``'s binomial and chi-square bands, pooled and per entry);
@@ -9,8 +10,8 @@ B and K free with M), 50 ensembles per case, against issue 62's claims:
   asks within 1.25 of it) and, on the mid-reach stiffness diagonals, ``reaches_for``'s count is
   what the spread needs (``claims.ratio_check``, F bands against the bound's own draws).
 
-About 1 hour per case on 2 cores (the bench's own time); ``ARMIMP_JAX_MOVEMENT_RUN`` names a folder
-whose ``model-<case>`` run folders resume (``sweeps/bench_movement.py --route model`` writes the
+About 1 hour per case on 2 cores, 2 through friction (the bench's own time); ``ARMIMP_JAX_MOVEMENT_RUN``
+names a folder whose ``model-<case>`` run folders resume (``sweeps/bench_movement.py --route model`` writes the
 same records)."""
 
 import os
@@ -44,17 +45,28 @@ def test_the_model_route_over_ensembles_is_calibrated_and_at_the_bound(case, tmp
         assert not figures[name]["outside"], (name, figures[name]["outside"])
 
 
+def test_the_model_route_through_friction_is_calibrated(tmp_path_factory):
+    """IMBIC through LuGre 0.5 N m, ``tau_c`` free: calibrated (the bound, the frictionless loop's, is
+    not the claim through friction)."""
+    progress(f"movement imbic-lugre: {ENSEMBLES} ensembles of {REPETITIONS} reaches")
+    done = _study("imbic-lugre", tmp_path_factory)
+    figures = judge("imbic-lugre", done["rows"], done["bound"])
+    report("movement-imbic-lugre", figures)
+    assert not figures["calibration"]["outside"], figures["calibration"]["outside"]
+
+
 def judge(case, rows, bound) -> dict:
     """The three checks' figures over ``rows`` (``bench.movement_model.ensemble_row``'s) against
     ``bound`` (``path_crlb`` of one reach over the bench's draws)."""
-    truth, _, _ = mm.case_trials(case)
     ok = [r for r in rows if r["converged"]]
     labels = ok[0]["labels"]
-    diag = [i for i, lab in enumerate(labels) if lab.endswith(("[0,0]", "[1,1]"))]
-    true = np.asarray(mm.ph.pack(mm.ph.knot_layout(truth), truth))
+    diag = [i for i, lab in enumerate(labels) if lab.startswith("arm.") and lab.endswith(("[0,0]", "[1,1]"))]
+    true = mm.true_values(case)
     e, s = np.array([r["estimate"] for r in ok])[:, diag], np.array([r["se"] for r in ok])[:, diag]
     unexplained = len(rows) - len(ok)  # a fit that did not converge counts as every interval missed
     calibration = calibration_check((e - true[diag]) / s, unexplained=unexplained)
+    if case.endswith("lugre"):
+        return dict(calibration=calibration)
     reps = np.array([r.get("repetitions", REPETITIONS) for r in ok], dtype=float)
     bound_se = dict(zip(bound.labels, bound.se / np.sqrt(np.mean(reps - 1)), strict=True))
     spread = e.std(axis=0, ddof=1)

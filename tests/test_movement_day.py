@@ -58,6 +58,7 @@ def test_the_base_config_builds_the_base_case():
         ("[1.0, 0.7, 0.4, 0.7, 1.0]", "[1.0, 0.7, 0.4]", "[profile] stiffness_scale"),
         ("[0.4, 0.6, 0.8, 1.0, 1.2]", "[0.4, 0.8, 0.6, 1.0, 1.2]", "[profile] knots"),
         ("duration = 0.8", "duration = 1.4", "[reach] needs onset >= 0"),
+        ("[estimate]", '[identify]\nroute = "models"\n\n[estimate]', "[identify] route"),
         ("level = 1", "level = 1\npeak = 2.0", "[perturbation] give level"),
         ("level = 1", "level = 4", "[perturbation] level must be one of the paper's 1-3, got 4"),
         ("record = 1.6", "record = 1.1", "[reach] needs onset >= 0"),
@@ -199,3 +200,18 @@ def test_the_ellipses_lie_along_k_s_eigenvectors_at_the_stated_scale():
     assert "200 N/m" in texts  # the scale bar, a round stiffness
     bar = [a for a in ax.artists if hasattr(a, "size_bar")][0]
     assert np.isclose(bar.size_bar.get_children()[0].get_width(), 200.0 * scale)
+
+
+@pytest.mark.slow  # the model route over 25 reaches: about 2 minutes cold
+def test_the_day_s_model_route_writes_identify_s_numbers(tmp_path):
+    config = _config(tmp_path, "[estimate]", '[identify]\nroute = "model"\n\n[estimate]')
+    ens, fit, paths = day.run_day(config, tmp_path / "out", echo=lambda *_: None)
+    trial = day.movement_trial(day.read_movement_config(config), where=str(config))
+    model_fit = aj.identify(trial, ens, free=("arm.mass", "arm.damping", "arm.stiffness"))
+    written = pd.read_csv(tmp_path / "out" / "movement_model.csv")
+    assert written["entry"].tolist() == model_fit.labels
+    np.testing.assert_allclose(written["estimate"], model_fit.estimate, rtol=1e-9)
+    np.testing.assert_allclose(written["se"], model_fit.se, rtol=1e-9)
+    doc = json.loads((tmp_path / "out" / "movement_model.json").read_text())
+    assert doc["converged"] and len(doc["entries"]) == len(model_fit.labels)
+    assert np.all(np.abs((written["estimate"] - written["truth"]) / written["se"]) < 4.5)

@@ -108,7 +108,7 @@ def _sensors(**kw):
         (dict(ensemble=_ensemble(f=False)), "holds no perturbations"),
         (dict(ensemble=_ensemble(reps=5)), "5 sound repetitions; the model route needs at least 8"),
         (dict(ensemble=_ensemble(period=0.002)), "sampled every 0.002 s"),
-        (dict(ensemble=_ensemble(), free=("arm.stiffness", "friction.tau_c")), "free takes arm matrices"),
+        (dict(ensemble=_ensemble(), free=("arm.stiffness", "friction.tau_c")), "friction.tau_c is free but the model"),
         (dict(ensemble=_ensemble(), free=("robot.inertia",)), "free takes arm matrices"),
         (dict(ensemble=_ensemble(), x=np.ones((64, 2))), "x, fh and calibration stay None"),
         (dict(ensemble=_ensemble(same=True)), "every reach has the same perturbation"),
@@ -146,10 +146,15 @@ def test_knot_names_carry_the_knot_and_round_trip():
     np.testing.assert_array_equal(np.asarray(again), 2.0 * np.asarray(p))
 
 
-def test_identify_over_an_ensemble_refuses_coulomb_friction_saying_what_to_do():
-    trial = aj.make_trial(aj.IMBIC(), arm=mv.base_arm(), friction=aj.LuGre(0.5, 0.75), **cov.noise())
-    with pytest.raises(ValueError, match="does not yet go through Coulomb friction.*estimate_ensemble"):
-        aj.identify(trial, _ensemble(), free=ph.ARM)
+@pytest.mark.parametrize(
+    "friction, free",
+    [(aj.CoulombViscous(0.5, 0.1), ph.ARM), (aj.LuGre(0.5, 0.75), ph.ARM + ("friction.tau_s",))],
+)
+def test_identify_over_an_ensemble_refuses_friction_it_has_not_measured_saying_what_to_do(friction, free):
+    trial = aj.make_trial(aj.IMBIC(), arm=mv.base_arm(), friction=friction, **cov.noise())
+    with pytest.raises(ValueError, match="measured for LuGre with friction.tau_c.*estimate_ensemble") as info:
+        aj.identify(trial, _ensemble(), free=free)
+    assert "\n" not in str(info.value)
 
 
 def test_an_envelope_moves_the_perturbation_into_the_reach_keeping_its_rms_and_peak():

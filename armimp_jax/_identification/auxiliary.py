@@ -38,6 +38,8 @@ import jax.numpy as jnp
 from .._estimation.estimate import estimate
 from .._estimation.fit import fit_impedance
 from .._estimation.welch import ESTIMATION_FMAX
+from .._model.movement import path_at
+from .._model.plant import plant_model
 from .._model.robot import ik, jacobian
 from . import efficient
 from .layout import ARM_PARAMETERS, Layout
@@ -100,12 +102,20 @@ def replay_command(trial, f, x, fh):
     period = trial.period
     xd = jnp.concatenate([jnp.zeros((1, 2), x.dtype), jnp.diff(x, axis=0) / period])
     ctl = trial.controller
+    motion = plant_model(trial.q0, trial.x0, trial.arm, trial.friction, trial.robot).motion
+    planned = None if motion is None else motion.path
 
     def step(memory, inputs):
-        fu, memory = ctl.step(memory, *inputs[:3], inputs[3], trial.x0, period)
+        if planned is None:
+            fu, memory = ctl.step(memory, *inputs[:3], inputs[3], trial.x0, period)
+        else:  # during a reach the controller follows the planned path, as in the simulation
+            offset, velocity = path_at(planned, inputs[4] * period)
+            path = (jnp.stack(offset), jnp.stack(velocity))
+            fu, memory = ctl.step(memory, *inputs[:3], inputs[3], trial.x0, period, path=path)
         return memory, fu
 
-    return jax.lax.scan(step, ctl.init(trial.x0), (x, xd, fh, f))[1]
+    k = jnp.arange(x.shape[0], dtype=x.dtype)
+    return jax.lax.scan(step, ctl.init(trial.x0), (x, xd, fh, f, k))[1]
 
 
 def _least_squares(a, b):

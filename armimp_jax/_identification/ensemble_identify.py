@@ -15,17 +15,16 @@ reported (``refreshed_step``, in SEs) and warned of above ``REFRESH_WARN``. The 
 residuals' variance is checked against the model's noise (1 when the trial's
 noise levels are the lab's): above it the intervals are widened by it and a warning says why.
 
-Friction: refused. With ``mu`` the noise-free simulation through the friction, the noise whitened
-by the loop without it and the Coulomb torque a nuisance, the route walked off the classical
-answer under IMBIC through LuGre 0.5 N m (M 12-17% low on 5 of 5 ensembles of 40 reaches): the
-noise-free loop is not the mean of the noisy one through friction, which the still ``identify``
-answers by simulating the noise (indirect inference); over an ensemble that is still to build.
+Friction: through it the noise-free loop is not the mean of the noisy one (this GLS walked off the
+classical answer under IMBIC through LuGre 0.5 N m: M 12-17% low on 5 of 5 ensembles of 40 reaches),
+so a model with friction goes to ``ensemble_friction.py``: indirect inference over ensembles
+simulated through the friction, this GLS step (held at the start) its arm's statistic, ``tau_c``
+a nuisance with the still route's prior.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import importlib.metadata
 import time
 
@@ -37,7 +36,10 @@ from scipy.stats import norm
 from .._checks import require_x64
 from .._estimation.ensemble import Ensemble
 from .._estimation.ensemble_fit import estimate_ensemble
+from .._pytree import replace_unchecked
 from .._simulate import Trial
+from . import ensemble_friction as ef
+from . import layout as lay
 from . import path as ph
 from . import path_bound as pb
 from .bound import has_friction
@@ -48,7 +50,10 @@ MEASURED_REPETITIONS = 40  # the Monte Carlo's ensembles (docs/movement.md); few
 TOLERANCE = 0.01  # a step below this fraction of every SE ends the search
 REFRESH_WARN = 0.1  # [SE] a step the refreshed Jacobian would still take beyond this is warned of
 # The pairs (controller, friction or "none") whose intervals the Monte Carlo measured over ensembles.
-MEASURED = {("imbic", "none"), ("pd", "none")}
+MEASURED = {("imbic", "none"), ("pd", "none"), ("imbic", "lugre")}
+# Through friction: the laws, and the parameters of theirs that may be free (ensemble_friction.py).
+FRICTION_LAWS = ("LuGre",)
+FRICTION_FREE = ("friction.tau_c",)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,9 +62,12 @@ class EnsembleIdentification:
 
     ``labels`` (``"arm.stiffness@t=0.6[0,0]"``, row by row per knot), ``estimate``, ``se``,
     ``start`` ``(n,)``; ``covariance`` ``(n, n)``; ``converged``, ``steps``, ``message``;
-    ``refreshed_step``: the largest step, in SEs, the Jacobian and filter at the answer would take;
+    ``refreshed_step``: the largest step, in SEs, the Jacobian and filter at the answer would take
+    (NaN through friction, whose search ends on its own binding);
     ``noise_ratio``: the whitened residuals' variance over the model's (1 when the trial's noise is
-    the lab's; the intervals are widened by it above 1); ``warnings`` in a lab's terms;
+    the lab's; the intervals are widened by it above 1; through friction, the whitened deviations'
+    energy over the simulated ensembles', mostly the friction's: reported, not widened by);
+    ``warnings`` in a lab's terms;
     ``repetitions``, ``seconds`` (wall time), ``settings`` (everything the call was given, and the version)."""
 
     labels: list
@@ -110,27 +118,6 @@ class EnsembleIdentification:
         return "\n".join(lines)
 
 
-@functools.partial(jax.jit, static_argnames=("layout", "numerics"))
-def _binding(layout, trial, p, f, numerics):
-    """``(filter, mu (R, N, 4), J (R, N, 4, n))`` at ``p``: one program for every repetition."""
-    filt = ph.path_filter(ph.path_loop(ph.with_values(layout, trial, p), f.shape[1], numerics))
-    mu, jac = ph.response_jacobians(layout, trial, p, f, numerics)
-    return filt, mu, jac
-
-
-@functools.partial(jax.jit, static_argnames=("layout", "numerics"))
-def _responses(layout, trial, p, f, numerics):
-    """``(mu (R, N, 4), diverged (R,))`` at ``p``."""
-    return jax.lax.map(lambda fr: ph.deterministic(ph.with_values(layout, trial, p), fr, numerics, diverged=True), f)
-
-
-@jax.jit
-def _whiten_centred(filt, z):
-    """Each repetition's whitened signal less the ensemble's mean (``W`` is linear)."""
-    w = jax.vmap(lambda zr: ph.whiten(filt, zr))(z)
-    return w - jnp.mean(w, axis=0, keepdims=True)
-
-
 def _recorded(ensemble: Ensemble, trial: Trial) -> np.ndarray:
     return np.concatenate([ensemble.x - np.asarray(trial.x0), ensemble.fh], axis=2)
 
@@ -156,7 +143,7 @@ def _check(model, ensemble, free, where: str) -> tuple[Ensemble, ph.KnotLayout]:
             "(the ensemble's "
             "mean path takes one repetition's worth of the data)"
         )
-    layout = ph.knot_layout(model, free, where=where)
+    layout = ph.knot_layout(model, _split_free(model, free, where)[0], where=where)
     ph.check_reach_model(model, layout, sound.samples, where)
     if np.allclose(sound.f_delta, sound.f_delta[:1]):
         raise ValueError(
@@ -167,6 +154,23 @@ def _check(model, ensemble, free, where: str) -> tuple[Ensemble, ph.KnotLayout]:
     if not model.noisy:
         raise ValueError(f"{where}: the model has no noise (Sensors, VoluntaryForce): the intervals rest on it")
     return sound, layout
+
+
+def _split_free(model: Trial, free, where: str) -> tuple[tuple, tuple]:
+    """``(arm names, friction names)`` of ``free``; friction's only through a law the route has measured."""
+    free = (free,) if isinstance(free, str) else tuple(free)
+    friction = tuple(n for n in free if n.startswith("friction."))
+    if friction and not has_friction(model):
+        raise ValueError(f"{where}: {friction[0]} is free but the model has no friction")
+    law = type(model.friction).__name__
+    if has_friction(model) and (law not in FRICTION_LAWS or not set(friction) <= set(FRICTION_FREE)):
+        raise ValueError(
+            f"{where}: over an ensemble, the route through friction is measured for {', '.join(FRICTION_LAWS)} with "
+            f"{', '.join(FRICTION_FREE)} free (a nuisance, freed where not named), got {law} with "
+            f"{list(friction) or 'nothing'} free; "
+            "use estimate_ensemble (the classical route), or identify each still posture"
+        )
+    return tuple(n for n in free if not n.startswith("friction.")), friction
 
 
 def _classical_start(layout: ph.KnotLayout, model: Trial, ensemble: Ensemble) -> np.ndarray:
@@ -214,15 +218,16 @@ def _warnings(model, sound, noise_ratio, refreshed) -> list[str]:
             "fit is not linear across its intervals; record more reaches, or start nearer (start=)"
         )
     if noise_ratio > 1.5 or noise_ratio < 0.5:
+        widened = "" if has_friction(model) else ": the intervals are widened by it where above 1"
         out.append(
-            f"the reaches' noise is {noise_ratio:.2f} times the model's (its person's force and sensor noise): the "
-            "intervals are widened by it where above 1; set the trial's Sensors and VoluntaryForce to the lab's"
+            f"the reaches' noise is {noise_ratio:.2f} times the model's (its person's force and sensor noise)"
+            f"{widened}; set the trial's Sensors and VoluntaryForce to the lab's"
         )
     return out
 
 
 def identify_ensemble(
-    model: Trial, ensemble: Ensemble, *, free=ph.ARM, numerics=None, max_steps: int = 8, start=None
+    model: Trial, ensemble: Ensemble, *, free=ph.ARM, numerics=None, max_steps: int = 12, start=None, key=None
 ) -> EnsembleIdentification:
     """The arm's ``M``, and ``B`` and ``K`` at every knot of the model's profiles, from an ensemble
     of reaches through the model (module docstring).
@@ -234,8 +239,11 @@ def identify_ensemble(
             one's perturbation; diverged repetitions are left out.
         free: arm matrices (each knot's, where the model's matrix is a profile).
         numerics: the simulation's integrator (default ``IDENTIFY_NUMERICS``).
-        max_steps: Gauss-Newton steps at most.
-        start: ``(n,)`` start (default: the classical route's answer on the knots).
+        max_steps: Gauss-Newton steps at most (8 without friction, whose chord iteration settles sooner).
+        start: ``(n,)`` start on ``labels`` (default: the classical route's answer on the knots; through
+            friction, then the model's ``tau_c`` per joint, the nuisance prior's centre).
+        key: through friction, the simulated ensembles' noise (default: a fixed stream; every call
+            the same draws).
     """
     require_x64("identify")
     t0 = time.perf_counter()
@@ -243,24 +251,35 @@ def identify_ensemble(
     numerics = numerics or IDENTIFY_NUMERICS
     f = jnp.asarray(sound.f_delta)
     if has_friction(model):
-        raise ValueError(
-            "identify: over an ensemble, the model route does not yet go through Coulomb friction (measured: under "
-            "IMBIC through LuGre 0.5 N m it walked off the classical answer, M 12-17% low, on 5 of 5 ensembles of "
-            "40 reaches); use estimate_ensemble (the classical route), or identify each still posture"
-        )
+        return _through_friction(model, sound, layout, free, numerics, max_steps, start, t0, key)
     p_start = _classical_start(layout, model, sound) if start is None else np.asarray(start, dtype=np.float64)
     y = jnp.asarray(_recorded(sound, model))
-    p, steps, converged, message = _search(layout, model, p_start, f, y, numerics, max_steps)
+    p, steps, converged, message = _search(layout, model, p_start, f, y, numerics, min(max_steps, 8))
     cov, noise_ratio, refreshed = np.full((p.size, p.size), np.nan), float("nan"), float("nan")
     if not message:
         cov, noise_ratio, refreshed = _at_answer(layout, model, p, f, y, numerics, sound.repetitions)
     warnings = tuple(_warnings(model, sound, noise_ratio, refreshed)) if not message else ()
-    free = (free,) if isinstance(free, str) else tuple(free)
-    settings = dict(
-        free=list(free), numerics=repr(numerics), max_steps=max_steps, version=importlib.metadata.version("armimp_jax")
+    return _result(
+        layout.labels(),
+        p,
+        cov,
+        p_start,
+        (converged, steps, message),
+        noise_ratio,
+        refreshed,
+        warnings,
+        sound,
+        dict(free=free, numerics=numerics, max_steps=min(max_steps, 8)),
+        t0,
     )
+
+
+def _result(labels, p, cov, p_start, state, noise_ratio, refreshed, warnings, sound, settings, t0):
+    free = settings["free"]
+    settings = dict(settings, free=[free] if isinstance(free, str) else list(free), numerics=repr(settings["numerics"]))
+    converged, steps, message = state
     return EnsembleIdentification(
-        labels=layout.labels(),
+        labels=labels,
         estimate=p,
         se=np.sqrt(np.maximum(np.diag(cov), 0.0)),
         start=p_start,
@@ -273,23 +292,73 @@ def identify_ensemble(
         warnings=warnings,
         repetitions=sound.repetitions,
         seconds=time.perf_counter() - t0,
-        settings=settings,
+        settings=settings | dict(version=importlib.metadata.version("armimp_jax")),
+    )
+
+
+def _through_friction(model, sound, knots, free, numerics, max_steps, start, t0, key=None):
+    """The route through friction (``ensemble_friction.py``): indirect inference over simulated ensembles;
+    ``tau_c`` freed as a nuisance where ``free`` does not name it."""
+    friction = lay.make_layout(_split_free(model, free, "identify")[1] or FRICTION_FREE, friction=model.friction)
+    n_arm = knots.size()
+    if start is None:
+        try:
+            tau_c = np.asarray(lay.pack(friction, model))
+        except ValueError as err:
+            raise ValueError(f"{err} (over an ensemble through friction, tau_c is always freed: a nuisance)") from None
+        p_start = np.concatenate([_classical_start(knots, model, sound), tau_c])
+    else:
+        start = np.asarray(start, dtype=np.float64)
+        if start.shape != (n_arm + 2,):
+            raise ValueError(f"identify: start has {start.size} entries; the fit's labels are {n_arm + 2}")
+        tau_c = replace_unchecked(model.friction, tau_c=start[n_arm:])
+        p_start = np.concatenate(
+            [start[:n_arm], np.asarray(lay.pack(friction, replace_unchecked(model, friction=tau_c)))]
+        )
+    f = jnp.asarray(sound.f_delta)
+    stat = ef.make_statistic(knots, model, p_start[:n_arm], f, numerics)
+    base = jax.random.fold_in(jax.random.key(0), ef.DRAW_STREAM) if key is None else key
+    keys = jnp.stack([jax.random.split(jax.random.fold_in(base, d), sound.repetitions) for d in range(ef.DRAWS)])
+    route = ef.Route(knots, friction, model, f, stat, keys, numerics)
+    contrib, energy = ef.observed(stat, model, f, jnp.asarray(_recorded(sound, model)))
+    answer = ef.search(route, p_start, ef.statistic_of(route, contrib), float(energy), max_steps)
+    value, jac = lay.natural_with_jacobian(friction, jnp.asarray(answer.p[n_arm:]), model)
+    to_natural = np.eye(answer.p.size)
+    to_natural[n_arm:, n_arm:] = np.asarray(jac)
+    estimate = np.concatenate([answer.p[:n_arm], np.asarray(value)])
+    cov = to_natural @ answer.covariance @ to_natural.T
+    start_natural = np.concatenate(
+        [p_start[:n_arm], np.asarray(lay.natural(friction, jnp.asarray(p_start[n_arm:]), model))]
+    )
+    warnings = tuple(_warnings(model, sound, answer.noise_ratio, 0.0)) if not answer.message else ()
+    state = (answer.converged, answer.steps, answer.message)
+    settings = dict(
+        free=free,
+        numerics=numerics,
+        max_steps=max_steps,
+        draws=ef.DRAWS,
+        chord_draws=ef.CHORD_DRAWS,
+        key=key is not None,
+    )
+    labels = knots.labels() + friction.labels()
+    return _result(
+        labels, estimate, cov, start_natural, state, answer.noise_ratio, float("nan"), warnings, sound, settings, t0
     )
 
 
 def _search(layout, model, p, f, y, numerics, max_steps):
     """The chord iteration (module docstring): ``(p, steps, converged, message)``; a step that takes a
     simulated reach to divergence ends it at the last sound ``p``."""
-    filt, mu, jac = _binding(layout, model, jnp.asarray(p), f, numerics)
-    if np.any(np.asarray(_responses(layout, model, jnp.asarray(p), f, numerics)[1])):
+    filt, mu, jac = ph.linearised_at(layout, model, jnp.asarray(p), f, numerics)
+    if np.any(np.asarray(ph.responses(layout, model, jnp.asarray(p), f, numerics)[1])):
         return p, 0, False, "the simulated reaches diverge at the start: check the model, or give start="
-    wj = _whiten_centred(filt, jac)
+    wj = ph.whiten_centred(filt, jac)
     h = np.asarray(jnp.einsum("rkip,rkiq->pq", wj, wj))
     h_inv = pb.inverse(h, layout.labels(), "identify")
     se = np.sqrt(np.diag(h_inv))
     for steps in range(1, max_steps + 1):
-        delta = h_inv @ np.asarray(jnp.einsum("rkip,rki->p", wj, _whiten_centred(filt, y - mu)))
-        mu_new, diverged = _responses(layout, model, jnp.asarray(p + delta), f, numerics)
+        delta = h_inv @ np.asarray(jnp.einsum("rkip,rki->p", wj, ph.whiten_centred(filt, y - mu)))
+        mu_new, diverged = ph.responses(layout, model, jnp.asarray(p + delta), f, numerics)
         if np.any(np.asarray(diverged)):
             return (
                 p,
@@ -306,9 +375,9 @@ def _search(layout, model, p, f, y, numerics, max_steps):
 def _at_answer(layout, model, p, f, y, numerics, repetitions):
     """The covariance at ``p`` (widened by the noise ratio above 1), the noise ratio, and the step,
     in SEs, the Jacobian and filter at ``p`` would still take."""
-    filt, mu, jac = _binding(layout, model, jnp.asarray(p), f, numerics)
-    wj = _whiten_centred(filt, jac)
-    resid = _whiten_centred(filt, y - mu)  # the filter at the answer whitens the data anew
+    filt, mu, jac = ph.linearised_at(layout, model, jnp.asarray(p), f, numerics)
+    wj = ph.whiten_centred(filt, jac)
+    resid = ph.whiten_centred(filt, y - mu)  # the filter at the answer whitens the data anew
     h_inv = pb.inverse(np.asarray(jnp.einsum("rkip,rkiq->pq", wj, wj)), layout.labels(), "identify")
     step = h_inv @ np.asarray(jnp.einsum("rkip,rki->p", wj, resid))
     noise_ratio = float(jnp.sum(resid**2)) / ((repetitions - 1) * resid.shape[1] * 4 - p.size)
@@ -316,8 +385,10 @@ def _at_answer(layout, model, p, f, y, numerics, repetitions):
     return h_inv * max(noise_ratio, 1.0), noise_ratio, refreshed
 
 
-def identify_over(model, ensemble, x, fh, calibration, *, free, numerics, max_steps) -> EnsembleIdentification:
+def identify_over(
+    model, ensemble, x, fh, calibration, *, free, numerics, max_steps, key=None
+) -> EnsembleIdentification:
     """``identify(model, ensemble, ...)``: refuses what the route does not take, then ``identify_ensemble``."""
     if x is not None or fh is not None or calibration is not None:
         raise ValueError("identify: with an ensemble, x, fh and calibration stay None (each reach holds its own)")
-    return identify_ensemble(model, ensemble, free=free, numerics=numerics, max_steps=min(max_steps, 8))
+    return identify_ensemble(model, ensemble, free=free, numerics=numerics, max_steps=min(max_steps, 12), key=key)

@@ -318,7 +318,7 @@ def identify(
     start at which a model diverges. A fit that does not converge has ``converged=False``, ``message`` why."""
     require_x64("identify")
     if isinstance(f, Ensemble):  # the reaches of a movement, every knot free (ensemble_identify.py)
-        return identify_over(model, f, x, fh, calibration, free=free, numerics=numerics, max_steps=max_steps)
+        return identify_over(model, f, x, fh, calibration, free=free, numerics=numerics, max_steps=max_steps, key=key)
     t_start = time.perf_counter()
     recordings, calibrated = _calibrated(_recordings(model, f, x, fh), calibration, free)
     checked = _check(recordings, free, symmetric, shared, statistic, numerics, draws, jacobian_draws, max_steps)

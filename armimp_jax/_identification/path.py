@@ -22,6 +22,7 @@ matrix.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -246,3 +247,24 @@ def response_jacobians(layout: KnotLayout, trial: Trial, p, f, numerics):
         return mu, jac
 
     return jax.lax.map(one, f)
+
+
+@functools.partial(jax.jit, static_argnames=("layout", "numerics"))
+def linearised_at(layout, trial, p, f, numerics):
+    """``(filter, mu (R, N, 4), J (R, N, 4, n))`` at ``p``: one program for every repetition."""
+    filt = path_filter(path_loop(with_values(layout, trial, p), f.shape[1], numerics))
+    mu, jac = response_jacobians(layout, trial, p, f, numerics)
+    return filt, mu, jac
+
+
+@functools.partial(jax.jit, static_argnames=("layout", "numerics"))
+def responses(layout, trial, p, f, numerics):
+    """``(mu (R, N, 4), diverged (R,))`` at ``p``."""
+    return jax.lax.map(lambda fr: deterministic(with_values(layout, trial, p), fr, numerics, diverged=True), f)
+
+
+@jax.jit
+def whiten_centred(filt, z):
+    """Each repetition's whitened signal less the ensemble's mean (``W`` is linear)."""
+    w = jax.vmap(lambda zr: whiten(filt, zr))(z)
+    return w - jnp.mean(w, axis=0, keepdims=True)

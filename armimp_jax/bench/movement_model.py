@@ -3,9 +3,10 @@ measured over Monte Carlo ensembles of the base case (``bench.movement``): cover
 the spread against ``crlb``, and ``reaches_for`` against the spread (``sweeps/bench_movement.py
 --route model``).
 
-Cases: ``imbic`` and ``pd``, without friction (through friction the route refuses:
-``ensemble_identify``), and ``pd-designed``: PD at half its gains, the perturbation moved into the
-reach (``Envelope``: 0.3 outside it), the best of ``design_reach``'s grid for the base case.
+Cases: ``imbic`` and ``pd``, without friction; ``imbic-lugre``: IMBIC through LuGre 0.5 / 0.75 N m,
+``tau_c`` free (``ensemble_friction``: indirect inference over simulated ensembles); and
+``pd-designed``: PD at half its gains, the perturbation moved into the reach (``Envelope``: 0.3
+outside it), the best of ``design_reach``'s grid for the base case.
 The model's damping is a profile on the stiffness's knots (constant values: the truth), so every
 knot's ``B`` and ``K`` are free, with ``M``.
 """
@@ -20,11 +21,13 @@ from armimp_jax._identification import controller_design as cd
 from armimp_jax._identification import ensemble_identify as ei
 from armimp_jax._identification import path as ph
 from armimp_jax._identification import path_bound as pb
+from armimp_jax._identification.linear import without_friction
 from armimp_jax.study import coverage as cov
 
 from .movement import DURATION, KNOTS, ONSET, PEAK, RECORD, base_arm, measured
 
-CASES = ("imbic", "pd", "pd-designed")
+CASES = ("imbic", "pd", "pd-designed", "imbic-lugre")
+LUGRE = (0.5, 0.75)  # [N m] the friction case's Coulomb and stiction torques (tau_c free, tau_s held)
 DESIGNED = dict(gain_scale=0.5, rest=0.3)  # design_reach's best for the PD base case (docs/movement.md)
 BOUND_DRAWS = 32  # perturbation draws behind the bound's expectation
 
@@ -38,10 +41,18 @@ def case_trials(case: str) -> tuple[aj.Trial, aj.Trial, tuple]:
     """``(truth, model, free)``: the simulated reach, the model ``identify`` starts from, the free names."""
     controller = aj.PD() if case.startswith("pd") else aj.IMBIC()
     arm = _knotted(base_arm())
-    trial = aj.make_trial(controller, arm=arm, friction=aj.NO_FRICTION, **cov.noise())
+    friction = aj.LuGre(*LUGRE) if case.endswith("lugre") else aj.NO_FRICTION
+    trial = aj.make_trial(controller, arm=arm, friction=friction, **cov.noise())
     if case == "pd-designed":
         trial = cd.with_gains(trial, cd.initial_log_gains(trial) + np.log(DESIGNED["gain_scale"]))
-    return trial, trial, ph.ARM
+    return trial, trial, ph.ARM + (("friction.tau_c",) if case.endswith("lugre") else ())
+
+
+def true_values(case: str) -> np.ndarray:
+    """The truth on the case's labels (the knots' entries, then ``tau_c`` per joint where free)."""
+    truth, _, free = case_trials(case)
+    arm = np.asarray(ph.pack(ph.knot_layout(truth, ph.ARM), truth))
+    return np.concatenate([arm, np.asarray(truth.friction.tau_c)]) if "friction.tau_c" in free else arm
 
 
 def perturbation(case: str):
@@ -68,7 +79,8 @@ def ensemble_row(case: str, seed: int, repetitions: int) -> dict:
         repetitions=repetitions,
         samples=int(round(RECORD / truth.period)),
     )
-    fit = ei.identify_ensemble(model, ens, free=free)
+    # through friction each ensemble's simulated draws its own (independent fits, as the binomial bands assume)
+    fit = ei.identify_ensemble(model, ens, free=free, key=jax.random.fold_in(jax.random.key(seed), 2**31 - 2))
     return dict(
         seed=seed,
         diverged=bool(ens.diverged.any()),
@@ -98,7 +110,7 @@ def summary(
     if not ok:
         return dict(ensembles=len(rows), converged=0)
     labels = ok[0]["labels"]
-    true = np.asarray(ph.pack(ph.knot_layout(truth, ph.ARM), truth))
+    true = true_values(case)
     e, s = np.array([r["estimate"] for r in ok]), np.array([r["se"] for r in ok])
     z = (e - true) / s
     q = 1.959963984540054
@@ -151,10 +163,12 @@ def model_coverage(a, out, *, console=None) -> dict:
 
     def finish(run, rows):
         truth, _, _ = case_trials(a.case)
-        bound = pb.path_crlb(truth, bound_draws(case=a.case))
+        # through friction the bound is the frictionless loop's: what the friction costs shows against it
+        bound = pb.path_crlb(without_friction(truth), bound_draws(case=a.case))
         result = dict(measured=measured(), summary=summary(a.case, rows[a.case], a.repetitions, bound))
         atomic_write_json(run.path / "movement_model.json", dict(settings=stamped(settings), **result))
         return dict(result, rows=rows[a.case], bound=bound)
 
-    spec = cov.Recordings("movement-model", settings, [a.case], range(a.ensembles), make, one, report)
+    first = getattr(a, "first", 0)
+    spec = cov.Recordings("movement-model", settings, [a.case], range(first, first + a.ensembles), make, one, report)
     return cov.run_recordings(spec, out, console=console, finish=finish).finished

@@ -15,6 +15,9 @@ The day, step by step (``run_day``):
 5. ``estimate_ensemble`` at the config's knots, then ``write_day``: ``movement.csv`` (and
    ``movement.parquet`` with pyarrow), ``movement.json`` and the two figures
    (``study.movement_figures``), each written atomically.
+6. With ``[identify] route = "model"``: the model route too (``identify`` over the ensemble, the
+   config's trial the model, through its friction where it has one), ``write_model``:
+   ``movement_model.csv`` and ``movement_model.json``. The figures stay the classical route's.
 """
 
 from __future__ import annotations
@@ -28,6 +31,8 @@ import numpy as np
 from .. import presets
 from .._batch import simulate_ensemble
 from .._estimation.ensemble_fit import estimate_ensemble
+from .._identification import path as ph
+from .._identification.ensemble_identify import identify_ensemble
 from .._model.arm import Arm
 from .._model.families import PaperNoise
 from .._model.friction import NO_FRICTION
@@ -71,6 +76,9 @@ SECTIONS = {
         "precision": ("scalar", "fraction of each value", None),
         "draws": ("int", 2, 8),  # perturbation draws behind the bound's expectation
     },
+    "identify": {  # the model route too (aj.identify over the ensemble): "classical" runs the classical alone
+        "route": ("text", ("classical", "model"), "classical"),
+    },
     "estimate": {
         "window": ("scalar", "s", 0.1),
         "cutoff": ("scalar", "Hz", 30.0),
@@ -92,7 +100,7 @@ class Plan(NamedTuple):
 def read_movement_config(path) -> dict:
     """The config at ``path``, checked (module docstring); ``ConfigError`` (one line) otherwise."""
     config = read_config(path, SECTIONS, ("profile",))
-    for section in ("ensemble", "estimate"):
+    for section in ("ensemble", "estimate", "identify"):
         config.setdefault(section, {k: v[2] for k, v in SECTIONS[section].items()})
     knots, where = np.asarray(config["profile"]["knots"]), f"{path}: [profile]"
     if np.any(np.diff(knots) <= 0):
@@ -280,13 +288,48 @@ def write_day(out, ens, fit, *, true=None, settings: dict) -> list[pathlib.Path]
     return paths
 
 
+def model_rows(fit, trial=None) -> list[dict]:
+    """The model route's table (``fit.table()``: every knot's entries, ``tau_c`` through friction) with
+    the simulated ``trial``'s value (NaN for a lab's recordings)."""
+    rows = fit.table(LEVEL).to_dict("records")
+    true = [np.nan] * len(rows)
+    if trial is not None:
+        arm = np.asarray(ph.pack(ph.knot_layout(trial, ph.ARM), trial)).tolist()
+        true = arm + np.asarray(trial.friction.tau_c).tolist()[: len(rows) - len(arm)]
+    return [dict(row, truth=float(t)) for row, t in zip(rows, true, strict=True)]
+
+
+def write_model(out, fit, trial, settings: dict) -> list[pathlib.Path]:
+    """``movement_model.csv`` and ``movement_model.json`` (the rows, the covariance, the search's
+    state and warnings, the settings) under ``out``, each atomically."""
+    out = pathlib.Path(out)
+    rows = model_rows(fit, trial)
+    try:
+        paths = write_table(table(rows, {"entry": "string"}), out / "movement_model.csv")
+        doc = dict(
+            settings=stamped(dict(settings, identify=fit.settings)),
+            converged=fit.converged,
+            message=fit.message,
+            steps=fit.steps,
+            noise_ratio=fit.noise_ratio,
+            entries=rows,
+            covariance=np.asarray(fit.covariance),
+            warnings=list(fit.warnings),
+        )
+        atomic_write_json(out / "movement_model.json", doc)
+    except OSError as err:
+        raise ValueError(f"cannot write to {out}: {err.strerror or err}") from None
+    return [*paths, out / "movement_model.json"]
+
+
 def run_day(config_path, out, *, simulate: bool = False, echo=print) -> tuple:
     """The day of ``config_path`` (module docstring), written to ``out``; ``simulate``: simulate the
     config's reach even where ``[ensemble] files`` are listed (a dry run). Says what it does
     through ``echo``; returns ``(ensemble, fit, paths)``."""
     config = read_movement_config(config_path)
     simulated = simulate or not config["ensemble"]["files"]
-    planned = simulated or "plan" in config  # the planned reach: for the simulation, or for [plan]
+    model_route = config["identify"]["route"] == "model"
+    planned = simulated or "plan" in config or model_route  # the planned reach: simulation, [plan], the model
     trial = movement_trial(config, where=str(config_path)) if planned else None
     plan = plan_reaches(config, trial) if planned else None
     reaches = reaches_needed(config, trial, plan) if planned else None
@@ -306,5 +349,10 @@ def run_day(config_path, out, *, simulate: bool = False, echo=print) -> tuple:
     paths = write_day(out, ens, fit, true=true, settings=settings)
     lost = ens.repetitions - ens.sound().repetitions
     echo("\n".join([fit.summary(LEVEL)] + ([f"{lost} diverged repetitions left out"] if lost else [])))
+    if model_route:
+        echo(f"the model route over {ens.sound().repetitions} reaches (a few minutes on 2 cores) ...")
+        model_fit = identify_ensemble(trial, ens)
+        paths += write_model(out, model_fit, trial if simulated else None, settings)
+        echo(model_fit.summary(LEVEL))
     echo(f"wrote {', '.join(str(p) for p in paths)}")
     return ens, fit, paths
