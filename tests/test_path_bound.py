@@ -9,7 +9,6 @@ import pytest
 
 import armimp_jax as aj
 from armimp_jax._identification import bound, indirect, kalman, linear
-from armimp_jax._identification import ensemble_identify as ei
 from armimp_jax._identification import layout as lay
 from armimp_jax._identification import path as ph
 from armimp_jax._identification import path_bound as pb
@@ -64,7 +63,7 @@ def test_the_time_varying_filter_whitens_a_reachs_noise_to_unit_variance():
     ens = aj.simulate_ensemble(trial, np.zeros((r, n, 2)), key=jax.random.key(1), numerics=NUM)
     y = jnp.asarray(np.concatenate([ens.x - np.asarray(trial.x0), ens.fh], axis=2))
     filt = jax.jit(lambda t: ph.path_filter(ph.path_loop(t, n, NUM)))(trial)
-    w = np.asarray(ei._whiten_centred(filt, y))
+    w = np.asarray(ph.whiten_centred(filt, y))
     variance = np.mean(w**2, axis=(0, 1)) * r / (r - 1)
     np.testing.assert_allclose(variance, 1.0, atol=0.05)
     lag1 = np.mean(w[:, 1:] * w[:, :-1], axis=(0, 1))
