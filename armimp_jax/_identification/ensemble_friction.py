@@ -48,7 +48,7 @@ from . import path as ph
 from . import path_bound as pb
 from .auxiliary import friction_statistics
 from .linear import without_friction
-from .search import PRIOR_SD
+from .search import PRIOR_SD, _sensitivity
 
 DRAWS = 8  # simulated ensembles behind the binding and Omega
 CHORD_DRAWS = 4  # simulated ensembles behind each column of the chord (the first of the binding's keys)
@@ -94,7 +94,7 @@ def make_statistic(knots, model: Trial, p0, f, numerics) -> Statistic:
     linear = without_friction(model)  # its viscous friction kept: the loop's linear part
     filt, mu, jac = ph.linearised_at(knots, linear, jnp.asarray(p0), f, numerics)
     wj = ph.whiten_centred(filt, jac)
-    h_inv = pb.inverse(np.asarray(jnp.einsum("rkip,rkiq->pq", wj, wj)), knots.labels(), "identify")
+    h_inv = pb.whitened_inverse(wj, knots.labels(), "identify")
     return Statistic(jnp.asarray(p0), jnp.asarray(h_inv), filt, mu, wj)
 
 
@@ -121,18 +121,16 @@ def statistic_of(route: Route, contrib) -> np.ndarray:
     return out
 
 
-def with_parameters(route: Route, p) -> Trial:
+def with_parameters(knots: ph.KnotLayout, friction: lay.Layout, model: Trial, p) -> Trial:
     """The model at ``p`` (the arm's knot entries, then the friction's internal values)."""
-    n = route.knots.size()
-    trial = ph.with_values(route.knots, route.model, p[:n])
-    return lay.with_values(route.friction, trial, p[n:])
+    n = knots.size()
+    return lay.with_values(friction, ph.with_values(knots, model, p[:n]), p[n:])
 
 
 @functools.partial(jax.jit, static_argnames=("knots", "friction", "numerics"))
 def _ensembles(knots, friction, model, stat, p, f, keys, numerics):
     """``(contributions (B, R, m), energies (B,), diverged (B, R))`` of ``B`` ensembles simulated at ``p``."""
-    route = Route(knots, friction, model, f, stat, keys, numerics)
-    trial = with_parameters(route, p)
+    trial = with_parameters(knots, friction, model, p)
     b, r = keys.shape[:2]
 
     def one(fr, k):
@@ -196,7 +194,8 @@ def chord(route: Route, p, h, base) -> np.ndarray | None:
 
 
 def _prior(route: Route, p, prior_mean):
-    """The nuisance prior's rows: residuals ``(k,)``, slope ``(k, n)`` and weights ``(k,)``."""
+    """The nuisance prior's rows: residuals ``(k,)``, slope ``(k, n)`` and weights ``(k,)`` (each prior
+    moment is its parameter, weighted by ``PRIOR_SD^-2``)."""
     n, k = route.knots.size(), prior_mean.size
     slope = np.zeros((k, p.size))
     slope[:, n:] = np.eye(k)
@@ -204,7 +203,8 @@ def _prior(route: Route, p, prior_mean):
 
 
 def _step(route: Route, p, b, mean, a, w, prior_mean):
-    """The Gauss-Newton step on the weighted mismatch with the prior's rows appended."""
+    """The Gauss-Newton step on the weighted mismatch with the prior's rows appended, and its
+    normal matrix."""
     rp, ap, wp = _prior(route, p, prior_mean)
     res, jac, wt = np.concatenate([b - mean, rp]), np.concatenate([a, ap]), np.concatenate([w, wp])
     h = jac.T @ (wt[:, None] * jac)
@@ -293,9 +293,7 @@ def _covariance(route: Route, p, a, w, contrib, prior_mean) -> np.ndarray:
     search's own slope (the chord corrected along its steps: a chord's noise alone would inflate
     ``A^T W A`` and narrow the intervals)."""
     rp, ap, wp = _prior(route, p, prior_mean)
-    jac, wt = np.concatenate([a, ap]), np.concatenate([w, wp])
-    aw = jac.T * wt[None, :]
-    sens = np.linalg.solve(aw @ jac, aw)
+    sens = _sensitivity(np.concatenate([a, ap]), np.concatenate([w, wp]))
     m = a.shape[0]
     om = np.zeros((m + rp.size,) * 2)
     om[:m, :m] = (1.0 + 1.0 / contrib.shape[0]) * omega(contrib)

@@ -194,6 +194,13 @@ def _classical_start(layout: ph.KnotLayout, model: Trial, ensemble: Ensemble) ->
     return p
 
 
+def trial_values(trial: Trial) -> np.ndarray:
+    """The trial's own values on the model route's labels: every knot's entries, then ``tau_c`` per
+    joint where the trial has Coulomb friction (the route frees it there)."""
+    arm = np.asarray(ph.pack(ph.knot_layout(trial, ph.ARM), trial))
+    return np.concatenate([arm, np.asarray(trial.friction.tau_c)]) if has_friction(trial) else arm
+
+
 def _controller_name(model: Trial) -> str:
     return type(model.controller).__name__.lower()
 
@@ -301,20 +308,17 @@ def _through_friction(model, sound, knots, free, numerics, max_steps, start, t0,
     ``tau_c`` freed as a nuisance where ``free`` does not name it."""
     friction = lay.make_layout(_split_free(model, free, "identify")[1] or FRICTION_FREE, friction=model.friction)
     n_arm = knots.size()
-    if start is None:
-        try:
-            tau_c = np.asarray(lay.pack(friction, model))
-        except ValueError as err:
-            raise ValueError(f"{err} (over an ensemble through friction, tau_c is always freed: a nuisance)") from None
-        p_start = np.concatenate([_classical_start(knots, model, sound), tau_c])
-    else:
+    held = model
+    if start is not None:
         start = np.asarray(start, dtype=np.float64)
         if start.shape != (n_arm + 2,):
             raise ValueError(f"identify: start has {start.size} entries; the fit's labels are {n_arm + 2}")
-        tau_c = replace_unchecked(model.friction, tau_c=start[n_arm:])
-        p_start = np.concatenate(
-            [start[:n_arm], np.asarray(lay.pack(friction, replace_unchecked(model, friction=tau_c)))]
-        )
+        held = replace_unchecked(model, friction=replace_unchecked(model.friction, tau_c=start[n_arm:]))
+    try:
+        tau_c = np.asarray(lay.pack(friction, held))
+    except ValueError as err:
+        raise ValueError(f"{err} (over an ensemble through friction, tau_c is always freed: a nuisance)") from None
+    p_start = np.concatenate([_classical_start(knots, model, sound) if start is None else start[:n_arm], tau_c])
     f = jnp.asarray(sound.f_delta)
     stat = ef.make_statistic(knots, model, p_start[:n_arm], f, numerics)
     base = jax.random.fold_in(jax.random.key(0), ef.DRAW_STREAM) if key is None else key
@@ -353,8 +357,7 @@ def _search(layout, model, p, f, y, numerics, max_steps):
     if np.any(np.asarray(ph.responses(layout, model, jnp.asarray(p), f, numerics)[1])):
         return p, 0, False, "the simulated reaches diverge at the start: check the model, or give start="
     wj = ph.whiten_centred(filt, jac)
-    h = np.asarray(jnp.einsum("rkip,rkiq->pq", wj, wj))
-    h_inv = pb.inverse(h, layout.labels(), "identify")
+    h_inv = pb.whitened_inverse(wj, layout.labels(), "identify")
     se = np.sqrt(np.diag(h_inv))
     for steps in range(1, max_steps + 1):
         delta = h_inv @ np.asarray(jnp.einsum("rkip,rki->p", wj, ph.whiten_centred(filt, y - mu)))
@@ -378,7 +381,7 @@ def _at_answer(layout, model, p, f, y, numerics, repetitions):
     filt, mu, jac = ph.linearised_at(layout, model, jnp.asarray(p), f, numerics)
     wj = ph.whiten_centred(filt, jac)
     resid = ph.whiten_centred(filt, y - mu)  # the filter at the answer whitens the data anew
-    h_inv = pb.inverse(np.asarray(jnp.einsum("rkip,rkiq->pq", wj, wj)), layout.labels(), "identify")
+    h_inv = pb.whitened_inverse(wj, layout.labels(), "identify")
     step = h_inv @ np.asarray(jnp.einsum("rkip,rki->p", wj, resid))
     noise_ratio = float(jnp.sum(resid**2)) / ((repetitions - 1) * resid.shape[1] * 4 - p.size)
     refreshed = float(np.max(np.abs(step) / np.sqrt(np.diag(h_inv))))

@@ -120,6 +120,12 @@ def inverse(info: np.ndarray, labels, where: str) -> np.ndarray:
     return (v / w[None, :]) @ v.T
 
 
+def whitened_inverse(wj, labels, where: str) -> np.ndarray:
+    """``(sum_r (W J_r)^T W J_r)^-1`` of whitened Jacobians ``wj`` ``(R, N, 4, n)``: the ensemble's GLS
+    covariance (``inverse``'s one-line refusal where the reaches cannot tell an entry)."""
+    return inverse(np.asarray(jnp.einsum("rkip,rkiq->pq", wj, wj)), labels, where)
+
+
 def diagonals(labels) -> list[str]:
     return [x for x in labels if x.endswith(("[0,0]", "[1,1]")) and x.startswith("arm.")]
 

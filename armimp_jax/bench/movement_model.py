@@ -18,6 +18,7 @@ import numpy as np
 
 import armimp_jax as aj
 from armimp_jax._identification import controller_design as cd
+from armimp_jax._identification import ensemble_friction as ef
 from armimp_jax._identification import ensemble_identify as ei
 from armimp_jax._identification import path as ph
 from armimp_jax._identification import path_bound as pb
@@ -50,9 +51,7 @@ def case_trials(case: str) -> tuple[aj.Trial, aj.Trial, tuple]:
 
 def true_values(case: str) -> np.ndarray:
     """The truth on the case's labels (the knots' entries, then ``tau_c`` per joint where free)."""
-    truth, _, free = case_trials(case)
-    arm = np.asarray(ph.pack(ph.knot_layout(truth, ph.ARM), truth))
-    return np.concatenate([arm, np.asarray(truth.friction.tau_c)]) if "friction.tau_c" in free else arm
+    return ei.trial_values(case_trials(case)[0])
 
 
 def perturbation(case: str):
@@ -80,7 +79,7 @@ def ensemble_row(case: str, seed: int, repetitions: int) -> dict:
         samples=int(round(RECORD / truth.period)),
     )
     # through friction each ensemble's simulated draws its own (independent fits, as the binomial bands assume)
-    fit = ei.identify_ensemble(model, ens, free=free, key=jax.random.fold_in(jax.random.key(seed), 2**31 - 2))
+    fit = ei.identify_ensemble(model, ens, free=free, key=jax.random.fold_in(jax.random.key(seed), ef.DRAW_STREAM))
     return dict(
         seed=seed,
         diverged=bool(ens.diverged.any()),

@@ -31,8 +31,7 @@ import numpy as np
 from .. import presets
 from .._batch import simulate_ensemble
 from .._estimation.ensemble_fit import estimate_ensemble
-from .._identification import path as ph
-from .._identification.ensemble_identify import identify_ensemble
+from .._identification.ensemble_identify import identify_ensemble, trial_values
 from .._model.arm import Arm
 from .._model.families import PaperNoise
 from .._model.friction import NO_FRICTION
@@ -292,10 +291,7 @@ def model_rows(fit, trial=None) -> list[dict]:
     """The model route's table (``fit.table()``: every knot's entries, ``tau_c`` through friction) with
     the simulated ``trial``'s value (NaN for a lab's recordings)."""
     rows = fit.table(LEVEL).to_dict("records")
-    true = [np.nan] * len(rows)
-    if trial is not None:
-        arm = np.asarray(ph.pack(ph.knot_layout(trial, ph.ARM), trial)).tolist()
-        true = arm + np.asarray(trial.friction.tau_c).tolist()[: len(rows) - len(arm)]
+    true = [np.nan] * len(rows) if trial is None else trial_values(trial)
     return [dict(row, truth=float(t)) for row, t in zip(rows, true, strict=True)]
 
 
