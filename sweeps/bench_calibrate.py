@@ -1,4 +1,4 @@
-"""The robot's and the force transducer's calibration checked by Monte Carlo (armimp_jax.bench.calibration).
+"""The robot's and the force transducer's calibration checked by Monte Carlo (armimp_bench.calibration).
 
 Parts (--parts): coverage (calibrate_robot over --seeds pairs of 20 s robot-alone recordings
 under PD, the protocol's truth), force (calibrate_force from five loads over --draws), speed
@@ -43,7 +43,7 @@ def main(argv=None):
     from armimp_jax.runtime import configure
 
     configure()
-    from armimp_jax.bench import calibration as bc
+    from armimp_bench import calibration as bc
 
     out = {}
     if "coverage" in a.parts:

@@ -91,7 +91,7 @@ def main(argv=None):
     from armimp_jax import runtime
 
     n_devices = runtime.configure(compilation_cache=False)  # compile times are measured
-    from armimp_jax.bench import convergence
+    from armimp_bench import convergence
 
     convergence.main(args, n_devices=n_devices)
 

@@ -63,7 +63,7 @@ def main(argv=None):
     from armimp_jax.runtime import configure
 
     configure()
-    from armimp_jax.bench import design
+    from armimp_bench import design
     from armimp_jax.study.results import atomic_write_json, stamped
 
     t0 = time.perf_counter()

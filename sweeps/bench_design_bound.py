@@ -12,7 +12,7 @@ the design promises follow from the bound by its one-over-square-root law, so th
 squared, is how far the Monte Carlo minutes are from the promised ones. A run folder
 (``--out``: one checked record per recording, saved as it finishes, so a rerun resumes; and
 ``design_bound.json``); --arms and --first split the work over processes (one --out each),
-and --merge DIR_A DIR_B ... --out DIR combines them (``armimp_jax.bench.design``).
+and --merge DIR_A DIR_B ... --out DIR combines them (``armimp_bench.design``).
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ def main(argv=None):
     from armimp_jax.runtime import configure
 
     configure()
-    from armimp_jax.bench import design
+    from armimp_bench import design
     from armimp_jax.study.results import read_json
 
     if a.markdown:

@@ -59,7 +59,7 @@ def main(argv=None) -> int:
     from armimp_jax.runtime import configure
 
     configure()
-    from armimp_jax.bench import fit_coverage
+    from armimp_bench import fit_coverage
 
     fit_coverage.run(args)
     return 0

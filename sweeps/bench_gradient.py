@@ -74,6 +74,6 @@ def parser() -> argparse.ArgumentParser:
 
 if __name__ == "__main__":
     ARGS = parser().parse_args()
-    from armimp_jax.bench import gradient
+    from armimp_bench import gradient
 
     gradient.main(ARGS, script=__file__)

@@ -14,7 +14,7 @@ their mean error over the spread, ``aj.predict_se`` over the spread, and the spr
 ``aj.crlb`` (where the loop has a bound). A run folder (``--out``) holds one checked record
 per recording, saved as it finishes (a rerun with the same settings resumes where it
 stopped; more seeds extend it), and ``coverage.json`` (strict JSON with the settings and
-the package version). The study is ``armimp_jax.bench.identification.coverage``.
+the package version). The study is ``armimp_bench.identification.coverage``.
 
     python sweeps/bench_identify_coverage.py --seeds 100 --seconds 10 --out results/coverage
     python sweeps/bench_identify_coverage.py --must-show --out must_show.json
@@ -75,7 +75,7 @@ def main(argv=None):
 
     configure()
     import armimp_jax as aj
-    from armimp_jax.bench import identification
+    from armimp_bench import identification
     from armimp_jax.study.results import atomic_write_json, stamped
 
     t0 = time.perf_counter()

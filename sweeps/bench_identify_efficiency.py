@@ -11,7 +11,7 @@ without friction, which is what IMBIC promises to leave; none through stick-slip
 that hold the truth. A run folder (``--out``) holds one checked record per recording, saved
 as it finishes (a rerun with the same settings resumes), and ``efficiency.json`` (strict
 JSON with the settings and the package version). The study is
-``armimp_jax.bench.identification.efficiency``.
+``armimp_bench.identification.efficiency``.
 
     python sweeps/bench_identify_efficiency.py --seeds 50 --out results/efficiency
     python sweeps/bench_identify_efficiency.py --statistic welch --out results/efficiency-welch
@@ -26,7 +26,7 @@ import time
 from armimp_jax.study.cli import Parser, fail, script
 
 PROG = "bench_identify_efficiency"
-CASES = (  # bench.identification.CASES's names (spelled out: --help imports no JAX)
+CASES = (  # armimp_bench.identification.CASES's names (spelled out: --help imports no JAX)
     "imbic-a2",
     "imbic-a2-k80",
     "imbic-a4-k80-1Nm",
@@ -62,7 +62,7 @@ def parse(argv):
 def main(argv=None):
     a = parse(sys.argv[1:] if argv is None else argv)
     if a.markdown:
-        from armimp_jax.bench.identification import print_markdown
+        from armimp_bench.identification import print_markdown
         from armimp_jax.study.results import read_json
 
         print_markdown(read_json(pathlib.Path(a.out) / "efficiency.json"))
@@ -70,7 +70,7 @@ def main(argv=None):
     from armimp_jax.runtime import configure
 
     configure()
-    from armimp_jax.bench import identification
+    from armimp_bench import identification
 
     t0 = time.perf_counter()
     cases = identification.efficiency(a, a.out)

@@ -1,4 +1,4 @@
-"""Intervals entry by entry (issue 50; armimp_jax.bench.entrywise): a one-factor-at-a-time
+"""Intervals entry by entry (issue 50; armimp_bench.entrywise): a one-factor-at-a-time
 design around IMBIC through 0.5 N m with a strong person's force, 10 s records.
 
 Per cell and seed a fresh recording is identified, started at the truth; reported per cell:
@@ -62,7 +62,7 @@ def main(argv=None):
     from armimp_jax.runtime import configure
 
     configure()
-    from armimp_jax.bench import entrywise, protocol
+    from armimp_bench import entrywise, protocol
 
     catalogue = entrywise.cells(a.cells)
     cells = protocol.study(

@@ -1,4 +1,4 @@
-"""The coverage matrix (armimp_jax.bench.matrix): identify on every controller x friction law,
+"""The coverage matrix (armimp_bench.matrix): identify on every controller x friction law,
 as a lab would run it, scored by issue 61's rule.
 
 Per cell and seed a fresh recording is identified from a generic start with the friction known;
@@ -22,7 +22,7 @@ PROG = "bench_identify_matrix"
 
 def parse(argv):
     p = Parser(prog=PROG, description=__doc__.split("\n\n")[0])
-    p.add_argument("--cells", default="new-user", help="comma list of cells (armimp_jax.bench.matrix.CELLS), or all")
+    p.add_argument("--cells", default="new-user", help="comma list of cells (armimp_bench.matrix.CELLS), or all")
     p.add_argument("--seeds", type=int, default=50, help="recordings per cell (default 50)")
     p.add_argument("--draws", type=int, default=64, help="identify's noise draws (default 64)")
     p.add_argument("--out", default="results/matrix", help="run folder (resumed)")
@@ -39,7 +39,7 @@ def main(argv=None):
     from armimp_jax.runtime import configure
 
     configure()
-    from armimp_jax.bench import matrix, protocol
+    from armimp_bench import matrix, protocol
 
     names = tuple(matrix.CELLS)  # checked before any fit
     cells = names if a.cells == "all" else parse_names(a.cells, names, PROG, option="--cells")

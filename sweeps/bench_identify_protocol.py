@@ -1,4 +1,4 @@
-"""A lab's protocol checked by Monte Carlo (issue 47; armimp_jax.bench.protocol): calibration of
+"""A lab's protocol checked by Monte Carlo (issue 47; armimp_bench.protocol): calibration of
 the robot pooled with the human's recording, a robot without a force transducer, repeated
 trials and four postures in one identification.
 
@@ -87,7 +87,7 @@ def main(argv=None):
     from armimp_jax.runtime import configure
 
     configure()
-    from armimp_jax.bench import protocol
+    from armimp_bench import protocol
 
     cases = protocol.study(a.cases, a.seeds, a.out, draws=a.draws, design=a.design, design_arm=a.design_arm)
     print(_table(cases))

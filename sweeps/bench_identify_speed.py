@@ -1,4 +1,4 @@
-"""identify's speed in a lab's three cases (issue 47; armimp_jax.bench.identify_speed):
+"""identify's speed in a lab's three cases (issue 47; armimp_bench.identify_speed):
 
     single   one 20 s PD recording through 0.8 / 1.2 N m of LuGre friction, the arm and both
              Coulomb torques free from a generic start (target: 30 s warm)
@@ -42,7 +42,7 @@ def main(argv=None):
     from armimp_jax.runtime import configure
 
     configure()
-    from armimp_jax.bench import identify_speed
+    from armimp_bench import identify_speed
 
     results = identify_speed.run(a.cases, a.out)
     for name, r in results.items():

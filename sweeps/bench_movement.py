@@ -1,5 +1,5 @@
 """Coverage of the classical route during a movement (``aj.estimate_ensemble``) over Monte Carlo
-ensembles of the base case (``armimp_jax.bench.movement``: paper arm 3, a 12 cm reach in 0.8 s,
+ensembles of the base case (``armimp_bench.movement``: paper arm 3, a 12 cm reach in 0.8 s,
 K dipping to 40% at mid-reach through five knots, PD without friction, the still studies' noise).
 
 Each ensemble: ``--repetitions`` reaches, each with its own perturbation and noise, fitted for every ``--windows``;
@@ -12,7 +12,7 @@ one record per ensemble in ``--out`` (resumed), and ``movement_coverage.json``: 
 import json
 import sys
 
-from armimp_jax.bench.movement_options import coverage, setup
+from armimp_bench.movement_options import coverage, setup
 from armimp_jax.study.cli import script
 
 

@@ -66,7 +66,7 @@ def main(argv=None):
     configure()
     import numpy as np
 
-    from armimp_jax.bench import design
+    from armimp_bench import design
     from armimp_jax.study.results import atomic_write_json, stamped
 
     rows, t0 = [], time.perf_counter()

@@ -24,7 +24,7 @@ def main(argv=None):
     p.add_argument("--rounds", type=int, default=2, help="alternating rounds of the processes (default 2)")
     p.add_argument("--child", default=None, help="internal: run one process of the comparison")
     a = p.parse_args(sys.argv[1:] if argv is None else argv)
-    from armimp_jax.bench import readme_path
+    from armimp_bench import readme_path
 
     if a.child:
         readme_path.child(a.child, a.repeats)

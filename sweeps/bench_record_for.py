@@ -10,7 +10,7 @@ as it answers by default; ``--check`` also with ``check=True`` (a second ``predi
 answer's length); ``--parts`` times ``crlb`` and ``predict_se`` alone, and ``predict_se`` at
 ``--check-record`` seconds (the check of an answer that long). The first call
 (compilation included) is reported apart from the median of ``--repeats`` warm calls, wall and
-CPU seconds (armimp_jax.bench.record).
+CPU seconds (armimp_bench.record).
 """
 
 from __future__ import annotations
@@ -35,6 +35,6 @@ def parser() -> argparse.ArgumentParser:
 
 if __name__ == "__main__":
     ARGS = parser().parse_args()
-    from armimp_jax.bench import record
+    from armimp_bench import record
 
     sys.exit(record.main(ARGS))

@@ -10,7 +10,7 @@ Prints Markdown tables and writes them (and JSON) under ``--out``.
     python sweeps/bench_simulate.py [--repeats 3] [--quick] [--no-numba] [--no-wide-vectors]
 
 The script sets XLA's code generation itself (``configure``; importing ``armimp_jax`` sets
-none), so ``--unroll-loops`` really leaves LLVM's loop unrolling on. What it measures is ``armimp_jax.bench.simulate``.
+none), so ``--unroll-loops`` really leaves LLVM's loop unrolling on. What it measures is ``armimp_bench.simulate``.
 
 ``--compare-unrolling`` instead times the simulation with and without LLVM's unrolling of
 XLA:CPU's loops over the batch (an XLA option, fixed per process): two child processes,
@@ -37,7 +37,7 @@ import argparse
 import os
 import pathlib
 
-SETUPS = ("library", "configured", "plain")  # the set-ups --library-path compares, a child each (bench.paired's)
+SETUPS = ("library", "configured", "plain")  # the set-ups --library-path compares, a child each (armimp_bench.paired's)
 
 
 def parser() -> argparse.ArgumentParser:
@@ -95,6 +95,6 @@ else:
     )
 
 if __name__ == "__main__":
-    from armimp_jax.bench import simulate
+    from armimp_bench import simulate
 
     simulate.main(ARGS, script=__file__, caller_env=CALLER_ENV, n_devices=N_DEVICES)

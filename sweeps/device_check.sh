@@ -5,7 +5,7 @@
 #   bash sweeps/device_check.sh [OUT_DIR]      # default: $OUT if set (a device run), else results/device_check
 #
 # Under 5 minutes on a GPU with the CPU's run beside it; with no accelerator the CPU run alone
-# (the device run is skipped, and said so). armimp_jax.bench.device measures; --repeats and
+# (the device run is skipped, and said so). armimp_bench.device measures; --repeats and
 # --only pass through as DEVICE_CHECK_ARGS.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -15,10 +15,10 @@ PY="${PYTHON:-python}"
 ARGS="${DEVICE_CHECK_ARGS:-}"
 check() {  # check NAME [ENV=VALUE ...]: one process of the check, its JSON to OUT_DIR/NAME.json
   local name="$1"; shift
-  env "$@" "$PY" -c '
+  env PYTHONPATH="sweeps${PYTHONPATH:+:$PYTHONPATH}" "$@" "$PY" -c '
 import sys, armimp_jax as aj
 aj.runtime.configure()  # the first call compiles (or loads from the compilation cache)
-from armimp_jax.bench import device
+from armimp_bench import device
 args = sys.argv[2:]
 repeats = int(args[args.index("--repeats") + 1]) if "--repeats" in args else 3
 only = args[args.index("--only") + 1].split(",") if "--only" in args else None

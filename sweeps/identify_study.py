@@ -11,7 +11,7 @@ share of 95% intervals holding the truth over the 12 entries, and the bias of th
 estimates (the largest |mean error| over the spread of the estimates, over the entries).
 A run folder (``--out``: one checked record per recording, resumed when rerun with the same
 settings, and ``identify_study.json``); prints a Markdown table and draws ``--figure``
-(``armimp_jax.bench.classical``).
+(``armimp_bench.classical``).
 
     python sweeps/identify_study.py --seeds 25 --out results/identify-study \
         --figure docs/figures/identification_study.png
@@ -50,7 +50,7 @@ def main(argv=None):
     from armimp_jax.runtime import configure
 
     configure()
-    from armimp_jax.bench import classical
+    from armimp_bench import classical
 
     state = classical.run(a, a.out)
     print()

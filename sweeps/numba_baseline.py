@@ -37,6 +37,6 @@ if __name__ == "__main__":
     except ImportError:
         sys.stderr.write(f"numba_baseline: error: {NEEDS_NUMBA}\n")
         sys.exit(2)
-    from armimp_jax.bench import numba_baseline
+    from armimp_bench import numba_baseline
 
     numba_baseline.main(ARGS)

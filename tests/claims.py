@@ -196,7 +196,7 @@ def ratio_check(spread, reference, claims, n_records, corr, reference_dof=None, 
 
 def diagonal_z(rows, names=ARM) -> np.ndarray:
     """``z = (estimate - truth) / SE`` ``(n, 2 len(names))`` of the diagonals of ``names`` over the
-    converged rows of ``armimp_jax.bench.protocol.one`` (its ``values``, ``se``, ``truth``)."""
+    converged rows of ``armimp_bench.protocol.one`` (its ``values``, ``se``, ``truth``)."""
     ok = [r for r in rows if r["converged"] and not r["diverged"]]
 
     def diag(r, key, n):

@@ -1,12 +1,12 @@
 """What the scripts share (armimp_jax.study.cli) and the benchmarks' timing helpers
-(armimp_jax.bench.timing): solver names held to the library's, ``--cases`` parsing,
+(armimp_bench.timing): solver names held to the library's, ``--cases`` parsing,
 round-robin timing, Markdown tables."""
 
 import jax.numpy as jnp
 import pytest
 
+from armimp_bench import timing as _bench_run
 from armimp_jax._solver.numerics import METHODS, named_solver
-from armimp_jax.bench import timing as _bench_run
 from armimp_jax.study import cli as _cli
 
 

@@ -271,7 +271,7 @@ def test_two_calibrations_of_the_offset_combine_as_independent_measurements():
 def test_the_calibration_s_intervals_cover_over_50_seeds():
     """docs/identification.md section 4d (measured: the inertias 0.98, 0.92 and 0.96, pooled
     0.953; the friction pooled 0.97; the force gains 0.945 and 0.945 over 200 draws)."""
-    from armimp_jax.bench import calibration as bc
+    from armimp_bench import calibration as bc
 
     summary = bc.coverage(50)["summary"]
     inertia = np.mean(summary["robot.inertia"]["coverage"])

@@ -169,7 +169,7 @@ def test_intervals_hold_entry_by_entry(cell):
     """identification.md section 6b: the base case of issue 50 (IMBIC through 0.5 N m, a strong
     person's force, 10 s) and its 1 N m cell, 50 recordings each, as
     ``bench_identify_entries.py`` runs them."""
-    from armimp_jax.bench import entrywise, protocol
+    from armimp_bench import entrywise, protocol
 
     cases = entrywise.cells([cell])
     rows = []

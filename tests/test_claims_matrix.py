@@ -1,5 +1,5 @@
 """Statistics tier (``pytest -m stats``): the coverage matrix, ``identify`` on every controller x
-friction law it accepts, as a lab would run it (``armimp_jax.bench.matrix``: 50 recordings of 20 s
+friction law it accepts, as a lab would run it (``armimp_bench.matrix``: 50 recordings of 20 s
 per cell, half on the paper's arm and half on a non-paper arm with off-diagonal terms, from a
 generic start, the friction known; 8 s cells per controller; issue 61's new user's case).
 
@@ -16,8 +16,8 @@ import os
 import pytest
 from claims import progress, report
 
+from armimp_bench import matrix, protocol
 from armimp_jax._identification.result import ADVICE
-from armimp_jax.bench import matrix, protocol
 
 pytestmark = pytest.mark.stats
 

@@ -1,5 +1,5 @@
 """Statistics tier (``pytest -m stats``): the model route during a movement, ``identify`` over
-ensembles of 40 reaches of the base case (``armimp_jax.bench.movement_model``: paper arm 3's
+ensembles of 40 reaches of the base case (``armimp_bench.movement_model``: paper arm 3's
 matrices, a 12 cm reach in 0.8 s, K dipping to 40% at mid-reach through five knots, every knot's
 B and K free with M; through LuGre 0.5 N m under IMBIC, ``tau_c`` free too), 50 ensembles per case,
 against issue 62's claims:
@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from claims import calibration_check, progress, ratio_check, report
 
-from armimp_jax.bench import movement_model as mm
+from armimp_bench import movement_model as mm
 
 pytestmark = pytest.mark.stats
 

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 import armimp_jax as aj
+from armimp_bench import movement as mv
+from armimp_bench import movement_model as mm
 from armimp_jax._identification import auxiliary
 from armimp_jax._identification import ensemble_friction as ef
 from armimp_jax._identification import path as ph
-from armimp_jax.bench import movement as mv
-from armimp_jax.bench import movement_model as mm
 
 
 def test_the_replayed_command_follows_the_planned_path_as_the_simulation_did():

@@ -208,8 +208,15 @@ def test_no_import_cycle():
 
 def test_no_general_layer_imports_paper():
     for parts in MODULES:
-        if _floor_of(parts[0]) not in ("paper", "bench"):  # the benchmarks sit above the paper
+        if _floor_of(parts[0]) != "paper":
             assert not any(t[:1] == ("paper",) for t in imports(parts)), parts
+
+
+def test_the_package_does_not_import_the_measurement_harness():
+    # sweeps/armimp_bench is the project's own, not installed: the library must stand without it
+    for path in sorted(PACKAGE.rglob("*.py")):
+        assert "armimp_bench" not in path.read_text(), path.relative_to(ROOT)
+    assert not (PACKAGE / "bench").exists()
 
 
 def test_scripts_use_the_public_api_and_load_nothing_by_path():

@@ -15,9 +15,9 @@ import scipy.integrate
 from helpers import tree_equal
 
 import armimp_jax as aj
+from armimp_bench import movement as base
 from armimp_jax import presets
 from armimp_jax._model.movement import path_at, path_terms, profile_at, profile_terms
-from armimp_jax.bench import movement as base
 
 REFERENCE = pathlib.Path(__file__).with_name("data") / "still_reference.npz"
 CONTROLLERS = {"pd": aj.PD, "imbic": aj.IMBIC, "admittance": aj.Admittance}

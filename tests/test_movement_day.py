@@ -16,7 +16,7 @@ import pytest
 from helpers import tree_allclose
 
 import armimp_jax as aj
-from armimp_jax.bench import movement as bench
+from armimp_bench import movement as bench
 from armimp_jax.study import movement_day as day
 from armimp_jax.study import movement_figures as mf
 from armimp_jax.study.config import ConfigError

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 import armimp_jax as aj
+from armimp_bench import movement as mv
 from armimp_jax._identification import bound, indirect, kalman, linear
 from armimp_jax._identification import layout as lay
 from armimp_jax._identification import path as ph
 from armimp_jax._identification import path_bound as pb
-from armimp_jax.bench import movement as mv
 from armimp_jax.study import coverage as cov
 
 NUM = indirect.IDENTIFY_NUMERICS

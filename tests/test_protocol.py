@@ -174,7 +174,7 @@ def test_the_entrywise_cells_change_one_factor_each_from_the_base_case():
     its settings are plain JSON."""
     import json
 
-    from armimp_jax.bench import entrywise as ew
+    from armimp_bench import entrywise as ew
 
     base = ew.BASE.truth()
     assert isinstance(base.controller, aj.IMBIC) and float(base.friction.tau_c[0]) == 0.5

@@ -37,7 +37,7 @@ from armimp_jax.study.results import atomic_write_json
 FREE = (*cov.ARM, "friction.tau_c")
 TARGETS_S = dict(single=30.0, pooled=180.0, script=60.0, checked=None, linear=None)
 REPEATS = 3  # warm calls of the checked and linear cases
-# issue 61's lab's subject (bench.matrix's OTHER_ARM): heavier along x, with off-diagonal terms
+# issue 61's lab's subject (armimp_bench.matrix's OTHER_ARM): heavier along x, with off-diagonal terms
 LAB_ARM = dict(
     mass=[[1.6, 0.25], [0.2, 1.1]], damping=[[14.0, 3.0], [2.5, 10.0]], stiffness=[[260.0, 60.0], [45.0, 180.0]]
 )

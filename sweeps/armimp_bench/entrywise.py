@@ -106,10 +106,10 @@ def oracle(name: str, seeds: int, *, draws: int = 64) -> dict:
     ``tau_c``)."""
     import numpy as np
 
-    from .._identification import identify as idm
-    from .._identification import indirect, search
-    from .._identification import pool as pl
-    from .._identification.auxiliary import statistic_labels
+    from armimp_jax._identification import identify as idm
+    from armimp_jax._identification import indirect, search
+    from armimp_jax._identification import pool as pl
+    from armimp_jax._identification.auxiliary import statistic_labels
 
     case = CELLS_FACTORS[name].case()
     r = case.recordings(0)[0][0]

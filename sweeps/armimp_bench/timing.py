@@ -1,4 +1,4 @@
-"""What the benchmarks share (``armimp_jax.bench``): timing in alternation (in this process or across child processes),
+"""What the benchmarks share (``armimp_bench``): timing in alternation (in this process or across child processes),
 a digest of a simulation's outputs, and writing a table as Markdown and JSON. Importing it
 imports no JAX (so ``--help`` stays fast): JAX is imported inside the functions that time it."""
 

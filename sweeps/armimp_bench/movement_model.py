@@ -1,5 +1,5 @@
 """The model route during a movement (``identify`` over an ensemble) and the bound along the path,
-measured over Monte Carlo ensembles of the base case (``bench.movement``): coverage, the SD of z,
+measured over Monte Carlo ensembles of the base case (``armimp_bench.movement``): coverage, the SD of z,
 the spread against ``crlb``, and ``reaches_for`` against the spread (``sweeps/bench_movement.py
 --route model``).
 

@@ -322,7 +322,7 @@ def study(
     """Run (or resume) ``cases`` x ``seeds`` in run folder ``out`` on the study engine; per case
     ``{seeds: rows, summary}``, also written to ``out/protocol.json`` with the settings. The
     ``sensitivity`` case needs ``design`` (a ``design_experiment.py`` folder) and its arm.
-    ``catalogue``: the cases by name (default ``CASES``; ``bench.entrywise.cells``', say), with
+    ``catalogue``: the cases by name (default ``CASES``; ``armimp_bench.entrywise.cells``', say), with
     ``catalogue_settings``, what describes them (the run's settings)."""
     from armimp_jax.study.results import atomic_write_json, stamped
 

@@ -26,8 +26,8 @@ import numpy as np
 
 import armimp_jax as aj
 from armimp_jax import presets
+from armimp_jax._identification import measured, selfcheck
 
-from .._identification import measured, selfcheck
 from . import protocol as pr
 
 ARM = pr.ARM

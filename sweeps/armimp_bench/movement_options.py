@@ -37,7 +37,7 @@ def setup(argv=None, description: str = ""):
 
 def coverage(a) -> dict:
     """The measured route's summary (``a.route``): the classical route's or the model route's."""
-    from armimp_jax.bench import movement, movement_model
+    from armimp_bench import movement, movement_model
 
     run = movement_model.model_coverage if a.route == "model" else movement.classical_coverage
     return run(a, a.out)["summary"]

@@ -1,5 +1,5 @@
 """What ``sweeps/bench_calibrate.py`` measures: ``calibrate_robot`` and ``calibrate_force`` on the
-protocol's calibration case (``bench.protocol.calibration_truth``: the robot's link inertias 15%
+protocol's calibration case (``armimp_bench.protocol.calibration_truth``: the robot's link inertias 15%
 above the lab's model, LuGre 0.5 / 0.75 N m with its viscous friction twice the model's, force
 noise 0.05 N, 2^18-count encoders), two robot-alone recordings of 20 s under PD (10 N peak).
 
@@ -25,9 +25,9 @@ import jax
 import numpy as np
 
 import armimp_jax as aj
+from armimp_bench import protocol as pr
 from armimp_jax._identification import idim
 from armimp_jax._identification.robot_calibration import MIN_RATE
-from armimp_jax.bench import protocol as pr
 from armimp_jax.study import coverage as cov
 
 SECONDS = 20.0
