@@ -66,6 +66,7 @@ _EXPORTS = {
     "PD": "._model.controllers",
     "AbstractFriction": "._model.friction",
     "friction_kind": "._model.friction",
+    "per_joint": "._model.friction",
     "CoulombViscous": "._model.friction",
     "NO_FRICTION": "._model.friction",
     "LuGre": "._model.friction",

@@ -30,18 +30,17 @@ before any computation.
 
 from __future__ import annotations
 
-import argparse
 import pathlib
 import sys
 import time
 
-from armimp_jax.study.cli import Parser, error_line
+from armimp_jax.study.cli import Parser, error_line, import_kinds
 
 PROG = "design_experiment"
 
 
 def parse(argv):
-    ap = Parser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = Parser(prog=PROG, description=__doc__, kinds=True)
     ap.add_argument("config", type=pathlib.Path, help="TOML config (see above)")
     ap.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR", help="output folder (created)")
     ap.add_argument(
@@ -82,6 +81,7 @@ def main(argv=None) -> int:
     from armimp_jax import runtime  # after the arguments: --help stays fast
 
     runtime.configure()  # float64, the devices, XLA:CPU's options, the compilation cache
+    import_kinds(args.imports, PROG)
     from tqdm import tqdm
 
     import armimp_jax as aj

@@ -72,7 +72,7 @@ import pathlib
 import sys
 import time
 
-from armimp_jax.study.cli import Parser, error_line
+from armimp_jax.study.cli import Parser, error_line, import_kinds
 
 PROG = "estimate_recording"
 # the Welch route's options (study.estimate_recording.ROUTE_DEFAULTS, then --friction); the model route takes none
@@ -89,7 +89,7 @@ def _window(text: str):
 
 
 def parse(argv):
-    ap = Parser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = Parser(prog=PROG, description=__doc__, kinds=True)
     ap.add_argument(
         "recording",
         type=pathlib.Path,
@@ -167,12 +167,13 @@ def fail(message: str) -> int:
     return error_line(message, PROG)
 
 
-def start_jax() -> None:
-    """The set-up (float64, the devices, XLA:CPU's options, the compilation cache), after the
-    arguments (--help stays fast)."""
+def start_jax(args) -> None:
+    """The set-up (float64, the devices, XLA:CPU's options, the compilation cache) and the lab's
+    own kinds (--import), after the arguments (--help stays fast)."""
     from armimp_jax import runtime
 
     runtime.configure()
+    import_kinds(args.imports, PROG)
 
 
 def load(args, recording) -> tuple[dict, dict]:
@@ -192,7 +193,7 @@ def main(argv=None) -> int:
         return model_route(args)
     if args.period is not None and not (math.isfinite(args.period) and args.period > 0):
         return fail(f"--period must be a finite hold period > 0 s, got {args.period:g}")
-    start_jax()
+    start_jax(args)
     import armimp_jax as aj
     from armimp_jax.study import estimate_recording, recording, recording_report
 
@@ -252,7 +253,7 @@ def main(argv=None) -> int:
 def model_route(args) -> int:
     """Identify through the closed-loop model (armimp_jax.study.identify_recording), with the
     Welch route's answer at its defaults beside it (the classical column)."""
-    start_jax()
+    start_jax(args)
     from armimp_jax.study import calibration_files as cf
     from armimp_jax.study import identify_recording as idr
     from armimp_jax.study import recording, recording_report

@@ -9,12 +9,12 @@ stiffness_ellipses.png and impedance_time.png in DIR.
 
 import sys
 
-from armimp_jax.study.cli import Parser, script
+from armimp_jax.study.cli import Parser, import_kinds, script
 
 
 @script("movement")
 def main(argv=None):
-    p = Parser(prog="movement", description=__doc__)
+    p = Parser(prog="movement", description=__doc__, kinds=True)
     p.add_argument("config", help="TOML config (see above; the base case: sweeps/configs/movement_base.toml)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
     p.add_argument("--simulate", action="store_true", help="simulate the config's reach even where files are listed")
@@ -22,6 +22,7 @@ def main(argv=None):
     from armimp_jax.runtime import configure  # after the options: --help answers at once
 
     configure()  # float64, the devices, XLA:CPU's options
+    import_kinds(a.imports, "movement")
     from armimp_jax.study.movement_day import run_day
 
     run_day(a.config, a.out, simulate=a.simulate)

@@ -24,7 +24,7 @@ import pathlib
 import sys
 import time
 
-from armimp_jax.study.cli import METHODS, Parser, distributed_options, fail, script
+from armimp_jax.study.cli import METHODS, Parser, distributed_options, fail, import_kinds, script
 
 PROG = "sweep"
 SHORTCUTS = ("seconds", "nperseg", "noverlap", "mhat")  # options that set one value of a point setting
@@ -32,7 +32,7 @@ RUN_OPTIONS = ("seeds", "base_seed", "method", "substeps")
 
 
 def parse(argv):
-    ap = Parser(prog=PROG, description=__doc__)
+    ap = Parser(prog=PROG, description=__doc__, kinds=True)
     ap.add_argument("--set", action="append", default=[], metavar="NAME=V1,V2", help="sweep (or fix) a setting")
     ap.add_argument("--config", type=pathlib.Path, metavar="TOML", help="grid and points from a TOML file")
     ap.add_argument("--seconds", type=float, help="record length [s] (default 50)")
@@ -54,14 +54,10 @@ def parse(argv):
         fail("give one of --out DIR and --resume DIR", PROG)
     if args.resume is not None and not args.resume.is_dir():
         fail(f"--resume {args.resume}: no such folder", PROG)
-    for name in ("batch_size", "seeds", "substeps"):
-        v = getattr(args, name, None)
-        if v is not None and v < 1:
-            fail(f"--{name.replace('_', '-')} must be >= 1, got {v}", PROG)
-    if args.check < 0:
-        fail(f"--check must be >= 0, got {args.check}", PROG)
-    if args.base_seed is not None and args.base_seed < 0:
-        fail(f"--base-seed must be >= 0, got {args.base_seed}", PROG)
+    for name, least in (("batch_size", 1), ("seeds", 1), ("substeps", 1), ("check", 0), ("base_seed", 0)):
+        v = getattr(args, name)
+        if v is not None and v < least:
+            fail(f"--{name.replace('_', '-')} must be >= {least}, got {v}", PROG)
     try:
         distributed_options().check_arguments(args)
     except ValueError as err:
@@ -77,6 +73,7 @@ def main(argv=None) -> int:
     from armimp_jax.runtime import configure
 
     configure()
+    import_kinds(args.imports, PROG)
     from armimp_jax.study import sweep
     from armimp_jax.study.console import Console
 

@@ -13,11 +13,24 @@ known ones.
 from __future__ import annotations
 
 import dataclasses
+import importlib.metadata
 from typing import Any, NamedTuple
 
 import numpy as np
 
 REQUIRED = object()  # a parameter without a default
+ENTRY_POINTS = "armimp_jax.kinds"  # the entry-point group an installed package of kinds names
+_loaded_entry_points = []  # whether the group has been loaded in this process (one flag)
+
+
+def load_entry_points() -> None:
+    """Import every module of the ``armimp_jax.kinds`` entry-point group once (their classes
+    register themselves): a lab's kinds, installed as a package, found by name."""
+    if _loaded_entry_points:
+        return
+    _loaded_entry_points.append(True)
+    for point in importlib.metadata.entry_points(group=ENTRY_POINTS):
+        point.load()
 
 
 class Parameter(NamedTuple):
@@ -54,10 +67,15 @@ class Registry:
 
     def get(self, name, *, where: str = "") -> type:
         """The class of kind ``name``; a one-line ``ValueError`` naming the known kinds."""
+        if isinstance(name, str) and name not in self._kinds:
+            load_entry_points()  # a kind of an installed package of kinds registers on import
         cls = self._kinds.get(name) if isinstance(name, str) else None
         if cls is None:
             prefix = f"{where}: " if where else ""
-            raise ValueError(f"{prefix}unknown {self.what} type {name!r}; known: {', '.join(sorted(self._kinds))}")
+            raise ValueError(
+                f"{prefix}unknown {self.what} type {name!r}; known: {', '.join(sorted(self._kinds))}"
+                " (a kind of your own: import its file first; the scripts take --import FILE.py)"
+            )
         return cls
 
 

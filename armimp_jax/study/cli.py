@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import pathlib
 import sys
 
 # The solvers' names, as ``Numerics.method`` and saved run settings spell them (spelled out
@@ -29,11 +30,21 @@ def fail(message: str, prog: str):
 
 class Parser(argparse.ArgumentParser):
     """argparse with one-line errors (``PROG: error: ...``, exit status 2), under the parser's
-    own ``prog``; the description is printed as written (``RawDescriptionHelpFormatter``)."""
+    own ``prog``; the description is printed as written (``RawDescriptionHelpFormatter``).
+    ``kinds=True`` adds ``--import FILE.py`` (``add_import_option``), its files checked here."""
 
-    def __init__(self, *args, **kwargs):
+    def __init__(self, *args, kinds: bool = False, **kwargs):
         kwargs.setdefault("formatter_class", argparse.RawDescriptionHelpFormatter)
         super().__init__(*args, **kwargs)
+        self.kinds = kinds
+        if kinds:
+            add_import_option(self)
+
+    def parse_args(self, args=None, namespace=None):
+        parsed = super().parse_args(args, namespace)
+        if self.kinds:
+            check_imports(parsed.imports, self.prog)
+        return parsed
 
     def error(self, message):
         fail(message, self.prog)
@@ -66,6 +77,64 @@ def parse_names(text: str, allowed, prog: str, option: str = "--cases") -> tuple
     if unknown or not names:
         fail(f"{option} takes {', '.join(allowed)}; got {unknown or names}", prog)
     return names
+
+
+def add_import_option(parser) -> None:
+    """``--import FILE.py`` (or a module's dotted name), repeatable: a lab's own controllers and
+    friction laws, loaded before the config is read so that it can name them."""
+    parser.add_argument(
+        "--import",
+        dest="imports",
+        action="append",
+        default=[],
+        metavar="FILE.py",
+        help="a file (or module) of your own kinds (controllers, friction laws) the config names; repeatable",
+    )
+
+
+def check_imports(sources, prog: str) -> None:
+    """One line and exit status 2 for an ``--import`` file that does not exist (before JAX)."""
+    for source in sources:
+        if source.endswith(".py") and not pathlib.Path(source).is_file():
+            fail(f"--import {source}: no such file", prog)
+
+
+def import_kinds(sources, prog: str) -> tuple[str, ...]:
+    """Import each of ``sources`` (a ``.py`` file or a module's name), once per process; their
+    kinds register as their classes are defined. Returns the kinds they define; one line (exit
+    status 2) for a source that fails to load or defines no kind. Call it after
+    ``runtime.configure()``."""
+    import importlib
+    import importlib.util
+
+    from .._model.controllers import AbstractController
+    from .._model.friction import AbstractFriction
+
+    names = []
+    for source in sources:
+        try:
+            if source.endswith(".py"):
+                path = pathlib.Path(source).resolve()
+                name = f"armimp_jax_kinds_{path.stem}"
+                if name not in sys.modules:
+                    spec = importlib.util.spec_from_file_location(name, path)
+                    sys.modules[name] = importlib.util.module_from_spec(spec)  # dataclasses look it up
+                    spec.loader.exec_module(sys.modules[name])
+                module = sys.modules[name]
+            else:
+                module = importlib.import_module(source)
+        except Exception as err:  # a lab's file: whatever fails is the file's, named in one line
+            sys.modules.pop(f"armimp_jax_kinds_{pathlib.Path(source).stem}", None)
+            fail(f"--import {source}: {type(err).__name__}: {err}", prog)
+        kinds = [
+            v.kind
+            for v in vars(module).values()
+            if isinstance(v, type) and issubclass(v, (AbstractController, AbstractFriction)) and "kind" in vars(v)
+        ]
+        if not kinds:
+            fail(f"--import {source} defines no controller or friction kind (a kind names itself: kind = '...')", prog)
+        names += sorted(kinds)
+    return tuple(names)
 
 
 def distributed_options():

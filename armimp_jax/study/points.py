@@ -170,6 +170,9 @@ def normalize_point(raw: Mapping) -> dict:
     or a value that cannot run: the parameter constructors (the kinds, ``Sensors``, ``Arm``;
     ``trial_parts``) and ``Welch``'s check are the validators, and their messages name the
     value and the allowed range."""
+    for setting, (_, kind_of) in KIND_SETTINGS.items():
+        if setting in raw:  # an unknown kind first: its settings are unknown because it is
+            kind_of(raw[setting], where=setting)
     known = known_settings()
     unknown = [k for k in raw if k not in known]
     if unknown:

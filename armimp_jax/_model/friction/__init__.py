@@ -4,6 +4,7 @@ kinds, one per module (``lugre.LuGre``, ``coulomb_viscous.CoulombViscous``)."""
 from .base import FRICTION_KINDS as FRICTION_KINDS
 from .base import AbstractFriction as AbstractFriction
 from .base import friction_kind as friction_kind
+from .base import per_joint as per_joint
 from .coulomb_viscous import CoulombViscous as CoulombViscous
 from .lugre import G_FLOOR as G_FLOOR
 from .lugre import NO_FRICTION as NO_FRICTION

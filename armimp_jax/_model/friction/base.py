@@ -17,9 +17,10 @@ viscous v``. A law is split into the parts the integrators treat differently:
 
 The physics never imports an integrator: a law states its torque, its state's rate and
 their slopes, and the integrators own the implicit solves (``armimp_jax/_solver``). A new
-law is one class in one file: its fields (per-joint ``(2,)`` float leaves; a scalar is used
-for both joints) with ``UNITS``, ``kind``, ``viscous_coefficient`` and ``static_torque``/``static_slope``
-or the bristle methods, ``without_coulomb`` and ``has_coulomb`` (docs/extending.md).
+law is one class in one file: its fields (per-joint ``(2,)`` float leaves, ``per_joint()``; a
+scalar is used for both joints) with ``UNITS``, ``kind``, ``viscous_coefficient`` and
+``static_torque`` (its slope by ``jax.jvp`` unless the law gives ``static_slope``) or the
+bristle methods, ``without_coulomb`` and ``has_coulomb`` (docs/extending.md).
 Methods marked *one joint* act on ``joint(i)``, whose fields are scalars (they broadcast).
 """
 
@@ -33,10 +34,24 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..._checks import as_param
 from ..._pytree import show_fields
 from .. import kinds
 
 FRICTION_KINDS = kinds.Registry("friction")
+
+
+def _per_joint_value(value):
+    return as_param("a per-joint value", value, (2,), where="per_joint", broadcast=True)
+
+
+def per_joint(default=kinds.REQUIRED, **kwargs):
+    """A friction law's field holding one value per joint: float64 ``(2,)``, a scalar used for
+    both joints, finite (checked when concrete). ``default`` as ``equinox.field`` takes it;
+    other keywords pass through. A range a value must keep is checked in ``__check_init__``."""
+    if default is not kinds.REQUIRED:
+        kwargs["default"] = default
+    return eqx.field(converter=_per_joint_value, **kwargs)
 
 
 class AbstractFriction(eqx.Module):
@@ -109,8 +124,9 @@ class AbstractFriction(eqx.Module):
         return jnp.zeros_like(v)
 
     def static_slope(self, v):
-        """One joint: ``d static_torque / dv`` [N m s/rad] (what the implicit solve needs)."""
-        return jnp.zeros_like(v)
+        """One joint: ``d static_torque / dv`` [N m s/rad] (what the implicit solve needs). By
+        default the forward-mode derivative of ``static_torque``; a law may write its own."""
+        return jax.jvp(self.static_torque, (v,), (jnp.ones_like(v),))[1]
 
     def has_state(self):
         """One joint: whether it has a bristle state (a bool, possibly traced)."""

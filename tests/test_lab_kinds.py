@@ -1,0 +1,153 @@
+"""A lab's own kind with no package change: the Stribeck law of docs/examples/stribeck_law.py
+through ``sweep.py --config --import``, its slope by ``jax.jvp`` (the default) against finite
+differences and a hand-written slope, ``aj.per_joint`` fields, ``__check_init__``, the
+``armimp_jax.kinds`` entry-point group, and ``--import`` refusals in one line."""
+
+import importlib.metadata
+import pathlib
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+import pytest
+
+import armimp_jax as aj
+from armimp_jax import presets
+from armimp_jax._model import kinds
+from armimp_jax._model.controllers import CONTROLLER_KINDS
+from armimp_jax._model.friction import FRICTION_KINDS, friction_kind
+from armimp_jax.study import cli
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "docs" / "examples" / "stribeck_law.py"
+CONFIG = ROOT / "docs" / "examples" / "stribeck.toml"
+
+
+@pytest.fixture(autouse=True)
+def own_registries(monkeypatch):
+    """The kinds a test here defines register in copies of the registries, dropped after it, so
+    no later test on the worker sees them (their modules leave ``sys.modules`` too)."""
+    for registry in (CONTROLLER_KINDS, FRICTION_KINDS):
+        monkeypatch.setattr(registry, "_kinds", dict(registry._kinds))
+    yield
+    for name in [m for m in sys.modules if m.startswith("armimp_jax_kinds_") or m == "lab_kinds_ep"]:
+        del sys.modules[name]
+
+
+@pytest.fixture
+def stribeck():
+    (name,) = cli.import_kinds([str(EXAMPLE)], "test")
+    return friction_kind(name)
+
+
+def _sweep(*args, out):
+    cmd = [sys.executable, "sweeps/sweep.py", "--config", str(CONFIG), *args, "--out", str(out)]
+    return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=300)
+
+
+def test_a_labs_stribeck_law_sweeps_from_a_config_with_no_package_change(tmp_path):
+    run = _sweep("--import", str(EXAMPLE), out=tmp_path / "out")
+    assert run.returncode == 0, run.stderr
+    rows = pd.read_csv(tmp_path / "out" / "trials.csv")
+    assert list(rows["friction"]) == ["stribeck", "stribeck"] and list(rows["tau_c"]) == [0.05, 0.2]
+    assert (rows["tau_s"] == 0.3).all() and np.isfinite(rows["phi_T"]).all()
+    # without the file the kind is unknown, and the message says how to load it
+    run = _sweep(out=tmp_path / "other")
+    assert run.returncode == 2
+    assert "unknown friction type 'stribeck'" in run.stderr and "--import FILE.py" in run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1
+
+
+def test_the_default_slope_is_the_torques_derivative(stribeck):
+    law = stribeck(tau_c=0.1, tau_s=0.25, v_st=0.02, eps=1e-3).joint(0)
+    v = jnp.array([-0.3, -0.01, -1e-4, 0.0, 2e-4, 0.015, 0.5])
+    h = 1e-7
+    central = (law.static_torque(v + h) - law.static_torque(v - h)) / (2 * h)
+    np.testing.assert_allclose(law.static_slope(v), central, rtol=1e-6, atol=1e-6)
+    # the same default on a shipped law gives its hand-written slope
+    cv = aj.CoulombViscous(0.06, 0.0025).joint(1)
+    jvp = aj.AbstractFriction.static_slope(cv, v)
+    np.testing.assert_allclose(jvp, cv.static_slope(v), rtol=1e-13, atol=1e-12)
+
+
+def test_per_joint_fields_broadcast_and_check_init_refuses_in_one_line(stribeck):
+    law = stribeck(tau_c=0.1, tau_s=(0.2, 0.3))
+    assert law.tau_c.shape == (2,) and law.tau_c.dtype == np.float64 and law.tau_s.tolist() == [0.2, 0.3]
+    assert law.eps.tolist() == [1e-3, 1e-3]
+    with pytest.raises(ValueError, match=r"must be a scalar or shape \(2,\), got shape \(3,\)"):
+        stribeck(tau_c=(0.1, 0.2, 0.3))
+    with pytest.raises(ValueError, match="Stribeck: tau_s must be 0 or >= tau_c"):
+        stribeck(tau_c=0.2, tau_s=0.1)
+    with pytest.raises(ValueError, match="Stribeck: eps must be > 0 rad/s"):
+        stribeck(tau_c=0.2, eps=0.0)
+    # built inside a trace, the values are not checked there (they are tracers)
+    jax.jit(lambda c: stribeck(tau_c=c).tau_c)(0.1)
+
+
+def test_the_law_simulates_under_rk4_and_the_imex_integrators(stribeck):
+    f = aj.perturbation(jax.random.key(3), 500, 10.0)
+    trial = aj.make_trial(aj.PD(), arm=presets.arm(2), friction=stribeck(tau_c=0.1, tau_s=0.2))
+    xs = [aj.simulate(trial, f, numerics=aj.Numerics(solver=solver, substeps=20)).x for solver in (aj.RK4(), aj.ARK3())]
+    assert all(np.isfinite(x).all() for x in xs)
+    np.testing.assert_allclose(xs[0], xs[1], atol=2e-6)
+
+
+def test_an_installed_package_of_kinds_is_found_through_its_entry_point(tmp_path, monkeypatch):
+    (tmp_path / "lab_kinds_ep.py").write_text(
+        "from typing import ClassVar\nimport armimp_jax as aj\n\n\n"
+        "class Sticky(aj.AbstractFriction):\n"
+        "    kind: ClassVar[str] = 'ep_sticky'\n    UNITS: ClassVar[dict] = dict(b='N m s/rad')\n"
+        "    b: object = aj.per_joint(0.01)\n\n"
+        "    def viscous_coefficient(self):\n        return self.b\n\n"
+        "    def without_coulomb(self):\n        return self\n\n"
+        "    def has_coulomb(self):\n        return False\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    point = importlib.metadata.EntryPoint("lab", "lab_kinds_ep", kinds.ENTRY_POINTS)
+    monkeypatch.setattr(kinds, "_loaded_entry_points", [])
+    monkeypatch.setattr(
+        importlib.metadata, "entry_points", lambda group: [point] if group == kinds.ENTRY_POINTS else []
+    )
+    assert friction_kind("ep_sticky").__name__ == "Sticky"
+
+
+def test_bad_imports_are_refused_in_one_line(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        cli.check_imports([str(tmp_path / "missing.py")], "prog")
+    (tmp_path / "plain.py").write_text("x = 1\n")
+    (tmp_path / "broken.py").write_text("raise RuntimeError('the lab file fails')\n")
+    with pytest.raises(SystemExit):
+        cli.import_kinds([str(tmp_path / "plain.py")], "prog")
+    with pytest.raises(SystemExit):
+        cli.import_kinds([str(tmp_path / "broken.py")], "prog")
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines == [
+        f"prog: error: --import {tmp_path / 'missing.py'}: no such file",
+        f"prog: error: --import {tmp_path / 'plain.py'} defines no controller or friction kind"
+        " (a kind names itself: kind = '...')",
+        f"prog: error: --import {tmp_path / 'broken.py'}: RuntimeError: the lab file fails",
+    ]
+    assert "armimp_jax_kinds_broken" not in sys.modules
+
+
+def test_the_guides_examples_run_and_their_slope_is_the_closed_form():
+    # docs/extending.md's two classes, as a reader copies them
+    blocks = (ROOT / "docs" / "extending.md").read_text().split("```python\n")[1:3]
+    space = {}
+    exec(compile("\n".join(b.split("```")[0] for b in blocks), "extending.md", "exec"), space)
+    law = space["SmoothCoulomb"](tau_c=0.2).joint(0)
+    v = jnp.linspace(-0.05, 0.05, 11)
+    closed = 0.2 * 0.005**2 / (v * v + 0.005**2) ** 1.5
+    np.testing.assert_allclose(law.static_slope(v), closed, rtol=1e-12)
+    with pytest.raises(ValueError, match="SmoothCoulomb: eps must be > 0 rad/s, got"):
+        space["SmoothCoulomb"](tau_c=0.2, eps=-1.0)
+    trial = aj.make_trial(space["Damper"](), arm=presets.arm(2), friction=space["SmoothCoulomb"](tau_c=0.05))
+    assert np.isfinite(aj.simulate(trial, aj.perturbation(jax.random.key(1), 300, 10.0)).x).all()
+
+
+def test_the_kinds_defined_here_are_gone_after_their_tests():
+    assert not {"stribeck", "smooth_coulomb", "ep_sticky"} & set(FRICTION_KINDS.names())
+    assert "damper" not in CONTROLLER_KINDS.names()
