@@ -2,8 +2,11 @@
 estimation with a friction-afflicted planar robot under PD, IMBIC or admittance control (or a
 controller and a friction law of your own: ``AbstractController``, ``AbstractFriction``).
 
-The general simulator is at the top level (``make_trial``, ``simulate``, ``estimate``,
-``accuracy``); the paper's presets and study are in ``armimp_jax.paper``.
+The top level holds a trial's parts and the calls a lab makes (``make_trial``, ``simulate``,
+``estimate``, ``fit_impedance``, ``identify``, ``crlb``, ``design``; at most 40 names); the
+rest lives in namespaces by purpose (``aj.batch``, ``aj.solvers``, ``aj.signals``,
+``aj.spectra``, ``aj.linear``, ``aj.experiment``, ``aj.results``, ``aj.kinds``), the paper's
+arms in ``armimp_jax.presets`` and its study in ``armimp_jax.paper``.
 
 Float64 is required: call ``aj.runtime.configure()`` at program start, before any JAX
 computation (float64, one CPU device per core, XLA:CPU's fast loops; see
@@ -18,8 +21,58 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
+from typing import TYPE_CHECKING
 
 from . import runtime as runtime  # JAX-free
+
+if TYPE_CHECKING:  # what a type checker reads: every public name from its module (none loads here)
+    from . import batch as batch
+    from . import experiment as experiment
+    from . import kinds as kinds
+    from . import linear as linear
+    from . import results as results
+    from . import signals as signals
+    from . import solvers as solvers
+    from . import spectra as spectra
+    from ._batch import simulate_batch as simulate_batch
+    from ._batch import simulate_ensemble as simulate_ensemble
+    from ._estimation.ensemble import Ensemble as Ensemble
+    from ._estimation.ensemble_fit import estimate_ensemble as estimate_ensemble
+    from ._estimation.estimate import estimate as estimate
+    from ._estimation.fit import fit_impedance as fit_impedance
+    from ._estimation.welch import Welch as Welch
+    from ._identification.bound import crlb as crlb
+    from ._identification.design import design as design
+    from ._identification.force_calibration import calibrate_force as calibrate_force
+    from ._identification.identify import identify as identify
+    from ._identification.path_bound import reaches_for as reaches_for
+    from ._identification.pool import Recording as Recording
+    from ._identification.predict import predict_se as predict_se
+    from ._identification.record import record_for as record_for
+    from ._identification.robot_calibration import RobotRecording as RobotRecording
+    from ._identification.robot_calibration import calibrate_robot as calibrate_robot
+    from ._model.arm import Arm as Arm
+    from ._model.controllers import IMBIC as IMBIC
+    from ._model.controllers import PD as PD
+    from ._model.controllers import AbstractController as AbstractController
+    from ._model.controllers import Admittance as Admittance
+    from ._model.friction import NO_FRICTION as NO_FRICTION
+    from ._model.friction import AbstractFriction as AbstractFriction
+    from ._model.friction import CoulombViscous as CoulombViscous
+    from ._model.friction import LuGre as LuGre
+    from ._model.friction import per_joint as per_joint
+    from ._model.movement import MinimumJerk as MinimumJerk
+    from ._model.movement import Profile as Profile
+    from ._model.perturbation import perturbation as perturbation
+    from ._model.robot import Robot as Robot
+    from ._model.sensors import Sensors as Sensors
+    from ._model.voluntary import VoluntaryForce as VoluntaryForce
+    from ._simulate import Trial as Trial
+    from ._simulate import make_trial as make_trial
+    from ._simulate import simulate as simulate
+    from ._solver.numerics import Numerics as Numerics
+    from .study.recording import load_ensemble as load_ensemble
+    from .study.recording import load_recording as load_recording
 
 __version__ = importlib.metadata.version("armimp_jax")  # pyproject.toml's, the one place it is written
 
@@ -27,126 +80,150 @@ __version__ = importlib.metadata.version("armimp_jax")  # pyproject.toml's, the 
 # (PEP 562). ``__all__`` and ``dir()`` read it; tests/test_exports.py holds it, ``__all__`` and
 # the list in docs/design.md ("The public names") to each other.
 _EXPORTS = {
-    "MAX_PER_DEVICE": "._batch",
-    "NumericsCheck": "._batch",
-    "TrialOutcome": "._batch",
-    "Welch": "._estimation.welch",
-    "assess": "._batch",
-    "assess_batch": "._batch",
-    "batch_groups": "._batch",
-    "check_numerics": "._batch",
-    "default_lanes": "._batch",
-    "make_mesh": "._batch",
-    "padded_batch_size": "._batch",
-    "shard_batch": "._batch",
-    "simulate_batch": "._batch",
-    "simulate_ensemble": "._batch",
-    "Ensemble": "._estimation.ensemble",
-    "EnsembleFit": "._estimation.ensemble_fit",
-    "estimate_ensemble": "._estimation.ensemble_fit",
-    "fit_warnings": "._estimation.diagnose",
-    "ImpedanceFit": "._estimation.impedance_fit",
-    "FitDiagnostics": "._estimation.diagnose",
-    "fit_impedance": "._estimation.fit",
-    "accuracy": "._estimation.metrics",
-    "Estimate": "._estimation.estimate",
-    "ZError": "._estimation.welch",
-    "cross_spectral_matrix": "._estimation.welch",
-    "estimate": "._estimation.estimate",
-    "input_coherence": "._estimation.estimate",
-    "welch_segments": "._estimation.welch",
     "Arm": "._model.arm",
-    "MinimumJerk": "._model.movement",
-    "Profile": "._model.movement",
-    "no_arm": "._model.arm",
-    "AbstractController": "._model.controllers",
-    "controller_kind": "._model.controllers",
-    "Admittance": "._model.controllers",
-    "IMBIC": "._model.controllers",
-    "PD": "._model.controllers",
-    "AbstractFriction": "._model.friction",
-    "friction_kind": "._model.friction",
-    "per_joint": "._model.friction",
-    "CoulombViscous": "._model.friction",
-    "NO_FRICTION": "._model.friction",
-    "LuGre": "._model.friction",
-    "lugre": "._model.friction",
-    "perturbation": "._model.perturbation",
-    "PaperNoise": "._model.families",
-    "ShapedNoise": "._model.families",
-    "Multisine": "._model.families",
-    "multisine": "._model.families",
-    "crest_factor": "._model.families",
-    "PlantState": "._model.plant",
-    "MIT_MANUS": "._model.robot",
-    "jacobian": "._model.robot",
     "Robot": "._model.robot",
     "Sensors": "._model.sensors",
     "VoluntaryForce": "._model.voluntary",
-    "Bound": "._identification.bound",
-    "crlb": "._identification.bound",
-    "fisher_information": "._identification.bound",
-    "PathBound": "._identification.path_bound",
-    "Reaches": "._identification.path_bound",
-    "reaches_for": "._identification.path_bound",
-    "EnsembleIdentification": "._identification.ensemble_identify",
-    "Envelope": "._identification.reach_design",
-    "ReachDesign": "._identification.reach_design",
-    "design_reach": "._identification.reach_design",
-    "LinearLoop": "._identification.linear",
-    "linearise": "._identification.linear",
-    "drift": "._identification.linear",
-    "Identification": "._identification.identify",
-    "identify": "._identification.identify",
-    "Recording": "._identification.pool",
-    "RobotRecording": "._identification.robot_calibration",
-    "RobotCalibration": "._identification.robot_calibration",
-    "calibrate_robot": "._identification.robot_calibration",
-    "ForceCalibration": "._identification.force_calibration",
-    "calibrate_force": "._identification.force_calibration",
-    "Sensitivity": "._identification.sensitivity",
-    "robot_sensitivity": "._identification.sensitivity",
-    "IDENTIFY_NUMERICS": "._identification.indirect",
-    "PredictedSE": "._identification.predict",
-    "predict_se": "._identification.predict",
-    "Limits": "._identification.limits",
-    "Design": "._identification.monte_carlo_design",
-    "design": "._identification.design",
-    "CramerRao": "._identification.design",
-    "MonteCarlo": "._identification.design",
-    "Auto": "._identification.design",
-    "record_for": "._identification.record",
-    "RecordLength": "._identification.record",
-    "BoundDesign": "._identification.bound_design",
-    "limited_signal": "._identification.limits",
-    "SimResult": "._simulate",
+    "Profile": "._model.movement",
+    "MinimumJerk": "._model.movement",
     "Trial": "._simulate",
     "make_trial": "._simulate",
-    "simulate": "._simulate",
-    "simulate_chunk": "._simulate",
-    "simulate_init": "._simulate",
-    "stack_trials": "._simulate",
-    "ARK3": "._solver.ark",
-    "ARK4": "._solver.ark",
-    "GradedARK4": "._solver.graded",
-    "PAPER_NUMERICS": "._solver.numerics",
-    "SWEEP_NUMERICS": "._solver.numerics",
     "Numerics": "._solver.numerics",
-    "RK4": "._solver.rk4",
-    "load_recording": ".study.recording",  # the study names here: a lab's first calls (no JAX)
+    "Welch": "._estimation.welch",
+    "AbstractController": "._model.controllers",
+    "AbstractFriction": "._model.friction",
+    "per_joint": "._model.friction",
+    "PD": "._model.controllers",
+    "IMBIC": "._model.controllers",
+    "Admittance": "._model.controllers",
+    "LuGre": "._model.friction",
+    "CoulombViscous": "._model.friction",
+    "NO_FRICTION": "._model.friction",
+    "perturbation": "._model.perturbation",
+    "simulate": "._simulate",
+    "simulate_batch": "._batch",
+    "simulate_ensemble": "._batch",
+    "Ensemble": "._estimation.ensemble",
+    "load_recording": ".study.recording",
     "load_ensemble": ".study.recording",
+    "Recording": "._identification.pool",
+    "RobotRecording": "._identification.robot_calibration",
+    "estimate": "._estimation.estimate",
+    "fit_impedance": "._estimation.fit",
+    "estimate_ensemble": "._estimation.ensemble_fit",
+    "identify": "._identification.identify",
+    "crlb": "._identification.bound",
+    "predict_se": "._identification.predict",
+    "design": "._identification.design",
+    "reaches_for": "._identification.path_bound",
+    "record_for": "._identification.record",
+    "calibrate_robot": "._identification.robot_calibration",
+    "calibrate_force": "._identification.force_calibration",
 }
+# Namespaces (modules), loaded on first use like the names: the rest of the library by purpose.
+_NAMESPACES = (
+    "batch",
+    "solvers",
+    "signals",
+    "spectra",
+    "linear",
+    "experiment",
+    "results",
+    "kinds",
+    "presets",
+    "paper",
+    "study",
+)
+# Names of earlier versions that moved into a namespace: a one-line error names the new place.
+_MOVED = {
+    "ARK3": "solvers",
+    "ARK4": "solvers",
+    "Auto": "experiment",
+    "Bound": "results",
+    "BoundDesign": "results",
+    "CramerRao": "experiment",
+    "Design": "results",
+    "EnsembleFit": "results",
+    "EnsembleIdentification": "results",
+    "Envelope": "experiment",
+    "Estimate": "results",
+    "FitDiagnostics": "results",
+    "ForceCalibration": "results",
+    "GradedARK4": "solvers",
+    "IDENTIFY_NUMERICS": "solvers",
+    "Identification": "results",
+    "ImpedanceFit": "results",
+    "Limits": "experiment",
+    "LinearLoop": "linear",
+    "MAX_PER_DEVICE": "batch",
+    "MIT_MANUS": "presets",
+    "MonteCarlo": "experiment",
+    "Multisine": "signals",
+    "NumericsCheck": "results",
+    "PAPER_NUMERICS": "solvers",
+    "PaperNoise": "signals",
+    "PathBound": "results",
+    "PlantState": "solvers",
+    "PredictedSE": "results",
+    "RK4": "solvers",
+    "ReachDesign": "results",
+    "Reaches": "results",
+    "RecordLength": "results",
+    "RobotCalibration": "results",
+    "SWEEP_NUMERICS": "solvers",
+    "Sensitivity": "results",
+    "ShapedNoise": "signals",
+    "SimResult": "results",
+    "TrialOutcome": "results",
+    "ZError": "results",
+    "accuracy": "spectra",
+    "assess": "batch",
+    "assess_batch": "batch",
+    "batch_groups": "batch",
+    "check_numerics": "batch",
+    "controller_kind": "kinds",
+    "crest_factor": "signals",
+    "cross_spectral_matrix": "spectra",
+    "default_lanes": "batch",
+    "design_reach": "experiment",
+    "drift": "linear",
+    "fisher_information": "linear",
+    "fit_warnings": "spectra",
+    "friction_kind": "kinds",
+    "input_coherence": "spectra",
+    "jacobian": "linear",
+    "limited_signal": "signals",
+    "linearise": "linear",
+    "make_mesh": "batch",
+    "multisine": "signals",
+    "no_arm": "presets",
+    "padded_batch_size": "batch",
+    "robot_sensitivity": "experiment",
+    "shard_batch": "batch",
+    "simulate_chunk": "solvers",
+    "simulate_init": "solvers",
+    "stack_trials": "batch",
+    "welch_segments": "spectra",
+}
+_GONE = {"lugre": "LuGre(...).joint(i).torque_and_rate(v, z)"}
 __all__ = sorted([*_EXPORTS, "runtime"])
 
 
 def __getattr__(name: str):
     module = _EXPORTS.get(name)
-    if module is None:
+    if module is not None:
+        value = getattr(importlib.import_module(module, __name__), name)
+    elif name in _NAMESPACES:
+        value = importlib.import_module(f".{name}", __name__)
+    elif name in _MOVED:
+        raise AttributeError(f"armimp_jax.{name} is now armimp_jax.{_MOVED[name]}.{name}")
+    elif name in _GONE:
+        raise AttributeError(f"armimp_jax.{name} is gone: use {_GONE[name]}")
+    else:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(module, __name__), name)
     globals()[name] = value
     return value
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+    return sorted(set(globals()) | set(_EXPORTS) | set(_NAMESPACES))

@@ -11,10 +11,16 @@ that tracers, ``None`` placeholders and ``vmap``'s axis specs pass through untou
 from __future__ import annotations
 
 import dataclasses
+from typing import Any, TypeAlias, dataclass_transform
 
 import jax
 
+# A parameter as its constructor takes it (a number, a nested list, a NumPy or JAX array) and
+# converts it (a float64 array, checked): what a type checker lets a caller pass and read.
+Param: TypeAlias = Any
 
+
+@dataclass_transform(frozen_default=True, eq_default=False)
 def params(cls=None, *, static: tuple[str, ...] = ()):
     def wrap(cls):
         cls = dataclasses.dataclass(frozen=True, eq=False)(cls)

@@ -34,7 +34,7 @@ from __future__ import annotations
 import argparse
 import pathlib
 
-# aj.Numerics.CHECKPOINTS and aj.RK4.KERNELS, spelled out so that --help needs no JAX (checked in the children)
+# aj.Numerics.CHECKPOINTS and aj.solvers.RK4.KERNELS, spelled out so that --help needs no JAX (checked in the children)
 CHECKPOINTS = ("period", "substep")
 MODES = ("primal", "reverse-diagonal", "reverse-full", "forward-diagonal", "forward-full")
 KERNELS = ("fast", "grad", "reference")

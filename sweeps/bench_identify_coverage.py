@@ -81,7 +81,7 @@ def main(argv=None):
     t0 = time.perf_counter()
     for controller, _ in a.cases:  # a controller kind (one line naming the known ones if not)
         try:
-            aj.controller_kind(controller)
+            aj.kinds.controller_kind(controller)
         except ValueError as err:
             fail(f"--cases: {err}", PROG)
     if a.must_show:

@@ -6,13 +6,13 @@ location of ``--arms``: the trial of ``bench_design.py`` (PD, LuGre ``tau_c`` wi
 1.5 tau_c``, force noise 0.05 N, 2^18-count encoders, the person's force 0.3 N RMS below 2 Hz),
 a flat ShapedNoise in bursts (``--duty`` of each ``--burst`` period, ``--knots`` log-spaced
 from ``--low`` to ``--high`` Hz) scaled to the paper's level-1 RMS, its 2.25 N peak and the
-``--displacement`` limit on every arm's full simulation (``aj.limited_signal``, key 0), and
+``--displacement`` limit on every arm's full simulation (``aj.signals.limited_signal``, key 0), and
 ``aj.predict_se`` of the arm's twelve entries over ``--draws`` noise draws of a ``--record``
 second record. Reported per gain pair: each arm's drift under the person's force
-(``aj.drift``), the largest relative SE of the M, B, K diagonals per arm and which, and the
+(``aj.linear.drift``), the largest relative SE of the M, B, K diagonals per arm and which, and the
 minutes for +-10% at 95% on all of them (one over the square root of the length). Through
 stick-slip no Cramér-Rao bound holds, so ``predict_se`` (identify's own SEs, by Monte Carlo)
-is the criterion, as in ``aj.design(method=aj.MonteCarlo())``. Saves strict JSON (``--out``)
+is the criterion, as in ``aj.design(method=aj.experiment.MonteCarlo())``. Saves strict JSON (``--out``)
 with the settings and the package version.
 
     python sweeps/bench_pd_gains.py --gains 250:4,100:4,50:4,250:1,250:12,600:1 --out pd_gains.json

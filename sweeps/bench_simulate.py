@@ -18,9 +18,9 @@ each compiled once, run the same configurations in alternation (so the host's dr
 both alike) and report whether their outputs agree bit for bit (a digest of each).
 
 ``--lanes`` instead times unpadded batches of 1 to two vectors' worth of trials on one
-device, the data behind ``aj.padded_batch_size``; ``--large-batch`` times large
+device, the data behind ``aj.batch.padded_batch_size``; ``--large-batch`` times large
 batches on one device and ``simulate_batch`` in groups against one group (the data
-behind ``aj.MAX_PER_DEVICE``).
+behind ``aj.batch.MAX_PER_DEVICE``).
 
 ``--library-path`` instead (and the default run, as an extra table) times one device
 running 24 IMBIC trials (5 s, 100 substeps) the way a library user would,

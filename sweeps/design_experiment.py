@@ -55,7 +55,7 @@ def parse(argv):
         type=float,
         metavar="PERCENT",
         help="also print how far a PERCENT error in each robot parameter (inertia, friction, force gain; 1 ms of "
-        "force delay) would move each arm entry, in SEs (armimp_jax.robot_sensitivity per arm)",
+        "force delay) would move each arm entry, in SEs (armimp_jax.experiment.robot_sensitivity per arm)",
     )
     args = ap.parse_args(argv)
     if args.sensitivity is not None and not 0 < args.sensitivity <= 100:
@@ -104,7 +104,7 @@ def main(argv=None) -> int:
         result = dr.run_design(trials, family, limits, options)
     except ValueError as err:
         return fail(str(err))
-    if isinstance(result, aj.BoundDesign):
+    if isinstance(result, aj.results.BoundDesign):
         trials = result.trials  # with the designed controller
     seeds = config["validate"]["seeds"] if args.validate is None else args.validate
     settings = dict(config_path=str(args.config), config=config, validate_seeds=seeds, record=args.record)

@@ -35,7 +35,7 @@ fires when the record shows stick-slip (the force's broadband excess), and the r
 first line says so. Standard errors (--se) come
 from the Welch estimate's own error model ('spectral', default) or from the fit's
 residuals ('residual', too small: the Welch bins are correlated). Welch segments follow
-the record's length unless --nperseg is given (armimp_jax.welch_segments).
+the record's length unless --nperseg is given (armimp_jax.spectra.welch_segments).
 
 Prints the 95% intervals of M, B, K (and the delay), the VAF and the lack-of-fit test
 with one verdict on both (a passing test on a noisy estimate: no evidence against the
@@ -109,7 +109,7 @@ def parse(argv):
     ap.add_argument(
         "--nperseg",
         type=int,
-        help="Welch segment length [samples] (default: follows the record's length, armimp_jax.welch_segments; "
+        help="Welch segment length [samples] (default: follows the record's length, armimp_jax.spectra.welch_segments; "
         "Table 4's 8192 on a long record)",
     )
     ap.add_argument("--noverlap", type=int, help="Welch overlap [samples] (default 3/4 of nperseg)")
@@ -147,7 +147,7 @@ def parse(argv):
         metavar="PERCENT",
         help="the model route: also print how far a PERCENT error in each robot parameter (link inertias, "
         "friction, force gain; 1 ms of force delay) would move each arm entry, in SEs "
-        "(armimp_jax.robot_sensitivity; a binding more)",
+        "(armimp_jax.experiment.robot_sensitivity; a binding more)",
     )
     args = ap.parse_args(argv)
     if args.sensitivity is not None and (args.model is None or not 0 < args.sensitivity <= 100):
@@ -213,7 +213,7 @@ def main(argv=None) -> int:
     acquisition = fit_settings["acquisition"]
     # friction not given: unknown, so the record's stick-slip decides (the report's first line says so)
     warnings = recording.timestamp_warnings(rec, args.fs)  # the file's own clock against --fs
-    warnings += aj.fit_warnings(fit, est, acquisition=acquisition, friction=args.friction)
+    warnings += aj.spectra.fit_warnings(fit, est, acquisition=acquisition, friction=args.friction)
     settings = dict(
         recording=str(args.recording), columns=columns, **estimate_recording.settings_record(welch, fit_settings)
     )

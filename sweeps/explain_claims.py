@@ -25,7 +25,7 @@ seeds 0-2 are the reproduction's trials):
   reproduction's own rules; and Mhat 0.25, 0.5 and 1.0 I kg (the last also with
   interval means) with 200 s records and 32768-sample segments.
 
-Every trial runs with ``aj.SWEEP_NUMERICS`` (ARK3, 20 substeps; at friction levels 1 and 2
+Every trial runs with ``aj.solvers.SWEEP_NUMERICS`` (ARK3, 20 substeps; at friction levels 1 and 2
 its phi_T agrees with the paper's RK4 at 100 substeps to about 1e-6, which seeds 0-2 of
 experiment B show against the reproduction's report). Writes DIR/claims_explained.md (one
 Markdown section, with the wall time) and prints it; DIR also holds the run (``run.json``,

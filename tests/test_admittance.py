@@ -23,7 +23,7 @@ VIRTUAL = dict(m_v=2.0 * np.eye(2), b_v=10.0 * np.eye(2), k_v=50.0 * np.eye(2))
 SERVO = dict(kp=4000.0 * np.eye(2), kv=60.0 * np.eye(2))
 LINES_HZ = (0.5, 1.0, 2.0, 5.0, 10.0, 15.0, 20.0)
 # Frictionless loops are not stiff: RK4 at 4 substeps integrates the robot to ~1e-10 here.
-NUM = aj.Numerics(solver=aj.RK4(), substeps=4)
+NUM = aj.Numerics(solver=aj.solvers.RK4(), substeps=4)
 
 
 def closed_form(m_x, m_v, b_v, k_v, kp, kv, f_hz):
@@ -71,7 +71,7 @@ def _measured_response(trial, seconds=8.0, window=4.0):
 
 
 def test_the_loop_without_arm_or_friction_is_its_closed_form_to_1_percent_up_to_20_hz():
-    arm = aj.no_arm(paper.location_endpoint(1))
+    arm = aj.presets.no_arm(paper.location_endpoint(1))
     trial = aj.make_trial(aj.Admittance(**VIRTUAL, **SERVO), arm=arm, friction=aj.NO_FRICTION)
     m_x = np.asarray(cartesian_inertia(trial.q0, trial.robot))
     want = closed_form(m_x, **VIRTUAL, **SERVO, f_hz=LINES_HZ)

@@ -22,12 +22,14 @@ def _fd():
 def _phi(trial, fd, numerics):
     sim = aj.simulate(trial, fd, numerics=numerics)
     est = aj.estimate(fd, sim.x, sim.fh, nperseg=512, noverlap=384)
-    return aj.accuracy(est.Z, est.f, trial.arm)[0], sim.diverged
+    return aj.spectra.accuracy(est.Z, est.f, trial.arm)[0], sim.diverged
 
 
 def _batch(controller, taus, tau_s_ratio=1.5):
     ctrl = paper.trial(controller, 0, 1).controller
-    return aj.stack_trials([aj.make_trial(ctrl, arm=paper.arm(1), friction=aj.LuGre(t, tau_s_ratio * t)) for t in taus])
+    return aj.batch.stack_trials(
+        [aj.make_trial(ctrl, arm=paper.arm(1), friction=aj.LuGre(t, tau_s_ratio * t)) for t in taus]
+    )
 
 
 def _phis(trials, numerics):
@@ -36,7 +38,7 @@ def _phis(trials, numerics):
     return np.asarray(phi), np.asarray(diverged)
 
 
-@pytest.mark.parametrize("solver, order", [(aj.ARK3, 3), (aj.ARK4, 4)])
+@pytest.mark.parametrize("solver, order", [(aj.solvers.ARK3, 3), (aj.solvers.ARK4, 4)])
 def test_tableaus_meet_their_order_conditions(solver, order):
     """Both halves of each pair satisfy the Runge-Kutta order conditions (to ``order``), so
     a typo in a coefficient cannot pass."""
@@ -62,7 +64,7 @@ def test_momentum_form_round_trips_and_keeps_bristle_free_joints_at_zero():
     back = from_momentum(to_momentum(s, model), model)
     np.testing.assert_allclose(np.array(back), np.array(s), rtol=1e-14, atol=1e-20)
     fu = jnp.array([3.0, -2.0])
-    out = aj.ARK3().integrate_period(s, fu, model, period=1e-3, substeps=4)
+    out = aj.solvers.ARK3().integrate_period(s, fu, model, period=1e-3, substeps=4)
     assert float(out.z2) == 0.0 and float(out.z1) != 2e-6  # joint 2 has no bristles (g = 0)
 
 
@@ -71,7 +73,7 @@ def test_every_coulomb_torque_is_stable_and_continuous_at_zero(controller):
     """From 0 to 4 N m at 10 substeps: nothing diverges (classical RK4 diverges at
     1e-4 and 1e-3 N m even at 100 substeps), and phi_T at 1e-4 N m is within 1% of no
     Coulomb friction (docs/model.md section 4: the model's limit is continuous)."""
-    phi, diverged = _phis(_batch(controller, TAUS), aj.Numerics(solver=aj.ARK3(), substeps=10))
+    phi, diverged = _phis(_batch(controller, TAUS), aj.Numerics(solver=aj.solvers.ARK3(), substeps=10))
     assert not diverged.any() and np.all(np.isfinite(phi)), phi
     assert abs(phi[1] - phi[0]) < 0.01 * phi[0], phi
 
@@ -82,16 +84,16 @@ def test_refinement_converges_at_small_and_paper_friction():
     stick-slip kinks: about 2), for stiff (1e-4, 1e-2 N m) and paper-level (1 N m) friction."""
     taus = (1e-4, 1e-2, 1.0)
     trials = _batch("pd", taus)
-    phi = {k: _phis(trials, aj.Numerics(solver=aj.ARK3(), substeps=k))[0] for k in (5, 20, 80)}
+    phi = {k: _phis(trials, aj.Numerics(solver=aj.solvers.ARK3(), substeps=k))[0] for k in (5, 20, 80)}
     e5, e20 = (np.max(np.abs(phi[k] - phi[80]) / phi[80]) for k in (5, 20))
     assert e20 < e5 / 4 and e5 < 1e-3, (e5, e20)
 
 
 def test_agrees_with_rk4_at_the_paper_friction_levels():
     """Where classical RK4 is stable (levels 1 and 2, docs/model.md section 4): phi_T within 1e-6."""
-    trials = aj.stack_trials([paper.trial("imbic", level, 1) for level in (1, 2)])
-    ark, _ = _phis(trials, aj.Numerics(solver=aj.ARK3(), substeps=40))
-    rk4, _ = _phis(trials, aj.PAPER_NUMERICS)
+    trials = aj.batch.stack_trials([paper.trial("imbic", level, 1) for level in (1, 2)])
+    ark, _ = _phis(trials, aj.Numerics(solver=aj.solvers.ARK3(), substeps=40))
+    rk4, _ = _phis(trials, aj.solvers.PAPER_NUMERICS)
     np.testing.assert_allclose(ark, rk4, rtol=1e-6)
 
 
@@ -102,7 +104,7 @@ def test_gradients_near_zero_friction_are_finite_and_match_central_differences()
     (difference quotients do not settle), and the gradient is that of the bristle-free branch."""
     fd = _fd()
     ctrl = paper.trial("pd", 0, 1).controller
-    numerics = aj.Numerics(solver=aj.ARK3(), substeps=10)
+    numerics = aj.Numerics(solver=aj.solvers.ARK3(), substeps=10)
 
     def phi(tc):
         return _phi(aj.make_trial(ctrl, arm=paper.arm(1), friction=aj.LuGre(tc, 1.5 * tc)), fd, numerics)[0]
@@ -116,12 +118,12 @@ def test_gradients_near_zero_friction_are_finite_and_match_central_differences()
 
 # ARK4 runs the same kernels (ark.py's trig and frame, another tableau, whose order
 # conditions are checked above); its fast kernel is also the reference of test_graded.py
-@pytest.mark.parametrize("solver", [aj.ARK3, pytest.param(aj.ARK4, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("solver", [aj.solvers.ARK3, pytest.param(aj.solvers.ARK4, marks=pytest.mark.slow)])
 def test_fast_and_reference_kernels_agree_to_round_off(solver):
     """Rotated and evaluated ``cos/sin`` differ by round-off only, over 1.5 s at the paper's
     friction levels (bound as RK4's, ``test_rk4.py``)."""
     fd = _fd()
-    trials = aj.stack_trials([paper.trial("imbic", level, 1 + level) for level in (0, 1, 2)])
+    trials = aj.batch.stack_trials([paper.trial("imbic", level, 1 + level) for level in (0, 1, 2)])
     runs = {
         kernel: jax.jit(
             jax.vmap(lambda t, n=aj.Numerics(solver=solver(kernel=kernel), substeps=5): aj.simulate(t, fd, numerics=n))
@@ -137,24 +139,24 @@ def test_fast_and_reference_kernels_agree_to_round_off(solver):
 
 def test_bad_options_are_refused_with_the_allowed_choices():
     with pytest.raises(ValueError, match="ARK3: unknown kernel 'grad'; allowed: 'fast', 'reference'"):
-        aj.ARK3(kernel="grad")
+        aj.solvers.ARK3(kernel="grad")
     with pytest.raises(ValueError, match="ARK4: unknown kernel 'gpu'; allowed: 'fast', 'reference'"):
-        aj.ARK4(kernel="gpu")
+        aj.solvers.ARK4(kernel="gpu")
     with pytest.raises(ValueError, match="substeps"):
-        aj.Numerics(solver=aj.ARK3(), substeps=0)
+        aj.Numerics(solver=aj.solvers.ARK3(), substeps=0)
 
 
 @pytest.mark.slow  # about 14 s cold: a coarse batch against its reference
 def test_check_numerics_reports_the_error_of_a_coarse_batch():
     """The observed error is the difference from a run at 4x the substeps, on an even sample."""
-    trials = aj.stack_trials([paper.trial("pd", 1, loc) for loc in (1, 2, 3, 4)])
+    trials = aj.batch.stack_trials([paper.trial("pd", 1, loc) for loc in (1, 2, 3, 4)])
     fd = np.stack([np.asarray(_fd())] * 4)
     welch = aj.Welch(512, 384)
-    coarse = aj.Numerics(solver=aj.RK4(), substeps=2)
-    check = aj.check_numerics(trials, fd, numerics=coarse, sample=2, welch=welch)
+    coarse = aj.Numerics(solver=aj.solvers.RK4(), substeps=2)
+    check = aj.batch.check_numerics(trials, fd, numerics=coarse, sample=2, welch=welch)
     np.testing.assert_array_equal(check.indices, [0, 3])
-    assert check.refined == aj.Numerics(solver=aj.RK4(), substeps=8) and check.diverged == 0
-    fine = aj.assess_batch(trials, fd, aj.simulate_batch(trials, fd, numerics=check.refined), welch)
+    assert check.refined == aj.Numerics(solver=aj.solvers.RK4(), substeps=8) and check.diverged == 0
+    fine = aj.batch.assess_batch(trials, fd, aj.simulate_batch(trials, fd, numerics=check.refined), welch)
     np.testing.assert_allclose(check.phi_T_refined, fine.phi_T[[0, 3]], rtol=1e-12)
     expected = np.abs(check.phi_T - check.phi_T_refined) / check.phi_T_refined
     assert check.max_rel_error == pytest.approx(expected.max()) and 0 < check.max_rel_error < 1e-2

@@ -26,14 +26,15 @@ from armimp_jax.runtime import configure
 n = configure(host_devices=2, **json.loads(sys.argv[2]))
 import jax, numpy as np, armimp_jax as aj
 from armimp_jax import _batch as sweep, paper
-params = aj.stack_trials([paper.trial(c, f, 1 + f) for c in ["imbic"] for f in (0, 1, 2)])
+params = aj.batch.stack_trials([paper.trial(c, f, 1 + f) for c in ["imbic"] for f in (0, 1, 2)])
 fd = np.stack([np.asarray(aj.perturbation(jax.random.PRNGKey(i), 600, 2.25)) for i in range(3)])
 mesh = sweep.make_mesh(jax.devices()[:int(sys.argv[1])])
-r = sweep.simulate_batch(params, fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=5), mesh=mesh, chunk_samples=250)
+num = aj.Numerics(solver=aj.solvers.RK4(), substeps=5)
+r = sweep.simulate_batch(params, fd, numerics=num, mesh=mesh, chunk_samples=250)
 compiles = sweep._chunk._cache_size()  # three chunks, one compiled loop
 out = dict(devices=mesh.size, seen=n, compiles=compiles, x=r.x.tolist(), fh=r.fh.tolist(), fu=r.fu.tolist())
 if sys.argv[3] == "vmapped":  # the same batch vmapped, unpadded, in this process's code generation
-    num = aj.Numerics(solver=aj.RK4(), substeps=5)
+    num = aj.Numerics(solver=aj.solvers.RK4(), substeps=5)
     v = jax.jit(jax.vmap(lambda t, f: aj.simulate(t, f, numerics=num)))(params, jax.numpy.asarray(fd))
     out["vmapped"] = {name: np.asarray(getattr(v, name)).tolist() for name in ("x", "fh", "fu")}
 print(json.dumps(out))
@@ -71,9 +72,9 @@ def _run_sharded(n_devices, configure_kwargs, vmapped=False):
 def _library_batch():
     """The subprocess's batch, vmapped in this process (the code generation that importing
     armimp_jax sets up: the entry points' options without 512-bit vectors; unpadded)."""
-    params = aj.stack_trials([paper.trial("imbic", f, 1 + f) for f in (0, 1, 2)])
+    params = aj.batch.stack_trials([paper.trial("imbic", f, 1 + f) for f in (0, 1, 2)])
     fd = jnp.stack([aj.perturbation(jax.random.PRNGKey(i), 600, 2.25) for i in range(3)])
-    return jax.jit(jax.vmap(lambda t, f: aj.simulate(t, f, numerics=aj.Numerics(solver=aj.RK4(), substeps=5))))(
+    return jax.jit(jax.vmap(lambda t, f: aj.simulate(t, f, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=5))))(
         params, fd
     )
 
@@ -142,7 +143,9 @@ def test_per_device_batch_is_padded_to_whole_vectors():
 
 @jax.jit
 def _vmapped(trials, fds):
-    return jax.vmap(lambda t, f: aj.simulate(t, f, numerics=aj.Numerics(solver=aj.RK4(), substeps=4)))(trials, fds)
+    return jax.vmap(lambda t, f: aj.simulate(t, f, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=4)))(
+        trials, fds
+    )
 
 
 def test_batch_groups_are_equal_and_bounded():
@@ -157,14 +160,14 @@ def test_batch_groups_are_equal_and_bounded():
 
 def test_grouped_chunked_batches_give_the_numbers_of_one_vmapped_batch():
     cases = [("imbic", f, loc) for f, loc in ((0, 1), (1, 2), (2, 3), (2, 4), (1, 1))]
-    params = aj.stack_trials([paper.trial(c, f, loc) for c, f, loc in cases])
+    params = aj.batch.stack_trials([paper.trial(c, f, loc) for c, f, loc in cases])
     fd = np.stack([np.asarray(aj.perturbation(jax.random.PRNGKey(i), 300, 2.25)) for i in range(len(cases))])
     ref = jax.tree.map(np.asarray, _vmapped(params, jnp.asarray(fd)))
     seen = []
     grouped = _batch.simulate_batch(
         params,
         fd,
-        numerics=aj.Numerics(solver=aj.RK4(), substeps=4),
+        numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=4),
         chunk_samples=120,
         max_per_device=2,
         progress=lambda done, total, _: seen.append((done, total)),

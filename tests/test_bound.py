@@ -143,7 +143,7 @@ def test_the_information_differentiates_in_the_perturbation_and_the_gains():
     @jax.jit
     def criterion(f, k):
         trial = _trial(aj.IMBIC(k_rd=k * jnp.eye(2)), **NOISE)
-        info = aj.fisher_information(trial, f, free=("arm.stiffness",))
+        info = aj.linear.fisher_information(trial, f, free=("arm.stiffness",))
         return jnp.sum(jnp.log(jnp.diag(jnp.linalg.inv(info))))
 
     f = F[:600]
@@ -192,11 +192,11 @@ def test_the_information_is_quadratic_in_the_perturbation_and_the_bound_is_its_i
     Symmetric positive definite, and ``crlb``'s covariance is its inverse (full matrices: the
     internal parameters are the entries). The trial is the test's above: its compiled programs serve."""
     trial = _trial(aj.IMBIC(), friction=aj.LuGre(1.0, 1.5), **NOISE)
-    info = np.asarray(aj.fisher_information(trial, F))
+    info = np.asarray(aj.linear.fisher_information(trial, F))
     assert info.shape == (12, 12)
     np.testing.assert_allclose(info, info.T, rtol=0, atol=1e-12 * np.abs(info).max())
     assert np.linalg.eigvalsh(info).min() > 0
-    np.testing.assert_allclose(aj.fisher_information(trial, 2.0 * F), 4.0 * info, rtol=1e-12)
+    np.testing.assert_allclose(aj.linear.fisher_information(trial, 2.0 * F), 4.0 * info, rtol=1e-12)
     bound = aj.crlb(trial, F)
     np.testing.assert_allclose(bound.information, info, rtol=1e-14)
     se = np.concatenate([np.ravel(v) for v in bound.se.values()])

@@ -18,7 +18,9 @@ from armimp_jax._pytree import replace_unchecked
 
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
 NOISE = dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(0.3, 2.0))
-LIMITS = aj.Limits(0.66, 2.25, 3.0, peak_displacement=0.006, drift=0.003, min_stiffness=50.0, min_damping=2.0)
+LIMITS = aj.experiment.Limits(
+    0.66, 2.25, 3.0, peak_displacement=0.006, drift=0.003, min_stiffness=50.0, min_damping=2.0
+)
 
 
 def _trial(controller=None, location=2, **kw):
@@ -27,7 +29,7 @@ def _trial(controller=None, location=2, **kw):
 
 
 def _family():
-    return aj.ShapedNoise(np.geomspace(0.3, 15.0, 4), np.ones((2, 4)), 1.0)
+    return aj.signals.ShapedNoise(np.geomspace(0.3, 15.0, 4), np.ones((2, 4)), 1.0)
 
 
 def test_the_projection_meets_the_drift_limit_and_the_minimum_gains():
@@ -47,7 +49,7 @@ def test_the_projection_meets_the_drift_limit_and_the_minimum_gains():
     t = cd.with_gains(trials[0], g)
     sim = jax.jit(aj.simulate)(t, jnp.zeros((60_000, 2)), key=jax.random.key(1))
     x = np.asarray(sim.x)[5000:] - np.asarray(t.x0)
-    assert np.sqrt(np.mean(np.sum(x**2, axis=1))) == pytest.approx(float(aj.drift(t)), rel=0.2)
+    assert np.sqrt(np.mean(np.sum(x**2, axis=1))) == pytest.approx(float(aj.linear.drift(t)), rel=0.2)
 
 
 @pytest.mark.slow  # about 50 s cold: finite differences of the design criterion
@@ -110,11 +112,11 @@ def test_a_designed_experiment_meets_every_limit_exactly(controller):
         _family(),
         free=ARM,
         limits=dataclasses.replace(LIMITS, record=2.0),
-        method=aj.CramerRao(controller=controller),
+        method=aj.experiment.CramerRao(controller=controller),
         steps=2,
         key=jax.random.key(1),
     )
-    assert isinstance(res, aj.BoundDesign)
+    assert isinstance(res, aj.results.BoundDesign)
     a = res.achieved
     assert np.all(np.asarray(a["rms_force"]) <= 0.66 + 1e-9)
     assert np.all(np.asarray(a["peak_force"]) <= 2.25 + 1e-12)
@@ -139,27 +141,29 @@ def test_a_designed_experiment_meets_every_limit_exactly(controller):
 def test_bad_controllers_and_limits_are_one_line_errors():
     trial = _trial()
     unstable = _trial(aj.IMBIC(b_rd=np.eye(2) * 5e3))
-    bound = aj.CramerRao(controller=True)
+    bound = aj.experiment.CramerRao(controller=True)
     with pytest.raises(ValueError, match="unstable for robust_over"):
         aj.design(unstable, _family(), free=ARM, limits=LIMITS, method=bound, steps=1)
     tight = dataclasses.replace(LIMITS, drift=1e-6)
     with pytest.raises(ValueError, match="no controller within the limits"):
         aj.design(trial, _family(), free=ARM, limits=tight, method=bound, steps=1)
     with pytest.raises(ValueError, match="Limits: drift"):
-        aj.Limits(0.66, 2.25, 3.0, drift=-1.0)
+        aj.experiment.Limits(0.66, 2.25, 3.0, drift=-1.0)
     with pytest.raises(ValueError, match="Limits: min_stiffness"):
-        aj.Limits(0.66, 2.25, 3.0, min_stiffness=float("nan"))
+        aj.experiment.Limits(0.66, 2.25, 3.0, min_stiffness=float("nan"))
     soft = _trial(aj.IMBIC(k_rd=np.eye(2) * 60.0))  # drifts 3.86 mm under the person's force
     with pytest.raises(
         ValueError, match=r"the controller lets the hand drift \d\.\d\d mm RMS .* above the drift limit 3 mm"
     ):
-        aj.design(soft, _family(), free=ARM, limits=LIMITS, method=aj.CramerRao(), steps=1)
+        aj.design(soft, _family(), free=ARM, limits=LIMITS, method=aj.experiment.CramerRao(), steps=1)
     with pytest.raises(ValueError, match="the bound \\(CramerRao\\) covers the arm's matrices"):
-        aj.design(trial, _family(), free=(*ARM, "friction.tau_c"), limits=LIMITS, method=aj.CramerRao(), steps=1)
+        aj.design(
+            trial, _family(), free=(*ARM, "friction.tau_c"), limits=LIMITS, method=aj.experiment.CramerRao(), steps=1
+        )
     with pytest.raises(ValueError, match="CramerRao: calibrate must be an integer >= 0, got -1"):
-        aj.CramerRao(calibrate=-1)
+        aj.experiment.CramerRao(calibrate=-1)
     with pytest.raises(ValueError, match="CramerRao: precision must lie in"):
-        aj.CramerRao(precision=0.0)
+        aj.experiment.CramerRao(precision=0.0)
     # a displacement limit no level of the signal meets: refused before any step
     small = dataclasses.replace(LIMITS, peak_displacement=1e-7)
     with pytest.raises(ValueError, match="displacement stays above peak_displacement 1e-07 m"):
@@ -175,9 +179,9 @@ def test_a_calibrated_design_weighs_the_bound_by_the_friction_and_predicts_its_m
     trial = aj.make_trial(aj.IMBIC(), arm=paper.arm(2), friction=aj.LuGre(1.0, 1.5), **NOISE)
     limits = dataclasses.replace(LIMITS, record=2.0)
     kw = dict(free=ARM, limits=limits, steps=2, key=jax.random.key(1))
-    plain = aj.design(trial, _family(), method=aj.CramerRao(controller=True), **kw)
+    plain = aj.design(trial, _family(), method=aj.experiment.CramerRao(controller=True), **kw)
     draws = 32
-    res = aj.design(trial, _family(), method=aj.CramerRao(controller=True, calibrate=1, draws=draws), **kw)
+    res = aj.design(trial, _family(), method=aj.experiment.CramerRao(controller=True, calibrate=1, draws=draws), **kw)
     assert plain.predicted_minutes is None and plain.friction_ratio is None
     assert max(plain.minutes) < max(plain.start_minutes)  # the first round moved: the start fields are its
     assert len(res.trace) == 4 and res.trace[:2] == plain.trace

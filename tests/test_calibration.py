@@ -15,7 +15,7 @@ from armimp_jax._identification import idim
 from armimp_jax._identification.robot_calibration import _torque
 from armimp_jax.study.coverage import record
 
-ROBOT = aj.Robot(inertia=1.15 * np.asarray(aj.MIT_MANUS.inertia))  # the protocol's truth: 15% above the model
+ROBOT = aj.Robot(inertia=1.15 * np.asarray(aj.presets.MIT_MANUS.inertia))  # the protocol's truth: 15% above the model
 ENDPOINT = [0.0765, 0.45]  # the paper's arm location 2
 
 
@@ -29,7 +29,7 @@ def noise_free():
         ("frictionless", aj.CoulombViscous(0.0, 0.0, 1e-4)),
         ("friction", aj.CoulombViscous(0.3, 0.8, 1e-4)),
     ):
-        trial = aj.make_trial(aj.PD(), arm=aj.no_arm(ENDPOINT), robot=ROBOT, friction=law)
+        trial = aj.make_trial(aj.PD(), arm=aj.presets.no_arm(ENDPOINT), robot=ROBOT, friction=law)
         sim = record(trial, f, 0)
         assert not bool(sim.diverged)
         out[name] = jax.tree.map(np.asarray, sim)

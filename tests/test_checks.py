@@ -17,7 +17,7 @@ from armimp_jax import paper
 from armimp_jax._checks import check_int
 
 F = aj.perturbation(jax.random.PRNGKey(0), 300, paper.perturbation_peak(1))
-NUMERICS = aj.SWEEP_NUMERICS
+NUMERICS = aj.solvers.SWEEP_NUMERICS
 
 
 def _final_x(trial):

@@ -7,7 +7,7 @@ friction, 30 identifications of 2 minutes per arm) takes hours, so this is a sma
 the same kind, the one ``design_pd_frictionless.toml`` ships (the reference the friction cases
 are set against): PD without friction, the person's force and the sensors' noise of the configs,
 their multisine family and limits, the gains and spectrum designed together on the bound
-(``aj.design(..., method=aj.CramerRao(controller=True))``), one arm (location 2), a 10 s record, 10
+(``aj.design(..., method=aj.experiment.CramerRao(controller=True))``), one arm (location 2), a 10 s record, 10
 Adam steps. Then 50 recordings of the designed experiment under new noise, each identified from
 the truth (``aj.identify``, 64 draws), and the spread of the six diagonal entries against the
 design's own prediction at its record (its bound, exact: no draws). Asserted: the spread is the
@@ -43,14 +43,16 @@ RECORDINGS = 50
 @pytest.fixture(scope="module")
 def designed():
     trial = aj.make_trial(aj.PD(), arm=presets.arm(2), friction=aj.NO_FRICTION, **noise(aj))
-    family = aj.multisine(np.geomspace(0.1, 15.0, 16), 1.0)
-    limits = aj.Limits(0.66, 2.25, RECORD, peak_displacement=0.010, drift=0.003, min_stiffness=50.0, min_damping=1.0)
+    family = aj.signals.multisine(np.geomspace(0.1, 15.0, 16), 1.0)
+    limits = aj.experiment.Limits(
+        0.66, 2.25, RECORD, peak_displacement=0.010, drift=0.003, min_stiffness=50.0, min_damping=1.0
+    )
     res = aj.design(
         trial,
         family,
         free=ARM,
         limits=limits,
-        method=aj.CramerRao(controller=True, precision=0.1),
+        method=aj.experiment.CramerRao(controller=True, precision=0.1),
         steps=10,
         learning_rate=0.1,
         key=jax.random.key(0),
@@ -67,7 +69,7 @@ def test_the_spread_at_the_designs_record_is_its_prediction(designed):
     sim = jax.jit(aj.simulate, static_argnames="numerics")
     rows, messages, converged = [], [], []
     for seed in range(RECORDINGS):
-        rec = sim(truth, signal, key=jax.random.key(50_000 + seed), numerics=aj.IDENTIFY_NUMERICS)
+        rec = sim(truth, signal, key=jax.random.key(50_000 + seed), numerics=aj.solvers.IDENTIFY_NUMERICS)
         assert not bool(rec.diverged), seed
         fit = aj.identify(truth, signal, rec.x, rec.fh, free=ARM, draws=64, key=jax.random.key(seed))
         messages.append(fit.message)

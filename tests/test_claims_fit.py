@@ -3,7 +3,7 @@
 ("Coverage") and CHANGELOG 1.0.0: "At the defaults the twelve 95% intervals cover 0.953-0.970 on
 average for IMBIC at 0 and 0.3 N m and PD without friction, at both acquisitions".
 
-Paper arm 2, force noise 0.05 N, 30 s records at the paper's level 1, ``aj.SWEEP_NUMERICS``, 100
+Paper arm 2, force noise 0.05 N, 30 s records at the paper's level 1, ``aj.solvers.SWEEP_NUMERICS``, 100
 seeds per case (the same perturbations and noise in every case; keys of this file's own, not the
 benchmark's). The pooled coverage of the twelve intervals is asserted within the binomial band
 (``tests/acceptance.py``) that a true coverage anywhere in 0.953-0.970 leaves with probability at
@@ -56,7 +56,7 @@ def test_the_default_fits_intervals_cover_as_documented(records, compiled, contr
         sensors=aj.Sensors(force_noise=0.05),
         acquisition=acquisition,
     )
-    sims = aj.simulate_batch(aj.stack_trials([trial] * SEEDS), f, keys=keys, numerics=aj.SWEEP_NUMERICS)
+    sims = aj.simulate_batch(aj.batch.stack_trials([trial] * SEEDS), f, keys=keys, numerics=aj.solvers.SWEEP_NUMERICS)
     assert not np.any(sims.diverged)
     fits = jax.tree.map(np.asarray, fit(estimate(f, sims.x, sims.fh)))
     hits, values, lows, highs = [], [], [], []

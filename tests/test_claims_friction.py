@@ -3,7 +3,7 @@ multiple coherence falls below 0.9 at 0.05-0.08 N m ... and phi_T doubles at 0.2
 IMBIC phi_T doubles only at 2.7-3.5 N m"), on the study's own terms (docs/sweeps.md, "The friction
 threshold"): stiction 1.5 ``tau_c`` with the paper's bristle and viscous parameters, PD and IMBIC
 (``Mhat = 0.25 I`` kg), the four paper arms, 50 s records at the paper's level 1, ideal sensors,
-``aj.SWEEP_NUMERICS``, Table 4's Welch settings, 5 seeds with common random numbers (keys of this
+``aj.solvers.SWEEP_NUMERICS``, Table 4's Welch settings, 5 seeds with common random numbers (keys of this
 file's own), on a grid dense where the claims sit. A threshold is where the seed-mean curve
 crosses (linear in ``log tau_c`` between grid points, linear from 0); per controller and arm the
 threshold must lie in the claimed range and its 99% bootstrap interval over the seeds (seeds
@@ -76,9 +76,9 @@ def curves(request):
             for loc, i, _ in part
         ]
         fd = np.stack([f[s] for _, _, s in part])
-        batch = aj.stack_trials(trials)
-        sim = aj.simulate_batch(batch, fd, numerics=aj.SWEEP_NUMERICS)
-        out = aj.assess_batch(batch, fd, sim)
+        batch = aj.batch.stack_trials(trials)
+        sim = aj.simulate_batch(batch, fd, numerics=aj.solvers.SWEEP_NUMERICS)
+        out = aj.batch.assess_batch(batch, fd, sim)
         assert not np.any(out.diverged)
         est = out.estimate
         lowest = np.minimum(

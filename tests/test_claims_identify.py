@@ -70,7 +70,7 @@ def monte_carlo(request):
     sim = jax.jit(aj.simulate, static_argnames="numerics")
     values, ses, statistics, messages, converged = [], [], set(), [], []
     for seed in range(RECORDINGS):
-        rec = sim(truth, f, key=jax.random.key(10_000 + seed), numerics=aj.IDENTIFY_NUMERICS)
+        rec = sim(truth, f, key=jax.random.key(10_000 + seed), numerics=aj.solvers.IDENTIFY_NUMERICS)
         assert not bool(rec.diverged), (name, seed)
         res = aj.identify(truth, f, rec.x, rec.fh, free=ARM, key=jax.random.key(seed), draws=64)
         messages.append(res.message)

@@ -1,5 +1,5 @@
 """Statistics tier (``pytest -m stats``): "converged at every friction 0-4 N m" (identify's and
-``Numerics()``'s ``GradedARK4`` at 4 substeps: ``aj.IDENTIFY_NUMERICS``; docs/identification.md
+``Numerics()``'s ``GradedARK4`` at 4 substeps: ``aj.solvers.IDENTIFY_NUMERICS``; docs/identification.md
 section 3 item 8, docs/performance.md issue 26) on the claim's own terms: PD and IMBIC at their
 defaults, Coulomb torques 0, 1e-4, 1e-3, 1e-2, 0.1, 1 and 4 N m (stiction 1.5 times it), the
 paper's four arms, 50 s records at its level 1 (key 0), Table 4's Welch settings; against the
@@ -23,7 +23,7 @@ TOLERANCE = 1e-4
 
 def _score(trials, f, numerics):
     sim = aj.simulate_batch(trials, f, numerics=numerics)
-    out = aj.assess_batch(trials, f, sim)
+    out = aj.batch.assess_batch(trials, f, sim)
     fit = jax.jit(jax.vmap(lambda e: aj.fit_impedance(e, acquisition="plain", se="residual").stiffness))
     return np.asarray(out.phi_T), np.asarray(fit(out.estimate)), np.asarray(out.diverged)
 
@@ -31,7 +31,7 @@ def _score(trials, f, numerics):
 @pytest.mark.parametrize("controller", ["pd", "imbic"])
 def test_identify_numerics_converge_at_every_coulomb_torque(controller):
     cases = [(tau, loc) for tau in TAUS for loc in (1, 2, 3, 4)]
-    trials = aj.stack_trials(
+    trials = aj.batch.stack_trials(
         [
             aj.make_trial(
                 aj.PD() if controller == "pd" else aj.IMBIC(),
@@ -43,7 +43,7 @@ def test_identify_numerics_converge_at_every_coulomb_torque(controller):
     )
     f1 = np.asarray(aj.perturbation(jax.random.key(0), SAMPLES, presets.perturbation_peak(1)))
     f = np.broadcast_to(f1, (len(cases), SAMPLES, 2))
-    coarse = aj.IDENTIFY_NUMERICS
+    coarse = aj.solvers.IDENTIFY_NUMERICS
     fine = aj.Numerics(solver=coarse.solver, substeps=4 * coarse.substeps)
     phi, k, div = _score(trials, f, coarse)
     phi_ref, k_ref, div_ref = _score(trials, f, fine)

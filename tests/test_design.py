@@ -30,10 +30,10 @@ def _trial(location=2, **kw):
 
 
 def test_multisine_puts_each_axis_on_its_own_lines_at_the_rms_with_a_low_crest_factor():
-    ms = aj.multisine(np.arange(1.0, 16.0), (0.6, 0.9))
+    ms = aj.signals.multisine(np.arange(1.0, 16.0), (0.6, 0.9))
     s = np.asarray(ms.signal(None, 20_000))
     np.testing.assert_allclose(np.sqrt(np.mean(s**2, axis=0)), [0.6, 0.9], rtol=1e-12)
-    assert np.all(np.asarray(aj.crest_factor(jnp.asarray(s))) < 2.0)  # Schroeder phases; Gaussian noise ~3.5
+    assert np.all(np.asarray(aj.signals.crest_factor(jnp.asarray(s))) < 2.0)  # Schroeder phases; Gaussian noise ~3.5
     spectrum = np.abs(np.fft.rfft(s, axis=0))  # 0.05 Hz bins over 20 s
     lines_x, lines_y = np.arange(1, 16) * 20, np.arange(1, 16) * 20 + 10  # y sits half a spacing above x
     np.testing.assert_allclose(spectrum[lines_x, 1], 0.0, atol=1e-8 * spectrum.max())
@@ -47,7 +47,7 @@ def test_a_multisine_is_its_sum_of_cosines_scaled_to_its_rms():
     ``sqrt(sum_k a_k^2 / 2)``, so the signal is that sum times ``rms`` over it, in closed form."""
     freqs, shape, phases = [[2.0, 7.0], [5.0, 5.5]], [[1.0, 0.5], [3.0, 0.0]], [[0.3, 2.0], [-1.1, 0.7]]
     rms = np.array([0.5, 2.0])
-    s = np.asarray(aj.Multisine(freqs, shape, phases, rms).signal(None, 2000))
+    s = np.asarray(aj.signals.Multisine(freqs, shape, phases, rms).signal(None, 2000))
     t = np.arange(2000)[:, None, None] * 1e-3
     waves = np.sum(np.asarray(shape) * np.cos(2 * np.pi * np.asarray(freqs) * t + np.asarray(phases)), axis=-1)
     expected = waves * rms / np.sqrt(np.sum(np.asarray(shape) ** 2, axis=1) / 2)
@@ -63,11 +63,11 @@ def test_a_multisine_is_its_sum_of_cosines_scaled_to_its_rms():
     for change, message in bad:
         args = dict(dict(freqs=freqs, shape=shape, phases=phases, rms=rms), **change)
         with pytest.raises(ValueError, match=message):
-            aj.Multisine(**args)
+            aj.signals.Multisine(**args)
 
 
 def test_shaped_noise_follows_its_spectrum_and_level_and_differentiates():
-    fam = aj.ShapedNoise(knots=[2.0, 8.0], shape=[[1.0, 1.0], [1.0, 0.0]], rms=0.5)
+    fam = aj.signals.ShapedNoise(knots=[2.0, 8.0], shape=[[1.0, 1.0], [1.0, 0.0]], rms=0.5)
     s = np.asarray(fam.signal(jax.random.key(0), 10_000))
     np.testing.assert_allclose(np.sqrt(np.mean(s**2, axis=0)), 0.5, rtol=1e-12)
     freq = np.fft.rfftfreq(10_000, 1e-3)
@@ -77,12 +77,12 @@ def test_shaped_noise_follows_its_spectrum_and_level_and_differentiates():
     # axis y's amplitude falls linearly to zero at 8 Hz: its power sits low in the band
     assert power[(freq > 2) & (freq < 4), 1].mean() > 5 * power[(freq > 6) & (freq < 8), 1].mean()
     broad = np.asarray(
-        aj.ShapedNoise(knots=[1.0, 400.0], shape=np.ones((2, 2)), rms=0.5).signal(jax.random.key(0), 10_000)
+        aj.signals.ShapedNoise(knots=[1.0, 400.0], shape=np.ones((2, 2)), rms=0.5).signal(jax.random.key(0), 10_000)
     )
     np.testing.assert_allclose(np.corrcoef(broad.T)[0, 1], 0.0, atol=0.04)  # independent axes (SD 0.01)
 
     def low_power(shape):
-        f = aj.ShapedNoise(knots=[2.0, 8.0], shape=shape, rms=0.5).signal(jax.random.key(0), 2000)
+        f = aj.signals.ShapedNoise(knots=[2.0, 8.0], shape=shape, rms=0.5).signal(jax.random.key(0), 2000)
         return jnp.sum(f[:100] ** 2)
 
     g = jax.grad(low_power)(jnp.ones((2, 2)))
@@ -92,56 +92,58 @@ def test_shaped_noise_follows_its_spectrum_and_level_and_differentiates():
 def test_paper_noise_is_the_papers_perturbation():
     key = jax.random.key(3)
     np.testing.assert_array_equal(
-        aj.PaperNoise(2.25).signal(key, 3000), aj.perturbation(key, 3000, paper.perturbation_peak(1))
+        aj.signals.PaperNoise(2.25).signal(key, 3000), aj.perturbation(key, 3000, paper.perturbation_peak(1))
     )
 
 
 def test_bad_families_and_limits_are_one_line_errors():
     with pytest.raises(ValueError, match=r"knots must lie in \[0, 500\) Hz .*Nyquist.*600"):
-        aj.ShapedNoise(knots=[1.0, 600.0], shape=np.ones((2, 2)), rms=1.0)
+        aj.signals.ShapedNoise(knots=[1.0, 600.0], shape=np.ones((2, 2)), rms=1.0)
     with pytest.raises(ValueError, match="shape must be >= 0"):
-        aj.ShapedNoise(knots=[1.0, 10.0], shape=[[1.0, -1.0], [1.0, 1.0]], rms=1.0)
+        aj.signals.ShapedNoise(knots=[1.0, 10.0], shape=[[1.0, -1.0], [1.0, 1.0]], rms=1.0)
     with pytest.raises(ValueError, match=r"multisine: freqs \(with the y axis' offset\) must lie in \[0, 500\) Hz"):
-        aj.multisine([100.0, 499.9], 1.0)
+        aj.signals.multisine([100.0, 499.9], 1.0)
     with pytest.raises(ValueError, match="no signal meets peak_force"):
-        aj.Limits(rms_force=1.0, peak_force=0.5, record=10.0)
+        aj.experiment.Limits(rms_force=1.0, peak_force=0.5, record=10.0)
     with pytest.raises(ValueError, match="record must be >= 2 s"):
-        aj.Limits(rms_force=1.0, peak_force=3.0, record=1.0)
-    limits = aj.Limits(rms_force=0.5, peak_force=2.0, record=3.0)
-    fam = aj.ShapedNoise(knots=[1.0, 10.0], shape=np.ones((2, 2)), rms=1.0)
+        aj.experiment.Limits(rms_force=1.0, peak_force=3.0, record=1.0)
+    limits = aj.experiment.Limits(rms_force=0.5, peak_force=2.0, record=3.0)
+    fam = aj.signals.ShapedNoise(knots=[1.0, 10.0], shape=np.ones((2, 2)), rms=1.0)
     with pytest.raises(ValueError, match=r"design: unknown target 'arm.mass\[2,2\]'"):
         aj.design(_trial(), fam, free=ARM, limits=limits, targets=["arm.mass[2,2]"])
     with pytest.raises(ValueError, match="unknown parameter 'arm.inertia'"):
         aj.design(_trial(), fam, free=("arm.inertia",), limits=limits)
     with pytest.raises(ValueError, match="PaperNoise has no shape to design"):
-        aj.design(_trial(), aj.PaperNoise(2.25), free=ARM, limits=limits)
+        aj.design(_trial(), aj.signals.PaperNoise(2.25), free=ARM, limits=limits)
     with pytest.raises(ValueError, match=r"robust_over\[1\] must share the trial's controller type.*IMBIC"):
         imbic = aj.make_trial(aj.IMBIC(), arm=paper.arm(2), friction=aj.LuGre(0.3, 0.45), **NOISE)
         aj.design(_trial(), fam, free=ARM, limits=limits, robust_over=[_trial(), imbic])
     with pytest.raises(ValueError, match="MonteCarlo: draws must be an integer >= 8, got 4"):
-        aj.MonteCarlo(draws=4)
-    with pytest.raises(ValueError, match=r"design: method must be aj.CramerRao\(...\), aj.MonteCarlo\(...\)"):
+        aj.experiment.MonteCarlo(draws=4)
+    with pytest.raises(
+        ValueError, match=r"design: method must be aj.experiment.CramerRao\(...\), aj.experiment.MonteCarlo\(...\)"
+    ):
         aj.design(_trial(), fam, free=ARM, limits=limits, method="bound")
     with pytest.raises(ValueError, match=r"no frequency of a 3 s record \(spacing 0.333333 Hz\) lies in the band"):
-        aj.ShapedNoise(knots=[1.1, 1.2], shape=np.ones((2, 2)), rms=1.0).signal(jax.random.key(0), 3000)
+        aj.signals.ShapedNoise(knots=[1.1, 1.2], shape=np.ones((2, 2)), rms=1.0).signal(jax.random.key(0), 3000)
 
 
 def test_limits_hold_exactly_on_the_limited_signal():
     """RMS at its limit; where the peak binds, peaks clipped to it with the RMS kept; the displacement
     limit scales the whole signal until every trial's hand stays within it."""
-    fam = aj.ShapedNoise(knots=[0.5, 15.0], shape=np.ones((2, 2)), rms=1.0)
+    fam = aj.signals.ShapedNoise(knots=[0.5, 15.0], shape=np.ones((2, 2)), rms=1.0)
     key = jax.random.key(1)
-    loose = aj.Limits(rms_force=0.5, peak_force=5.0, record=3.0)
+    loose = aj.experiment.Limits(rms_force=0.5, peak_force=5.0, record=3.0)
     s = np.asarray(des._limited_signal(fam, key, 3000, loose, 1e-3))
     np.testing.assert_allclose(np.sqrt(np.mean(s**2, axis=0)), 0.5, rtol=1e-12)
-    tight = aj.Limits(rms_force=0.5, peak_force=1.0, record=3.0)
+    tight = aj.experiment.Limits(rms_force=0.5, peak_force=1.0, record=3.0)
     s = np.asarray(des._limited_signal(fam, key, 3000, tight, 1e-3))
     np.testing.assert_allclose(np.abs(s).max(axis=0), 1.0, rtol=1e-12)  # clipped to the peak ...
     np.testing.assert_allclose(np.sqrt(np.mean(s**2, axis=0)), 0.5, rtol=1e-6)  # ... the RMS kept at its limit
-    np.testing.assert_array_equal(s, aj.limited_signal(fam, tight, key=key, period=1e-3))
+    np.testing.assert_array_equal(s, aj.signals.limited_signal(fam, tight, key=key, period=1e-3))
     trials = [_trial(1), _trial(3)]
     limit = 2e-6  # 2 um: below the 3 um 0.5 N RMS gives (the joints stay in pre-sliding at 0.3 N m)
-    small = aj.Limits(rms_force=0.5, peak_force=2.0, record=3.0, peak_displacement=limit)
+    small = aj.experiment.Limits(rms_force=0.5, peak_force=2.0, record=3.0, peak_displacement=limit)
     gain = des._displacement_gain(fam, key, 3000, small, trials, 1e-3)
     assert 0 < gain < 1
     f = des._limited_signal(fam, key, 3000, small, 1e-3, gain)
@@ -154,7 +156,7 @@ def test_bursts_gate_both_axes_together_at_the_rms_and_move_joints_that_friction
     and at equal RMS moves the hand much further against 0.3 N m of friction than continuous
     noise does (a burst's force, 1 / sqrt(duty) larger, passes the breakaway torque)."""
     knots, shape = np.geomspace(0.5, 15.0, 4), np.ones((2, 4))
-    burst = aj.ShapedNoise(knots, shape, 0.5, duty=0.25, burst=1.0)
+    burst = aj.signals.ShapedNoise(knots, shape, 0.5, duty=0.25, burst=1.0)
     s = np.asarray(burst.signal(jax.random.key(3), 8000))
     np.testing.assert_allclose(np.sqrt(np.mean(s**2, axis=0)), 0.5, rtol=1e-12)
     gate = np.asarray(burst.gate(jax.random.fold_in(jax.random.key(3), 1), 8000))
@@ -169,13 +171,13 @@ def test_bursts_gate_both_axes_together_at_the_rms_and_move_joints_that_friction
         (dict(duty=0.01, burst=1.0), "no longer than its two"),
     ):
         with pytest.raises(ValueError, match=match):
-            aj.ShapedNoise(knots, shape, 0.5, **bad)
+            aj.signals.ShapedNoise(knots, shape, 0.5, **bad)
     trial = aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.LuGre(0.3, 0.45))
-    limits = aj.Limits(rms_force=0.6, peak_force=2.25, record=4.0)
+    limits = aj.experiment.Limits(rms_force=0.6, peak_force=2.25, record=4.0)
     travel = {}
     for duty in (1.0, 0.125):
-        fam = aj.ShapedNoise(knots, shape, 1.0, duty=duty, burst=1.0)
-        f = aj.limited_signal(fam, limits, key=jax.random.key(5))
+        fam = aj.signals.ShapedNoise(knots, shape, 1.0, duty=duty, burst=1.0)
+        f = aj.signals.limited_signal(fam, limits, key=jax.random.key(5))
         x = np.asarray(aj.simulate(trial, jnp.asarray(f)).x)
         travel[duty] = np.sqrt(np.mean(np.sum((x - x.mean(axis=0)) ** 2, axis=1)))  # RMS excursion [m]
     assert travel[0.125] > 2.0 * travel[1.0], travel  # 5.5x measured (4 s, arm 2, key 5)
@@ -184,10 +186,12 @@ def test_bursts_gate_both_axes_together_at_the_rms_and_move_joints_that_friction
 @pytest.mark.slow  # ~2 min: a few design steps over two arms and four predictions
 def test_a_short_design_lowers_the_criterion_within_the_limits():
     trials = [_trial(1), _trial(2)]
-    limits = aj.Limits(rms_force=0.6, peak_force=2.25, record=4.0, peak_displacement=5e-3)
-    fam = aj.ShapedNoise(knots=np.linspace(0.5, 15.0, 6), shape=np.ones((2, 6)), rms=1.0)
+    limits = aj.experiment.Limits(rms_force=0.6, peak_force=2.25, record=4.0, peak_displacement=5e-3)
+    fam = aj.signals.ShapedNoise(knots=np.linspace(0.5, 15.0, 6), shape=np.ones((2, 6)), rms=1.0)
     targets = [f"arm.{n}[{i},{i}]" for n in ("mass", "damping", "stiffness") for i in (0, 1)]
-    bursts = aj.ShapedNoise(knots=np.linspace(0.5, 15.0, 6), shape=np.ones((2, 6)), rms=1.0, duty=0.25, burst=1.0)
+    bursts = aj.signals.ShapedNoise(
+        knots=np.linspace(0.5, 15.0, 6), shape=np.ones((2, 6)), rms=1.0, duty=0.25, burst=1.0
+    )
     d = aj.design(
         trials[0],
         [fam, bursts],
@@ -196,7 +200,7 @@ def test_a_short_design_lowers_the_criterion_within_the_limits():
         targets=targets,
         robust_over=trials,
         steps=6,
-        method=aj.MonteCarlo(draws=8),
+        method=aj.experiment.MonteCarlo(draws=8),
     )
     assert len(d.trace) == 6 and len(d.before) == len(d.after) == 2
     # the start is the candidate the prediction rates best, its prediction the one design reports
@@ -308,7 +312,7 @@ def test_design_json_is_what_crlb_gives_on_the_controller_and_the_signal_written
         for target, value in row["relative_se_after"].items():
             assert value == pytest.approx(bound.relative([target])[target], rel=1e-9)
         signal = np.load(out / "perturbation.npz")["f_delta"]
-        assert aj.robot_sensitivity(trial, signal, free=ARM, plausible=10).table() in captured.out
+        assert aj.experiment.robot_sensitivity(trial, signal, free=ARM, plausible=10).table() in captured.out
     assert [r["label"] for r in doc["trials"]] == ["arm at location 1", "arm at location 3"]
     assert doc["achieved"]["peak_force"] == pytest.approx(np.abs(f).max(axis=0).tolist(), rel=1e-12)
 
@@ -316,7 +320,7 @@ def test_design_json_is_what_crlb_gives_on_the_controller_and_the_signal_written
 def test_example_design_config_builds_four_arms_and_the_documented_limits():
     config = dx.read_design_config(EXAMPLE)
     trials, family, limits, options = dx.build_design(config, where=str(EXAMPLE))
-    assert len(trials) == 4 and isinstance(family, aj.ShapedNoise)
+    assert len(trials) == 4 and isinstance(family, aj.signals.ShapedNoise)
     np.testing.assert_allclose(np.asarray(trials[2].arm.stiffness), np.asarray(paper.arm(3).stiffness))
     assert (limits.peak_force, limits.record, limits.peak_displacement) == (2.25, 20.0, 0.005)
     assert options["free"] == ARM and len(options["targets"]) == 6
@@ -384,7 +388,7 @@ def test_the_shipped_design_configs_build_the_must_shows_limits():
     trials, _, limits, options = dx.build_design(dx.read_design_config(path), where=str(path))
     assert all(isinstance(t.controller, aj.PD) and np.all(np.asarray(t.friction.tau_c) == 0.0) for t in trials)
     assert (options["method"], limits.drift, limits.min_stiffness) == (
-        aj.CramerRao(controller=True, calibrate=0, precision=0.1, draws=64),
+        aj.experiment.CramerRao(controller=True, calibrate=0, precision=0.1, draws=64),
         0.003,
         50.0,
     )
@@ -457,15 +461,15 @@ def test_the_predicted_record_is_the_designs_own_answer_rounded_up_to_a_second()
 
 
 def test_the_checked_signal_is_the_design_at_its_record_and_the_family_within_the_limits_beyond():
-    limits = aj.Limits(rms_force=0.6, peak_force=1.5, record=2.0)
-    fam = aj.ShapedNoise(knots=np.linspace(0.5, 15.0, 6), shape=np.ones((2, 6)), rms=1.0)
+    limits = aj.experiment.Limits(rms_force=0.6, peak_force=1.5, record=2.0)
+    fam = aj.signals.ShapedNoise(knots=np.linspace(0.5, 15.0, 6), shape=np.ones((2, 6)), rms=1.0)
     key = jax.random.key(3)
-    design_signal = aj.limited_signal(fam, limits, key=jax.random.split(key)[0])
+    design_signal = aj.signals.limited_signal(fam, limits, key=jax.random.split(key)[0])
     result = types.SimpleNamespace(signal=design_signal, family=fam)
     np.testing.assert_array_equal(dc.validation_signal(result, limits, 2.0, trials=None, key=key), design_signal)
     longer = dc.validation_signal(result, limits, 5.0, trials=None, key=key)
     # the design's own family key, at the new length
-    expected = aj.limited_signal(fam, dataclasses.replace(limits, record=5.0), key=jax.random.split(key)[0])
+    expected = aj.signals.limited_signal(fam, dataclasses.replace(limits, record=5.0), key=jax.random.split(key)[0])
     np.testing.assert_array_equal(longer, expected)
     np.testing.assert_allclose(np.sqrt(np.mean(longer**2, axis=0)), 0.6, rtol=1e-12)
     assert longer.shape == (5000, 2) and np.abs(longer).max() <= 1.5 + 1e-12

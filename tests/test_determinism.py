@@ -34,7 +34,7 @@ def digests():
     out = {"perturbation": digest(f)}
     cases = {
         "imbic-rk4": (aj.make_trial(aj.IMBIC(), arm=presets.arm(2), friction=aj.NO_FRICTION, **noise),
-                      aj.Numerics(solver=aj.RK4(), substeps=5)),
+                      aj.Numerics(solver=aj.solvers.RK4(), substeps=5)),
         "pd-lugre-graded": (aj.make_trial(aj.PD(), arm=presets.arm(2), friction=aj.LuGre(0.3, 0.45), **noise),
                             aj.Numerics()),
     }

@@ -9,7 +9,7 @@ import pytest
 import armimp_jax as aj
 from armimp_jax import presets
 
-NUMERICS = aj.Numerics(solver=aj.RK4(), substeps=10)
+NUMERICS = aj.Numerics(solver=aj.solvers.RK4(), substeps=10)
 KNOTS = (0.2, 0.35, 0.5)
 SAMPLES = 800
 
@@ -27,7 +27,7 @@ def _arm():
 def quiet():
     """20 noise-free repetitions (the fewest that three knots allow are 15)."""
     trial = aj.make_trial(aj.PD(), arm=_arm(), friction=aj.NO_FRICTION)
-    family = aj.PaperNoise(peak=2.25)
+    family = aj.signals.PaperNoise(peak=2.25)
     return aj.simulate_ensemble(
         trial, family, key=jax.random.key(0), repetitions=20, samples=SAMPLES, numerics=NUMERICS
     )
@@ -42,7 +42,12 @@ def test_each_repetition_has_its_own_draws_and_more_repetitions_keep_the_first(q
     assert np.all(np.std(quiet.f_delta, axis=0)[1:] > 0)  # no two perturbations alike
     trial = quiet.trial
     fewer = aj.simulate_ensemble(
-        trial, aj.PaperNoise(peak=2.25), key=jax.random.key(0), repetitions=2, samples=SAMPLES, numerics=NUMERICS
+        trial,
+        aj.signals.PaperNoise(peak=2.25),
+        key=jax.random.key(0),
+        repetitions=2,
+        samples=SAMPLES,
+        numerics=NUMERICS,
     )
     np.testing.assert_array_equal(fewer.f_delta, quiet.f_delta[:2])
     np.testing.assert_allclose(fewer.fh, quiet.fh[:2], rtol=0, atol=1e-12)  # another batch size: round-off
@@ -62,7 +67,7 @@ def test_simulate_ensemble_refuses_in_one_line():
     with pytest.raises(ValueError, match=r"one perturbation for every repetition leaves nothing .* \(R, N, 2\)"):
         aj.simulate_ensemble(trial, np.zeros((100, 2)), key=jax.random.key(0))
     with pytest.raises(ValueError, match="a perturbation family needs repetitions= and samples="):
-        aj.simulate_ensemble(trial, aj.PaperNoise(peak=1.0), key=jax.random.key(0))
+        aj.simulate_ensemble(trial, aj.signals.PaperNoise(peak=1.0), key=jax.random.key(0))
     with pytest.raises(ValueError, match="repetitions=3 but the perturbation array holds 2"):
         aj.simulate_ensemble(trial, np.zeros((2, 100, 2)), key=jax.random.key(0), repetitions=3)
 

@@ -53,7 +53,9 @@ def test_omega_is_the_covariance_of_the_ensemble_mean_of_independent_reaches():
 @pytest.mark.slow  # about 3 minutes cold: 40 reaches identified through friction
 def test_one_ensemble_through_lugre_is_recovered_with_tau_c_a_nuisance():
     truth, _, _ = mm.case_trials("imbic-lugre")
-    ens = aj.simulate_ensemble(truth, aj.PaperNoise(peak=mv.PEAK), key=jax.random.key(3), repetitions=40, samples=1600)
+    ens = aj.simulate_ensemble(
+        truth, aj.signals.PaperNoise(peak=mv.PEAK), key=jax.random.key(3), repetitions=40, samples=1600
+    )
     fit = aj.identify(truth, ens, free=ph.ARM)  # tau_c freed as the friction's nuisance
     assert fit.converged, fit.message
     assert fit.labels[-2:] == ["friction.tau_c[0]", "friction.tau_c[1]"]

@@ -107,10 +107,10 @@ def test_largest_singular_value_and_accuracy():
     a = np.random.default_rng(3).standard_normal((50, 2, 2)) + 1j * np.random.default_rng(4).standard_normal((50, 2, 2))
     np.testing.assert_allclose(largest_singular_value(jnp.asarray(a)), np.linalg.norm(a, 2, axis=(1, 2)), rtol=1e-13)
     f = jnp.linspace(0.1, 15, 40)
-    phi_t, phi_ij = aj.accuracy(paper.arm(2).impedance(f), f, paper.arm(2))
+    phi_t, phi_ij = aj.spectra.accuracy(paper.arm(2).impedance(f), f, paper.arm(2))
     assert float(phi_t) == 0.0 and np.all(np.asarray(phi_ij) == 0.0)
     z = paper.arm(1).impedance(f) + 10.0
-    phi_t, phi_ij = aj.accuracy(z, f, paper.arm(1))
+    phi_t, phi_ij = aj.spectra.accuracy(z, f, paper.arm(1))
     np.testing.assert_allclose(phi_t, 20.0, rtol=1e-12)  # ||10 * ones(2,2)||_2 = 20
     np.testing.assert_allclose(phi_ij, 10.0, rtol=1e-12)
 
@@ -130,7 +130,7 @@ def test_true_impedance_matches_table_and_vmaps_over_arms():
 def _short_trial(friction_level, n=12_288, substeps=20):
     fd = aj.perturbation(jax.random.PRNGKey(5), n, paper.perturbation_peak(1))
     run = jax.jit(aj.simulate, static_argnames="numerics")
-    r = run(paper.trial("pd", friction_level, 1), fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=substeps))
+    r = run(paper.trial("pd", friction_level, 1), fd, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=substeps))
     return fd, r
 
 
@@ -140,7 +140,7 @@ def test_end_to_end_pd_frictionless_is_accurate_and_friction_ruins_it():
     for level in (0, 2):
         fd, r = _short_trial(level)
         est = aj.estimate(fd, r.x, r.fh, **kw)
-        phi_t, _ = aj.accuracy(est.Z, est.f, paper.arm(1))
+        phi_t, _ = aj.spectra.accuracy(est.Z, est.f, paper.arm(1))
         scale = float(jnp.mean(largest_singular_value(paper.arm(1).impedance(est.f))))
         results[level] = (float(phi_t) / scale, est)
     assert results[0][0] < 0.1, results[0][0]
@@ -157,7 +157,7 @@ def test_gradient_of_phi_through_estimate_matches_finite_differences():
 
     def phi(a):  # a feed-through of the perturbation into the force: a smooth scalar family
         est = aj.estimate(fd, r.x, r.fh + a * fd, **kw)
-        return aj.accuracy(est.Z, est.f, paper.arm(1))[0]
+        return aj.spectra.accuracy(est.Z, est.f, paper.arm(1))[0]
 
     a0, eps = 0.05, 1e-5
     g = jax.grad(phi)(a0)
@@ -219,10 +219,10 @@ def test_window_array_and_welch_settings_pass_through_assess():
     _, g = cross_spectral_matrix(jnp.asarray(u), nperseg=512, noverlap=256, window="hann", nfft=640)
     np.testing.assert_allclose(g[:, 0, 1], scipy.signal.csd(u[:, 0], u[:, 1], fs=1000.0, nperseg=512, nfft=640)[1])
     zeros = jnp.zeros_like(jnp.asarray(y))
-    sim = aj.SimResult(y, zeros, 2.0 * y + u, zeros, zeros, zeros, jnp.bool_(True), jnp.int32(4321))
+    sim = aj.results.SimResult(y, zeros, 2.0 * y + u, zeros, zeros, zeros, jnp.bool_(True), jnp.int32(4321))
     welch = aj.Welch(512, 256, 50.0, window=("kaiser", 6.0), nfft=640)
     trial = paper.trial("pd", 0, 1)
-    out = aj.assess(trial, u, sim, welch)
+    out = aj.batch.assess(trial, u, sim, welch)
     np.testing.assert_array_equal(out.estimate.Z, named.Z)
     s = 2j * np.pi * np.asarray(named.f)[:, None, None]
     z_h = np.asarray(trial.arm.mass) * s**2 + np.asarray(trial.arm.damping) * s + np.asarray(trial.arm.stiffness)
@@ -266,9 +266,9 @@ def test_accuracy_checks_its_arguments():
         paper.arm(0)
     f = jnp.linspace(1, 10, 5)
     with pytest.raises(ValueError, match="arm must be an Arm"):
-        aj.accuracy(jnp.zeros((5, 2, 2)), f, 1)
+        aj.spectra.accuracy(jnp.zeros((5, 2, 2)), f, 1)
     with pytest.raises(ValueError, match=r"Z must have shape \(F, 2, 2\)"):
-        aj.accuracy(jnp.zeros((4, 2, 2)), f, paper.arm(1))
+        aj.spectra.accuracy(jnp.zeros((4, 2, 2)), f, paper.arm(1))
 
 
 @pytest.mark.parametrize("name, row, col", [("f_delta", 0, 0), ("x", 41, 1), ("fh", 3000, 0)])
@@ -332,11 +332,11 @@ def test_welch_segments_follow_the_record():
     """Table 4's 8192/6144 from 24576 samples on (the paper's records unchanged); a 12 s record
     at 1 kHz gets 2048-sample segments (20 of them, not Table 4's 2); a given nperseg alone
     gets 75% overlap; the default estimate uses exactly these settings."""
-    assert aj.welch_segments(50_000) == (8192, 6144) == aj.welch_segments(24_576)
-    assert aj.welch_segments(12_000) == (2048, 1536)
-    assert aj.welch_segments(24_575) == (4096, 3072)
+    assert aj.spectra.welch_segments(50_000) == (8192, 6144) == aj.spectra.welch_segments(24_576)
+    assert aj.spectra.welch_segments(12_000) == (2048, 1536)
+    assert aj.spectra.welch_segments(24_575) == (4096, 3072)
     with pytest.raises(ValueError, match="n_samples"):
-        aj.welch_segments(8)
+        aj.spectra.welch_segments(8)
     u, y, n_out = _synthetic(n=12_000, noise=0.1)
     auto = aj.estimate(u, y + n_out, 2.0 * y, errors=False)
     given = aj.estimate(u, y + n_out, 2.0 * y, nperseg=2048, errors=False)

@@ -282,7 +282,7 @@ def noise_free_records():
     out = {}
     for acquisition in ("instant", "interval_mean"):
         trial = aj.make_trial(aj.PD(), arm=ARM, friction=aj.NO_FRICTION, acquisition=acquisition)
-        sim = run(trial, fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=4))
+        sim = run(trial, fd, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=4))
         out[acquisition] = aj.estimate(fd, sim.x, sim.fh, errors=True)
     return out
 
@@ -364,7 +364,7 @@ def test_lack_of_fit_is_quiet_when_the_model_holds_and_warns_when_it_does_not():
     good, bad = (jax.tree.map(np.asarray, record(jax.random.PRNGKey(7), extra=a, white=10.0)) for a in (0.0, 4e3))
     fit_good, fit_bad = map(jax.jit(lambda e: aj.fit_impedance(e, acquisition="plain")), (good, bad))
     assert 0.6 < float(fit_good.lack_of_fit_overall) < 1.4 and float(fit_good.lack_of_fit_p_overall) > 0.01
-    assert not [w for w in aj.fit_warnings(fit_good, good) if w.startswith("lack of fit")]
+    assert not [w for w in aj.spectra.fit_warnings(fit_good, good) if w.startswith("lack of fit")]
     assert float(fit_bad.lack_of_fit_overall) > 3 and float(fit_bad.lack_of_fit_p_overall) < 1e-6
     assert [w for w in fit_bad.warnings if w.startswith("lack of fit")]  # carried by the fit itself
 
@@ -435,7 +435,7 @@ def test_the_default_fit_carries_its_diagnostics_warnings_and_summary():
     assert np.isfinite(fit.delay_dof) and np.all(np.isfinite(fit.lack_of_fit))
     assert fit.diagnostics.n_eff == est.error.n_eff and fits.diagnostics.coherence_min.shape == (2, 4)
     np.testing.assert_allclose(fit.diagnostics.input_coherence, np.max(est.coh_inputs))
-    assert fit.warnings == aj.fit_warnings(fit, est)
+    assert fit.warnings == aj.spectra.fit_warnings(fit, est)
     text = fit.summary()
     low, high = fit.interval("stiffness")
     assert f"{'Kxy [N/m]':14s} {float(fit.stiffness[0, 1]):10.4g}   [{low[0, 1]:.4g}, {high[0, 1]:.4g}]" in text
@@ -452,10 +452,10 @@ def test_friction_warning_fires_with_cause_only(noise_free_records):
     for data in ("instant", "interval_mean"):
         fit = aj.fit_impedance(noise_free_records[data])
         assert not said(fit.warnings)
-        assert said(aj.fit_warnings(fit, friction=1.0)) == (data == "instant"), data
-        assert not said(aj.fit_warnings(fit, friction=0.0))
+        assert said(aj.spectra.fit_warnings(fit, friction=1.0)) == (data == "instant"), data
+        assert not said(aj.spectra.fit_warnings(fit, friction=0.0))
     own = aj.fit_impedance(noise_free_records["instant"], acquisition="instant", friction=0.5)
-    assert said(own.warnings) and not said(aj.fit_warnings(own, friction=0.0))
+    assert said(own.warnings) and not said(aj.spectra.fit_warnings(own, friction=0.0))
     box = aj.fit_impedance(noise_free_records["interval_mean"], acquisition="interval_mean", friction=0.5)
     assert not said(box.warnings)
 
@@ -498,6 +498,6 @@ def test_stick_slip_seen_in_the_record_warns_like_friction_told(noise_free_recor
         jerky = fit._replace(diagnostics=fit.diagnostics._replace(force_excess=jnp.array([0.05, 0.3])))
         quiet = fit._replace(diagnostics=fit.diagnostics._replace(force_excess=jnp.array([0.05, 0.1])))
         assert said(jerky.warnings) == instant and not said(quiet.warnings), data
-        assert not said(aj.fit_warnings(jerky, friction=0.0))
-        told = aj.fit_warnings(jerky, friction=1.0)
+        assert not said(aj.spectra.fit_warnings(jerky, friction=0.0))
+        told = aj.spectra.fit_warnings(jerky, friction=1.0)
         assert not said(told) and any(w.startswith("instant force samples") for w in told) == instant

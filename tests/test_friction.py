@@ -42,7 +42,7 @@ def test_constant_velocity_reaches_the_steady_friction(level, v):
     def step(z, _):  # RK4 on the bristle ODE at fixed velocity
 
         def f(zz):
-            return aj.lugre(v, zz, p)[1]
+            return p.torque_and_rate(v, zz)[1]
 
         k1 = f(z)
         k2 = f(z + 0.5 * h * k1)
@@ -51,7 +51,7 @@ def test_constant_velocity_reaches_the_steady_friction(level, v):
         return z + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4), None
 
     z, _ = jax.lax.scan(step, jnp.asarray(0.0), None, length=8000)
-    tau, zd = aj.lugre(v, z, p)
+    tau, zd = p.torque_and_rate(v, z)
     # at steady sliding zd = 0, so z = g(v) sign(v) / sigma0 and tau = g(v) sign(v) + sigma2 v
     np.testing.assert_allclose(tau, g * np.sign(float(v)) + SIGMA2 * float(v), rtol=1e-9)
     np.testing.assert_allclose(steady_state_friction(v, p), g * np.sign(float(v)) + SIGMA2 * float(v), rtol=1e-14)
@@ -68,8 +68,8 @@ def test_small_motions_see_the_bristle_stiffness(level):
     q, qd = amp * np.sin(w * t), amp * w * np.cos(w * t)
 
     def step(z, v):
-        zd = aj.lugre(v, z, p)[1]
-        return z + h * zd, aj.lugre(v, z, p)[0]
+        zd = p.torque_and_rate(v, z)[1]
+        return z + h * zd, p.torque_and_rate(v, z)[0]
 
     _, tau = jax.lax.scan(step, jnp.asarray(0.0), jnp.asarray(qd))
     expected = SIGMA0 * q + (SIGMA1 + SIGMA2) * qd
@@ -79,11 +79,11 @@ def test_small_motions_see_the_bristle_stiffness(level):
 def test_level_0_is_exactly_zero_with_finite_gradients():
     p = paper.friction(0).joint(0)
     for v, z in [(0.0, 0.0), (0.3, 1e-3), (-1e-9, 0.0)]:
-        tau, zd = aj.lugre(jnp.asarray(v), jnp.asarray(z), p)
+        tau, zd = p.torque_and_rate(jnp.asarray(v), jnp.asarray(z))
         assert float(tau) == 0.0 and float(zd) == 0.0  # no bristles: z stays 0
-        grads = jax.grad(lambda v_, z_, p_: aj.lugre(v_, z_, p_)[0] + aj.lugre(v_, z_, p_)[1], argnums=(0, 1, 2))(
-            jnp.asarray(v), jnp.asarray(z), p
-        )
+        grads = jax.grad(
+            lambda v_, z_, p_: p_.torque_and_rate(v_, z_)[0] + p_.torque_and_rate(v_, z_)[1], argnums=(0, 1, 2)
+        )(jnp.asarray(v), jnp.asarray(z), p)
         assert all(np.all(np.isfinite(g)) for g in jax.tree.leaves(grads))
 
 
@@ -92,7 +92,7 @@ def test_without_bristles_friction_is_viscous_only():
     not a 1e5 N m/rad spring, whatever the (unused) bristle state."""
     p = aj.LuGre(0.0, 0.0).joint(0)
     for v, z in [(0.2, 0.0), (-0.05, 3e-4), (0.0, 1e-3)]:
-        tau, zd = aj.lugre(jnp.asarray(v), jnp.asarray(z), p)
+        tau, zd = p.torque_and_rate(jnp.asarray(v), jnp.asarray(z))
         assert float(zd) == 0.0
         np.testing.assert_allclose(float(tau), 0.5 * v, rtol=1e-15)
 
@@ -141,7 +141,7 @@ def test_the_plant_feels_coulomb_viscous_as_a_torque_resisting_each_joints_motio
     frictionless plant under the extra hand force ``-J^-T tau_f(qd)``, with ``tau_f`` the formula."""
     endpoint = paper.arm(2).endpoint
     law, free = aj.CoulombViscous(**KINARM), aj.CoulombViscous(0.0)
-    trials = [aj.make_trial(aj.PD(), arm=aj.no_arm(endpoint), friction=f) for f in (law, free)]
+    trials = [aj.make_trial(aj.PD(), arm=aj.presets.no_arm(endpoint), friction=f) for f in (law, free)]
     models = [plant_model(t.q0, t.x0, t.arm, t.friction, t.robot) for t in trials]
     q0 = np.asarray(trials[0].q0)
     fu = np.array([1.5, -0.7])  # [N]

@@ -24,7 +24,7 @@ def _trial(controller, tau, location=1):
 
 
 def _graded(substeps=4):
-    return aj.Numerics(solver=aj.GradedARK4(), substeps=substeps)
+    return aj.Numerics(solver=aj.solvers.GradedARK4(), substeps=substeps)
 
 
 _run = jax.jit(jax.vmap(aj.simulate, in_axes=(0, None)), static_argnames=("numerics",))
@@ -42,11 +42,11 @@ def test_converges_to_the_stiff_reference_at_every_coulomb_torque():
     1e-3 at 4 substeps, for Coulomb torques where RK4 at the paper's step diverges; without
     friction it is RK4 to round-off of the integration."""
     taus = (0.0, 1e-4, 1e-2, 1.0, 4.0)
-    trials = aj.stack_trials([_trial("pd", t) for t in taus])
+    trials = aj.batch.stack_trials([_trial("pd", t) for t in taus])
     fd = aj.perturbation(jax.random.PRNGKey(7), 600, 2.25)
     sim = _run(trials, fd, numerics=_graded())
-    ref = _run(trials, fd, numerics=aj.Numerics(solver=aj.ARK4(), substeps=40))
-    rk4 = _run(trials, fd, numerics=aj.PAPER_NUMERICS)
+    ref = _run(trials, fd, numerics=aj.Numerics(solver=aj.solvers.ARK4(), substeps=40))
+    rk4 = _run(trials, fd, numerics=aj.solvers.PAPER_NUMERICS)
     assert not np.any(sim.diverged) and bool(rk4.diverged[1])  # RK4 diverges at tau_c = 1e-4
     assert np.all(_rel(sim.x, ref.x) < 2e-5) and np.all(_rel(sim.fh, ref.fh) < 1e-3)
     assert _rel(sim.x, rk4.x)[0] < 1e-7 and _rel(sim.fh, rk4.fh)[0] < 1e-7
@@ -56,7 +56,7 @@ def test_rest_is_exact_rest():
     """Unperturbed, every friction level and location stays bitwise at x0 (the frozen frame
     and the rotations are exact at zero velocity)."""
     cases = [(f, loc) for f in (0, 1, 2) for loc in (1, 2, 3, 4)]
-    trials = aj.stack_trials([paper.trial("imbic", f, loc) for f, loc in cases])
+    trials = aj.batch.stack_trials([paper.trial("imbic", f, loc) for f, loc in cases])
     r = _run(trials, jnp.zeros((300, 2)), numerics=_graded())
     np.testing.assert_array_equal(r.x, np.broadcast_to(np.asarray(trials.x0)[:, None, :], r.x.shape))
     for field in (r.xd, r.fh, r.fu, r.z):
@@ -68,8 +68,8 @@ def test_the_frozen_frame_is_a_second_order_error():
     difference falls 8x per halving of the step (a third-order local error)."""
     trial = _trial("imbic", 1.0)
     fd = aj.perturbation(jax.random.PRNGKey(7), 250, 2.25)
-    num = aj.Numerics(solver=aj.ARK4(), substeps=20)
-    carry, _ = aj.simulate_chunk(trial, aj.simulate_init(trial), fd, numerics=num)
+    num = aj.Numerics(solver=aj.solvers.ARK4(), substeps=20)
+    carry, _ = aj.solvers.simulate_chunk(trial, aj.solvers.simulate_init(trial), fd, numerics=num)
     s, fu = carry.plant, carry.fu_prev
     assert min(abs(float(s.qd1)), abs(float(s.qd2))) > 1e-3  # the frame moves within the step
     model = plant_model(trial.q0, trial.x0, trial.arm, trial.friction, trial.robot)
@@ -89,18 +89,18 @@ def test_the_graded_tail_keeps_the_sampled_force_accurate():
     reversal, and a step that ends at a sample during the flip leaves the sampled force
     (its bristle damping) far off. The graded tail keeps that error 5x below six uniform
     ARK4 steps per period (the same count), though positions are alike."""
-    trials = aj.stack_trials([_trial("pd", 1e-4)])
+    trials = aj.batch.stack_trials([_trial("pd", 1e-4)])
     fd = aj.perturbation(jax.random.PRNGKey(7), 2000, 2.25)
-    ref = _run(trials, fd, numerics=aj.Numerics(solver=aj.ARK4(), substeps=40))
+    ref = _run(trials, fd, numerics=aj.Numerics(solver=aj.solvers.ARK4(), substeps=40))
     graded_sim = _run(trials, fd, numerics=_graded())
-    uniform = _run(trials, fd, numerics=aj.Numerics(solver=aj.ARK4(), substeps=6))
-    assert len(aj.GradedARK4().step_sizes(1e-3, 4)) == 6
+    uniform = _run(trials, fd, numerics=aj.Numerics(solver=aj.solvers.ARK4(), substeps=6))
+    assert len(aj.solvers.GradedARK4().step_sizes(1e-3, 4)) == 6
     assert _rel(graded_sim.fh, ref.fh)[0] * 5 < _rel(uniform.fh, ref.fh)[0]
     assert _rel(graded_sim.x, ref.x)[0] < 1e-6 and _rel(uniform.x, ref.x)[0] < 1e-6
 
 
 def test_step_sizes_fill_the_period_and_shrink_towards_the_sample():
-    solver = aj.GradedARK4()
+    solver = aj.solvers.GradedARK4()
     for substeps in (1, 4, 16):
         hs = np.array(solver.step_sizes(1e-3, substeps))
         assert hs.sum() == pytest.approx(1e-3, rel=1e-15) and len(hs) == substeps - 1 + len(solver.TAIL)
@@ -141,6 +141,6 @@ def test_numerics_name_and_kernels():
     """Saved settings name the solver ``gark4``, which builds it again; it has one kernel."""
     num = _graded()
     assert num.settings() == dict(substeps=4, kernel="fast", checkpoint="period", method="gark4")
-    assert named_solver("gark4") == aj.GradedARK4() and aj.GradedARK4() != aj.ARK4()
+    assert named_solver("gark4") == aj.solvers.GradedARK4() and aj.solvers.GradedARK4() != aj.solvers.ARK4()
     with pytest.raises(ValueError, match="GradedARK4: unknown kernel 'reference'; allowed: 'fast'"):
-        aj.GradedARK4(kernel="reference")
+        aj.solvers.GradedARK4(kernel="reference")

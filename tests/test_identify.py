@@ -16,10 +16,10 @@ from armimp_jax._identification import result as result_mod
 from armimp_jax._identification.diagnosis import plausibility
 from armimp_jax._model.sensors import quantise
 
-NUM = aj.IDENTIFY_NUMERICS
+NUM = aj.solvers.IDENTIFY_NUMERICS
 # Frictionless loops are not stiff: classical RK4 at 2 substeps holds the properties below and
 # compiles in a fraction of GradedARK4's time (the suite is compile-bound).
-LINEAR_NUM = aj.Numerics(solver=aj.RK4(), substeps=2)
+LINEAR_NUM = aj.Numerics(solver=aj.solvers.RK4(), substeps=2)
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
 NOISE = dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(0.3, 2.0))
 

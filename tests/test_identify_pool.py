@@ -27,7 +27,7 @@ _spec = importlib.util.spec_from_file_location("estimate_recording_pool", ROOT /
 script = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(script)
 HEADER = "f_delta_x,f_delta_y,x,y,fh_x,fh_y"
-NUM = aj.Numerics(solver=aj.RK4(), substeps=2)
+NUM = aj.Numerics(solver=aj.solvers.RK4(), substeps=2)
 
 
 def _write(path, f, x, fh):
@@ -131,7 +131,7 @@ def test_the_pooled_printout_shows_each_recordings_classical_value_vaf_whiteness
 
     k1, k2 = (np.asarray(presets.arm(i).stiffness) for i in (1, 2))
     trials = [aj.make_trial(aj.PD(), arm=presets.arm(i), friction=aj.NO_FRICTION) for i in (1, 2)] + [
-        aj.make_trial(aj.PD(), arm=aj.no_arm(presets.location_endpoint(2)), friction=aj.NO_FRICTION)
+        aj.make_trial(aj.PD(), arm=aj.presets.no_arm(presets.location_endpoint(2)), friction=aj.NO_FRICTION)
     ]
     white, coloured, none = [0.3, 0.2, 0.4, 0.5], [1e-5, 0.2, 0.4, 0.5], [0.3, 0.2, np.nan, np.nan]
     fits = [
@@ -140,7 +140,7 @@ def test_the_pooled_printout_shows_each_recordings_classical_value_vaf_whiteness
             ("1", "2", "alone"), trials, (np.array([95.0, 96.0]),) * 2 + (np.full(2, np.nan),), (coloured, white, none)
         )
     ]
-    values = {"arm.stiffness@1": k1, "arm.stiffness@2": k2, "robot.inertia": np.asarray(aj.MIT_MANUS.inertia)}
+    values = {"arm.stiffness@1": k1, "arm.stiffness@2": k2, "robot.inertia": np.asarray(aj.presets.MIT_MANUS.inertia)}
     se = {name: 0.01 * np.abs(v) for name, v in values.items()}
     res = Identification(
         values,
@@ -195,13 +195,13 @@ def test_the_script_identifies_two_postures_and_the_robot_alone_in_one_table(tmp
     """Noise-free PD recordings at locations 1 and 2 (each its own stiffness) and of the robot
     alone, the robot's link inertias 15% above the config's: the table holds each posture's
     stiffness and one shared inertia, each the truth."""
-    robot = aj.Robot(inertia=1.15 * np.asarray(aj.MIT_MANUS.inertia))
+    robot = aj.Robot(inertia=1.15 * np.asarray(aj.presets.MIT_MANUS.inertia))
     f = aj.perturbation(jax.random.key(4), 2000, presets.perturbation_peak(1))
     a2 = presets.arm(2)  # the config's mass and damping (fixed) at both postures
     arms = {
         "1": aj.Arm(a2.mass, a2.damping, presets.arm(1).stiffness, presets.location_endpoint(1)),
         "2": a2,
-        "alone": aj.no_arm(presets.location_endpoint(2)),
+        "alone": aj.presets.no_arm(presets.location_endpoint(2)),
     }
     for g, arm in arms.items():
         sim = aj.simulate(aj.make_trial(aj.PD(), arm=arm, friction=aj.NO_FRICTION, robot=robot), f, numerics=NUM)
@@ -232,7 +232,7 @@ def test_a_robot_alone_recording_does_not_see_the_force_channels_gain_or_delay()
     end = presets.location_endpoint(2)
     sensors = aj.Sensors(force_noise=0.05, force_delay=0.001)
     human = aj.make_trial(aj.PD(), arm=presets.arm(2), friction=aj.NO_FRICTION, sensors=sensors)
-    alone = aj.make_trial(aj.PD(), arm=aj.no_arm(end), friction=aj.NO_FRICTION, sensors=sensors)
+    alone = aj.make_trial(aj.PD(), arm=aj.presets.no_arm(end), friction=aj.NO_FRICTION, sensors=sensors)
     f = np.zeros((1024, 2))
     free = ("arm.stiffness", "robot.inertia", "sensors.force_offset", "sensors.force_gain", "sensors.force_delay")
     recs = [aj.Recording(human, f, f, f, group="arm"), aj.Recording(alone, f, f, f, group="alone")]
@@ -255,7 +255,7 @@ def _pooled_refusals():
         arm = presets.arm(2) if arm is None else arm
         return aj.make_trial(aj.PD(), arm=arm, friction=friction, sensors=sensors, **kw)
 
-    human, alone, lugre = trial(), trial(aj.no_arm(end)), trial(friction=aj.LuGre(0.3, 0.45))
+    human, alone, lugre = trial(), trial(aj.presets.no_arm(end)), trial(friction=aj.LuGre(0.3, 0.45))
     boxcar = trial(acquisition="interval_mean")
 
     def rec(model, group=None, **arrays):

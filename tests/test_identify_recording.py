@@ -72,7 +72,7 @@ def recording_csv(tmp_path_factory):
     )
     f = aj.perturbation(jax.random.key(0), N_SAMPLES, 10.0)
     sim = jax.jit(aj.simulate, static_argnames="numerics")(
-        truth, f, key=jax.random.key(1), numerics=aj.Numerics(solver=aj.GradedARK4(), substeps=SUBSTEPS)
+        truth, f, key=jax.random.key(1), numerics=aj.Numerics(solver=aj.solvers.GradedARK4(), substeps=SUBSTEPS)
     )
     assert not bool(sim.diverged)
     path = tmp_path_factory.mktemp("recording") / "rec.csv"
@@ -374,7 +374,7 @@ def test_classical_column_is_the_welch_routes_default_fit(identified, recording_
     _, fit = estimate_recording.analyse(rec, fs=1000.0)
     classical = result["classical"]
     assert classical["settings"]["acquisition"] == "delay" and classical["settings"]["se"] == "spectral"
-    assert classical["settings"]["nperseg"] == aj.welch_segments(N_SAMPLES)[0]
+    assert classical["settings"]["nperseg"] == aj.spectra.welch_segments(N_SAMPLES)[0]
     for name in ("mass", "damping", "stiffness", "damping_se", "delay"):
         np.testing.assert_allclose(classical[name], getattr(fit, name), rtol=1e-9, err_msg=name)
     entry = result["parameters"]["arm.damping"]["entries"]["1,1"]
@@ -406,7 +406,7 @@ def test_a_sensitivity_the_model_cannot_give_is_refused_before_the_fit(recording
 
 @pytest.mark.slow  # about 40 s cold: an identification and a robot_sensitivity
 def test_the_sensitivity_table_prints_robot_sensitivitys_numbers_for_what_was_not_estimated(recording_csv, tmp_path):
-    """--sensitivity 10 prints aj.robot_sensitivity at the identified trial (the robot's
+    """--sensitivity 10 prints aj.experiment.robot_sensitivity at the identified trial (the robot's
     parameters that were not free: tau_c was estimated, so it has no column), to its 2 decimals."""
     config = write_toml(tmp_path / "config.toml", _config())
     stdout = io.StringIO()
@@ -424,14 +424,14 @@ def test_the_sensitivity_table_prints_robot_sensitivitys_numbers_for_what_was_no
     rec = recording.load_recording(recording_csv)
     robot = [n for n in head.strip("| ").split(" | ")[1:]]
     options = dict(_config()["identify"])
-    sens = aj.robot_sensitivity(
+    sens = aj.experiment.robot_sensitivity(
         trial,
         rec["f_delta"],
         robot=tuple(dict.fromkeys(n.split("[")[0].removesuffix(" (per ms)") for n in robot)),
         plausible=10.0,
         draws=options["draws"],
         jacobian_draws=options["jacobian_draws"],
-        numerics=aj.Numerics(solver=aj.GradedARK4(), substeps=SUBSTEPS),
+        numerics=aj.Numerics(solver=aj.solvers.GradedARK4(), substeps=SUBSTEPS),
     )
     assert sens.table() in text
 
@@ -444,12 +444,12 @@ def calibration_files(tmp_path_factory):
     folder = tmp_path_factory.mktemp("calibration")
     alone = aj.make_trial(
         aj.PD(),
-        arm=aj.no_arm(ARM.endpoint),
+        arm=aj.presets.no_arm(ARM.endpoint),
         friction=aj.LuGre(0.8, 1.2),
         sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18),
     )
     run = jax.jit(aj.simulate, static_argnames="numerics")
-    numerics = aj.Numerics(solver=aj.GradedARK4(), substeps=SUBSTEPS)
+    numerics = aj.Numerics(solver=aj.solvers.GradedARK4(), substeps=SUBSTEPS)
     head = "command_x,command_y,x,y,fh_x,fh_y"
     for i in range(2):
         f = aj.perturbation(jax.random.key(20 + i), N_SAMPLES, 10.0)

@@ -75,14 +75,17 @@ def _trial(friction=None, **kw):
 def test_the_toy_kinds_simulate_under_every_integrator_and_batch():
     trial = _trial()
     ref = jax.jit(aj.simulate, static_argnames="numerics")(
-        trial, F, numerics=aj.Numerics(solver=aj.RK4(), substeps=200)
+        trial, F, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=200)
     )
     assert not bool(ref.diverged) and np.std(np.asarray(ref.x)) > 1e-4
     rms = np.sqrt(np.mean(np.asarray(ref.fh) ** 2))
-    for numerics in (aj.Numerics(), aj.Numerics(solver=aj.ARK3(), substeps=20)):  # the stiff torque taken implicitly
+    for numerics in (
+        aj.Numerics(),
+        aj.Numerics(solver=aj.solvers.ARK3(), substeps=20),
+    ):  # the stiff torque taken implicitly
         sim = jax.jit(aj.simulate, static_argnames="numerics")(trial, F, numerics=numerics)
         assert np.max(np.abs(np.asarray(sim.fh) - np.asarray(ref.fh))) < 2e-3 * rms
-    batch = aj.simulate_batch(aj.stack_trials([trial, _trial(SmoothCoulomb(0.0))]), np.stack([F, F]))
+    batch = aj.simulate_batch(aj.batch.stack_trials([trial, _trial(SmoothCoulomb(0.0))]), np.stack([F, F]))
     np.testing.assert_allclose(batch.fh[0], jax.jit(aj.simulate)(trial, F).fh, rtol=0, atol=1e-12)
 
 
@@ -94,7 +97,7 @@ def test_the_toy_kinds_have_a_bound_and_identify_through_the_loop():
     assert all(np.all(np.isfinite(s)) and np.all(s > 0) for s in bound.se.values())
     # identify's default integrator runs the law implicitly above; RK4 at 2 substeps is stable for
     # this law's slope (20 N m s/rad at rest) and compiles in a fraction of the time
-    num = aj.Numerics(solver=aj.RK4(), substeps=2)
+    num = aj.Numerics(solver=aj.solvers.RK4(), substeps=2)
     sim = aj.simulate(_trial(), F, numerics=num)
     arm = paper.arm(2)
     start = aj.make_trial(

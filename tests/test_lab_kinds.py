@@ -90,7 +90,10 @@ def test_per_joint_fields_broadcast_and_check_init_refuses_in_one_line(stribeck)
 def test_the_law_simulates_under_rk4_and_the_imex_integrators(stribeck):
     f = aj.perturbation(jax.random.key(3), 500, 10.0)
     trial = aj.make_trial(aj.PD(), arm=presets.arm(2), friction=stribeck(tau_c=0.1, tau_s=0.2))
-    xs = [aj.simulate(trial, f, numerics=aj.Numerics(solver=solver, substeps=20)).x for solver in (aj.RK4(), aj.ARK3())]
+    xs = [
+        aj.simulate(trial, f, numerics=aj.Numerics(solver=solver, substeps=20)).x
+        for solver in (aj.solvers.RK4(), aj.solvers.ARK3())
+    ]
     assert all(np.isfinite(x).all() for x in xs)
     np.testing.assert_allclose(xs[0], xs[1], atol=2e-6)
 

@@ -21,7 +21,7 @@ from armimp_jax._model.movement import path_at, path_terms, profile_at, profile_
 
 REFERENCE = pathlib.Path(__file__).with_name("data") / "still_reference.npz"
 CONTROLLERS = {"pd": aj.PD, "imbic": aj.IMBIC, "admittance": aj.Admittance}
-PAPER = aj.Numerics(solver=aj.RK4(), substeps=100)
+PAPER = aj.Numerics(solver=aj.solvers.RK4(), substeps=100)
 
 
 @jax.jit(static_argnames="numerics")
@@ -216,7 +216,7 @@ def test_the_moving_plant_under_pd_matches_an_independent_reference():
     trial = aj.make_trial(pd, arm=arm, friction=aj.NO_FRICTION)
     f = aj.perturbation(jax.random.PRNGKey(2), 400, 2.25)
     sim = _sim(trial, f)
-    x, fh = _reference_pd(arm, aj.MIT_MANUS, trial.q0, np.asarray(pd.kp), np.asarray(pd.kv), f)
+    x, fh = _reference_pd(arm, aj.presets.MIT_MANUS, trial.q0, np.asarray(pd.kp), np.asarray(pd.kv), f)
     moved = np.asarray(sim.x) - np.asarray(arm.endpoint.position(np.arange(400) * 1e-3))
     np.testing.assert_allclose(sim.x, x, rtol=0, atol=1e-11 * np.ptp(moved))
     np.testing.assert_allclose(sim.fh, fh, rtol=0, atol=1e-11 * np.ptp(fh))
@@ -235,7 +235,7 @@ def _fidelity(controller, friction, numerics):
     f = aj.perturbation(jax.random.PRNGKey(5), n, base.PEAK)
     key = jax.random.PRNGKey(9)
     a = _sim(trial, f, key=key, numerics=numerics)
-    b = _sim(trial, f, key=key, numerics=aj.Numerics(solver=aj.RK4(), substeps=400))
+    b = _sim(trial, f, key=key, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=400))
     assert not a.diverged and not b.diverged
     q = np.max(np.abs(np.asarray(a.q) - b.q)) / np.ptp(np.asarray(b.q), axis=0).min()
     fh = np.max(np.abs(np.asarray(a.fh) - b.fh)) / np.ptp(np.asarray(b.fh))
@@ -272,7 +272,7 @@ def test_every_controller_follows_the_planned_path(controller):
     arm = _short_arm()
     arm = aj.Arm(mass=arm.mass, damping=25.0 * np.eye(2), stiffness=arm.stiffness, endpoint=arm.endpoint)
     trial = aj.make_trial(CONTROLLERS[controller](), arm=arm, friction=aj.NO_FRICTION)
-    sim = _sim(trial, jnp.zeros((1300, 2)), numerics=aj.Numerics(solver=aj.RK4(), substeps=20))
+    sim = _sim(trial, jnp.zeros((1300, 2)), numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=20))
     assert not sim.diverged
     np.testing.assert_array_equal(sim.x[0], trial.x0)
     np.testing.assert_allclose(sim.x[-1], arm.endpoint.end, rtol=0, atol=1e-3)  # measured: 0.1-0.25 mm
@@ -280,7 +280,7 @@ def test_every_controller_follows_the_planned_path(controller):
 
 # --- jax.grad, vmap, batches ---------------------------------------------------------------
 
-SHORT = aj.Numerics(solver=aj.RK4(), substeps=10)
+SHORT = aj.Numerics(solver=aj.solvers.RK4(), substeps=10)
 
 
 def _force_energy(dip, onset, f):
@@ -322,7 +322,7 @@ def test_vmap_over_moving_arms_and_simulate_batch_agree_with_single_runs():
             lambda arm, fi: aj.simulate(aj.make_trial(aj.IMBIC(), arm=arm, friction=aj.NO_FRICTION), fi, numerics=SHORT)
         )
     )(stacked, f)
-    sweep = aj.simulate_batch(aj.stack_trials(trials), f, numerics=SHORT)
+    sweep = aj.simulate_batch(aj.batch.stack_trials(trials), f, numerics=SHORT)
     for i, single in enumerate(singles):
         for out in (batch, sweep):
             np.testing.assert_allclose(out.fh[i], single.fh, rtol=0, atol=1e-10 * np.ptp(single.fh))
@@ -378,4 +378,4 @@ def test_a_trial_the_moving_arm_cannot_have_is_refused_in_one_line():
         arm.impedance(np.array([1.0]))
     still = aj.make_trial(aj.PD(), arm=presets.arm(3), friction=aj.NO_FRICTION)
     with pytest.raises(ValueError, match="trials in one batch must move alike"):
-        aj.stack_trials([still, aj.make_trial(aj.PD(), arm=arm, friction=aj.NO_FRICTION)])
+        aj.batch.stack_trials([still, aj.make_trial(aj.PD(), arm=arm, friction=aj.NO_FRICTION)])

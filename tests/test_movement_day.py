@@ -151,11 +151,11 @@ def test_the_lab_s_files_give_the_same_numbers(simulated, tmp_path):
     assert table.truth.isna().all() and doc["settings"]["simulated"] is False
 
 
-def _fit(stiffness) -> aj.EnsembleFit:
+def _fit(stiffness) -> aj.results.EnsembleFit:
     """A fit with the knots' ``stiffness`` ``(J, 2, 2)``, no uncertainty."""
     j = len(stiffness)
     zeros = np.zeros((j, 2, 2))
-    return aj.EnsembleFit(
+    return aj.results.EnsembleFit(
         knots=np.arange(j) + 0.5,
         mass=np.eye(2),
         damping=zeros,

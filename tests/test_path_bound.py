@@ -25,7 +25,7 @@ def _still_trial():
 
 
 def _draws(n, count=2, peak=mv.PEAK):
-    fam = aj.PaperNoise(peak=peak)
+    fam = aj.signals.PaperNoise(peak=peak)
     return np.stack([np.asarray(fam.signal(jax.random.key(100 + i), n, 0.001)) for i in range(count)])
 
 
@@ -157,8 +157,8 @@ def test_identify_over_an_ensemble_refuses_friction_it_has_not_measured_saying_w
 
 
 def test_an_envelope_moves_the_perturbation_into_the_reach_keeping_its_rms_and_peak():
-    raw_family, n = aj.PaperNoise(peak=mv.PEAK), 1600
-    shape = aj.Envelope(raw_family, 0.4, 1.2, 0.3, 1.0)
+    raw_family, n = aj.signals.PaperNoise(peak=mv.PEAK), 1600
+    shape = aj.experiment.Envelope(raw_family, 0.4, 1.2, 0.3, 1.0)
     key = jax.random.key(3)
     raw, shaped = np.asarray(raw_family.signal(key, n, 0.001)), shape.signal(key, n, 0.001)
     assert np.all(np.max(np.abs(shaped), axis=0) <= np.max(np.abs(raw), axis=0))
@@ -170,7 +170,7 @@ def test_an_envelope_moves_the_perturbation_into_the_reach_keeping_its_rms_and_p
     assert gain / np.sqrt(np.mean(shaped[outside] ** 2) / np.mean(raw[outside] ** 2)) == pytest.approx(
         1 / 0.3, rel=0.05
     )
-    uniform = aj.Envelope(raw_family, 0.4, 1.2, 1.0, 1.0).signal(key, n, 0.001)
+    uniform = aj.experiment.Envelope(raw_family, 0.4, 1.2, 1.0, 1.0).signal(key, n, 0.001)
     np.testing.assert_allclose(uniform, raw, rtol=1e-12)
 
 
@@ -178,8 +178,8 @@ def test_an_envelope_moves_the_perturbation_into_the_reach_keeping_its_rms_and_p
 def test_design_reach_scores_designs_on_the_bound_and_keeps_the_paper_s_as_reference():
     trial = aj.make_trial(aj.PD(), arm=mv.base_arm(), friction=aj.NO_FRICTION, **cov.noise())
     shapes = (("uniform", 1.0, 1.0), ("reach", 0.3, 1.0))
-    d = aj.design_reach(
-        trial, aj.PaperNoise(peak=mv.PEAK), samples=1600, shapes=shapes, gain_scales=(1.0, 0.5), draws=2
+    d = aj.experiment.design_reach(
+        trial, aj.signals.PaperNoise(peak=mv.PEAK), samples=1600, shapes=shapes, gain_scales=(1.0, 0.5), draws=2
     )
     assert len(d.candidates) == 4 and d.paper["shape"] == "uniform" and d.paper["gain_scale"] == 1.0
     assert d.best["worst"] == min(c["worst"] for c in d.candidates if c["within"])

@@ -56,11 +56,11 @@ def test_input_coherence_meets_the_papers_criterion_and_sees_a_shared_input():
     the paper's 0.4 (36 segments of 2048 here; over keys 0-299 the largest was 0.36, the median
     0.18); an axis that copies the other's signal is seen at once."""
     f = aj.perturbation(jax.random.PRNGKey(2), 20000, 2.25)
-    c = float(aj.input_coherence(f, nperseg=2048, noverlap=1536))
+    c = float(aj.spectra.input_coherence(f, nperseg=2048, noverlap=1536))
     assert 0.0 < c < 0.4, c
     noise = 0.05 * aj.perturbation(jax.random.PRNGKey(3), 20000, 2.25)[:, :1]
     shared = np.concatenate([f[:, :1], f[:, :1] + noise], axis=1)
-    assert float(aj.input_coherence(shared, nperseg=2048, noverlap=1536)) > 0.99
+    assert float(aj.spectra.input_coherence(shared, nperseg=2048, noverlap=1536)) > 0.99
 
 
 @pytest.mark.parametrize(

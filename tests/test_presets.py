@@ -103,6 +103,8 @@ def test_friction_level_0_leaves_the_bristles_at_zero():
     """docs/model.md section 4: at level 0 the bristle state is unused and stays exactly 0."""
     trial = presets.trial("pd", 0, 1)
     f = aj.perturbation(jax.random.key(3), 300, TABLE_3[1])
-    sim = jax.jit(aj.simulate, static_argnames="numerics")(trial, f, numerics=aj.Numerics(solver=aj.RK4(), substeps=5))
+    sim = jax.jit(aj.simulate, static_argnames="numerics")(
+        trial, f, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=5)
+    )
     np.testing.assert_array_equal(sim.z, 0.0)
     assert np.abs(np.asarray(sim.x) - np.asarray(trial.x0)).max() > 1e-5  # it moved

@@ -13,7 +13,7 @@ from armimp_jax import paper
 from armimp_jax._model.robot import cartesian_inertia
 
 # Frictionless loops are not stiff: RK4 at 2 substeps (the suite is compile-bound).
-NUM = aj.Numerics(solver=aj.RK4(), substeps=2)
+NUM = aj.Numerics(solver=aj.solvers.RK4(), substeps=2)
 F = aj.perturbation(jax.random.key(4), 2000, paper.perturbation_peak(1))
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
 F_POOL = F[:1024]  # identify's least record: the pooled test's compile, not its length, is the cost
@@ -37,7 +37,7 @@ def test_the_recorded_force_channel_has_its_gain_offset_and_delay():
 
 
 def test_a_force_from_the_motor_torques_is_the_command_less_the_models_inertial_force():
-    model = aj.Robot(inertia=1.1 * np.asarray(aj.MIT_MANUS.inertia))  # the lab's model, 10% off
+    model = aj.Robot(inertia=1.1 * np.asarray(aj.presets.MIT_MANUS.inertia))  # the lab's model, 10% off
     trial = aj.make_trial(aj.IMBIC(), arm=paper.arm(2), friction=aj.NO_FRICTION, sensors=aj.Sensors(force_model=model))
     sim = _sim(trial)
     fu, xd, q = (np.asarray(a) for a in (sim.fu, sim.xd, sim.q))
@@ -50,7 +50,7 @@ def test_a_force_from_the_motor_torques_is_the_command_less_the_models_inertial_
 def test_two_postures_in_one_identification_share_the_robot_and_keep_their_own_arms():
     """Noise-free: each posture's stiffness its own, the robot's inertia (15% off the model's)
     one value for both, every entry the truth; one joint covariance over all of them."""
-    truth_robot = aj.Robot(inertia=1.15 * np.asarray(aj.MIT_MANUS.inertia))
+    truth_robot = aj.Robot(inertia=1.15 * np.asarray(aj.presets.MIT_MANUS.inertia))
     recordings = []
     for loc in (1, 2):
         arm = paper.arm(loc)
@@ -70,9 +70,9 @@ def test_two_postures_in_one_identification_share_the_robot_and_keep_their_own_a
 @pytest.mark.slow  # about 70 s cold: three templates, two layouts (the script's own: test_identify_pool.py, slow)
 def test_postures_and_the_robot_alone_in_one_identification_recover_every_parameter():
     """Noise-free: two postures and a robot-alone recording, the robot's inertia shared."""
-    truth_robot = aj.Robot(inertia=1.15 * np.asarray(aj.MIT_MANUS.inertia))
+    truth_robot = aj.Robot(inertia=1.15 * np.asarray(aj.presets.MIT_MANUS.inertia))
     recordings = []
-    for loc, arm in ((1, paper.arm(1)), (2, paper.arm(2)), ("alone", aj.no_arm(paper.location_endpoint(2)))):
+    for loc, arm in ((1, paper.arm(1)), (2, paper.arm(2)), ("alone", aj.presets.no_arm(paper.location_endpoint(2)))):
         truth = aj.make_trial(aj.PD(), arm=arm, friction=aj.NO_FRICTION, robot=truth_robot)
         sim = _sim(truth)
         start_arm = arm if loc == "alone" else aj.Arm(1.1 * arm.mass, arm.damping, 0.9 * arm.stiffness, arm.endpoint)
@@ -119,7 +119,7 @@ def test_the_sensitivity_to_a_force_gain_or_delay_error_is_identifys_own_move():
     2%: 1.5 and 1.8 SE each)."""
     trial = aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.NO_FRICTION, **NOISE)
     kw = dict(numerics=NUM, draws=16, jacobian_draws=4)
-    s = aj.robot_sensitivity(trial, F, robot=("sensors.force_gain", "sensors.force_delay"), **kw)
+    s = aj.experiment.robot_sensitivity(trial, F, robot=("sensors.force_gain", "sensors.force_delay"), **kw)
     assert s.robot_labels == ["sensors.force_gain[0]", "sensors.force_gain[1]", "sensors.force_delay (per ms)"]
     np.testing.assert_allclose(s.in_se, s.bias_per_percent / s.se[:, None])
     sim = _sim(trial, key=jax.random.key(11))
@@ -149,23 +149,23 @@ def test_robot_sensitivity_refuses_what_it_cannot_weigh_in_one_line():
     trial = aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.NO_FRICTION, **NOISE)
     assert robot_names(trial)[-1] == "sensors.force_delay"
     with pytest.raises(ValueError, match=r"^robot_sensitivity: plausible must be > 0%, got 0$"):
-        aj.robot_sensitivity(trial, F, plausible=0)
+        aj.experiment.robot_sensitivity(trial, F, plausible=0)
     with pytest.raises(ValueError, match=r"plausible_delay_ms must be > 0 ms, got -1"):
-        aj.robot_sensitivity(trial, F, plausible_delay_ms=-1)
-    motor = aj.Sensors(force_noise=0.05, force_model=aj.MIT_MANUS)
+        aj.experiment.robot_sensitivity(trial, F, plausible_delay_ms=-1)
+    motor = aj.Sensors(force_noise=0.05, force_model=aj.presets.MIT_MANUS)
     no_transducer = dataclasses.replace(trial, sensors=motor)
     assert "sensors.force_delay" not in robot_names(no_transducer)
     with pytest.raises(ValueError, match="a force from the motor torques has no force-channel delay"):
-        aj.robot_sensitivity(no_transducer, F, robot="sensors.force_delay")
+        aj.experiment.robot_sensitivity(no_transducer, F, robot="sensors.force_delay")
     # the force channel's calibration is simulated under the instant acquisition only
     mean = aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.NO_FRICTION, acquisition="interval_mean", **NOISE)
     assert not any(n.startswith("sensors.") for n in robot_names(mean))
     with pytest.raises(ValueError, match="gain and delay need acquisition 'instant', got 'interval_mean'"):
-        aj.robot_sensitivity(mean, F, robot="sensors.force_gain")
+        aj.experiment.robot_sensitivity(mean, F, robot="sensors.force_gain")
     # a delay line too short for a 1 ms secant either way (7 periods of 0.1 ms)
     fast = aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.NO_FRICTION, period=1e-4, **NOISE)
     with pytest.raises(ValueError, match=r"the force delay line holds 0.7 ms at a 0.1 ms period, too short"):
-        aj.robot_sensitivity(fast, F, robot="sensors.force_delay")
+        aj.experiment.robot_sensitivity(fast, F, robot="sensors.force_delay")
 
 
 def test_the_entrywise_cells_change_one_factor_each_from_the_base_case():

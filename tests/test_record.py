@@ -33,14 +33,14 @@ def _trial(controller=None, friction=None, location=2):
     return aj.make_trial(controller or aj.IMBIC(), arm=paper.arm(location), friction=friction, **NOISE)
 
 
-def _bound(rel: dict, seconds: float = 20.0) -> aj.Bound:
+def _bound(rel: dict, seconds: float = 20.0) -> aj.results.Bound:
     """A ``Bound`` whose entries have the relative SEs ``rel`` (label: value; the rest 0.5): the
     host-side record arithmetic needs nothing else."""
     labels = [f"{n}[{i},{j}]" for n in ARM for i in range(2) for j in range(2)]
     flat = np.array([rel.get(label, 0.5) for label in labels])
     mats = {n: flat[4 * k : 4 * k + 4].reshape(2, 2) for k, n in enumerate(ARM)}
     nan = np.full((12, 12), np.nan)
-    return aj.Bound(
+    return aj.results.Bound(
         se=mats, values={n: np.ones((2, 2)) for n in ARM}, relative_se=mats, covariance=nan, information=nan,
         labels=labels, seconds=seconds, reference="the trial's loop", near_linear=True, nonlinearity=np.zeros(4),
         spectral_radius=0.5, message="",
@@ -114,7 +114,7 @@ def test_bad_inputs_are_refused_in_one_line_before_any_simulation(monkeypatch):
     assert _statistic(trial, f, lay.make_layout(("friction.tau_c",)), "efficient", None) == "welch"
 
 
-def _length(**kw) -> aj.RecordLength:
+def _length(**kw) -> aj.results.RecordLength:
     entries = ("arm.mass[0,0]", "arm.stiffness[0,0]")
     base = dict(
         entries=entries, precision=dict.fromkeys(entries, 0.1), level=0.95, seconds=20.0,
@@ -123,7 +123,7 @@ def _length(**kw) -> aj.RecordLength:
         design={"arm.mass[0,0]": 90.0, "arm.stiffness[0,0]": 162.0}, design_basis="predict_se",
         statistic="efficient", draws=64, friction=True, period=1e-3,
     )  # fmt: skip
-    return aj.RecordLength(**{**base, **kw})
+    return aj.results.RecordLength(**{**base, **kw})
 
 
 def test_the_printout_labels_each_answer_and_says_which_to_plan_on():
@@ -158,7 +158,7 @@ def test_a_designs_record_per_arm_in_the_same_convention():
     trials = [_trial(location=1), _trial(location=2)]
     bounds = [_bound({"arm.mass[0,0]": 0.02, "arm.stiffness[0,0]": 0.04}), _bound({"arm.stiffness[0,0]": 0.03})]
     ratio = np.array([[2.0, 1.5], [1.0, 3.0]])
-    d = aj.BoundDesign(
+    d = aj.results.BoundDesign(
         family=None, signal=np.zeros((20_000, 2)), start_signal=None, trials=trials, controller={}, bounds=bounds,
         start_bounds=bounds, minutes=[], start_minutes=[], criterion_before=0.0, criterion_after=0.0, trace=[],
         achieved={}, time_s=0.0, predicted_minutes=[], friction_ratio=ratio, targets=targets,

@@ -99,7 +99,7 @@ def test_csv_round_trip_gives_the_library_numbers(trial, reference, tmp_path, ca
     np.testing.assert_allclose(result["lack_of_fit"]["p"], fit.lack_of_fit_p_overall, rtol=1e-9)
     # no --friction: unknown (the report's first line says so): only the record's stick-slip
     # could blame friction, and no warning blames friction that nobody said is there
-    assert result["warnings"] == aj.fit_warnings(fit, est, acquisition="delay")
+    assert result["warnings"] == aj.spectra.fit_warnings(fit, est, acquisition="delay")
     assert not [w for w in result["warnings"] if w.startswith("instant force samples")]
     assert (
         printed.splitlines()[1] == "fit: acquisition 'delay' (robot friction unknown: stick-slip read from the record; "
@@ -378,7 +378,7 @@ def test_friction_warning_fires_only_when_given_and_segments_follow_the_record(t
     assert printed.splitlines()[1] == "fit: acquisition 'delay'"  # friction given: nothing assumed
     assert result["settings"]["friction_n_m"] == 0.5
     assert not any(w.startswith(("the file's time column", "implausible")) for w in result["warnings"])
-    nperseg, noverlap = aj.welch_segments(len(trial["x"]))
+    nperseg, noverlap = aj.spectra.welch_segments(len(trial["x"]))
     assert (result["settings"]["nperseg"], result["settings"]["noverlap"]) == (nperseg, noverlap)
     assert nperseg < 4500 // 2  # not Table 4's 8192, which a 4.5 s record cannot hold twice
     assert result["record"]["n_segments"] == (len(trial["x"]) - noverlap) // (nperseg - noverlap)
@@ -457,11 +457,11 @@ def test_the_classical_route_on_a_designed_multisine_says_why_and_fits_at_its_li
     arm = paper.arm(2)
     noise = dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(0.3, 2.0))
     trial = aj.make_trial(aj.IMBIC(), arm=arm, friction=aj.LuGre(1.0, 1.5), **noise)
-    family = aj.multisine(np.geomspace(0.1, 15.0, 16), 1.0, offset=0.5)
-    limits = aj.Limits(rms_force=0.66, peak_force=2.25, record=48.0)
-    f = np.asarray(aj.limited_signal(family, limits, key=jax.random.key(0)))
+    family = aj.signals.multisine(np.geomspace(0.1, 15.0, 16), 1.0, offset=0.5)
+    limits = aj.experiment.Limits(rms_force=0.66, peak_force=2.25, record=48.0)
+    f = np.asarray(aj.signals.limited_signal(family, limits, key=jax.random.key(0)))
     sim = jax.jit(aj.simulate, static_argnames="numerics")(
-        trial, f, key=jax.random.key(7), numerics=aj.IDENTIFY_NUMERICS
+        trial, f, key=jax.random.key(7), numerics=aj.solvers.IDENTIFY_NUMERICS
     )
     rec = dict(f_delta=f, x=np.asarray(sim.x), fh=np.asarray(sim.fh))
     welch, _, _ = estimate_recording.route_settings(f.shape[0], fs=1000.0)

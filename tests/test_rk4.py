@@ -19,10 +19,10 @@ BOUND = 1e-9
 def _kernel_runs(controller, n_samples, locations, substeps=100):
     """The same three trials (friction 0, 1, 2) run with each kernel, keyed by kernel name."""
     fd = aj.perturbation(jax.random.PRNGKey(4), n_samples, paper.perturbation_peak(1))
-    params = aj.stack_trials([paper.trial(controller, f, loc) for f, loc in zip((0, 1, 2), locations)])
+    params = aj.batch.stack_trials([paper.trial(controller, f, loc) for f, loc in zip((0, 1, 2), locations)])
     runs = {}
-    for kernel in aj.RK4.KERNELS:
-        numerics = aj.Numerics(solver=aj.RK4(kernel=kernel), substeps=substeps)
+    for kernel in aj.solvers.RK4.KERNELS:
+        numerics = aj.Numerics(solver=aj.solvers.RK4(kernel=kernel), substeps=substeps)
         batched = jax.jit(jax.vmap(lambda t, f, numerics=numerics: aj.simulate(t, f, numerics=numerics)))
         runs[kernel] = batched(params, jnp.stack([fd] * 3))
     return runs
@@ -52,8 +52,10 @@ def test_fast_and_grad_kernels_agree_with_reference_over_50_s(controller):
 
 def test_bad_options_are_refused_with_the_allowed_choices():
     with pytest.raises(ValueError, match="RK4: unknown kernel 'gpu'; allowed: 'fast', 'reference', 'grad'"):
-        aj.RK4(kernel="gpu")
+        aj.solvers.RK4(kernel="gpu")
     p = paper.trial("pd", 0, 1)
     model = plant_model(p.q0, p.x0, p.arm, p.friction, p.robot)
     with pytest.raises(ValueError, match="unknown checkpoint 'step'; allowed: 'period', 'substep'"):
-        aj.RK4().integrate_period(rest_state(p.q0), jnp.zeros(2), model, period=1e-3, substeps=2, checkpoint="step")
+        aj.solvers.RK4().integrate_period(
+            rest_state(p.q0), jnp.zeros(2), model, period=1e-3, substeps=2, checkpoint="step"
+        )

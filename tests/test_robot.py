@@ -7,7 +7,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import armimp_jax as aj
 from armimp_jax import paper
 from armimp_jax._model import robot
 from armimp_jax._model.plant import PlantState, plant_derivative, plant_model
@@ -91,7 +90,7 @@ def _lagrangian_qdd(q, qd, z, fu, params):
     j = jax.jacfwd(spec_fk)(q)
     jd_qd = jax.jvp(lambda q_: jax.jacfwd(spec_fk)(q_), (q,), (qd,))[1] @ qd
     arm, fr = params.arm, params.friction
-    tau_f = jnp.stack([aj.lugre(qd[i], z[i], fr.joint(i))[0] for i in range(2)])
+    tau_f = jnp.stack([fr.joint(i).torque_and_rate(qd[i], z[i])[0] for i in range(2)])
     x = spec_fk(q)
     # M qdd + h + tau_f = J^T (F_u - F_h),  F_h = M_h (J qdd + Jd qd) + B_h J qd + K_h (x - x0)
     lhs = m + j.T @ arm.mass @ j

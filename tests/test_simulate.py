@@ -20,12 +20,12 @@ CONTROLLERS = ["pd", "imbic"]
 
 @jax.jit(static_argnames="substeps")
 def _sim(trial, fd, substeps=100):
-    return aj.simulate(trial, fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=substeps))
+    return aj.simulate(trial, fd, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=substeps))
 
 
 @jax.jit(static_argnames="substeps")
 def _batch_sim(trials, fds, substeps=100):
-    return jax.vmap(lambda t, f: aj.simulate(t, f, numerics=aj.Numerics(solver=aj.RK4(), substeps=substeps)))(
+    return jax.vmap(lambda t, f: aj.simulate(t, f, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=substeps)))(
         trials, fds
     )
 
@@ -49,7 +49,7 @@ def _fd(n, seed=3, level=1):
 def test_rest_is_exact_rest_everywhere(batch_sim, controller, acquisition):
     """Unperturbed, every friction level and location stays exactly (bitwise) at x0."""
     cases = [(f, loc) for f in (0, 1, 2) for loc in (1, 2, 3, 4)]
-    params = aj.stack_trials([paper.trial(controller, f, loc, acquisition=acquisition) for f, loc in cases])
+    params = aj.batch.stack_trials([paper.trial(controller, f, loc, acquisition=acquisition) for f, loc in cases])
     r = batch_sim(params, jnp.zeros((len(cases), 300, 2)), substeps=4)
     x0 = np.asarray(params.x0)[:, None, :]
     np.testing.assert_array_equal(r.x, np.broadcast_to(x0, r.x.shape))
@@ -65,7 +65,7 @@ def test_rk4_is_fourth_order():
     fd = 20.0 * _fd(40)
 
     def run(substeps):
-        return np.asarray(aj.simulate(base, fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=substeps)).q)
+        return np.asarray(aj.simulate(base, fd, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=substeps)).q)
 
     ref = run(256)
     errs = [np.abs(run(s) - ref).max() for s in (1, 2, 4, 8)]
@@ -110,7 +110,7 @@ def test_interval_mean_is_the_mean_over_the_period():
     fd = _fd(200)
     p = paper.trial("pd", 0, 2, acquisition="interval_mean")
     substeps = 40
-    r = aj.simulate(p, fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=substeps))
+    r = aj.simulate(p, fd, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=substeps))
     model = plant_model(p.q0, p.x0, p.arm, p.friction, p.robot)
     h = p.period / substeps
 
@@ -132,7 +132,9 @@ def test_interval_mean_is_the_mean_over_the_period():
     np.testing.assert_array_equal(r.fh[0], 0.0)
     # ...and it differs from the instant samples by far more than that tolerance
     inst = aj.simulate(
-        dataclasses.replace(p, acquisition="instant"), fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=substeps)
+        dataclasses.replace(p, acquisition="instant"),
+        fd,
+        numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=substeps),
     )
     assert np.abs(np.asarray(inst.fh) - np.asarray(r.fh)).max() > 1e-3 * np.abs(r.fh).max()
 
@@ -150,7 +152,7 @@ def test_any_two_batches_agree_bitwise_and_a_batch_equals_single_runs(sim, batch
     params = [paper.trial(controller, f, loc, mhat=m * np.eye(2)) for f, loc, m in cases]
     fds = jnp.stack([_fd(400, seed=s) for s in range(len(cases))])
     singles = [sim(p, fd, substeps=5) for p, fd in zip(params, fds)]
-    batch = batch_sim(aj.stack_trials(params), fds, substeps=5)
+    batch = batch_sim(aj.batch.stack_trials(params), fds, substeps=5)
     for i, single in enumerate(singles):
         row = jax.tree.map(lambda a, i=i: a[i], batch)
         assert int(row.diverged_at) == int(single.diverged_at) == -1
@@ -158,7 +160,7 @@ def test_any_two_batches_agree_bitwise_and_a_batch_equals_single_runs(sim, batch
             a, b = np.asarray(getattr(row, name)), np.asarray(getattr(single, name))
             a, b = a - b[:1], b - b[:1]  # displacements, not the 0.4 m offset
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-11 * np.abs(b).max())
-    pair = batch_sim(aj.stack_trials(params[1:3]), fds[1:3], substeps=5)
+    pair = batch_sim(aj.batch.stack_trials(params[1:3]), fds[1:3], substeps=5)
     assert tree_equal(pair, jax.tree.map(lambda a: a[1:3], batch))
 
 
@@ -167,13 +169,13 @@ def test_divergence_is_flagged_per_trial_without_poisoning_the_batch(sim, batch_
     good = paper.trial("imbic", 0, 1)
     bad = paper.trial("imbic", 0, 1, mhat=20.0 * np.eye(2))
     fds = jnp.stack([_fd(400), _fd(400)])
-    r = batch_sim(aj.stack_trials([good, bad]), fds, substeps=5)
+    r = batch_sim(aj.batch.stack_trials([good, bad]), fds, substeps=5)
     assert not bool(r.diverged[0]) and int(r.diverged_at[0]) == -1
     assert bool(r.diverged[1]) and 0 < int(r.diverged_at[1]) < 400
     assert all(np.all(np.isfinite(leaf)) for leaf in jax.tree.leaves(r))
     k = int(r.diverged_at[1])
     np.testing.assert_array_equal(r.x[1, k:], np.broadcast_to(r.x[1, k - 1], r.x[1, k:].shape))
-    alone = batch_sim(aj.stack_trials([good, good]), fds, substeps=5)
+    alone = batch_sim(aj.batch.stack_trials([good, good]), fds, substeps=5)
     assert tree_equal(jax.tree.map(lambda a: a[0], r), jax.tree.map(lambda a: a[0], alone))
 
 
@@ -183,7 +185,7 @@ def test_gradient_wrt_mhat_is_finite(friction_level):
 
     def loss(m):
         p = paper.trial("imbic", friction_level, 1, mhat=m)
-        return jnp.sum(aj.simulate(p, fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=4)).x ** 2)
+        return jnp.sum(aj.simulate(p, fd, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=4)).x ** 2)
 
     g = jax.grad(loss)(0.25 * jnp.eye(2))
     assert np.all(np.isfinite(g)) and np.any(g != 0)
@@ -194,13 +196,13 @@ def test_vmap_over_mhat_inside_trial_params(batch_sim):
     fd = _fd(100)
 
     def final_x(m):
-        return aj.simulate(paper.trial("imbic", 1, 1, mhat=m), fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=4)).x[
-            -1
-        ]
+        return aj.simulate(
+            paper.trial("imbic", 1, 1, mhat=m), fd, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=4)
+        ).x[-1]
 
     ms = jnp.stack([0.25 * jnp.eye(2), 0.5 * jnp.eye(2)])
     out = jax.jit(jax.vmap(final_x))(ms)
-    stacked = aj.stack_trials([paper.trial("imbic", 1, 1, mhat=m) for m in ms])
+    stacked = aj.batch.stack_trials([paper.trial("imbic", 1, 1, mhat=m) for m in ms])
     np.testing.assert_array_equal(out, batch_sim(stacked, jnp.stack([fd, fd]), substeps=4).x[:, -1])
     assert not np.array_equal(out[0], out[1])
 
@@ -248,8 +250,8 @@ def test_bad_perturbation_and_batches_are_rejected():
     with pytest.raises(ValueError, match="f_delta must be float64, got dtype float32"):
         aj.simulate(p, np.zeros((10, 2), dtype=np.float32))
     with pytest.raises(ValueError, match="must share the controller type"):
-        aj.stack_trials([p, paper.trial("imbic", 0, 1)])
-    batch = aj.stack_trials([p])
+        aj.batch.stack_trials([p, paper.trial("imbic", 0, 1)])
+    batch = aj.batch.stack_trials([p])
     with pytest.raises(ValueError, match=r"f_delta must have shape \(B, N, 2\), got \(1, 10\)"):
         sweep.simulate_batch(batch, np.zeros((1, 10)))
     for chunk in (None, 5):

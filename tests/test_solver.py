@@ -14,7 +14,13 @@ from armimp_jax import paper
 from armimp_jax._model.plant import Trig
 from armimp_jax._solver.common import rotate
 
-SOLVERS = [aj.RK4(), aj.RK4(kernel="reference"), aj.RK4(kernel="grad"), aj.ARK3(), aj.ARK4(kernel="reference")]
+SOLVERS = [
+    aj.solvers.RK4(),
+    aj.solvers.RK4(kernel="reference"),
+    aj.solvers.RK4(kernel="grad"),
+    aj.solvers.ARK3(),
+    aj.solvers.ARK4(kernel="reference"),
+]
 
 
 def test_rotation_is_exact_to_round_off():
@@ -57,14 +63,24 @@ def test_defaults_the_paper_and_the_sweep_setting():
     """``Numerics()`` is the converged stiff step; each solver has its own default substeps,
     resolved at construction (an int: equal settings hash equal however they were spelled)."""
     default = aj.Numerics()
-    assert default == aj.Numerics(solver=aj.GradedARK4(kernel="fast"), substeps=4, checkpoint="period")
-    assert hash(default) == hash(aj.Numerics(solver=aj.GradedARK4(), substeps=4)) and type(default.substeps) is int
-    expected = {aj.RK4(): 100, aj.RK4(kernel="grad"): 100, aj.ARK3(): 20, aj.ARK4(): 10, aj.GradedARK4(): 4}
+    assert default == aj.Numerics(solver=aj.solvers.GradedARK4(kernel="fast"), substeps=4, checkpoint="period")
+    assert (
+        hash(default) == hash(aj.Numerics(solver=aj.solvers.GradedARK4(), substeps=4)) and type(default.substeps) is int
+    )
+    expected = {
+        aj.solvers.RK4(): 100,
+        aj.solvers.RK4(kernel="grad"): 100,
+        aj.solvers.ARK3(): 20,
+        aj.solvers.ARK4(): 10,
+        aj.solvers.GradedARK4(): 4,
+    }
     assert {solver: aj.Numerics(solver=solver).substeps for solver in expected} == expected
-    assert aj.PAPER_NUMERICS == aj.Numerics(solver=aj.RK4(kernel="fast"), substeps=100, checkpoint="period")
-    assert aj.SWEEP_NUMERICS == aj.Numerics(solver=aj.ARK3(kernel="fast"), substeps=20)
-    assert dataclasses.replace(aj.SWEEP_NUMERICS, substeps=80).solver == aj.ARK3()
-    assert dataclasses.replace(default, substeps=16) == aj.Numerics(solver=aj.GradedARK4(), substeps=16)
+    assert aj.solvers.PAPER_NUMERICS == aj.Numerics(
+        solver=aj.solvers.RK4(kernel="fast"), substeps=100, checkpoint="period"
+    )
+    assert aj.solvers.SWEEP_NUMERICS == aj.Numerics(solver=aj.solvers.ARK3(kernel="fast"), substeps=20)
+    assert dataclasses.replace(aj.solvers.SWEEP_NUMERICS, substeps=80).solver == aj.solvers.ARK3()
+    assert dataclasses.replace(default, substeps=16) == aj.Numerics(solver=aj.solvers.GradedARK4(), substeps=16)
 
 
 @pytest.mark.parametrize("controller", ["pd", "imbic"])
@@ -72,12 +88,12 @@ def test_the_default_is_stable_where_the_papers_rk4_diverges(controller):
     """Coulomb torques of 1e-4 and 1e-3 N m (stiction 1.5x), 0.3 s: the paper's RK4 at 100
     substeps diverges, ``Numerics()`` does not (its convergence: docs/performance.md)."""
     base = paper.trial(controller, 0, 1)
-    trials = aj.stack_trials(
+    trials = aj.batch.stack_trials(
         [aj.make_trial(base.controller, arm=base.arm, friction=aj.LuGre(tau, 1.5 * tau)) for tau in (1e-4, 1e-3)]
     )
     fd = aj.perturbation(jax.random.PRNGKey(7), 300, paper.perturbation_peak(1))
     run = jax.jit(jax.vmap(aj.simulate, in_axes=(0, None)), static_argnames="numerics")
-    assert np.all(run(trials, fd, numerics=aj.PAPER_NUMERICS).diverged)
+    assert np.all(run(trials, fd, numerics=aj.solvers.PAPER_NUMERICS).diverged)
     sim = run(trials, fd, numerics=aj.Numerics())
     assert not np.any(sim.diverged) and np.all(np.isfinite(sim.fh)) and np.all(np.ptp(sim.x, axis=1) > 1e-6)
 
@@ -88,7 +104,10 @@ def test_the_default_is_stable_where_the_papers_rk4_diverges(controller):
         (dict(method="ark3", kernel="fast"), r"write Numerics\(solver=ARK3\(kernel='fast'\)\)"),
         (dict(kernel="grad"), r"write Numerics\(solver=RK4\(kernel='grad'\)\)"),
         (dict(method="euler"), r"write Numerics\(solver=RK4\(\), ARK3\(\), ARK4\(\) or GradedARK4\(\)\)"),
-        (dict(solver=aj.ARK3(), substep=4), "unexpected option.* substep; it takes solver, substeps, checkpoint"),
+        (
+            dict(solver=aj.solvers.ARK3(), substep=4),
+            "unexpected option.* substep; it takes solver, substeps, checkpoint",
+        ),
     ],
 )
 def test_a_solver_named_by_a_string_is_refused_with_the_object_to_pass(options, message):
@@ -100,9 +119,9 @@ def test_saved_settings_keep_their_keys_and_order():
     """Run settings record ``settings()``; saved result folders hold these keys in this
     order (substeps, kernel, checkpoint, method), and resume only if the JSON text is the same."""
     saved = '{"substeps": 20, "kernel": "grad", "checkpoint": "substep", "method": "rk4"}'
-    num = aj.Numerics(solver=aj.RK4(kernel="grad"), substeps=20, checkpoint="substep")
+    num = aj.Numerics(solver=aj.solvers.RK4(kernel="grad"), substeps=20, checkpoint="substep")
     assert json.dumps(num.settings()) == saved
-    assert aj.SWEEP_NUMERICS.settings() == dict(substeps=20, kernel="fast", checkpoint="period", method="ark3")
+    assert aj.solvers.SWEEP_NUMERICS.settings() == dict(substeps=20, kernel="fast", checkpoint="period", method="ark3")
 
 
 def test_jit_compiles_once_per_numerics_value():
@@ -116,9 +135,9 @@ def test_jit_compiles_once_per_numerics_value():
         traces.append(num)
         return aj.simulate(t, fd, numerics=num).x
 
-    for num in (aj.Numerics(solver=aj.ARK3(), substeps=2), aj.Numerics(solver=aj.ARK3(), substeps=2)):
+    for num in (aj.Numerics(solver=aj.solvers.ARK3(), substeps=2), aj.Numerics(solver=aj.solvers.ARK3(), substeps=2)):
         run(trial, num)
-    run(trial, aj.Numerics(solver=aj.ARK4(), substeps=2))
+    run(trial, aj.Numerics(solver=aj.solvers.ARK4(), substeps=2))
     assert len(traces) == 2
 
 
@@ -130,7 +149,7 @@ def test_jit_compiles_once_per_numerics_value():
             r"Numerics: solver must be RK4\(...\), ARK3\(...\), ARK4\(...\) or GradedARK4\(...\), got 'ark3'",
         ),
         (
-            dict(solver=aj.ARK3),
+            dict(solver=aj.solvers.ARK3),
             r"Numerics: solver must be RK4\(...\), ARK3\(...\), ARK4\(...\) or GradedARK4\(...\), got <class",
         ),
         (dict(checkpoint="step"), "unknown checkpoint 'step'; allowed: 'period', 'substep'"),

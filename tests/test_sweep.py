@@ -111,7 +111,7 @@ def test_tiny_sweep_writes_a_row_per_trial_and_a_summary_per_point(tiny):
 
     for r in sound:  # each row holds its trial's numbers: phi_T and coh_min of its saved estimate, recomputed
         saved = np.load(tiny / "trials" / f"{r['trial_id']}.npz")
-        phi = float(aj.accuracy(saved["Z"], saved["f"], presets.arm(int(r["arm"])))[0])
+        phi = float(aj.spectra.accuracy(saved["Z"], saved["f"], presets.arm(int(r["arm"])))[0])
         assert float(r["phi_T"]) == pytest.approx(phi, rel=1e-12), r["trial_id"]
         lowest = min(saved["coh_multiple_x"].min(), saved["coh_multiple_fh"].min())
         assert float(r["coh_min"]) == pytest.approx(float(lowest), rel=1e-12), r["trial_id"]

@@ -17,7 +17,7 @@ from armimp_jax._solver.rk4 import rk4_step
 
 def _run(trials, fds, substeps, **kw):
     return jax.jit(
-        jax.vmap(lambda t, f: aj.simulate(t, f, numerics=aj.Numerics(solver=aj.RK4(), substeps=substeps), **kw))
+        jax.vmap(lambda t, f: aj.simulate(t, f, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=substeps), **kw))
     )(trials, fds)
 
 
@@ -39,7 +39,7 @@ def test_custom_scenario_realises_the_desired_dynamics_it_asks_for():
     fd = aj.perturbation(jax.random.PRNGKey(1), 2000, 2.0)
     e = np.asarray(
         jax.jit(aj.simulate, static_argnames="numerics")(
-            trial, fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=10)
+            trial, fd, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=10)
         ).x
     )
     e = e - np.asarray(trial.x0)
@@ -62,9 +62,9 @@ def test_custom_friction_is_per_joint_and_a_batch_mixes_everything():
         aj.make_trial(aj.IMBIC(), arm=paper.arm(2), friction=paper.friction(2), robot=aj.Robot(shoulder_link=0.42)),
     ]
     fds = jnp.stack([aj.perturbation(jax.random.PRNGKey(i), 300, 2.0) for i in range(2)])
-    batch = _run(aj.stack_trials(trials), fds, 20)
+    batch = _run(aj.batch.stack_trials(trials), fds, 20)
     for i, t in enumerate(trials):
-        alone = _run(aj.stack_trials([t, t]), fds[i : i + 1].repeat(2, 0), 20)
+        alone = _run(aj.batch.stack_trials([t, t]), fds[i : i + 1].repeat(2, 0), 20)
         assert tree_equal(jax.tree.map(lambda a: a[i], batch), jax.tree.map(lambda a: a[0], alone))
     assert not np.any(batch.diverged)
 
@@ -104,10 +104,10 @@ def test_free_robot_conserves_kinetic_energy_to_fourth_order(substeps):
     assert abs(float(pw)) < 1e-12 * float(e0)
 
 
-def _phi(trial, fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=10)):
+def _phi(trial, fd, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=10)):
     sim = aj.simulate(trial, fd, numerics=numerics)
     est = aj.estimate(fd, sim.x, sim.fh, nperseg=512, noverlap=384)
-    return aj.accuracy(est.Z, est.f, trial.arm)[0]
+    return aj.spectra.accuracy(est.Z, est.f, trial.arm)[0]
 
 
 def _fd():
@@ -157,14 +157,14 @@ def test_gradients_of_phi_agree_with_central_differences(controller, name):
 def test_ideal_sensors_are_bitwise_ideal_and_pd_motion_ignores_force_noise():
     fd = jnp.stack([aj.perturbation(jax.random.PRNGKey(3), 600, 2.25)] * 2)
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
-    plain = aj.stack_trials([paper.trial("pd", 1, 1)] * 2)
-    off = aj.stack_trials([paper.trial("pd", 1, 1, sensors=aj.Sensors(force_noise=0.0))] * 2)
-    noisy = aj.stack_trials([paper.trial("pd", 1, 1, sensors=aj.Sensors(force_noise=0.5))] * 2)
+    plain = aj.batch.stack_trials([paper.trial("pd", 1, 1)] * 2)
+    off = aj.batch.stack_trials([paper.trial("pd", 1, 1, sensors=aj.Sensors(force_noise=0.0))] * 2)
+    noisy = aj.batch.stack_trials([paper.trial("pd", 1, 1, sensors=aj.Sensors(force_noise=0.5))] * 2)
     a, b = _run(plain, fd, 5), _run(off, fd, 5, key=None)
     assert tree_equal(a, b)
-    n = jax.jit(jax.vmap(lambda t, f, k: aj.simulate(t, f, key=k, numerics=aj.Numerics(solver=aj.RK4(), substeps=5))))(
-        noisy, fd, keys
-    )
+    n = jax.jit(
+        jax.vmap(lambda t, f, k: aj.simulate(t, f, key=k, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=5)))
+    )(noisy, fd, keys)
     for name in ("x", "xd", "fu", "q", "z"):  # PD does not read F_h
         assert tree_equal(getattr(n, name), getattr(a, name)), name
     noise = np.asarray(n.fh - a.fh)
@@ -182,7 +182,7 @@ def test_encoder_quantisation_and_velocity_noise():
     t = paper.trial("pd", 0, 1, sensors=sensors)
     fd = aj.perturbation(jax.random.PRNGKey(3), 400, 2.25)
     r = jax.jit(aj.simulate, static_argnames="numerics")(
-        t, fd, key=jax.random.PRNGKey(1), numerics=aj.Numerics(solver=aj.RK4(), substeps=5)
+        t, fd, key=jax.random.PRNGKey(1), numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=5)
     )
     # the recorded position is the forward kinematics of quantised angles
     step = 2 * np.pi / counts
@@ -194,7 +194,7 @@ def test_encoder_quantisation_and_velocity_noise():
     steps_taken = np.unique(np.round(np.diff(np.asarray(r.x)[:, 0]), 12))
     assert len(steps_taken) < 20  # a handful of encoder steps, not a continuum
     ideal = jax.jit(aj.simulate, static_argnames="numerics")(
-        paper.trial("pd", 0, 1), fd, numerics=aj.Numerics(solver=aj.RK4(), substeps=5)
+        paper.trial("pd", 0, 1), fd, numerics=aj.Numerics(solver=aj.solvers.RK4(), substeps=5)
     )
     assert not np.array_equal(np.asarray(r.xd), np.asarray(ideal.xd))
 
@@ -287,5 +287,5 @@ def test_an_arm_no_human_has_gets_one_line_with_its_likely_cause_and_the_robot_a
         aj.make_trial(aj.IMBIC(), arm=flipped, friction=aj.NO_FRICTION)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        for arm in (CUSTOM_ARM, paper.arm(1), aj.no_arm(end)):
+        for arm in (CUSTOM_ARM, paper.arm(1), aj.presets.no_arm(end)):
             aj.make_trial(aj.PD(), arm=arm, friction=aj.NO_FRICTION)

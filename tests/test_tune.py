@@ -105,7 +105,7 @@ def test_grad_and_fast_kernels_give_the_same_gradient(short_batch):
 @pytest.mark.slow  # about 13 s cold
 @pytest.mark.parametrize("kernel", [pytest.param("fast", marks=pytest.mark.slow), "grad"])
 def test_no_nan_in_the_gradient_at_friction_0(kernel):
-    params = aj.stack_trials([presets.trial("imbic", 0, loc) for loc in (1, 3)])
+    params = aj.batch.stack_trials([presets.trial("imbic", 0, loc) for loc in (1, 3)])
     f_delta = jnp.asarray(paper_tune.seed_perturbations(0, [5, 6], 1200))
     numerics = paper_tune.training_numerics(3, kernel=kernel)
     vg = tune.value_and_grad_fn(parameterisation="diagonal", welch=Welch(512, 256), mode="reverse", numerics=numerics)

@@ -32,7 +32,7 @@ def test_it_moves_the_arm_and_never_changes_the_sensor_noise_draws():
     def fh(noise, vol):
         sensors = aj.Sensors(force_noise=0.05 if noise else 0.0, force_on=True)
         t = aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.NO_FRICTION, sensors=sensors, voluntary=vol)
-        s = aj.simulate(t, f_delta, key=key, numerics=aj.SWEEP_NUMERICS)
+        s = aj.simulate(t, f_delta, key=key, numerics=aj.solvers.SWEEP_NUMERICS)
         return np.asarray(s.fh), np.asarray(s.x) - np.asarray(t.x0)
 
     (with_vol, x_vol), (quiet_vol, _) = fh(True, VOL), fh(False, VOL)
@@ -56,7 +56,7 @@ def test_axes_independent_and_per_axis_levels():
     assert abs(np.corrcoef(fv[:, 0], fv[:, 1])[0, 1]) < 0.05
 
 
-NUM = aj.SWEEP_NUMERICS
+NUM = aj.solvers.SWEEP_NUMERICS
 
 
 def _trial(voluntary, sensors=None, friction=None):
@@ -111,9 +111,9 @@ def test_chunks_chain_bitwise():
     f = aj.perturbation(jax.random.key(6), 2000, 5.0)
     key = jax.random.key(7)
     whole = aj.simulate(trial, f, key=key, numerics=NUM)
-    carry = aj.simulate_init(trial)
-    carry, a = aj.simulate_chunk(trial, carry, f[:700], key=key, numerics=NUM)
-    carry, b = aj.simulate_chunk(trial, carry, f[700:], key=key, numerics=NUM)
+    carry = aj.solvers.simulate_init(trial)
+    carry, a = aj.solvers.simulate_chunk(trial, carry, f[:700], key=key, numerics=NUM)
+    carry, b = aj.solvers.simulate_chunk(trial, carry, f[700:], key=key, numerics=NUM)
     np.testing.assert_array_equal(np.concatenate([a.x, b.x]), whole.x)
     np.testing.assert_array_equal(np.concatenate([a.fh, b.fh]), whole.fh)
 
@@ -126,4 +126,4 @@ def test_more_bad_values_are_refused():
     with pytest.raises(ValueError, match="voluntary must be a VoluntaryForce"):
         _trial(0.3)
     with pytest.raises(ValueError, match="voluntary force of one cutoff"):
-        aj.stack_trials([_trial(None), _trial(aj.VoluntaryForce(0.3, 2.0))])
+        aj.batch.stack_trials([_trial(None), _trial(aj.VoluntaryForce(0.3, 2.0))])

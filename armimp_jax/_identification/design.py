@@ -160,7 +160,8 @@ def _check_design(
         raise ValueError(f"design: learning_rate must lie in (0, 10) (a step in log amplitude), got {learning_rate!r}")
     if not isinstance(method, (CramerRao, MonteCarlo, Auto)):
         raise ValueError(
-            f"design: method must be aj.CramerRao(...), aj.MonteCarlo(...) or aj.Auto(...), got {method!r}"
+            "design: method must be aj.experiment.CramerRao(...), aj.experiment.MonteCarlo(...) or "
+            f"aj.experiment.Auto(...), got {method!r}"
         )
     return candidates, layout, idx, trials
 
@@ -188,7 +189,8 @@ def _choose_method(method, trials, candidates, layout, criterion, limits, key):
             k, names = silent[0]
             raise ValueError(
                 f"design: the bound (CramerRao) needs reading noise on every recorded channel; robust_over[{k}] "
-                f"records {', '.join(names)} without any (acquisition {trials[k].acquisition!r}): use aj.MonteCarlo()"
+                f"records {', '.join(names)} without any (acquisition {trials[k].acquisition!r}): "
+                "use aj.experiment.MonteCarlo()"
             )
         if not covered:
             raise ValueError(
@@ -205,7 +207,7 @@ def _choose_method(method, trials, candidates, layout, criterion, limits, key):
             wanted = "the controller's gains" if method.bound.controller else "a calibration"
             raise ValueError(
                 f"design: {wanted} needs the bound, which needs near-linear loops (IMBIC, or PD without friction) "
-                "and one starting family; through stick-slip set the gains yourself (aj.MonteCarlo())"
+                "and one starting family; through stick-slip set the gains yourself (aj.experiment.MonteCarlo())"
             )
         method = method.bound if near else method.monte_carlo
     return method

@@ -285,7 +285,7 @@ def identify(
             sensors' and voluntary force's noise levels, which the intervals rest on) and the
             starting values of the free parameters; or a list of ``Recording`` (each its own
             ``Trial``, perturbation and recording, of any length; ``f``, ``x``, ``fh`` then
-            ``None``): postures, repeated trials, the robot alone (``aj.no_arm``).
+            ``None``): postures, repeated trials, the robot alone (``aj.presets.no_arm``).
         f: the commanded perturbation ``F_Delta`` ``(N, 2)`` [N]; or an ``Ensemble`` of reaches.
         x, fh: the recorded hand position [m] and force [N], ``(N, 2)`` each.
         free: names of the parameters to estimate, from ``"arm.mass"``, ``"arm.damping"``,

@@ -2,7 +2,7 @@
 vector to each recording's own parameters.
 
 A study records several trials, at several postures, and sometimes the robot alone (no arm
-on the handle: ``aj.no_arm``). Each recording keeps its own ``Trial`` (posture, controller,
+on the handle: ``aj.presets.no_arm``). Each recording keeps its own ``Trial`` (posture, controller,
 noise), perturbation and length. A free parameter is either **shared** by every recording
 (the robot's friction, its inertia, the force channel: one robot) or **per group**: one
 value for each group of recordings (the arm at each posture; a recording's ``group`` names

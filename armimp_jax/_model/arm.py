@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import as_param, check_positive_semidefinite
-from .._pytree import params
+from .._pytree import Param, params
 from .movement import MinimumJerk, Profile
 
 UPPER_ARM_LENGTH = 0.21  # l_u [m]
@@ -59,10 +59,10 @@ class Arm:
     are checked when concrete; traced values pass, so ``grad`` and ``vmap`` flow through them.
     """
 
-    mass: jnp.ndarray
-    damping: jnp.ndarray | Profile
-    stiffness: jnp.ndarray | Profile
-    endpoint: jnp.ndarray | MinimumJerk
+    mass: Param
+    damping: Param  # or a Profile (a time profile along a reach)
+    stiffness: Param  # or a Profile
+    endpoint: Param  # or a MinimumJerk path
 
     def __post_init__(self):
         w = "Arm"

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import as_float64, as_param, is_concrete
-from .._pytree import params
+from .._pytree import Param, params
 
 
 def _values(values, n_knots: int, where: str):
@@ -52,8 +52,8 @@ class Profile:
     program runs.
     """
 
-    times: jnp.ndarray
-    values: jnp.ndarray
+    times: Param
+    values: Param
 
     def __post_init__(self):
         w = "Profile"
@@ -119,10 +119,10 @@ class MinimumJerk:
     ``position(t)`` and ``velocity(t)`` (the exact derivative) take scalars or arrays of times.
     """
 
-    start: jnp.ndarray
-    end: jnp.ndarray
-    onset: jnp.ndarray
-    duration: jnp.ndarray
+    start: Param
+    end: Param
+    onset: Param
+    duration: Param
 
     def __post_init__(self):
         w, set_ = "MinimumJerk", object.__setattr__

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import as_param, check_range, is_concrete
-from .._pytree import params
+from .._pytree import Param, params
 from .arm import arm_endpoint
 
 # MIT-MANUS / InMotion2 (docs/model.md section 15.1: public control code, constant regression terms).
@@ -50,10 +50,10 @@ class Robot:
     lengths, an inertia matrix that is not positive definite, or wrong shapes.
     """
 
-    shoulder_link: jnp.ndarray = MIT_MANUS_SHOULDER_LINK
-    elbow_link: jnp.ndarray = MIT_MANUS_ELBOW_LINK
-    inertia: jnp.ndarray = MIT_MANUS_INERTIA
-    base: jnp.ndarray = tuple(MIT_MANUS_BASE)
+    shoulder_link: Param = MIT_MANUS_SHOULDER_LINK
+    elbow_link: Param = MIT_MANUS_ELBOW_LINK
+    inertia: Param = MIT_MANUS_INERTIA
+    base: Param = tuple(MIT_MANUS_BASE)
 
     def __post_init__(self):
         w = "Robot"

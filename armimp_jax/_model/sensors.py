@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import as_param, check_range, is_concrete
-from .._pytree import params
+from .._pytree import Param, params
 from .robot import Robot
 
 
@@ -68,12 +68,12 @@ class Sensors:
     options the simulation computes; ``stack_trials`` aligns them across a batch.
     """
 
-    force_noise: jnp.ndarray = 0.0
-    encoder_counts: jnp.ndarray | None = None
-    velocity_noise: jnp.ndarray = 0.0
-    force_gain: jnp.ndarray = 1.0
-    force_offset: jnp.ndarray = 0.0
-    force_delay: jnp.ndarray = 0.0
+    force_noise: Param = 0.0
+    encoder_counts: Param | None = None
+    velocity_noise: Param = 0.0
+    force_gain: Param = 1.0
+    force_offset: Param = 0.0
+    force_delay: Param = 0.0
     force_model: object = None
     force_on: bool = False
     encoder_on: bool = False

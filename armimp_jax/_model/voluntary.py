@@ -33,7 +33,7 @@ import numpy as np
 import scipy.linalg
 
 from .._checks import as_param, check_range
-from .._pytree import params
+from .._pytree import Param, params
 from .perturbation import butterworth_sos, sos_step
 from .timing import CONTROL_PERIOD
 
@@ -53,7 +53,7 @@ class VoluntaryForce:
             trial's control period (checked by ``make_trial``). Static: it fixes the filter.
     """
 
-    std: jnp.ndarray
+    std: Param
     cutoff: float
 
     def __post_init__(self):

@@ -2,6 +2,8 @@
 levels) and ``trial``, which turns them into ``make_trial`` values. Below the studies: the
 general sweep and the paper's reproduction both read them from here."""
 
+from .._model.arm import no_arm as no_arm
+from .._model.robot import MIT_MANUS as MIT_MANUS
 from ._paper import LOCATIONS as LOCATIONS
 from ._paper import PERTURBATION_LEVELS as PERTURBATION_LEVELS
 from ._paper import arm as arm

@@ -6,7 +6,7 @@ identify config with a ``[recordings]`` section -> one pooled ``identify`` -> on
   ``shared``: ``identify``'s, default every name but the arm's).
 - ``build_recordings(config, loaded, where)``: one ``aj.Recording`` per loaded file, its model
   the config's trial at the file's first hand position (each posture rests where its recording
-  starts), with ``aj.no_arm`` for the robot alone.
+  starts), with ``aj.presets.no_arm`` for the robot alone.
 - ``rows(res)``: every estimated entry, per group for the arm and once for the shared robot.
 - ``write_results``: ``identification.json`` (strict: settings and version, every entry, the
   joint covariance, each recording's fit quality and classical answer) and
@@ -55,7 +55,7 @@ def files(config: dict, config_path) -> list[tuple[pathlib.Path, str]]:
 
 def build_recordings(config: dict, loaded, where: str) -> list[Recording]:
     """One ``Recording`` per ``(group, rec)`` of ``loaded`` (``study.recording``'s dicts): the
-    config's trial with its arm at the recording's first hand position (``aj.no_arm`` there for
+    config's trial with its arm at the recording's first hand position (``aj.presets.no_arm`` there for
     an ``alone`` group). Needs float64."""
     alone, arm = set(config["recordings"]["alone"]), config["arm"]
     out = []

@@ -45,9 +45,9 @@ FORCE_SAMPLES = 1000  # one second of readings per load at 1 kHz
 def _alone():
     """``(truth trial, lab's model robot)`` of the robot alone under PD, the protocol's truth."""
     truth, _ = pr.calibration_truth()
-    alone = dict(arm=aj.no_arm(truth.arm.endpoint), voluntary=None)
+    alone = dict(arm=aj.presets.no_arm(truth.arm.endpoint), voluntary=None)
     trial = aj.make_trial(aj.PD(), robot=truth.robot, friction=truth.friction, sensors=truth.sensors, **alone)
-    return trial, aj.MIT_MANUS
+    return trial, aj.presets.MIT_MANUS
 
 
 def alone_recordings(seed: int, seconds: float = SECONDS):

@@ -39,7 +39,7 @@ def base_trial(aj, ctrl, loc):
     """A frictionless trial of controller kind ``ctrl`` (its defaults) at paper arm ``loc``."""
     from armimp_jax import presets
 
-    return aj.make_trial(aj.controller_kind(ctrl)(), arm=presets.arm(loc), friction=aj.NO_FRICTION)
+    return aj.make_trial(aj.kinds.controller_kind(ctrl)(), arm=presets.arm(loc), friction=aj.NO_FRICTION)
 
 
 def label(setting):
@@ -61,7 +61,7 @@ def timing(args, n, fd1, n_devices):
         tau, loc = points[i % len(points)]
         base = paper.trial("imbic", 0, loc)
         trials.append(aj.make_trial(base.controller, arm=base.arm, friction=friction(aj, args, tau)))
-    batch = aj.stack_trials(trials)
+    batch = aj.batch.stack_trials(trials)
     fd = np.broadcast_to(fd1, (args.batch, n, 2))
     settings = args.settings
     compile_s, times, loads = {}, {s: [] for s in settings}, {s: [] for s in settings}
@@ -114,7 +114,7 @@ def run_setting(batch, fd, setting, labels):
     t0 = time.perf_counter()
     sim = aj.simulate_batch(batch, fd, numerics=num, chunk_samples=CHUNK)
     wall = time.perf_counter() - t0
-    out = aj.assess_batch(batch, fd, sim)
+    out = aj.batch.assess_batch(batch, fd, sim)
     fit = functools.partial(aj.fit_impedance, acquisition="plain", se="residual")  # as docs/performance.md
     stiffness = np.asarray(jax.jit(jax.vmap(lambda e: fit(e).stiffness))(out.estimate))
     trials = []
@@ -166,7 +166,7 @@ def main(args, *, n_devices: int):
     runs = list(dict.fromkeys(list(args.settings) + list(references.values())))
     for ctrl in args.controllers:
         try:
-            aj.controller_kind(ctrl)
+            aj.kinds.controller_kind(ctrl)
         except ValueError as err:
             raise SystemExit(f"bench_convergence: error: --controllers: {err}") from None
     results = dict(
@@ -184,7 +184,7 @@ def main(args, *, n_devices: int):
                 base = base_trial(aj, ctrl, loc)
                 trials.append(aj.make_trial(base.controller, arm=base.arm, friction=friction(aj, args, tau)))
                 labels.append((tau, loc))
-        batch = aj.stack_trials(trials)
+        batch = aj.batch.stack_trials(trials)
         fd = np.broadcast_to(fd1, (len(trials), n, 2))
         for s in runs:
             row = dict(controller=ctrl, **run_setting(batch, fd, s, labels))

@@ -47,15 +47,17 @@ def make_case(controller, tau_c, a):
         for loc in (1, 2, 3, 4)
     ]
     n = int(round(a.record * 1000))
-    paper_signal = np.asarray(aj.PaperNoise(paper.perturbation_peak(1)).signal(jax.random.key(2024), n))
+    paper_signal = np.asarray(aj.signals.PaperNoise(paper.perturbation_peak(1)).signal(jax.random.key(2024), n))
     rms = np.sqrt(np.mean(paper_signal**2, axis=0))
-    limits = aj.Limits(rms_force=tuple(rms), peak_force=2.25, record=a.record, peak_displacement=a.displacement)
+    limits = aj.experiment.Limits(
+        rms_force=tuple(rms), peak_force=2.25, record=a.record, peak_displacement=a.displacement
+    )
     return trials, paper_signal, limits, np.geomspace(a.low, 15.0, a.knots)
 
 
 def run_design(trials, limits, knots, a, name):
     """``aj.design`` from one flat ShapedNoise start per ``--duty``, printing each step."""
-    starts = [aj.ShapedNoise(knots, np.ones((2, a.knots)), 1.0, duty=d, burst=a.burst) for d in a.duty]
+    starts = [aj.signals.ShapedNoise(knots, np.ones((2, a.knots)), 1.0, duty=d, burst=a.burst) for d in a.duty]
     t0 = time.perf_counter()
 
     def progress(step, steps, value):
@@ -69,7 +71,7 @@ def run_design(trials, limits, knots, a, name):
         targets=TARGETS,
         robust_over=trials,
         steps=a.steps,
-        method=aj.MonteCarlo(draws=a.draws),
+        method=aj.experiment.MonteCarlo(draws=a.draws),
         learning_rate=a.learning_rate,
         progress=progress,
     )
@@ -78,8 +80,8 @@ def run_design(trials, limits, knots, a, name):
 def compare(dx, result, trials, paper_signal, limits, knots, a) -> dict:
     """``{signal: (criterion, per trial per target)}`` predicted for the paper's perturbation,
     the flat continuous noise, the design's start and the design, all on the same draws (key 0)."""
-    flat = aj.ShapedNoise(knots, np.ones((2, a.knots)), 1.0)
-    flat_signal = aj.limited_signal(flat, limits, key=jax.random.split(jax.random.key(0))[0], trials=trials)
+    flat = aj.signals.ShapedNoise(knots, np.ones((2, a.knots)), 1.0)
+    flat_signal = aj.signals.limited_signal(flat, limits, key=jax.random.split(jax.random.key(0))[0], trials=trials)
     signals = dict(paper=paper_signal, flat=flat_signal, start=result.start_signal, designed=result.signal)
     return {
         k: criterion(dx, [aj.predict_se(t, s, free=FREE, draws=64) for t in trials], trials) for k, s in signals.items()
@@ -164,16 +166,16 @@ def one_pair(kp: float, kv: float, a) -> dict:
         for loc in a.arms
     ]
     n = int(round(a.record * 1000))
-    level1 = np.asarray(aj.PaperNoise(paper.perturbation_peak(1)).signal(jax.random.key(2024), n))
-    limits = aj.Limits(
+    level1 = np.asarray(aj.signals.PaperNoise(paper.perturbation_peak(1)).signal(jax.random.key(2024), n))
+    limits = aj.experiment.Limits(
         rms_force=tuple(np.sqrt(np.mean(level1**2, axis=0))),
         peak_force=2.25,
         record=a.record,
         peak_displacement=a.displacement,
     )
     knots = np.geomspace(a.low, a.high, a.knots)
-    family = aj.ShapedNoise(knots, np.ones((2, a.knots)), 1.0, duty=a.duty, burst=a.burst)
-    signal = np.asarray(aj.limited_signal(family, limits, key=jax.random.key(0), trials=trials))
+    family = aj.signals.ShapedNoise(knots, np.ones((2, a.knots)), 1.0, duty=a.duty, burst=a.burst)
+    signal = np.asarray(aj.signals.limited_signal(family, limits, key=jax.random.key(0), trials=trials))
     worst = []
     for t in trials:
         rel = dx.relative_se(aj.predict_se(t, signal, free=FREE, draws=a.draws), t, free=FREE, targets=TARGETS)
@@ -183,7 +185,7 @@ def one_pair(kp: float, kv: float, a) -> dict:
     return dict(
         kp=kp,
         kv=kv,
-        drift_mm=[1e3 * float(aj.drift(t)) for t in trials],
+        drift_mm=[1e3 * float(aj.linear.drift(t)) for t in trials],
         rms_force=np.sqrt(np.mean(signal**2, axis=0)).tolist(),
         peak_force=np.abs(signal).max(axis=0).tolist(),
         worst=worst,

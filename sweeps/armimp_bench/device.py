@@ -50,7 +50,7 @@ def _trial(location: int = 2, tau_c: float = 1.0):
 def simulate(repeats: int) -> dict:
     batch, seconds, substeps = 24, 5.0, 100
     n = int(seconds * 1000)
-    trials = aj.stack_trials(
+    trials = aj.batch.stack_trials(
         [
             aj.make_trial(
                 aj.IMBIC(), arm=paper.arm(1 + i % 4), friction=aj.LuGre(0.5 + 0.1 * (i % 7), 0.8 + 0.1 * (i % 7))
@@ -59,7 +59,7 @@ def simulate(repeats: int) -> dict:
         ]
     )
     f = np.stack([np.asarray(aj.perturbation(jax.random.key(i), n, 2.25)) for i in range(batch)])
-    numerics = aj.Numerics(solver=aj.RK4(), substeps=substeps)
+    numerics = aj.Numerics(solver=aj.solvers.RK4(), substeps=substeps)
     out = _timed(lambda: aj.simulate_batch(trials, f, numerics=numerics).x, repeats)
     return out | dict(trials=batch, record_s=seconds, msubsteps_per_s=batch * n * substeps / out["run_s"] / 1e6)
 
@@ -75,7 +75,7 @@ def crlb(repeats: int) -> dict:
 def identify(repeats: int) -> dict:
     trial = _trial()
     f = np.asarray(aj.perturbation(jax.random.key(2024), 10_000, 10.0))
-    rec = aj.simulate(trial, f, key=jax.random.key(3), numerics=aj.IDENTIFY_NUMERICS)
+    rec = aj.simulate(trial, f, key=jax.random.key(3), numerics=aj.solvers.IDENTIFY_NUMERICS)
     results = []
 
     def call():
@@ -89,7 +89,7 @@ def identify(repeats: int) -> dict:
 def design_gradient(repeats: int) -> dict:
     """The value and gradient of the design's criterion on the bound (two arms, 10 s, the
     spectrum of an 8-line multisine and the controller's four gains): one compiled program,
-    what each step of ``aj.design(..., method=aj.CramerRao(controller=True))`` evaluates."""
+    what each step of ``aj.design(..., method=aj.experiment.CramerRao(controller=True))`` evaluates."""
     import jax.numpy as jnp
 
     from armimp_jax._identification import bound_design, controller_design
@@ -97,8 +97,8 @@ def design_gradient(repeats: int) -> dict:
     from armimp_jax._identification.criterion import default_targets
 
     trials = [_trial(loc, 0.0) for loc in (1, 2)]
-    family = aj.multisine(np.geomspace(0.1, 15.0, 8), 1.0)
-    limits = aj.Limits(0.66, 2.25, 10.0, peak_displacement=0.01)
+    family = aj.signals.multisine(np.geomspace(0.1, 15.0, 8), 1.0)
+    limits = aj.experiment.Limits(0.66, 2.25, 10.0, peak_displacement=0.01)
     layout = lay.make_layout(ARM)
     idx = np.asarray(default_targets(layout))
     key = jax.random.key(0)

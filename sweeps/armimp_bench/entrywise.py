@@ -40,7 +40,7 @@ class Cell:
     def truth(self):
         friction = aj.NO_FRICTION if self.tau_c == 0 else aj.LuGre(self.tau_c, 1.5 * self.tau_c)
         return aj.make_trial(
-            aj.controller_kind(self.controller)(),
+            aj.kinds.controller_kind(self.controller)(),
             arm=presets.arm(self.location),
             friction=friction,
             sensors=aj.Sensors(force_noise=0.1, encoder_counts=2**18),

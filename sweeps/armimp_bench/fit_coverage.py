@@ -55,7 +55,7 @@ def _warned(fits, n: int, tau_c: float):
 
     one = [jax.tree.map(lambda a, i=i: a[i], fits) for i in range(n)]
     unknown = [bool(f.warnings) for f in one]
-    told = [bool(aj.fit_warnings(f, friction=tau_c)) for f in one]
+    told = [bool(aj.spectra.fit_warnings(f, friction=tau_c)) for f in one]
     return np.array(unknown), np.array(told)
 
 
@@ -75,7 +75,9 @@ def run_case(controller: str, tau_c: float, acquisition: str, f_delta, keys):
         acquisition=acquisition,
     )
     start = time.perf_counter()
-    sims = aj.simulate_batch(aj.stack_trials([trial] * len(keys)), f_delta, keys=keys, numerics=aj.SWEEP_NUMERICS)
+    sims = aj.simulate_batch(
+        aj.batch.stack_trials([trial] * len(keys)), f_delta, keys=keys, numerics=aj.solvers.SWEEP_NUMERICS
+    )
     sim_s = time.perf_counter() - start
     if np.any(sims.diverged):
         raise RuntimeError(f"{controller} at tau_c = {tau_c} N m: {int(np.sum(sims.diverged))} trials diverged")
@@ -173,9 +175,11 @@ def run(args) -> None:
         location=LOCATION,
         force_noise_n=FORCE_NOISE,
         perturbation_level=1,
-        welch=dict(zip(("nperseg", "noverlap"), aj.welch_segments(n), strict=True), window="hann", fmax_hz=15.0),
+        welch=dict(
+            zip(("nperseg", "noverlap"), aj.spectra.welch_segments(n), strict=True), window="hann", fmax_hz=15.0
+        ),
         version=aj.__version__,
-        numerics="aj.SWEEP_NUMERICS",
+        numerics="aj.SWEEP_NUMERICS",  # the records' label since 1.x (aj.solvers.SWEEP_NUMERICS)
         seed_keys=[20250, 20251],
     )
     args.out.mkdir(parents=True, exist_ok=True)

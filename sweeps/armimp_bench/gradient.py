@@ -19,7 +19,7 @@ from armimp_jax.study.cli import solver
 
 from .timing import alternate, markdown_head, save_table
 
-# aj.Numerics.CHECKPOINTS and aj.RK4.KERNELS, spelled out so that --help needs no JAX (checked in the children)
+# aj.Numerics.CHECKPOINTS and aj.solvers.RK4.KERNELS, spelled out so that --help needs no JAX (checked in the children)
 CHECKPOINTS = ("period", "substep")
 MODES = ("primal", "reverse-diagonal", "reverse-full", "forward-diagonal", "forward-full")
 KERNELS = ("fast", "grad", "reference")
@@ -33,7 +33,7 @@ def _check_checkpoints():
     import armimp_jax as aj
 
     assert aj.Numerics.CHECKPOINTS == CHECKPOINTS, (aj.Numerics.CHECKPOINTS, CHECKPOINTS)
-    assert set(aj.RK4.KERNELS) == set(KERNELS), (aj.RK4.KERNELS, KERNELS)
+    assert set(aj.solvers.RK4.KERNELS) == set(KERNELS), (aj.solvers.RK4.KERNELS, KERNELS)
 
 
 def child(mode, kernel, checkpoint, seconds, substeps, repeats, codegen):

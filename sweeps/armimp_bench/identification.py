@@ -44,7 +44,7 @@ def make_truth(controller, tau_c, a):
     the ``--friction`` law at ``tau_c``, the studies' noise (``a.voluntary`` N of the person's
     force) and ``a.acquisition``."""
     return aj.make_trial(
-        aj.controller_kind(controller)(),
+        aj.kinds.controller_kind(controller)(),
         arm=presets.arm(2),
         friction=friction_law(tau_c, a),
         acquisition=a.acquisition,
@@ -89,7 +89,7 @@ def must_show(a) -> dict:
     noise = cov.noise()
     default = [tuple(c.split(":")[:1]) + (float(c.split(":")[1]),) for c in COVERAGE_CASES.split(",")]
     controller, tau_c = a.cases[0] if a.cases != default else ("pd", 0.8)
-    ctrl = aj.controller_kind(controller)()
+    ctrl = aj.kinds.controller_kind(controller)()
     truth = aj.make_trial(ctrl, arm=arm, friction=friction_law(tau_c, a), **noise)
     # half the friction where it is estimated; a fixed one keeps its (known) value
     if a.friction == "lugre":

@@ -74,7 +74,7 @@ class Cell:
         """``(truth, start)``: the recording's trial and the lab's model of it, a generic arm."""
         arm = self.arm(seed)
         common = dict(friction=friction_law(self.friction), **pr.cov.noise())
-        ctrl = aj.controller_kind(self.controller)()
+        ctrl = aj.kinds.controller_kind(self.controller)()
         truth = aj.make_trial(ctrl, arm=arm, **common)
         start = aj.make_trial(ctrl, arm=aj.Arm(**GENERIC, endpoint=arm.endpoint), **common)
         return truth, start

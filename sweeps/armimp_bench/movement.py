@@ -48,7 +48,7 @@ def base_trial(controller=None, friction=None, *, noise: bool = True) -> aj.Tria
     )
 
 
-def fit_record(fit: aj.EnsembleFit) -> dict:
+def fit_record(fit: aj.results.EnsembleFit) -> dict:
     """An ``EnsembleFit`` as plain lists (a record's row)."""
     names = ("mass", "damping", "stiffness")
     out = {n: np.asarray(getattr(fit, n)).tolist() for n in names}
@@ -66,7 +66,7 @@ def ensemble_row(trial: aj.Trial, seed: int, a) -> dict:
     ``seed``) fitted by every ``fit_names(a)``: a record's row."""
     ens = aj.simulate_ensemble(
         trial,
-        aj.PaperNoise(peak=a.peak),
+        aj.signals.PaperNoise(peak=a.peak),
         key=jax.random.key(seed),
         repetitions=a.repetitions,
         samples=int(round(RECORD / trial.period)),

@@ -56,10 +56,10 @@ def true_values(case: str) -> np.ndarray:
 
 def perturbation(case: str):
     """The case's perturbation family: the paper's, or moved into the reach (``pd-designed``)."""
-    paper = aj.PaperNoise(peak=PEAK)
+    paper = aj.signals.PaperNoise(peak=PEAK)
     if case != "pd-designed":
         return paper
-    return aj.Envelope(paper, ONSET, ONSET + DURATION, DESIGNED["rest"], 1.0)
+    return aj.experiment.Envelope(paper, ONSET, ONSET + DURATION, DESIGNED["rest"], 1.0)
 
 
 def bound_draws(seed: int = 10_000, draws: int = BOUND_DRAWS, case: str = "imbic") -> np.ndarray:

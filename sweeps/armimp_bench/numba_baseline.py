@@ -198,7 +198,7 @@ def main(args):
     from armimp_jax import paper
 
     b, n = args.batch, int(args.seconds * 1000)
-    trials = aj.stack_trials([paper.trial(args.controller, i % 3, 1 + i % 4) for i in range(b)])
+    trials = aj.batch.stack_trials([paper.trial(args.controller, i % 3, 1 + i % 4) for i in range(b)])
     keys = jax.random.split(jax.random.PRNGKey(0), b)
     f_delta = np.asarray(jax.vmap(lambda k: aj.perturbation(k, n, paper.perturbation_peak(1)))(keys))
     t0 = time.perf_counter()
@@ -209,7 +209,7 @@ def main(args):
         t0 = time.perf_counter()
         x, fh = run(trials, f_delta, args.substeps)
         runs.append(time.perf_counter() - t0)
-    numerics = aj.Numerics(solver=aj.RK4(kernel="reference"), substeps=args.substeps)
+    numerics = aj.Numerics(solver=aj.solvers.RK4(kernel="reference"), substeps=args.substeps)
     ref = jax.jit(jax.vmap(lambda t, f: aj.simulate(t, f, numerics=numerics)))(trials, f_delta)
     rx, rfh = np.asarray(ref.x), np.asarray(ref.fh)
     diff_x = float(np.abs(x - rx).max() / np.abs(rx - rx[:, :1]).max())

@@ -85,12 +85,12 @@ def calibration_truth(motor_force: bool = False):
     force delay at its starting guess when the channel has one)."""
     arm = presets.arm(2)
     m_rd = np.asarray(aj.make_trial(aj.IMBIC(), arm=arm, friction=aj.NO_FRICTION).controller.m_rd)  # the lab's M_x(q0)
-    robot = aj.Robot(inertia=INERTIA_ERROR * np.asarray(aj.MIT_MANUS.inertia))
-    sensor = dict(force_model=aj.MIT_MANUS) if motor_force else dict(force_delay=DELAY_S)
+    robot = aj.Robot(inertia=INERTIA_ERROR * np.asarray(aj.presets.MIT_MANUS.inertia))
+    sensor = dict(force_model=aj.presets.MIT_MANUS) if motor_force else dict(force_delay=DELAY_S)
     common = dict(arm=arm, voluntary=aj.VoluntaryForce(0.3, 2.0))
     friction, sensors = _lugre(VISCOUS_ERROR), aj.Sensors(**NOISE, **sensor)
     truth = aj.make_trial(aj.IMBIC(m_rd=m_rd), robot=robot, friction=friction, sensors=sensors, **common)
-    start = dict(force_model=aj.MIT_MANUS) if motor_force else dict(force_delay=DELAY_START_S)
+    start = dict(force_model=aj.presets.MIT_MANUS) if motor_force else dict(force_delay=DELAY_START_S)
     model = aj.make_trial(aj.IMBIC(m_rd=m_rd), friction=_lugre(), sensors=aj.Sensors(**NOISE, **start), **common)
     return truth, model
 
@@ -105,13 +105,13 @@ def _calibration(seed: int, *, calibrate: bool, motor_force: bool):
     f = aj.perturbation(jax.random.key(7), _samples(), presets.perturbation_peak(1))
     rec = _record(truth, f, 1000 + seed)
     if not calibrate:
-        sensors = aj.Sensors(**NOISE, **({"force_model": aj.MIT_MANUS} if motor_force else {}))  # no delay
+        sensors = aj.Sensors(**NOISE, **({"force_model": aj.presets.MIT_MANUS} if motor_force else {}))  # no delay
         fixed = dataclasses.replace(model, sensors=sensors)
         return [aj.Recording(fixed, f, rec.x, rec.fh)], _truth_values(truth, ARM)
     recordings = [aj.Recording(model, f, rec.x, rec.fh, group="arm")]
     for i in range(2):  # the robot alone, under PD: nothing on the handle, the robot moves freely
         fa = aj.perturbation(jax.random.key(70 + i), _samples(), 10.0)
-        alone = dict(arm=aj.no_arm(truth.arm.endpoint), voluntary=None)
+        alone = dict(arm=aj.presets.no_arm(truth.arm.endpoint), voluntary=None)
         t_alone = aj.make_trial(aj.PD(), robot=truth.robot, friction=truth.friction, sensors=truth.sensors, **alone)
         m_alone = aj.make_trial(aj.PD(), friction=model.friction, sensors=model.sensors, **alone)
         ra = _record(t_alone, fa, 2000 + 10 * seed + i)
@@ -205,7 +205,7 @@ def sensitivity_prediction(folder, arm: int = 0, *, draws: int = 64) -> dict:
     """``robot_sensitivity`` at the ``sensitivity`` case's truth and signal: per arm entry the
     bias of link inertias ``INERTIA_OFF`` times the truth's (first order) and the SE."""
     trials, signal = designed(folder)
-    s = aj.robot_sensitivity(trials[arm], signal[: _samples()], free=ARM, robot="robot.inertia", draws=draws)
+    s = aj.experiment.robot_sensitivity(trials[arm], signal[: _samples()], free=ARM, robot="robot.inertia", draws=draws)
     bias = 100.0 * (INERTIA_OFF - 1.0) * s.bias_per_percent.sum(axis=1)
     return dict(labels=s.arm_labels, bias=bias.tolist(), se=s.se.tolist(), table=s.table())
 

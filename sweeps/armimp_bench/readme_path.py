@@ -26,7 +26,7 @@ def child(mode: str, repeats: int) -> None:
     else:
         jax.config.update("jax_enable_x64", True)
     n = int(SECONDS * 1000)
-    trials = aj.stack_trials(
+    trials = aj.batch.stack_trials(
         [
             aj.make_trial(
                 aj.IMBIC(), arm=presets.arm(1 + i % 4), friction=aj.LuGre(0.5 + 0.1 * (i % 7), 0.8 + 0.1 * (i % 7))
@@ -45,7 +45,7 @@ def child(mode: str, repeats: int) -> None:
         def call():
             return numba_baseline.run(trials, f, SUBSTEPS)
     else:
-        numerics = aj.Numerics(solver=aj.RK4(), substeps=SUBSTEPS)
+        numerics = aj.Numerics(solver=aj.solvers.RK4(), substeps=SUBSTEPS)
 
         def call():
             return jax.block_until_ready(aj.simulate_batch(trials, f, numerics=numerics))

@@ -42,7 +42,7 @@ def case(name: str):
         return trial, np.asarray(aj.perturbation(jax.random.key(0), 20_000, paper.perturbation_peak(1)))
     config = dx.read_design_config(CONFIG)
     trials, family, limits, options = dx.build_design(config, where=str(CONFIG))
-    f = aj.limited_signal(family, limits, key=jax.random.split(options["key"])[0], trials=trials)
+    f = aj.signals.limited_signal(family, limits, key=jax.random.split(options["key"])[0], trials=trials)
     return trials[1], np.asarray(f)
 
 
@@ -113,7 +113,7 @@ def _plain(t: dict) -> dict:
     """The timing without its answer, as JSON."""
     answer = t["answer"]
     row = {k: v for k, v in t.items() if k != "answer"}
-    if isinstance(answer, aj.RecordLength):
+    if isinstance(answer, aj.results.RecordLength):
         row.update(
             bound_min=answer.longest("bound") / 60,
             predicted_min=answer.longest("predicted") / 60,

@@ -63,7 +63,7 @@ def _cpuinfo():
 def batch_inputs(b, n, controller="imbic"):
     """``b`` trials of the paper (friction levels and locations cycled) and ``(b, n, 2)``
     seeded perturbations of level 1."""
-    trials = aj.stack_trials([paper.trial(controller, i % 3, 1 + i % 4) for i in range(b)])
+    trials = aj.batch.stack_trials([paper.trial(controller, i % 3, 1 + i % 4) for i in range(b)])
     keys = jax.random.split(jax.random.PRNGKey(0), b)
     f_delta = jax.vmap(lambda k: aj.perturbation(k, n, paper.perturbation_peak(1)))(keys)
     return trials, f_delta
@@ -89,16 +89,18 @@ def timed(fn, repeats):
 def build_cases(configs, seconds, substeps, *, lanes=None):
     """Compile and run once each (kernel, devices, batch) configuration: a list of
     ``(kernel, devices, batch, run, padded batch, compile s)``, ``run()`` the compiled call.
-    ``lanes`` as in ``aj.shard_batch`` (default: pad to whole vectors; 1: no padding)."""
+    ``lanes`` as in ``aj.batch.shard_batch`` (default: pad to whole vectors; 1: no padding)."""
     n = int(seconds * 1000)
     cases = []
     for kernel, n_dev, b in configs:
-        mesh = aj.make_mesh(jax.devices()[:n_dev])
+        mesh = aj.batch.make_mesh(jax.devices()[:n_dev])
         trials, f_delta = batch_inputs(b, n)
-        (p_s, f_s), _ = aj.shard_batch((trials, f_delta), mesh, lanes=lanes)
+        (p_s, f_s), _ = aj.batch.shard_batch((trials, f_delta), mesh, lanes=lanes)
         t0 = time.perf_counter()
         compiled = (
-            vmapped_simulate(aj.Numerics(solver=aj.RK4(kernel=kernel), substeps=substeps)).lower(p_s, f_s).compile()
+            vmapped_simulate(aj.Numerics(solver=aj.solvers.RK4(kernel=kernel), substeps=substeps))
+            .lower(p_s, f_s)
+            .compile()
         )
         compile_s = time.perf_counter() - t0
         jax.block_until_ready(compiled(p_s, f_s))
@@ -158,7 +160,7 @@ def serve_library(setup, seconds, substeps):
     line and print its seconds."""
     trials, f_delta = batch_inputs(LIBRARY_BATCH, int(seconds * 1000))
     f_delta = np.asarray(f_delta)
-    numerics = aj.Numerics(solver=aj.RK4(), substeps=substeps)  # pinned: comparable whatever the default
+    numerics = aj.Numerics(solver=aj.solvers.RK4(), substeps=substeps)  # pinned: comparable whatever the default
     run = functools.partial(aj.simulate_batch, trials, f_delta, numerics=numerics)
     t0 = time.perf_counter()
     out = jax.block_until_ready(run())  # compiles
@@ -171,17 +173,17 @@ def serve_library(setup, seconds, substeps):
 
 def bench_grouped(b, seconds, substeps, repeats):
     """``simulate_batch`` on all devices for a large batch: in groups of at most
-    ``aj.MAX_PER_DEVICE`` trials per device (the default) against one group."""
+    ``aj.batch.MAX_PER_DEVICE`` trials per device (the default) against one group."""
     n = int(seconds * 1000)
     trials, f_delta = batch_inputs(b, n)
     f_delta = np.asarray(f_delta)
-    numerics = aj.Numerics(solver=aj.RK4(), substeps=substeps)
-    lanes = aj.default_lanes(aj.make_mesh())  # what simulate_batch pads to
+    numerics = aj.Numerics(solver=aj.solvers.RK4(), substeps=substeps)
+    lanes = aj.batch.default_lanes(aj.batch.make_mesh())  # what simulate_batch pads to
     rows = []
-    for cap in (aj.MAX_PER_DEVICE, None):
+    for cap in (aj.batch.MAX_PER_DEVICE, None):
         run = functools.partial(aj.simulate_batch, trials, f_delta, numerics=numerics, max_per_device=cap)
         first, run_s = timed(run, repeats)
-        groups, size = aj.batch_groups(b, N_DEVICES, max_per_device=cap, lanes=lanes)
+        groups, size = aj.batch.batch_groups(b, N_DEVICES, max_per_device=cap, lanes=lanes)
         rows.append(
             dict(
                 max_per_device=cap,
@@ -202,7 +204,7 @@ def bench_grouped(b, seconds, substeps, repeats):
 def bench_full_trial(b, substeps, kernel="fast"):
     """A real 50 s batch, all devices, in 5 s chunks (one compile), host copies included, one run."""
     trials, f_delta = batch_inputs(b, 50_000)
-    numerics = aj.Numerics(solver=aj.RK4(kernel=kernel), substeps=substeps)
+    numerics = aj.Numerics(solver=aj.solvers.RK4(kernel=kernel), substeps=substeps)
     aj.simulate_batch(trials, np.asarray(f_delta)[:, :10_000], numerics=numerics, chunk_samples=5000)  # compile
     t0 = time.perf_counter()
     aj.simulate_batch(trials, f_delta, numerics=numerics, chunk_samples=5000)
@@ -228,7 +230,7 @@ def bench_numba(b, seconds, substeps, repeats):
         runs.append(time.perf_counter() - t0)
     run_s = statistics.median(runs)
     ref = np.asarray(
-        vmapped_simulate(aj.Numerics(solver=aj.RK4(kernel="reference"), substeps=substeps))(trials, f_delta).x
+        vmapped_simulate(aj.Numerics(solver=aj.solvers.RK4(kernel="reference"), substeps=substeps))(trials, f_delta).x
     )
     agree = float(np.abs(x - ref).max() / np.abs(ref - ref[:, :1]).max())
     total = b * f_np.shape[1] * substeps

@@ -31,7 +31,7 @@ HOW = {  # the processes of --library-path, in words
 def markdown_library(rows, repeats):
     r0 = rows[0]
     caption = (
-        f"Library path: `aj.simulate_batch(trials, f_delta, numerics=aj.Numerics(solver=aj.RK4(), "
+        f"Library path: `aj.simulate_batch(trials, f_delta, numerics=aj.Numerics(solver=aj.solvers.RK4(), "
         f"substeps={r0['substeps']}))`, "
         f"{r0['batch']} IMBIC trials of {r0['record_s']:g} s, one device, compile excluded, median of {repeats}, "
         "alternating between three processes:"
@@ -46,7 +46,7 @@ def markdown_library(rows, repeats):
 
 
 def markdown_lanes(rows, lanes):
-    """Unpadded batches on one device, and what padding each to ``aj.padded_batch_size``
+    """Unpadded batches on one device, and what padding each to ``aj.batch.padded_batch_size``
     would deliver (the padded batch's rate times the real share), where that size was run."""
     rate = {r["batch"]: r["msubsteps_per_s"] for r in rows}
     lines = [
@@ -56,7 +56,7 @@ def markdown_lanes(rows, lanes):
         *markdown_head("batch", "M substeps/s", "padded to", "M real substeps/s padded"),
     ]
     for r in rows:
-        p = aj.padded_batch_size(r["batch"], 1, lanes)
+        p = aj.batch.padded_batch_size(r["batch"], 1, lanes)
         padded = f"{rate[p] * r['batch'] / p:.2f}" if p in rate else "-"
         lines.append(f"| {r['batch']} | {r['msubsteps_per_s']:.2f} | {p} | {padded} |")
     return "\n".join(lines)

@@ -26,9 +26,9 @@ def numerics():
     solvers at a direct-drive robot's."""
     paper_friction, small = presets.friction(1), aj.LuGre(tau_c=0.05, tau_s=0.075)
     return {
-        "rk4": (aj.Numerics(solver=aj.RK4(), substeps=20), paper_friction),
-        "rk4ref": (aj.Numerics(solver=aj.RK4(kernel="reference"), substeps=20), paper_friction),
-        "ark3": (aj.Numerics(solver=aj.ARK3(), substeps=10), small),
+        "rk4": (aj.Numerics(solver=aj.solvers.RK4(), substeps=20), paper_friction),
+        "rk4ref": (aj.Numerics(solver=aj.solvers.RK4(kernel="reference"), substeps=20), paper_friction),
+        "ark3": (aj.Numerics(solver=aj.solvers.ARK3(), substeps=10), small),
         "gark4": (aj.Numerics(), small),
     }
 

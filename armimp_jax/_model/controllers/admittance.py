@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..._checks import check_positive_semidefinite, is_concrete
+from ..._pytree import Param
 from ..plant import RestPlant, rest_plant
 from ..robot import cartesian_inertia
 from .base import AbstractController, gain, matvec
@@ -158,13 +159,13 @@ class Admittance(AbstractController):
     UNITS: ClassVar[dict] = dict(m_v="kg", b_v="N s/m", k_v="N/m", kp="N/m", kv="N s/m")
     DESIGN_GAINS: ClassVar[tuple[str, str]] = ("k_v", "b_v")
 
-    m_v: jnp.ndarray = _scaled(2.0)
-    b_v: jnp.ndarray = _scaled(10.0)
-    k_v: jnp.ndarray = _scaled(50.0)
-    kp: jnp.ndarray = _scaled(4000.0)
-    kv: jnp.ndarray = _scaled(60.0)
-    phi: jnp.ndarray | None = None
-    gamma: jnp.ndarray | None = None
+    m_v: Param = _scaled(2.0)
+    b_v: Param = _scaled(10.0)
+    k_v: Param = _scaled(50.0)
+    kp: Param = _scaled(4000.0)
+    kv: Param = _scaled(60.0)
+    phi: Param | None = None
+    gamma: Param | None = None
     period: float | None = eqx.field(static=True, default=None)
 
     def __post_init__(self):

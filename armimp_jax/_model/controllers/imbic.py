@@ -14,6 +14,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from ..._checks import check_choice
+from ..._pytree import Param
 from ..robot import cartesian_inertia
 from .base import AbstractController, gain, matvec
 from .pd import PD_DAMPING, PD_STIFFNESS
@@ -62,13 +63,13 @@ class IMBIC(AbstractController):
     DESIGN_GAINS: ClassVar[tuple[str, str]] = ("k_rd", "b_rd")
     RECORDED: ClassVar[tuple[str, ...]] = ("mhat", "k_rd", "b_rd", "m_rd")
 
-    mhat: jnp.ndarray = DEFAULT_MHAT
-    kp: jnp.ndarray = PD_STIFFNESS
-    kv: jnp.ndarray = PD_DAMPING
-    m_rd: jnp.ndarray | None = None
-    b_rd: jnp.ndarray | None = None
-    k_rd: jnp.ndarray | None = None
-    m_rd_inv: jnp.ndarray | None = None
+    mhat: Param = DEFAULT_MHAT
+    kp: Param = PD_STIFFNESS
+    kv: Param = PD_DAMPING
+    m_rd: Param | None = None
+    b_rd: Param | None = None
+    k_rd: Param | None = None
+    m_rd_inv: Param | None = None
     accel_estimate: str = eqx.field(static=True, default="velocity")
 
     def __post_init__(self):

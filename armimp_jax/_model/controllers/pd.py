@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-import jax.numpy as jnp
-
+from ..._pytree import Param
 from .base import AbstractController, gain, matvec
 
 # Defaults as nested tuples (immutable): K_p [N/m], K_v [N s/m] (paper eq. 5)
@@ -28,8 +27,8 @@ class PD(AbstractController):
     UNITS: ClassVar[dict] = dict(kp="N/m", kv="N s/m")
     DESIGN_GAINS: ClassVar[tuple[str, str]] = ("kp", "kv")
 
-    kp: jnp.ndarray = PD_STIFFNESS
-    kv: jnp.ndarray = PD_DAMPING
+    kp: Param = PD_STIFFNESS
+    kv: Param = PD_DAMPING
 
     def __post_init__(self):
         object.__setattr__(self, "kp", gain("kp", self.kp, "N/m", "PD"))

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..._checks import as_param, check_range
-from ..._pytree import replace_unchecked
+from ..._pytree import Param, replace_unchecked
 from .base import AbstractFriction
 
 UNITS = dict(tau_c="N m", viscous="N m s/rad", v_s="rad/s")
@@ -39,9 +39,9 @@ class CoulombViscous(AbstractFriction):
     STIFF_STATIC: ClassVar[bool] = True
     IDENTIFIABLE: ClassVar[tuple[str, ...]] = ("tau_c", "viscous")
 
-    tau_c: jnp.ndarray
-    viscous: jnp.ndarray = 0.0
-    v_s: jnp.ndarray = 0.01
+    tau_c: Param
+    viscous: Param = 0.0
+    v_s: Param = 0.01
 
     def __post_init__(self):
         w = "CoulombViscous"

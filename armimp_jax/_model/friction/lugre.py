@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..._checks import as_param, check_range, is_concrete
-from ..._pytree import replace_unchecked
+from ..._pytree import Param, replace_unchecked
 from .base import AbstractFriction
 
 UNITS = dict(tau_c="N m", tau_s="N m", sigma0="N m/rad", sigma1="N m s/rad", sigma2="N m s/rad", v_s="rad/s")
@@ -49,12 +49,12 @@ class LuGre(AbstractFriction):
     UNITS: ClassVar[dict] = UNITS
     IDENTIFIABLE: ClassVar[tuple[str, ...]] = ("tau_c", "tau_s", "sigma0", "sigma1", "sigma2")
 
-    tau_c: jnp.ndarray
-    tau_s: jnp.ndarray
-    sigma0: jnp.ndarray = 1e5
-    sigma1: jnp.ndarray = math.sqrt(1e5)
-    sigma2: jnp.ndarray = 0.5
-    v_s: jnp.ndarray = 1e-3
+    tau_c: Param
+    tau_s: Param
+    sigma0: Param = 1e5
+    sigma1: Param = math.sqrt(1e5)
+    sigma2: Param = 0.5
+    v_s: Param = 1e-3
 
     def __post_init__(self):
         w = "LuGre"
