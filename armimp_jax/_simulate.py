@@ -24,13 +24,13 @@ import jax.numpy as jnp
 
 from ._checks import as_float64, check_choice, require_x64
 from ._model.arm import Arm
-from ._model.controllers import CONTROLLER_KINDS, AbstractController, matvec
+from ._model.controllers import CONTROLLER_KINDS, AbstractController, Joints, matvec, reads_joints
 from ._model.friction import FRICTION_KINDS, AbstractFriction
 from ._model.movement import path_at
 from ._model.plant import PlantState, Trig, displacement, measure, near_path, plant_model, rest_state, trig_of
 from ._model.reach import arm_warnings, check_moving, motion_kind, still_trials
 from ._model.robot import MIT_MANUS, Robot, cartesian_inertia, fk, ik, jacobian_from_trig
-from ._model.sensors import FORCE_HISTORY, IDEAL, Sensors, check_calibration, delayed_force, quantise, sample_noise
+from ._model.sensors import FORCE_HISTORY, IDEAL, Sensors, check_calibration, delayed_force, read_joints, sample_noise
 from ._model.timing import CONTROL_PERIOD
 from ._model.voluntary import VoluntaryForce, voluntary_init, voluntary_key, voluntary_normals, voluntary_update
 from ._pytree import params
@@ -319,13 +319,8 @@ def _sense(trial: Trial, model, state: PlantState, x, xd, fh, inputs: PeriodInpu
     s = trial.sensors
     reads_angles = s.encoder_on or inputs.encoder is not None
     if reads_angles or s.velocity_on:
-        qd = jnp.stack([state.qd1, state.qd2])
-        if s.velocity_on:
-            qd = qd + inputs.rate
+        q, qd = _joints_read(trial, state, inputs)
         if reads_angles:
-            q = quantise(jnp.stack([state.q1, state.q2]), s)
-            if inputs.encoder is not None:
-                q = q + inputs.encoder
             t = Trig(jnp.cos(q[0]), jnp.sin(q[0]), jnp.cos(q[1]), jnp.sin(q[1]))
             x = trial.x0 + jnp.stack(displacement(t, model))
         else:
@@ -337,6 +332,24 @@ def _sense(trial: Trial, model, state: PlantState, x, xd, fh, inputs: PeriodInpu
     if s.force_on:
         fh = fh + inputs.force
     return x, xd, fh
+
+
+def _joints_read(trial: Trial, state: PlantState, inputs: PeriodInputs):
+    """The joint angles and rates as the sensors read them (``read_joints``)."""
+    q, qd = jnp.stack([state.q1, state.q2]), jnp.stack([state.qd1, state.qd2])
+    return read_joints(trial.sensors, q, qd, inputs.encoder, inputs.rate)
+
+
+def _command(trial: Trial, model, carry: SimCarry, state: PlantState, inputs: PeriodInputs, measured, fd, t_k):
+    """``(F_u,k, memory)`` from the controller's ``step``: the measured samples, the planned set
+    point during a reach, and the measured joint state where the kind's ``step`` takes it."""
+    extra = {}
+    if model.motion is not None and model.motion.path is not None:
+        offset, velocity = path_at(model.motion.path, t_k)
+        extra["path"] = (jnp.stack(offset), jnp.stack(velocity))
+    if reads_joints(trial.controller):
+        extra["joints"] = Joints(*_joints_read(trial, state, inputs), trial.robot)
+    return trial.controller.step(carry.memory, *measured, fd, trial.x0, trial.period, **extra)
 
 
 def _record(trial: Trial, state: PlantState, x, xd, fh, carry: SimCarry):
@@ -396,12 +409,7 @@ def period_step(trial: Trial, model, numerics: Numerics, carry: SimCarry, fd, in
             fh_rec = fh_rec + inputs.force
     else:
         x_m, xd_m, fh_m = x, xd, fh
-    if moving and model.motion.path is not None:
-        offset, velocity = path_at(model.motion.path, t_k)
-        path = (jnp.stack(offset), jnp.stack(velocity))
-        fu, memory = trial.controller.step(carry.memory, x_m, xd_m, fh_m, fd, trial.x0, period, path=path)
-    else:
-        fu, memory = trial.controller.step(carry.memory, x_m, xd_m, fh_m, fd, trial.x0, period)
+    fu, memory = _command(trial, model, carry, state, inputs, (x_m, xd_m, fh_m), fd, t_k)
     fu, memory, x, xd = jax.lax.optimization_barrier((fu, memory, x, xd))
     zero = jnp.zeros_like(state.xi1)
     start = state._replace(xi1=zero, xi2=zero)

@@ -151,6 +151,51 @@ def test_the_guides_examples_run_and_their_slope_is_the_closed_form():
     assert np.isfinite(aj.simulate(trial, aj.perturbation(jax.random.key(1), 300, 10.0)).x).all()
 
 
+@pytest.fixture
+def joint_impedance():
+    (name,) = cli.import_kinds([str(ROOT / "docs" / "examples" / "joint_impedance.py")], "test")
+    return aj.kinds.controller_kind(name)
+
+
+def test_a_joint_space_law_is_the_cartesian_pd_of_its_jacobian_for_small_motions(joint_impedance):
+    # K = J^-T K_q J^-1, B = J^-T B_q J^-1 at q0: the two loops differ at second order in the motion
+    law = joint_impedance()
+    trial = aj.make_trial(law, arm=presets.arm(2), friction=aj.NO_FRICTION)
+    inv = np.linalg.inv(np.asarray(aj.linear.jacobian(trial.q0, trial.robot)))
+    pd = aj.PD(kp=inv.T @ np.asarray(law.k_q) @ inv, kv=inv.T @ np.asarray(law.b_q) @ inv)
+    cartesian = aj.make_trial(pd, arm=presets.arm(2), friction=aj.NO_FRICTION)
+    rel = []
+    for peak in (0.5, 2.0):
+        f = aj.perturbation(jax.random.key(4), 3000, peak)
+        a, b = aj.simulate(trial, f), aj.simulate(cartesian, f)
+        motion = np.abs(np.asarray(a.x) - np.asarray(trial.x0)).max()
+        rel.append(np.abs(np.asarray(a.x) - np.asarray(b.x)).max() / motion)
+    assert rel[0] < 2e-3 and 2.5 < rel[1] / rel[0] < 6.0  # first order in the amplitude (ratio 4)
+    # the bound linearises through its step like any kind's
+    sensed = aj.make_trial(
+        law, arm=presets.arm(2), friction=aj.NO_FRICTION, sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18)
+    )
+    bound = aj.crlb(sensed, aj.perturbation(jax.random.key(3), 2000, 2.25), free=("arm.stiffness",))
+    assert np.all(np.isfinite(np.asarray(bound.covariance))) and np.all(np.diag(np.asarray(bound.covariance)) > 0)
+
+
+def test_a_joint_space_laws_replay_reads_the_joints_of_the_recorded_hand(joint_impedance):
+    from armimp_jax._identification.auxiliary import replay_command
+
+    trial = aj.make_trial(joint_impedance(), arm=presets.arm(2), friction=aj.NO_FRICTION)
+    f = aj.perturbation(jax.random.key(5), 2000, 2.25)
+    sim = aj.simulate(trial, f)
+    replayed = np.asarray(replay_command(trial, f, sim.x, sim.fh))
+    command = np.asarray(sim.fu) - np.asarray(f)  # the law's own part of F_u
+    assert np.abs(replayed - np.asarray(sim.fu)).max() < 0.05 * np.abs(command).max()
+    with pytest.raises(ValueError, match="cannot follow a moving arm"):
+        reach = aj.MinimumJerk(start=trial.x0, end=np.asarray(trial.x0) + [0.0, 0.1], onset=0.2, duration=0.8)
+        arm = presets.arm(2)
+        aj.make_trial(
+            joint_impedance(), arm=aj.Arm(arm.mass, arm.damping, arm.stiffness, reach), friction=aj.NO_FRICTION
+        )
+
+
 def test_the_kinds_defined_here_are_gone_after_their_tests():
     assert not {"stribeck", "smooth_coulomb", "ep_sticky"} & set(FRICTION_KINDS.names())
-    assert "damper" not in CONTROLLER_KINDS.names()
+    assert not {"damper", "joint_impedance"} & set(CONTROLLER_KINDS.names())

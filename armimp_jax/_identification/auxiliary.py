@@ -38,6 +38,7 @@ import jax.numpy as jnp
 from .._estimation.estimate import estimate
 from .._estimation.fit import fit_impedance
 from .._estimation.welch import ESTIMATION_FMAX
+from .._model.controllers import Joints, reads_joints
 from .._model.movement import path_at
 from .._model.plant import plant_model
 from .._model.robot import ik, jacobian
@@ -106,12 +107,14 @@ def replay_command(trial, f, x, fh):
     planned = None if motion is None else motion.path
 
     def step(memory, inputs):
-        if planned is None:
-            fu, memory = ctl.step(memory, *inputs[:3], inputs[3], trial.x0, period)
-        else:  # during a reach the controller follows the planned path, as in the simulation
+        extra = {}
+        if planned is not None:  # during a reach the controller follows the planned path, as in the simulation
             offset, velocity = path_at(planned, inputs[4] * period)
-            path = (jnp.stack(offset), jnp.stack(velocity))
-            fu, memory = ctl.step(memory, *inputs[:3], inputs[3], trial.x0, period, path=path)
+            extra["path"] = (jnp.stack(offset), jnp.stack(velocity))
+        if reads_joints(ctl):  # a joint-space law: the angles of the recorded hand, its rates through J
+            q = ik(inputs[0], trial.robot)
+            extra["joints"] = Joints(q, jnp.linalg.solve(jacobian(q, trial.robot), inputs[1]), trial.robot)
+        fu, memory = ctl.step(memory, *inputs[:3], inputs[3], trial.x0, period, **extra)
         return memory, fu
 
     k = jnp.arange(x.shape[0], dtype=x.dtype)

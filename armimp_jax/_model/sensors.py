@@ -158,6 +158,19 @@ def quantise(q, sensors: Sensors):
     return _round_to(q, 2.0 * jnp.pi / sensors.encoder_counts)
 
 
+def read_joints(sensors: Sensors, q, qd, encoder=None, rate=None):
+    """The joint angles [rad] and rates [rad/s] ``(2,)`` as the sensors read them: the encoders'
+    reading plus its offset draw ``encoder`` (when reading angles), the rates plus the rate
+    noise draw ``rate`` (when the rate sensors are on)."""
+    if sensors.encoder_on or encoder is not None:
+        q = quantise(q, sensors)
+        if encoder is not None:
+            q = q + encoder
+    if sensors.velocity_on:
+        qd = qd + rate
+    return q, qd
+
+
 def delayed_force(sensors: Sensors, history, period: float):
     """The transducer's reading ``gain F_h(t - delay)`` [N] ``(2,)`` from ``history``
     ``(FORCE_HISTORY, 2)``, the true force's last samples, newest first: linear interpolation

@@ -16,6 +16,10 @@ ask of a controller, and the registry of its kinds.
   (docs/model.md, "The arm during a movement") it is ``(offset, velocity)``, the planned set
   point at ``t_k`` as ``x_d,k - x0`` [m] and ``xd_e(t_k)`` [m/s] ``(2,)`` each: the controller
   holds ``x_d,k`` where it held ``x0`` and damps ``xd_k - xd_e(t_k)`` where it damped ``xd_k``.
+  A kind whose ``step`` also takes ``joints`` receives the loop's measured joint state,
+  ``Joints(q, qd, robot)``: the encoders' angles ``q_k`` [rad] and rates ``qd_k`` [rad/s] ``(2,)``
+  as the sensors read them, and the trial's ``Robot`` (for ``aj.linear.jacobian(q, robot)``), so
+  a joint-space law needs no inverse kinematics of its own.
 
 The linearised loop is the forward-mode derivative of the simulation's own period step
 (``_identification/linear.py``), so a kind needs no linear form of its own. Experiment design
@@ -26,7 +30,8 @@ moves the two gains named by ``DESIGN_GAINS`` (stiffness [N/m], damping [N s/m])
 from __future__ import annotations
 
 import abc
-from typing import ClassVar
+import inspect
+from typing import Any, ClassVar, NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -37,6 +42,21 @@ from ..._pytree import replace_unchecked, show_fields
 from .. import kinds
 
 CONTROLLER_KINDS = kinds.Registry("controller")
+
+
+class Joints(NamedTuple):
+    """The measured joint state a controller's ``step`` receives when it takes ``joints``: the
+    angles ``q`` [rad] and rates ``qd`` [rad/s], ``(2,)`` each, as the encoders (and the rate
+    sensors' noise) give them, and the trial's ``robot``."""
+
+    q: Any
+    qd: Any
+    robot: Any
+
+
+def reads_joints(controller) -> bool:
+    """Whether a controller's ``step`` takes the measured joint state (a ``joints`` argument)."""
+    return "joints" in inspect.signature(type(controller).step).parameters
 
 
 def matvec(a, v):
