@@ -1,5 +1,6 @@
 """The general simulator's values: presets, custom scenarios, invariants, gradients, bad input."""
 
+import pathlib
 import warnings
 
 import jax
@@ -289,3 +290,18 @@ def test_an_arm_no_human_has_gets_one_line_with_its_likely_cause_and_the_robot_a
         warnings.simplefilter("error")
         for arm in (CUSTOM_ARM, paper.arm(1), aj.presets.no_arm(end)):
             aj.make_trial(aj.PD(), arm=arm, friction=aj.NO_FRICTION)
+
+
+def test_the_sensors_schema_is_read_not_restated():
+    # a Sensors field named in its schema reaches a config's [sensors], a sweep point (--set, the
+    # table's columns) and identify's names with no other file touched
+    from armimp_jax._identification import layout
+    from armimp_jax._model import sensors
+    from armimp_jax.study import config, points
+
+    assert list(config.TRIAL_SECTIONS["sensors"]) == list(sensors.SETTINGS)
+    assert [k for k in points.POINT_DEFAULTS if k in sensors.SETTINGS] == list(sensors.SETTINGS)
+    assert set(layout.SENSOR_PARAMETERS) == {f"sensors.{n}" for n in sensors.IDENTIFIABLE}
+    for module in (config, points, layout):
+        text = pathlib.Path(module.__file__).read_text()
+        assert not [n for n in (*sensors.SETTINGS, *sensors.IDENTIFIABLE) if f'"{n}"' in text], module.__name__

@@ -26,19 +26,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._model.friction import FRICTION_KINDS
+from .._model.sensors import IDENTIFIABLE as SENSOR_IDENTIFIABLE
 from .._pytree import replace_unchecked
 from .._simulate import Trial
 
 ARM_PARAMETERS = {"arm.mass": "kg", "arm.damping": "N s/m", "arm.stiffness": "N/m"}
 ROBOT_PARAMETERS = {"robot.inertia": "kg m^2"}
-SENSOR_PARAMETERS = {"sensors.force_gain": "-", "sensors.force_offset": "N", "sensors.force_delay": "s"}
+SENSOR_PARAMETERS = {f"sensors.{name}": unit for name, (unit, _, _) in SENSOR_IDENTIFIABLE.items()}
 # The calibration parameters' shapes and internal scales ("log": positive; "plain": as they
-# are; "periods": the value over the control period)
+# are; "periods": the value over the control period); the sensors' from their schema
 _CALIBRATION = {
     "robot.inertia": ((3,), "log"),
-    "sensors.force_gain": ((2,), "log"),
-    "sensors.force_offset": ((2,), "plain"),
-    "sensors.force_delay": ((), "periods"),
+    **{f"sensors.{name}": (shape, scale) for name, (_, shape, scale) in SENSOR_IDENTIFIABLE.items()},
 }
 # The parameters of the linearised loop: what the efficient statistic (and crlb) covers.
 LINEAR = {**ARM_PARAMETERS, **ROBOT_PARAMETERS, **SENSOR_PARAMETERS}

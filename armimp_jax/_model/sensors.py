@@ -33,6 +33,28 @@ def _active(x) -> bool:
 # carry, so a delay up to (FORCE_HISTORY - 1) periods is read by linear interpolation.
 FORCE_HISTORY = 8
 
+# The schema every description of a trial reads: a TOML config's [sensors] section, a sweep
+# point's settings (``--set``) and its table columns take ``SETTINGS`` (name -> unit, shape in a
+# config, default); ``identify`` frees ``sensors.<name>`` of ``IDENTIFIABLE`` (name -> unit,
+# shape, the optimiser's scale: "log" positive, "plain" as it is, "periods" over the control
+# period). A field added to ``Sensors`` and named here reaches every one of them.
+SETTINGS = dict(
+    force_noise=("N", "pair", 0.0),
+    encoder_counts=("counts/rev", "scalar", None),
+    velocity_noise=("rad/s", "pair", 0.0),
+)
+IDENTIFIABLE = dict(
+    force_gain=("-", (2,), "log"),
+    force_offset=("N", (2,), "plain"),
+    force_delay=("s", (), "periods"),
+)
+
+
+def static_settings(values) -> tuple:
+    """What of a point's sensor ``SETTINGS`` changes the compiled program (batches group by it):
+    whether the encoders quantise."""
+    return (values["encoder_counts"] is not None,)
+
 
 @params(static=("force_on", "encoder_on", "velocity_on", "calibrated", "motor_force"))
 class Sensors:

@@ -32,6 +32,7 @@ from .._model.arm import Arm
 from .._model.controllers import controller_kind
 from .._model.friction import friction_kind
 from .._model.robot import MIT_MANUS
+from .._model.sensors import SETTINGS as SENSOR_SETTINGS
 from .._model.sensors import Sensors
 from .._model.voluntary import VoluntaryForce
 from .._simulate import make_trial
@@ -48,11 +49,7 @@ TRIAL_SECTIONS = {
     },
     "controller": {"type": ("kind", controller_kind, REQUIRED)},  # and the kind's own keys (kind_section)
     "acquisition": {"mode": ("text", ("instant", "interval_mean"), "instant")},
-    "sensors": {
-        "force_noise": ("pair", "N", 0.0),
-        "encoder_counts": ("scalar", "counts per revolution", None),
-        "velocity_noise": ("pair", "rad/s", 0.0),
-    },
+    "sensors": {name: (shape, unit, default) for name, (unit, shape, default) in SENSOR_SETTINGS.items()},
     "voluntary": {"std": ("pair", "N", REQUIRED), "cutoff": ("scalar", "Hz", REQUIRED)},
     "arm": {
         "mass": ("matrix", "kg", REQUIRED),
@@ -235,7 +232,7 @@ def trial_parts(config: dict, *, where: str | None = "config", arm=None, frictio
         return _kind(controller_kind, t)
 
     def sensors(t):
-        return Sensors(t["force_noise"], t["encoder_counts"], t["velocity_noise"]) if t else Sensors()
+        return Sensors(**{name: t[name] for name in SENSOR_SETTINGS}) if t else Sensors()
 
     return dict(
         robot=make("robot", robot),

@@ -33,6 +33,8 @@ from .._estimation.welch import Welch
 from .._model.arm import Arm
 from .._model.controllers import CONTROLLER_KINDS, controller_kind
 from .._model.friction import FRICTION_KINDS, friction_kind
+from .._model.sensors import SETTINGS as SENSOR_SETTINGS
+from .._model.sensors import static_settings as sensor_static
 from .._simulate import ACQUISITIONS, Trial
 from ..presets import LOCATIONS, PERTURBATION_LEVELS, perturbation_peak
 from ..presets import arm as paper_arm
@@ -49,9 +51,9 @@ POINT_DEFAULTS: dict[str, Any] = dict(
     perturbation_level=1,  # paper level 1-3 (None when a peak is given)
     peak=None,  # per-axis peak |F_Delta| [N], (2,); default: the level's
     seconds=50.0,  # record length [s]
-    force_noise=0.0,  # force-sensor noise sd [N]
-    encoder_counts=None,  # encoder resolution [counts/rev]; None: exact angles
-    velocity_noise=0.0,  # joint-rate noise sd [rad/s]
+    # the sensors' settings (``_model.sensors.SETTINGS``): force_noise [N], encoder_counts
+    # [counts/rev] (None: exact angles), velocity_noise [rad/s]
+    **{name: default for name, (_, _, default) in SENSOR_SETTINGS.items()},
     acquisition="instant",  # "instant" | "interval_mean"
     nperseg=8192,  # Welch segment [samples]
     noverlap=None,  # Welch overlap [samples]; default 3/4 of nperseg
@@ -63,9 +65,7 @@ POINT_DEFAULTS: dict[str, Any] = dict(
 POINT_UNITS = dict(
     peak="N",
     seconds="s",
-    force_noise="N",
-    encoder_counts="counts/rev",
-    velocity_noise="rad/s",
+    **{name: unit for name, (unit, _, _) in SENSOR_SETTINGS.items()},
     nperseg="samples",
     noverlap="samples",
     fmax="Hz",
@@ -182,9 +182,8 @@ def normalize_point(raw: Mapping) -> dict:
     out["arm"] = _arm_setting(p["arm"])
     out |= _perturbation(raw, p)
     out["seconds"] = _number("seconds", p["seconds"], minimum=0.0, exclusive=True)
-    out["force_noise"] = _number("force_noise", p["force_noise"])
-    out["encoder_counts"] = None if p["encoder_counts"] is None else _number("encoder_counts", p["encoder_counts"])
-    out["velocity_noise"] = _number("velocity_noise", p["velocity_noise"])
+    for name in SENSOR_SETTINGS:  # a setting whose default is None may stay None
+        out[name] = None if p[name] is None and SENSOR_SETTINGS[name][2] is None else _number(name, p[name])
     check_choice("acquisition", p["acquisition"], ACQUISITIONS)
     out["acquisition"] = p["acquisition"]
     out |= _welch_settings(p)
@@ -269,7 +268,7 @@ def point_config(point: Mapping) -> dict:
     return dict(
         controller=controller.settings(),
         acquisition=dict(mode=point["acquisition"]),
-        sensors={k: point[k] for k in ("force_noise", "encoder_counts", "velocity_noise")},
+        sensors={k: point[k] for k in SENSOR_SETTINGS},
         friction=friction.settings(),
     )
 
@@ -288,7 +287,7 @@ def static_group(point: Mapping) -> tuple:
         point["controller"],
         point["friction"],
         point["acquisition"],
-        point["encoder_counts"] is not None,
+        *sensor_static(point),
         n_samples(point),
         point_welch(point),
         *options,
