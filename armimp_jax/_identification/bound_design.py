@@ -32,7 +32,6 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
 from .._pytree import replace_unchecked
 from . import controller_design as cd
@@ -40,6 +39,7 @@ from . import layout as lay
 from . import linear
 from .bound import _fisher, crlb
 from .criterion import DesignPlan, _aggregate, record_minutes, relative_se
+from .descent import descend
 from .limits import _displacement_gain, _limited_signal, _peak_displacement
 from .predict import predict_se
 
@@ -175,14 +175,19 @@ def design_on_bound(plan: DesignPlan, family, *, design_gains: bool, precision: 
 
     shape0 = np.asarray(family.shape)
     z = {"shape": np.log(np.maximum(shape0, 1e-6 * shape0.max())), "gains": np.asarray(gains0)}
-    opt = optax.adam(plan.learning_rate)
-    state = jax.tree.map(np.asarray, opt.init(z))
+    opt = plan.optimizer
     trace = []
-    for step in range(plan.steps):
-        z, state, value = _step(z, state, opt, value_and_grad, trials, limits, design_gains)
+
+    def step(carry, i):
+        z, state, value = _step(*carry, opt, value_and_grad, trials, limits, design_gains)
         trace.append(float(np.exp(value)) if np.isfinite(value) else float("nan"))
+        return z, state
+
+    def after(carry, i):
         if plan.progress is not None:
-            plan.progress(step + 1, plan.steps, trace[-1])
+            plan.progress(i + 1, plan.steps, trace[-1])
+
+    z, _ = descend((z, jax.tree.map(np.asarray, opt.init(z))), step, plan.steps, after=after)
     entries = [layout.labels()[i] for i in plan.idx]
     designed = _Designed(z, trace, ratios)
     return _assemble(

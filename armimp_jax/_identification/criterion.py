@@ -5,7 +5,7 @@ trials (the worst or the mean), smoothed for a gradient by a log-sum-exp; and th
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -22,8 +22,9 @@ SOFTMAX_TEMPERATURE = 0.05  # in log relative SE: the smooth maximum is within ~
 class DesignPlan(NamedTuple):
     """What a design holds fixed, whatever its method: the ``trials`` designed for at once,
     the ``free`` parameters' names and ``layout``, the indices ``idx`` of the target entries,
-    the ``Limits``, the ``criterion`` and its ``aggregate`` over the trials, the Adam
-    ``steps`` and ``learning_rate``, the ``key`` and the ``progress`` callback (or None)."""
+    the ``Limits``, the ``criterion`` and its ``aggregate`` over the trials, the ``steps`` and
+    ``learning_rate``, the ``key``, the ``progress`` callback (or None) and the ``optimizer``
+    (an optax ``GradientTransformation``; ``descent.optimizer_or_default``)."""
 
     trials: list
     free: tuple
@@ -36,6 +37,7 @@ class DesignPlan(NamedTuple):
     learning_rate: float
     key: jax.Array
     progress: Callable[[int, int, float], None] | None
+    optimizer: Any
 
 
 def check_precision(precision, level: float = 0.95, *, where: str = "record_seconds") -> None:

@@ -38,6 +38,7 @@ from . import linear
 from .bound import is_near_linear, silent_readings
 from .bound_design import BoundDesign, design_calibrated
 from .criterion import DesignPlan, _targets
+from .descent import optimizer_or_default
 from .limits import DISPLACEMENT_TOLERANCE, Limits, _limited_signal, _peak_displacement
 from .monte_carlo_design import Design, design_monte_carlo
 
@@ -228,6 +229,7 @@ def design(
     learning_rate: float = 0.15,
     key=None,
     progress=None,
+    optimizer=None,
 ) -> Design | BoundDesign:
     """Design the experiment: the ``family``'s spectrum (and, with ``CramerRao(controller=True)``,
     the controller's gains) that minimises ``criterion`` within ``limits``.
@@ -254,7 +256,10 @@ def design(
             ``draws``), ``MonteCarlo(...)`` (``identify``'s predicted SEs over noise draws
             through the friction; ``draws``, ``predict_draws``), or ``Auto(...)`` (default):
             the bound where it covers the free parameters and every arm's loop is near-linear.
-        steps, learning_rate: Adam steps on the log of ``shape`` (and of the gains).
+        steps, learning_rate: the optimiser's steps on the log of ``shape`` (and of the gains),
+            and Adam's learning rate.
+        optimizer: an optax ``GradientTransformation`` to take the steps (default
+            ``optax.adam(learning_rate)``).
         key: ``jax.random`` key (default ``key(0)``): the family's own noise and every draw.
         progress: ``None`` or a callable ``progress(step, steps, value)`` called after each step.
 
@@ -265,6 +270,7 @@ def design(
     every arm's full simulation, included), or a starting controller whose loop is unstable.
     """
     require_x64("design")
+    optimizer = optimizer_or_default(optimizer, learning_rate, where="design")
     candidates, layout, idx, trials = _check_design(
         trial, family, free, limits, targets, criterion, robust_over, aggregate, steps, learning_rate, method
     )
@@ -275,7 +281,9 @@ def design(
     if limits.drift is not None and not designs_controller:
         _check_fixed_drift(trials, limits.drift)
     _check_displacement(candidates, key, limits, trials)
-    plan = DesignPlan(trials, free, layout, idx, limits, criterion, aggregate, steps, learning_rate, key, progress)
+    plan = DesignPlan(
+        trials, free, layout, idx, limits, criterion, aggregate, steps, learning_rate, key, progress, optimizer
+    )
     chosen = _choose_method(method, trials, candidates, layout, criterion, limits, key)
     if isinstance(chosen, CramerRao):
         return design_calibrated(

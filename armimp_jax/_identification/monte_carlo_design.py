@@ -32,6 +32,7 @@ from .._pytree import replace_unchecked
 from . import indirect
 from . import layout as lay
 from .criterion import DesignPlan, _aggregate, _criterion_value
+from .descent import descend
 from .indirect import IDENTIFY_NUMERICS
 from .limits import _displacement_gain, _limited_signal, _peak_displacement
 from .predict import predict_se
@@ -212,12 +213,14 @@ def design_monte_carlo(plan: DesignPlan, candidates, *, draws: int, predict_draw
     mc = _monte_carlo(plan, draws, predict_draws)
     family, gain, f0, before, start_criteria = _best_start(mc, candidates)
     value_and_grad = _objective(mc, family, f0)
-    opt = optax.adam(plan.learning_rate)
+    opt = plan.optimizer
     state = _adam_init(opt, family, gain)
-    for step in range(steps):
-        state = _adam_step(mc, opt, value_and_grad, family, state, step)
-        if progress is not None:
-            progress(step + 1, steps, state.trace[-1])
+    state = descend(
+        state,
+        lambda s, step: _adam_step(mc, opt, value_and_grad, family, s, step),
+        steps,
+        after=None if progress is None else lambda s, step: progress(step + 1, steps, s.trace[-1]),
+    )
     if state.skipped == steps:
         raise RuntimeError(f"design: every step's noise draws diverged ({steps} steps); the trial is unstable")
     designed = replace_unchecked(family, shape=np.exp(state.log_shape))

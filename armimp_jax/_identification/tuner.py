@@ -50,6 +50,7 @@ from .._pytree import replace_unchecked
 from .._simulate import Trial, simulate
 from .._solver.numerics import Numerics
 from .._solver.rk4 import RK4
+from .descent import descend, optimizer_or_default
 from .spd import STRUCTURES, spd_from_theta, theta_from_spd
 
 PARAMETERISATIONS = STRUCTURES
@@ -311,8 +312,10 @@ def tune(
     evaluate: Callable[[int, jnp.ndarray], dict] | None = None,
     eval_every: int = 0,
     mesh: Mesh | None = None,
+    optimizer=None,
 ) -> TuneState:
-    """Descend the training loss from ``theta0`` with optax Adam and a divergence guard.
+    """Descend the training loss from ``theta0`` with ``optimizer`` (an optax
+    ``GradientTransformation``; default Adam at ``config.learning_rate``) and a divergence guard.
 
     ``state`` (from ``load_state``, or a previous call's ``on_iteration``) resumes a run;
     ``on_iteration`` receives the state after the start and after every iteration (accepted
@@ -327,22 +330,29 @@ def tune(
             f"tune: the state has {np.shape(state.theta)[0]} parameters; parameterisation "
             f"{config.parameterisation!r} has {n_theta}"
         )
+    opt = optimizer_or_default(optimizer, config.learning_rate, where="tune")
     trainer = make_trainer(params, f_delta, welch, config, mesh, log)
-    opt = optax.adam(config.learning_rate)
     if state is None:
         state = start_state(trainer, opt, theta0, log)
         log(state.history.record(-1))
         if on_iteration is not None:
             on_iteration(state)
-    while state.iteration < config.iterations:
-        if state.step_scale < config.min_step_scale:
-            log(dict(event="stopping: step scale below minimum"))
-            break
-        state = step_state(trainer, opt, state, evaluate, eval_every)
+
+    def after(state, _):
         log(state.history.record(-1))
         if on_iteration is not None:
             on_iteration(state)
-    return state
+
+    def stop(state):
+        if state.step_scale < config.min_step_scale:
+            log(dict(event="stopping: step scale below minimum"))
+            return True
+        return False
+
+    def step(state, _):
+        return step_state(trainer, opt, state, evaluate, eval_every)
+
+    return descend(state, step, config.iterations, after=after, stop=stop, first=state.iteration)
 
 
 class Trainer(NamedTuple):

@@ -17,10 +17,10 @@ from collections.abc import Callable
 
 import jax.numpy as jnp
 import numpy as np
-import optax
 
 from .._batch import assess_batch, simulate_batch
 from .._estimation.welch import Welch
+from .._identification.descent import optimizer_or_default
 from .._simulate import stack_trials
 from .._solver.numerics import Numerics
 from .._solver.rk4 import RK4
@@ -271,7 +271,7 @@ class Tuning:
                 held["trainer"] = make_trainer(
                     params, f_delta, self.train["welch"], self.config, context.mesh, self.log
                 )
-                held["opt"] = optax.adam(self.config.learning_rate)
+                held["opt"] = optimizer_or_default(None, self.config.learning_rate, where="tune")
             out = []
             for i in batch:
                 held["state"] = self._advance(i, held, context.run)

@@ -14,8 +14,8 @@ import pathlib
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
+from .._identification.descent import optimizer_or_default
 from .._identification.tuner import (
     MAX_START_SHRINKS,
     PARAMETERISATIONS,
@@ -98,12 +98,13 @@ def load_state(path: pathlib.Path, settings: dict, config: TuneConfig) -> TuneSt
     return state_from_arrays(load_record(path, settings=settings).arrays, config, where=str(path))
 
 
-def state_from_arrays(a: dict, config: TuneConfig, *, where: str) -> TuneState:
-    """The ``TuneState`` of a record's arrays (``state_arrays``); a ``ResultsError`` naming
-    ``where`` when they hold another optimiser's state."""
+def state_from_arrays(a: dict, config: TuneConfig, *, where: str, optimizer=None) -> TuneState:
+    """The ``TuneState`` of a record's arrays (``state_arrays``), for ``optimizer`` (default Adam
+    at ``config.learning_rate``); a ``ResultsError`` naming ``where`` when they hold another
+    optimiser's state."""
     try:
         theta = jnp.asarray(a["theta"])
-        template = optax.adam(config.learning_rate).init(theta)
+        template = optimizer_or_default(optimizer, config.learning_rate, where="tune").init(theta)
         leaves = jax.tree.leaves(template)
         saved = [a[f"opt_state.{i}"] for i in range(len(leaves))]
         if f"opt_state.{len(leaves)}" in a or any(np.shape(x) != np.shape(t) for x, t in zip(saved, leaves)):

@@ -1,0 +1,44 @@
+"""One optimisation loop (``_identification/descent.py``): its steps, stop and hooks, and the
+``optimizer=`` that design and the tuner take (an optax transformation, checked in one line)."""
+
+import numpy as np
+import optax
+import pytest
+
+import armimp_jax as aj
+from armimp_jax import presets
+from armimp_jax._identification.descent import descend, optimizer_or_default
+
+ARM = ("arm.mass", "arm.damping", "arm.stiffness")
+
+
+def test_descend_steps_from_first_stops_and_reports():
+    seen = []
+    out = descend(0, lambda s, i: s + i, 5, after=lambda s, i: seen.append((i, s)), first=1)
+    assert out == 10 and seen == [(1, 1), (2, 3), (3, 6), (4, 10)]
+    assert descend(0, lambda s, i: s + 1, 10, stop=lambda s: s >= 3) == 3
+
+
+def test_the_default_is_adam_and_anything_else_is_refused_in_one_line():
+    grads = {"a": np.array([1.0, -2.0])}
+    ours = optimizer_or_default(None, 0.1, where="design")
+    adam = optax.adam(0.1)
+    a, _ = ours.update(grads, ours.init(grads))
+    b, _ = adam.update(grads, adam.init(grads))
+    np.testing.assert_array_equal(a["a"], b["a"])
+    with pytest.raises(ValueError, match="^tune: optimizer must be an optax GradientTransformation"):
+        optimizer_or_default("adam", 0.1, where="tune")
+
+
+def test_design_takes_the_steps_of_the_optimizer_it_is_given():
+    trial = aj.make_trial(
+        aj.PD(), arm=presets.arm(2), friction=aj.NO_FRICTION, sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18)
+    )
+    family = aj.signals.ShapedNoise(knots=np.linspace(1.0, 15.0, 3), shape=np.ones((2, 3)), rms=1.0)
+    limits = aj.experiment.Limits(0.66, 2.25, 2.0)
+    method = aj.experiment.CramerRao()
+    with pytest.raises(ValueError, match="design: optimizer must be an optax GradientTransformation"):
+        aj.design(trial, family, free=ARM, limits=limits, method=method, steps=2, optimizer=optax.adam)
+    still = aj.design(trial, family, free=ARM, limits=limits, method=method, steps=2, optimizer=optax.sgd(0.0))
+    # a zero step leaves the spectrum where it was (Adam's first step moves it: test_bound_design)
+    assert still.trace[0] == still.trace[1] and np.isfinite(still.trace[0])
