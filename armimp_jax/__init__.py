@@ -36,21 +36,21 @@ if TYPE_CHECKING:  # what a type checker reads: every public name from its modul
     from . import spectra as spectra
     from ._batch import simulate_batch as simulate_batch
     from ._batch import simulate_ensemble as simulate_ensemble
+    from ._calibration.force_calibration import calibrate_force as calibrate_force
+    from ._calibration.robot_calibration import RobotRecording as RobotRecording
+    from ._calibration.robot_calibration import calibrate_robot as calibrate_robot
+    from ._design.design import design as design
+    from ._design.record import record_for as record_for
     from ._estimation.ensemble import Ensemble as Ensemble
     from ._estimation.ensemble_fit import estimate_ensemble as estimate_ensemble
     from ._estimation.estimate import estimate as estimate
     from ._estimation.fit import fit_impedance as fit_impedance
     from ._estimation.welch import Welch as Welch
     from ._identification.bound import crlb as crlb
-    from ._identification.design import design as design
-    from ._identification.force_calibration import calibrate_force as calibrate_force
     from ._identification.identify import identify as identify
     from ._identification.path_bound import reaches_for as reaches_for
     from ._identification.pool import Recording as Recording
     from ._identification.predict import predict_se as predict_se
-    from ._identification.record import record_for as record_for
-    from ._identification.robot_calibration import RobotRecording as RobotRecording
-    from ._identification.robot_calibration import calibrate_robot as calibrate_robot
     from ._model.arm import Arm as Arm
     from ._model.controllers import IMBIC as IMBIC
     from ._model.controllers import PD as PD
@@ -107,18 +107,18 @@ _EXPORTS = {
     "load_recording": ".study.recording",
     "load_ensemble": ".study.recording",
     "Recording": "._identification.pool",
-    "RobotRecording": "._identification.robot_calibration",
+    "RobotRecording": "._calibration.robot_calibration",
     "estimate": "._estimation.estimate",
     "fit_impedance": "._estimation.fit",
     "estimate_ensemble": "._estimation.ensemble_fit",
     "identify": "._identification.identify",
     "crlb": "._identification.bound",
     "predict_se": "._identification.predict",
-    "design": "._identification.design",
+    "design": "._design.design",
     "reaches_for": "._identification.path_bound",
-    "record_for": "._identification.record",
-    "calibrate_robot": "._identification.robot_calibration",
-    "calibrate_force": "._identification.force_calibration",
+    "record_for": "._design.record",
+    "calibrate_robot": "._calibration.robot_calibration",
+    "calibrate_force": "._calibration.force_calibration",
 }
 # Namespaces (modules), loaded on first use like the names: the rest of the library by purpose.
 _NAMESPACES = (

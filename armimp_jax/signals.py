@@ -6,7 +6,7 @@ A namespace of the public face: ``import armimp_jax as aj; aj.signals.NAME`` (do
 
 from __future__ import annotations
 
-from ._identification.limits import limited_signal as limited_signal
+from ._design.limits import limited_signal as limited_signal
 from ._model.families import Multisine as Multisine
 from ._model.families import PaperNoise as PaperNoise
 from ._model.families import ShapedNoise as ShapedNoise

@@ -11,8 +11,8 @@ import pytest
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._identification import bound_design as bd
-from armimp_jax._identification import controller_design as cd
+from armimp_jax._design import bound_design as bd
+from armimp_jax._design import controller_design as cd
 from armimp_jax._identification import layout as lay
 from armimp_jax._pytree import replace_unchecked
 

@@ -11,8 +11,8 @@ import pytest
 import scipy.stats
 
 import armimp_jax as aj
-from armimp_jax._identification import idim
-from armimp_jax._identification.robot_calibration import _torque
+from armimp_jax._calibration import idim
+from armimp_jax._calibration.robot_calibration import _torque
 from armimp_jax.study.coverage import record
 
 ROBOT = aj.Robot(inertia=1.15 * np.asarray(aj.presets.MIT_MANUS.inertia))  # the protocol's truth: 15% above the model

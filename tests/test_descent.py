@@ -1,4 +1,4 @@
-"""One optimisation loop (``_identification/descent.py``): its steps, stop and hooks, and the
+"""One optimisation loop (``_design/descent.py``): its steps, stop and hooks, and the
 ``optimizer=`` that design and the tuner take (an optax transformation, checked in one line)."""
 
 import numpy as np
@@ -7,7 +7,7 @@ import pytest
 
 import armimp_jax as aj
 from armimp_jax import presets
-from armimp_jax._identification.descent import descend, optimizer_or_default
+from armimp_jax._design.descent import descend, optimizer_or_default
 
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
 

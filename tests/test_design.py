@@ -17,7 +17,7 @@ import scipy.stats
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._identification import limits as des
+from armimp_jax._design import limits as des
 from armimp_jax.study import design_check as dc
 from armimp_jax.study import design_experiment as dx
 

@@ -135,8 +135,8 @@ after the table
 
 def test_imports_resolve_to_modules():
     assert ("_model", "timing") in imports(("_simulate",))
-    assert ("_identification", "criterion") in imports(("_identification", "bound"))
-    assert ("_identification", "layout") in imports(("_identification", "design"))
+    assert ("_identification", "precision") in imports(("_identification", "bound"))
+    assert ("_identification", "layout") in imports(("_design", "design"))
 
 
 def test_every_import_is_allowed_by_the_design_table():

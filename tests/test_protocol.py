@@ -144,7 +144,7 @@ def test_the_sensitivity_to_a_force_gain_or_delay_error_is_identifys_own_move():
 def test_robot_sensitivity_refuses_what_it_cannot_weigh_in_one_line():
     """A calibration error of 0% and a delay on a force from the motor torques are refused before
     any simulation; the delay is probed only where the robot has a force transducer."""
-    from armimp_jax._identification.sensitivity import robot_names
+    from armimp_jax._design.sensitivity import robot_names
 
     trial = aj.make_trial(aj.PD(), arm=paper.arm(2), friction=aj.NO_FRICTION, **NOISE)
     assert robot_names(trial)[-1] == "sensors.force_delay"

@@ -12,16 +12,16 @@ import scipy.stats
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._identification import layout as lay
-from armimp_jax._identification import record
-from armimp_jax._identification.criterion import Z95, quantile, record_seconds
-from armimp_jax._identification.record import (
+from armimp_jax._design import record
+from armimp_jax._design.record import (
     _check_record,
     _design_relative,
     _statistic,
     _worst_arm,
     design_lines,
 )
+from armimp_jax._identification import layout as lay
+from armimp_jax._identification.precision import Z95, quantile, record_seconds
 
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
 DIAGONALS = tuple(f"{n}[{i},{i}]" for n in ARM for i in range(2))

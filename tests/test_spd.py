@@ -1,11 +1,11 @@
-"""The unconstrained <-> symmetric positive definite map (armimp_jax._identification.spd)."""
+"""The unconstrained <-> symmetric positive definite map (armimp_jax._design.spd)."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from armimp_jax._identification.spd import n_theta, spd_from_theta, theta_from_spd
+from armimp_jax._design.spd import n_theta, spd_from_theta, theta_from_spd
 
 
 @pytest.mark.parametrize("structure,n", [("diagonal", 2), ("full", 2), ("full", 3), ("diagonal", 4)])

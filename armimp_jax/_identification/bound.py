@@ -36,8 +36,8 @@ from .._pytree import replace_unchecked
 from .._simulate import Trial, simulate
 from . import calibration_prior, kalman, linear
 from . import layout as lay
-from .criterion import record_seconds
 from .indirect import IDENTIFY_NUMERICS
+from .precision import record_seconds
 
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
 # The hand's motion counts as near-linear when its RMS departure from the frictionless linear
@@ -148,7 +148,7 @@ class Bound:
         """Seconds of recording for ``+- precision`` (relative) at ``level`` on every entry named
         in ``entries`` (default: the diagonals of the free matrices): the bound falls as one over
         the square root of the record length when the perturbation goes on with the same
-        statistics (``criterion.record_seconds``: a precision or a level outside (0, 1) is
+        statistics (``precision.record_seconds``: a precision or a level outside (0, 1) is
         refused in one line)."""
         worst = max(self.relative(entries).values())
         return record_seconds(self.seconds, worst, precision, level=level, where="Bound.record_for")

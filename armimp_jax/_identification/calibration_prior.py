@@ -31,11 +31,11 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
+from .._calibration.force_calibration import ForceCalibration
+from .._calibration.robot_calibration import RobotCalibration
 from .._model.friction import LuGre
 from . import indirect, search
 from . import layout as lay
-from .force_calibration import ForceCalibration
-from .robot_calibration import RobotCalibration
 
 GEOMETRY = ("shoulder_link", "elbow_link", "base")
 # Calibrated parameters that identify may free instead of holding (the calibration's value then its

@@ -2,7 +2,7 @@
 
 A family is an immutable pytree with ``signal(key, n_samples, period)``, the force [N] at
 one sample per control period. Its ``shape`` field (a ``(2, K)`` array of non-negative
-weights, one row per axis) is what experiment design moves (``_identification/design.py``);
+weights, one row per axis) is what experiment design moves (``_design/design.py``);
 ``rms`` [N] (per axis) sets the level, exactly. Three families:
 
 - ``PaperNoise``: the paper's perturbation (``perturbation``: filtered uniform noise scaled

@@ -19,8 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._batch import assess_batch, simulate_batch
+from .._design.descent import optimizer_or_default
 from .._estimation.welch import Welch
-from .._identification.descent import optimizer_or_default
 from .._simulate import stack_trials
 from .._solver.numerics import Numerics
 from .._solver.rk4 import RK4

@@ -19,9 +19,9 @@ import pathlib
 
 import numpy as np
 
+from .._calibration.force_calibration import calibrate_force
+from .._calibration.robot_calibration import MIN_RATE, RobotRecording, calibrate_robot
 from .._identification.calibration_prior import ESTIMABLE
-from .._identification.force_calibration import calibrate_force
-from .._identification.robot_calibration import MIN_RATE, RobotRecording, calibrate_robot
 from .config import ConfigError
 from .recording import load_recording
 

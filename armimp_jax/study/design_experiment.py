@@ -21,12 +21,12 @@ import jax
 import numpy as np
 from matplotlib.figure import Figure  # no pyplot: no global figure state
 
+from .._design.bound_design import BoundDesign
+from .._design.criterion import default_targets, relative_se
+from .._design.design import AGGREGATES, CRITERIA, METHODS, Auto, CramerRao, MonteCarlo
+from .._design.limits import Limits
 from .._identification.bound import has_friction
-from .._identification.bound_design import BoundDesign
-from .._identification.criterion import default_targets, relative_se
-from .._identification.design import AGGREGATES, CRITERIA, METHODS, Auto, CramerRao, MonteCarlo
 from .._identification.layout import make_layout, parameter_units
-from .._identification.limits import Limits
 from .._model.families import ShapedNoise, multisine
 from ..presets import arm as paper_arm
 from .config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config

@@ -18,14 +18,14 @@ from __future__ import annotations
 import jax
 import numpy as np
 
+from .._calibration.robot_calibration import RobotRecording, calibrate_robot
+from .._design.bound_design import BoundDesign
+from .._design.criterion import default_targets
+from .._design.design import design
+from .._design.record import design_lines
 from .._identification.bound import calibration_seconds, crlb
-from .._identification.bound_design import BoundDesign
-from .._identification.criterion import default_targets
-from .._identification.design import design
 from .._identification.layout import make_layout
 from .._identification.predict import predict_se
-from .._identification.record import design_lines
-from .._identification.robot_calibration import RobotRecording, calibrate_robot
 from .._model.arm import no_arm
 from .._model.controllers.pd import PD
 from .._model.families import PaperNoise

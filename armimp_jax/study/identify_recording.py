@@ -147,7 +147,7 @@ def sensitivity_lines(trial, f, free, percent: float, **options) -> list[str]:
     per 1% error in each (per ms of force delay) [SE], then a warning per parameter a ``percent``
     error (1 ms of delay) would move an entry by more than one SE. ``options``: the sampling
     (``numerics``, ``draws``, ``jacobian_draws``)."""
-    from .._identification.sensitivity import robot_names, robot_sensitivity
+    from .._design.sensitivity import robot_names, robot_sensitivity
 
     robot = [n for n in robot_names(trial) if n not in free]  # a free one is estimated
     if not robot:

@@ -2,7 +2,7 @@
 writes it atomically with the settings that produced it, ``config_settings`` plus the
 caller's description of the training batch; ``load_state`` refuses a file that is torn,
 altered, or was saved with other settings). The tuning itself (parameterisation, loss,
-gradients, the optimiser's steps) is pure JAX in ``armimp_jax._identification.tuner``,
+gradients, the optimiser's steps) is pure JAX in ``armimp_jax._design.tuner``,
 re-exported here; the paper's experiment, a specification of the study engine with one
 record per iteration, is ``armimp_jax.paper.mhat_experiment``.
 """
@@ -15,8 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._identification.descent import optimizer_or_default
-from .._identification.tuner import (
+from .._design.descent import optimizer_or_default
+from .._design.tuner import (
     MAX_START_SHRINKS,
     PARAMETERISATIONS,
     History,

@@ -26,8 +26,8 @@ import numpy as np
 
 import armimp_jax as aj
 from armimp_bench import protocol as pr
-from armimp_jax._identification import idim
-from armimp_jax._identification.robot_calibration import MIN_RATE
+from armimp_jax._calibration import idim
+from armimp_jax._calibration.robot_calibration import MIN_RATE
 from armimp_jax.study import coverage as cov
 
 SECONDS = 20.0

@@ -16,7 +16,7 @@ import numpy as np
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._identification.criterion import record_minutes
+from armimp_jax._identification.precision import record_minutes
 from armimp_jax.study import coverage as cov
 from armimp_jax.study import design_check as dc
 from armimp_jax.study import design_experiment as dx

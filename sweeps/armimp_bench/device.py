@@ -92,9 +92,9 @@ def design_gradient(repeats: int) -> dict:
     what each step of ``aj.design(..., method=aj.experiment.CramerRao(controller=True))`` evaluates."""
     import jax.numpy as jnp
 
-    from armimp_jax._identification import bound_design, controller_design
+    from armimp_jax._design import bound_design, controller_design
+    from armimp_jax._design.criterion import default_targets
     from armimp_jax._identification import layout as lay
-    from armimp_jax._identification.criterion import default_targets
 
     trials = [_trial(loc, 0.0) for loc in (1, 2)]
     family = aj.signals.multisine(np.geomspace(0.1, 15.0, 8), 1.0)

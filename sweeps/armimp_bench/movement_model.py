@@ -17,7 +17,7 @@ import jax
 import numpy as np
 
 import armimp_jax as aj
-from armimp_jax._identification import controller_design as cd
+from armimp_jax._design import controller_design as cd
 from armimp_jax._identification import ensemble_friction as ef
 from armimp_jax._identification import ensemble_identify as ei
 from armimp_jax._identification import path as ph

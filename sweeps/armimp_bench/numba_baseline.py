@@ -12,7 +12,8 @@ import time
 import numpy as np
 from numba import njit, prange
 
-from armimp_jax import IMBIC, MIT_MANUS, PD
+from armimp_jax import IMBIC, PD
+from armimp_jax.presets import MIT_MANUS
 
 # MIT-MANUS's constants, compiled into the loop
 LS, LE = float(MIT_MANUS.shoulder_link), float(MIT_MANUS.elbow_link)

@@ -33,15 +33,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._identification import layout as lay
+from .._identification import linear
+from .._identification.bound import _fisher, crlb
+from .._identification.precision import record_minutes
+from .._identification.predict import predict_se
 from .._pytree import replace_unchecked
 from . import controller_design as cd
-from . import layout as lay
-from . import linear
-from .bound import _fisher, crlb
-from .criterion import DesignPlan, _aggregate, record_minutes, relative_se
+from .criterion import DesignPlan, _aggregate, relative_se
 from .descent import descend
 from .limits import _displacement_gain, _limited_signal, _peak_displacement
-from .predict import predict_se
 
 BACKTRACKS = 6  # halvings of a step whose gains leave the loop unstable before it is skipped
 

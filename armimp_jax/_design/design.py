@@ -31,11 +31,11 @@ import jax
 import numpy as np
 
 from .._checks import require_x64
+from .._identification import layout as lay
+from .._identification import linear
+from .._identification.bound import is_near_linear, silent_readings
 from .._model.families import Multisine, PaperNoise, ShapedNoise
 from .._simulate import Trial
-from . import layout as lay
-from . import linear
-from .bound import is_near_linear, silent_readings
 from .bound_design import BoundDesign, design_calibrated
 from .criterion import DesignPlan, _targets
 from .descent import optimizer_or_default
@@ -256,10 +256,8 @@ def design(
             ``draws``), ``MonteCarlo(...)`` (``identify``'s predicted SEs over noise draws
             through the friction; ``draws``, ``predict_draws``), or ``Auto(...)`` (default):
             the bound where it covers the free parameters and every arm's loop is near-linear.
-        steps, learning_rate: the optimiser's steps on the log of ``shape`` (and of the gains),
-            and Adam's learning rate.
-        optimizer: an optax ``GradientTransformation`` to take the steps (default
-            ``optax.adam(learning_rate)``).
+        steps, learning_rate: steps on the log of ``shape`` (and of the gains); Adam's rate.
+        optimizer: an optax ``GradientTransformation`` (default ``optax.adam(learning_rate)``).
         key: ``jax.random`` key (default ``key(0)``): the family's own noise and every draw.
         progress: ``None`` or a callable ``progress(step, steps, value)`` called after each step.
 

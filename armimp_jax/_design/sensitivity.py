@@ -31,13 +31,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import require_x64
+from .._identification import indirect
+from .._identification import layout as lay
+from .._identification.bound import ARM, has_friction, is_near_linear
+from .._identification.predict import check_sampling, check_signal
 from .._model.sensors import FORCE_HISTORY
 from .._simulate import Trial
 from .._solver.numerics import Numerics
-from . import indirect
-from . import layout as lay
-from .bound import ARM, has_friction, is_near_linear
-from .predict import check_sampling, check_signal
 
 DIAGONALS = ("[0,0]", "[1,1]")
 DELAY = "sensors.force_delay"

@@ -17,11 +17,11 @@ import dataclasses
 import jax
 import numpy as np
 
+from .._identification import path as ph
+from .._identification import path_bound as pb
 from .._model.movement import MinimumJerk
 from .._simulate import Trial
 from . import controller_design as cd
-from . import path as ph
-from . import path_bound as pb
 
 # Shapes of the perturbation over the reach: (name, weight at rest, weight over the reach's span)
 SHAPES = (("uniform", 1.0, 1.0), ("reach", 0.3, 1.0), ("reach-only", 0.05, 1.0))

@@ -16,9 +16,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._identification import linear
 from .._pytree import replace_unchecked
 from .._simulate import Trial
-from . import linear
 
 STABILITY_MARGIN = 2.0  # the loop must stay stable with the designed gains times this (6 dB)
 DRIFT_TOLERANCE = 1e-3  # of the drift limit, in the stiffening's bisection

@@ -12,11 +12,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import require_x64
+from .._identification.indirect import IDENTIFY_NUMERICS
 from .._model.sensors import IDEAL
 from .._model.timing import CONTROL_PERIOD
 from .._pytree import replace_unchecked
 from .._simulate import Trial, simulate
-from .indirect import IDENTIFY_NUMERICS
 
 DISPLACEMENT_TOLERANCE = 1e-3  # of the gain, in the displacement limit's bisection
 CLIP_ITERATIONS = 40  # clip-and-rescale passes of the peak limit: a few for Gaussian noise, ~30 for short bursts

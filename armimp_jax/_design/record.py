@@ -10,7 +10,7 @@ three answers side by side (``RecordLength``), all in one convention: ``+- preci
   controller, through the friction where it was calibrated (or designed by Monte Carlo).
 
 Each comes from the standard errors at the record given, carried by the one-over-square-root
-law (``criterion.record_seconds``, checked in ``tests/test_bound.py`` and
+law (``precision.record_seconds``, checked in ``tests/test_bound.py`` and
 ``tests/test_identify.py``); ``check=True`` predicts again at the answer's length (the
 perturbation repeated), which costs that record's simulations.
 """
@@ -23,15 +23,16 @@ import math
 import numpy as np
 
 from .._checks import check_choice, check_int, deprecated, require_x64
+from .._identification import indirect
+from .._identification import layout as lay
+from .._identification.bound import NEAR_LINEAR, crlb, has_friction, is_near_linear
+from .._identification.identify import MIN_SAMPLES
+from .._identification.precision import check_precision, quantile, record_seconds
+from .._identification.predict import STATISTICS, check_signal, predict_se
 from .._simulate import Trial
-from . import indirect
-from . import layout as lay
-from .bound import NEAR_LINEAR, crlb, has_friction, is_near_linear
 from .bound_design import BoundDesign
-from .criterion import check_precision, default_targets, quantile, record_seconds, relative_se
-from .identify import MIN_SAMPLES
+from .criterion import default_targets, relative_se
 from .monte_carlo_design import Design
-from .predict import STATISTICS, check_signal, predict_se
 
 CHECK_LIMIT_S = 3600.0  # [s] check=True predicts again at the answer only up to an hour
 ROWS = ("bound", "predicted", "design")

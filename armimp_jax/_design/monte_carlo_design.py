@@ -28,14 +28,14 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from .._identification import indirect
+from .._identification import layout as lay
+from .._identification.indirect import IDENTIFY_NUMERICS
+from .._identification.predict import predict_se
 from .._pytree import replace_unchecked
-from . import indirect
-from . import layout as lay
 from .criterion import DesignPlan, _aggregate, _criterion_value
 from .descent import descend
-from .indirect import IDENTIFY_NUMERICS
 from .limits import _displacement_gain, _limited_signal, _peak_displacement
-from .predict import predict_se
 
 REGAIN_EVERY = 10  # steps between re-finding the displacement gain (each is a bisection of forward runs)
 
