@@ -30,10 +30,12 @@ if TYPE_CHECKING:  # what a type checker reads: every public name from its modul
     from . import experiment as experiment
     from . import kinds as kinds
     from . import linear as linear
+    from . import presets as presets
     from . import results as results
     from . import signals as signals
     from . import solvers as solvers
     from . import spectra as spectra
+    from . import study as study
     from ._batch import simulate_batch as simulate_batch
     from ._batch import simulate_ensemble as simulate_ensemble
     from ._calibration.force_calibration import calibrate_force as calibrate_force
@@ -209,20 +211,22 @@ _GONE = {"lugre": "LuGre(...).joint(i).torque_and_rate(v, z)"}
 __all__ = sorted([*_EXPORTS, "runtime"])
 
 
-def __getattr__(name: str):
-    module = _EXPORTS.get(name)
-    if module is not None:
-        value = getattr(importlib.import_module(module, __name__), name)
-    elif name in _NAMESPACES:
-        value = importlib.import_module(f".{name}", __name__)
-    elif name in _MOVED:
-        raise AttributeError(f"armimp_jax.{name} is now armimp_jax.{_MOVED[name]}.{name}")
-    elif name in _GONE:
-        raise AttributeError(f"armimp_jax.{name} is gone: use {_GONE[name]}")
-    else:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    globals()[name] = value
-    return value
+if not TYPE_CHECKING:  # a type checker reads the imports above, and flags a name they lack
+
+    def __getattr__(name: str):
+        module = _EXPORTS.get(name)
+        if module is not None:
+            value = getattr(importlib.import_module(module, __name__), name)
+        elif name in _NAMESPACES:
+            value = importlib.import_module(f".{name}", __name__)
+        elif name in _MOVED:
+            raise AttributeError(f"armimp_jax.{name} is now armimp_jax.{_MOVED[name]}.{name}")
+        elif name in _GONE:
+            raise AttributeError(f"armimp_jax.{name} is gone: use {_GONE[name]}")
+        else:
+            raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+        globals()[name] = value
+        return value
 
 
 def __dir__() -> list[str]:

@@ -168,7 +168,7 @@ def test_the_printed_precision_is_what_50_recordings_resolve():
 
 
 def test_diagonal_z_reads_the_protocols_rows():
-    """z of the arm's diagonals from ``bench.protocol.one``'s rows; failed or diverged rows left out."""
+    """z of the arm's diagonals from ``armimp_bench.protocol.one``'s rows; failed or diverged rows left out."""
     truth = {n: [[1.0, 0.0], [0.0, 2.0]] for n in ARM}
     row = dict(converged=True, diverged=False, truth=truth, se={n: [[0.5, 9.0], [9.0, 1.0]] for n in ARM})
     rows = [dict(row, values={n: [[2.0, 5.0], [5.0, 1.0]] for n in ARM}), dict(row, converged=False, values=truth)]

@@ -56,7 +56,7 @@ def test_the_model_route_through_friction_is_calibrated(tmp_path_factory):
 
 
 def judge(case, rows, bound) -> dict:
-    """The three checks' figures over ``rows`` (``bench.movement_model.ensemble_row``'s) against
+    """The three checks' figures over ``rows`` (``armimp_bench.movement_model.ensemble_row``'s) against
     ``bound`` (``path_crlb`` of one reach over the bench's draws)."""
     ok = [r for r in rows if r["converged"]]
     labels = ok[0]["labels"]

@@ -39,6 +39,15 @@ def test_design_takes_the_steps_of_the_optimizer_it_is_given():
     method = aj.experiment.CramerRao()
     with pytest.raises(ValueError, match="design: optimizer must be an optax GradientTransformation"):
         aj.design(trial, family, free=ARM, limits=limits, method=method, steps=2, optimizer=optax.adam)
-    still = aj.design(trial, family, free=ARM, limits=limits, method=method, steps=2, optimizer=optax.sgd(0.0))
-    # a zero step leaves the spectrum where it was (Adam's first step moves it: test_bound_design)
+    # adamw reads the parameters (weight decay): the loop hands them over; at a zero rate the
+    # spectrum stays where it was (Adam's first step moves it: test_bound_design)
+    still = aj.design(trial, family, free=ARM, limits=limits, method=method, steps=2, optimizer=optax.adamw(0.0))
     assert still.trace[0] == still.trace[1] and np.isfinite(still.trace[0])
+
+
+def test_a_tuning_state_records_a_custom_optimizer():
+    from armimp_jax._design.tuner import TuneConfig, config_settings
+
+    config = TuneConfig()
+    assert config_settings(config)["optimiser"] == "adam"
+    assert config_settings(config, optax.sgd(0.1))["optimiser"] == "custom"

@@ -1,6 +1,6 @@
 """Ensembles of one reach: ``simulate_ensemble``, the ``Ensemble`` container (arrays, a lab's
 files) and the classical route ``estimate_ensemble``: its answer on a noise-free ensemble, its
-warnings and refusals. Its coverage over Monte Carlo ensembles is ``bench.movement``'s."""
+warnings and refusals. Its coverage over Monte Carlo ensembles is ``armimp_bench.movement``'s."""
 
 import jax
 import numpy as np

@@ -227,7 +227,7 @@ def test_the_moving_plant_under_pd_matches_an_independent_reference():
 
 
 def _fidelity(controller, friction, numerics):
-    """The base case (``bench.movement``: paper arm 3, 12 cm in 0.8 s, K dipping to 40%, the still
+    """The base case (``armimp_bench.movement``: paper arm 3, 12 cm in 0.8 s, K dipping to 40%, the still
     studies' noise) at ``numerics`` and at RK4 with 400 substeps: the largest differences of the
     true joint angles and of the recorded F_h, each over its range over the record."""
     trial = base.base_trial(controller, friction)

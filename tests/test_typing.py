@@ -1,6 +1,7 @@
 """A user's type checker reads the public face: mypy resolves every public name (no ``Any``)
-through the ``TYPE_CHECKING`` imports of ``armimp_jax/__init__.py``, and the README's quick
-start, the docs' example files and docs/extending.md's classes pass it."""
+through the ``TYPE_CHECKING`` imports of ``armimp_jax/__init__.py`` and flags a moved or
+misspelt one, and the README's quick start, the docs' example files and docs/extending.md's
+classes pass it."""
 
 import pathlib
 import re
@@ -25,14 +26,21 @@ def test_mypy_resolves_every_public_name_and_passes_the_quick_start_and_examples
     names = [f"aj.{n}" for n in armimp_jax.__all__ if n != "runtime"]
     names += [f"aj.{ns}.{n}" for ns in NAMESPACES for n in __import__(f"armimp_jax.{ns}", fromlist=["_"]).__all__]
     reveal = "import armimp_jax as aj\n" + "".join(f"reveal_type({n})\n" for n in names)
-    files = {"quickstart.py": readme, "guide.py": "\n".join(guide), "reveal.py": reveal}
+    reveal += "reveal_type(aj.presets.arm)\nreveal_type(aj.study.run_sweep)\n"
+    wrong = "import armimp_jax as aj\n\naj.assess\naj.simulte\n"  # a moved name and a typo: flagged
+    files = {"quickstart.py": readme, "guide.py": "\n".join(guide), "reveal.py": reveal, "wrong.py": wrong}
     for name, text in files.items():
         (tmp_path / name).write_text(text)
     examples = sorted((ROOT / "docs" / "examples").glob("*.py"))
     run = _mypy([*(tmp_path / n for n in files), *examples], ROOT / ".mypy_cache")
     errors = [line for line in run.stdout.splitlines() if ": error:" in line]
-    assert run.returncode in (0, 1) and not errors, "\n".join(errors) or run.stderr
+    flagged = [line for line in errors if "wrong.py" in line]
+    assert run.returncode == 1 and len(flagged) == 2, run.stdout + run.stderr
+    assert all('has no attribute "' in line for line in flagged), flagged
+    unexpected = [line for line in errors if "wrong.py" not in line]
+    assert not unexpected, "\n".join(unexpected)
     revealed = re.findall(r"reveal\.py:(\d+): note: Revealed type is \"(.*)\"", run.stdout)
+    names += ["aj.presets.arm", "aj.study.run_sweep"]
     assert len(revealed) == len(names)
     unresolved = [names[int(line) - 2] for line, kind in revealed if kind == "Any"]
     assert not unresolved, f"a type checker sees these as Any: {unresolved}"

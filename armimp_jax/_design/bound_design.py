@@ -132,7 +132,7 @@ def _step(z, state, opt, value_and_grad, trials, limits, design_gains):
     (value, _), grad = value_and_grad(z)
     if not (np.isfinite(float(value)) and all(np.all(np.isfinite(np.asarray(g))) for g in grad.values())):
         return z, state, float("nan")
-    updates, new_state = opt.update(jax.tree.map(np.asarray, grad), state)
+    updates, new_state = opt.update(jax.tree.map(np.asarray, grad), state, z)  # z: for an optimizer that reads it
     new_state = jax.tree.map(np.asarray, new_state)
     new = {k: np.asarray(z[k] + updates[k]) for k in z}
     if not design_gains:

@@ -197,7 +197,7 @@ def _adam_step(mc: _MonteCarlo, opt, value_and_grad, family, state: _Adam, step:
 
 
 def _adam_accept(opt, state: _Adam, value, grad) -> _Adam:
-    updates, opt_state = opt.update(grad, state.opt_state)
+    updates, opt_state = opt.update(grad, state.opt_state, state.log_shape)
     # kept on the host: arrays placed by the sharded step would make the next call recompile
     return state._replace(
         log_shape=np.asarray(state.log_shape + updates),

@@ -161,12 +161,14 @@ class TuneConfig:
     numerics: Numerics = Numerics(solver=RK4(kernel="grad"), substeps=100, checkpoint="substep")
 
 
-def config_settings(config: TuneConfig) -> dict:
+def config_settings(config: TuneConfig, optimizer=None) -> dict:
     """The options of ``config`` that steer the descent, as saved with a tuning state:
-    everything but ``iterations`` (a run may be resumed with a larger budget)."""
+    everything but ``iterations`` (a run may be resumed with a larger budget). The optimiser is
+    ``"adam"`` (the default) or ``"custom"`` (an optax transformation of the caller's, whose
+    settings a record cannot hold: a state saved with one resumes only with ``optimizer=``)."""
     out = {f.name: getattr(config, f.name) for f in dataclasses.fields(config) if f.name != "iterations"}
     out["numerics"] = config.numerics.settings()
-    return dict(out, optimiser="adam")
+    return dict(out, optimiser="adam" if optimizer is None else "custom")
 
 
 def n_parameters(parameterisation: str) -> int:

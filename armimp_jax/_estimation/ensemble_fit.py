@@ -32,7 +32,7 @@ held flat outside the knots, as ``Profile`` is). The rule, step by step:
    both, and drives the motion: its deviations through ``LAGUERRE_ORDER`` Laguerre filters (time
    constant ``LAGUERRE_TIME``), each times each knot's ``w_j``, are the instruments (two-stage least
    squares). On the same ensembles they leave no bias beyond 0.3 of the spread on any knot's
-   ``K`` or ``B`` diagonal (``bench.movement``).
+   ``K`` or ``B`` diagonal (``armimp_bench.movement``).
 4. **Prewhitening.** ``F_v`` is slow and large: the error is far from white, and equal weights
    waste most of the record's information on ``K``. A first pass's residuals give an AR(``WHITEN``)
    model per force axis (Yule-Walker, pooled over repetitions); its inverse filter, applied to

@@ -1,6 +1,8 @@
-"""Fitting model parameters through the simulator: the map from unconstrained numbers to
-positive definite matrices, gradient tuning of controller gains, identification of the arm
-and the friction by indirect inference (``identify``: ``auxiliary`` statistics, the
-``indirect`` binding function and covariance), the standard errors a planned experiment
-will give (``predict_se``) and experiment design (``design``, ``record_for``). Pure JAX on
-values and arrays: no files."""
+"""Fitting model parameters through the simulator, and bounding how well they can be fitted:
+identification of the arm and the friction by indirect inference (``identify``: ``auxiliary``
+statistics, the ``indirect`` binding function and covariance, over recordings and ensembles,
+its self-check and results), the standard errors a planned experiment will give
+(``predict_se``), the Cramér-Rao bound (``crlb``, along a reach too) and the record a precision
+needs (``precision``), with a calibration carried in (``calibration_prior``). Experiment design
+and the tuner are in ``_design``, the calibrations in ``_calibration``. Pure JAX on values and
+arrays: no files."""

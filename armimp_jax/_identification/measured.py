@@ -3,7 +3,7 @@ recordings has measured (docs/identification.md, sections 6, 6b and 6c), and the
 any other pair: its intervals rest on the linearisation and the self-checks alone.
 
 A pair leaves ``PAIRS_PENDING`` for ``MEASURED`` when its cell of the coverage matrix
-(``bench.matrix``, run by the statistics tier) has passed at 50 recordings. A kind of a lab's
+(``armimp_bench.matrix``, run by the statistics tier) has passed at 50 recordings. A kind of a lab's
 own (a controller or friction law outside the package) is never measured here."""
 
 from __future__ import annotations

@@ -14,23 +14,35 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.metadata
+import inspect
 from typing import Any, NamedTuple
 
 import numpy as np
 
 REQUIRED = object()  # a parameter without a default
 ENTRY_POINTS = "armimp_jax.kinds"  # the entry-point group an installed package of kinds names
-_loaded_entry_points = []  # whether the group has been loaded in this process (one flag)
+_loaded_entry_points: list = []  # once loaded in this process: [the entry points that failed]
 
 
-def load_entry_points() -> None:
+def load_entry_points() -> list[str]:
     """Import every module of the ``armimp_jax.kinds`` entry-point group once (their classes
-    register themselves): a lab's kinds, installed as a package, found by name."""
+    register themselves): a lab's kinds, installed as a package, found by name. Returns the
+    entry points that failed to load, each as ``"name: error"`` (the others load regardless)."""
     if _loaded_entry_points:
-        return
-    _loaded_entry_points.append(True)
+        return _loaded_entry_points[0]
+    failed: list[str] = []
+    _loaded_entry_points.append(failed)
     for point in importlib.metadata.entry_points(group=ENTRY_POINTS):
-        point.load()
+        try:
+            point.load()
+        except Exception as err:  # an installed package's failure: named where a kind is missing
+            failed.append(f"{point.name} ({point.value}): {type(err).__name__}: {err}")
+    return failed
+
+
+def _same_source(a: type, b: type) -> bool:
+    """Whether two classes are one definition loaded twice (the same name in the same file)."""
+    return a.__qualname__ == b.__qualname__ and inspect.getsourcefile(a) == inspect.getsourcefile(b)
 
 
 class Parameter(NamedTuple):
@@ -58,7 +70,8 @@ class Registry:
         if not isinstance(name, str) or not name.isidentifier() or name != name.lower():
             raise TypeError(f"{cls.__name__}: kind must be a lower-case identifier, got {name!r}")
         old = self._kinds.get(name)
-        if old is not None and (old.__module__, old.__qualname__) != (cls.__module__, cls.__qualname__):
+        same = old is None or (old.__module__, old.__qualname__) == (cls.__module__, cls.__qualname__)
+        if not same and not _same_source(old, cls):  # a file imported twice, by two names, is one kind
             raise TypeError(f"{cls.__name__}: the {self.what} kind {name!r} is {old.__qualname__}'s already")
         self._kinds[name] = cls
 
@@ -67,14 +80,16 @@ class Registry:
 
     def get(self, name, *, where: str = "") -> type:
         """The class of kind ``name``; a one-line ``ValueError`` naming the known kinds."""
+        failed = []
         if isinstance(name, str) and name not in self._kinds:
-            load_entry_points()  # a kind of an installed package of kinds registers on import
+            failed = load_entry_points()  # a kind of an installed package of kinds registers on import
         cls = self._kinds.get(name) if isinstance(name, str) else None
         if cls is None:
             prefix = f"{where}: " if where else ""
+            broken = f"; entry points that failed to load: {'; '.join(failed)}" if failed else ""
             raise ValueError(
                 f"{prefix}unknown {self.what} type {name!r}; known: {', '.join(sorted(self._kinds))}"
-                " (a kind of your own: import its file first; the scripts take --import FILE.py)"
+                f" (a kind of your own: import its file first; the scripts take --import FILE.py){broken}"
             )
         return cls
 

@@ -31,6 +31,46 @@ The names below (one list, ``_EXPORTS``) are imported on first use (so
 from __future__ import annotations
 
 import importlib
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # what a type checker reads: every name from its module (none loads here)
+    from .engine import Perturbations as Perturbations
+    from .engine import SimulationSpec as SimulationSpec
+    from .engine import Spec as Spec
+    from .engine import run as run
+    from .figures import save_figure as save_figure
+    from .identify_recording import IdentifyConfigError as IdentifyConfigError
+    from .identify_recording import read_identify_config as read_identify_config
+    from .points import POINT_DEFAULTS as POINT_DEFAULTS
+    from .points import build_trial as build_trial
+    from .points import expand as expand
+    from .points import known_settings as known_settings
+    from .points import normalize_point as normalize_point
+    from .points import parse_set as parse_set
+    from .points import read_toml as read_toml
+    from .recording import load_recording as load_recording
+    from .results import ResultsError as ResultsError
+    from .results import atomic_write_json as atomic_write_json
+    from .results import load_record as load_record
+    from .results import read_json as read_json
+    from .results import save_record as save_record
+    from .results import settings_key as settings_key
+    from .results import stamped as stamped
+    from .runfolder import RunLock as RunLock
+    from .runfolder import StudyRun as StudyRun
+    from .seeds import perturbation_key as perturbation_key
+    from .stats import CI_LEVEL as CI_LEVEL
+    from .stats import MeanCI as MeanCI
+    from .stats import bootstrap_crossing as bootstrap_crossing
+    from .stats import first_crossing as first_crossing
+    from .stats import mean_ci as mean_ci
+    from .stats import seed_stats as seed_stats
+    from .sweep import SweepSettings as SweepSettings
+    from .sweep import load_summary as load_summary
+    from .sweep import load_sweep as load_sweep
+    from .sweep import run_sweep as run_sweep
+    from .tables import read_table as read_table
+    from .tables import write_table as write_table
 
 _EXPORTS = {
     "CI_LEVEL": "stats",
@@ -74,13 +114,15 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str):
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
+if not TYPE_CHECKING:  # a type checker reads the imports above, and flags a name they lack
+
+    def __getattr__(name: str):
+        module = _EXPORTS.get(name)
+        if module is None:
+            raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+        value = getattr(importlib.import_module(f".{module}", __name__), name)
+        globals()[name] = value
+        return value
 
 
 def __dir__() -> list[str]:

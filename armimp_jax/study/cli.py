@@ -104,6 +104,7 @@ def import_kinds(sources, prog: str) -> tuple[str, ...]:
     kinds register as their classes are defined. Returns the kinds they define; one line (exit
     status 2) for a source that fails to load or defines no kind. Call it after
     ``runtime.configure()``."""
+    import hashlib
     import importlib
     import importlib.util
 
@@ -112,10 +113,12 @@ def import_kinds(sources, prog: str) -> tuple[str, ...]:
 
     names = []
     for source in sources:
+        name = None
         try:
             if source.endswith(".py"):
                 path = pathlib.Path(source).resolve()
-                name = f"armimp_jax_kinds_{path.stem}"
+                digest = hashlib.sha1(str(path).encode()).hexdigest()[:10]  # two kinds.py files stay two
+                name = f"armimp_jax_kinds_{path.stem}_{digest}"
                 if name not in sys.modules:
                     spec = importlib.util.spec_from_file_location(name, path)
                     sys.modules[name] = importlib.util.module_from_spec(spec)  # dataclasses look it up
@@ -124,12 +127,16 @@ def import_kinds(sources, prog: str) -> tuple[str, ...]:
             else:
                 module = importlib.import_module(source)
         except Exception as err:  # a lab's file: whatever fails is the file's, named in one line
-            sys.modules.pop(f"armimp_jax_kinds_{pathlib.Path(source).stem}", None)
+            if name is not None:
+                sys.modules.pop(name, None)
             fail(f"--import {source}: {type(err).__name__}: {err}", prog)
         kinds = [
             v.kind
             for v in vars(module).values()
-            if isinstance(v, type) and issubclass(v, (AbstractController, AbstractFriction)) and "kind" in vars(v)
+            if isinstance(v, type)
+            and issubclass(v, (AbstractController, AbstractFriction))
+            and "kind" in vars(v)
+            and v.__module__ == module.__name__  # defined there, not imported into it
         ]
         if not kinds:
             fail(f"--import {source} defines no controller or friction kind (a kind names itself: kind = '...')", prog)

@@ -91,11 +91,12 @@ def save_state(path: pathlib.Path, state: TuneState, settings: dict, *, meta: di
     return save_record(path, settings=settings, arrays=arrays, meta=notes | dict(meta or {}))
 
 
-def load_state(path: pathlib.Path, settings: dict, config: TuneConfig) -> TuneState:
+def load_state(path: pathlib.Path, settings: dict, config: TuneConfig, *, optimizer=None) -> TuneState:
     """The ``TuneState`` saved in ``path``, checked: a ``ResultsError`` names the file when it
     is missing, truncated or altered, or was saved with other ``settings`` (the message
-    lists the differences)."""
-    return state_from_arrays(load_record(path, settings=settings).arrays, config, where=str(path))
+    lists the differences). ``optimizer``: the one ``tune`` was given (default Adam)."""
+    arrays = load_record(path, settings=settings).arrays
+    return state_from_arrays(arrays, config, where=str(path), optimizer=optimizer)
 
 
 def state_from_arrays(a: dict, config: TuneConfig, *, where: str, optimizer=None) -> TuneState:
