@@ -46,3 +46,16 @@ def test_markdown_table_and_save(tmp_path):
     _bench_run.save_table(tmp_path / "out", "t", text, [dict(a=1)])
     assert (tmp_path / "out" / "t.md").read_text() == text + "\n"
     assert (tmp_path / "out" / "t.json").read_text() == '[\n {\n  "a": 1\n }\n]'
+
+
+def test_the_reaches_a_spread_needs_follow_one_over_root_r_minus_one():
+    import numpy as np
+
+    from armimp_bench.movement_reaches import needed
+
+    rng = np.random.default_rng(1)
+    true = np.array([100.0, -50.0])
+    est = true + rng.standard_normal((20000, 2)) * np.array([3.0, 2.0])  # spreads of 40-reach ensembles
+    n = needed(est, true, np.full(20000, 40), precision=0.1)
+    # +-10% at 95% needs SE / |value| = 0.1 / 1.96: (1.96 * 3 / 10)^2 * 39 + 1 = 14.5; the y entry 25.0
+    np.testing.assert_allclose(n, [1 + 39 * (1.96 * 3.0 / 10.0) ** 2, 1 + 39 * (1.96 * 2.0 / 5.0) ** 2], rtol=0.03)

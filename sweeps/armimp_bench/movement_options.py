@@ -22,6 +22,13 @@ def setup(argv=None, description: str = ""):
         "--case", choices=("imbic", "pd", "pd-designed", "imbic-lugre"), default="imbic", help="the model route's case"
     )
     p.add_argument("--first", type=int, default=0, help="the first ensemble's seed (default 0)")
+    p.add_argument(
+        "--check-reaches",
+        nargs=2,
+        metavar=("PAPER_DIRS", "DESIGNED_DIRS"),
+        help="the model route's records (comma lists of run folders, pd and pd-designed): reaches_for "
+        "against the spread and the design's ratio, written to --out/reaches_check.json",
+    )
     a = p.parse_args(sys.argv[1:] if argv is None else argv)
     try:
         a.windows = [float(w) for w in a.windows.split(",")]
@@ -36,8 +43,20 @@ def setup(argv=None, description: str = ""):
 
 
 def coverage(a) -> dict:
-    """The measured route's summary (``a.route``): the classical route's or the model route's."""
+    """The measured route's summary (``a.route``): the classical route's or the model route's; with
+    ``--check-reaches``, issue 62's two counts from records already on disk."""
     from armimp_bench import movement, movement_model
+
+    if a.check_reaches:
+        import pathlib
+
+        from armimp_bench import movement_reaches
+        from armimp_jax.study.results import atomic_write_json, stamped
+
+        paper, designed = (d.split(",") for d in a.check_reaches)
+        out = stamped(dict(movement_reaches.check(paper, designed), folders=dict(paper=paper, designed=designed)))
+        atomic_write_json(pathlib.Path(a.out) / "reaches_check.json", out)
+        return out
 
     run = movement_model.model_coverage if a.route == "model" else movement.classical_coverage
     return run(a, a.out)["summary"]
