@@ -48,6 +48,7 @@ def _sweep(*args, out):
     return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=300)
 
 
+@pytest.mark.slow  # 15 s: the script's own process (its compile); the default tier imports the file in-process
 def test_a_labs_stribeck_law_sweeps_from_a_config_with_no_package_change(tmp_path):
     run = _sweep("--import", str(EXAMPLE), out=tmp_path / "out")
     assert run.returncode == 0, run.stderr
@@ -199,6 +200,7 @@ def joint_impedance():
     return aj.kinds.controller_kind(name)
 
 
+@pytest.mark.slow  # 10 s: four simulations and a bound
 def test_a_joint_space_law_is_the_cartesian_pd_of_its_jacobian_for_small_motions(joint_impedance):
     # K = J^-T K_q J^-1, B = J^-T B_q J^-1 at q0: the two loops differ at second order in the motion
     law = joint_impedance()
