@@ -26,7 +26,7 @@ from ._checks import as_float64, check_choice, require_x64
 from ._model.arm import Arm
 from ._model.controllers import CONTROLLER_KINDS, AbstractController, Joints, matvec, reads_joints
 from ._model.friction import FRICTION_KINDS, AbstractFriction
-from ._model.movement import path_at
+from ._model.movement import setpoint
 from ._model.plant import PlantState, Trig, displacement, measure, near_path, plant_model, rest_state, trig_of
 from ._model.reach import arm_warnings, check_moving, motion_kind, still_trials
 from ._model.robot import MIT_MANUS, Robot, cartesian_inertia, fk, ik, jacobian_from_trig
@@ -345,8 +345,7 @@ def _command(trial: Trial, model, carry: SimCarry, state: PlantState, inputs: Pe
     point during a reach, and the measured joint state where the kind's ``step`` takes it."""
     extra = {}
     if model.motion is not None and model.motion.path is not None:
-        offset, velocity = path_at(model.motion.path, t_k)
-        extra["path"] = (jnp.stack(offset), jnp.stack(velocity))
+        extra["path"] = setpoint(model.motion.path, t_k)
     if reads_joints(trial.controller):
         extra["joints"] = Joints(*_joints_read(trial, state, inputs), trial.robot)
     return trial.controller.step(carry.memory, *measured, fd, trial.x0, trial.period, **extra)

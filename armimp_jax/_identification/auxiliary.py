@@ -39,7 +39,7 @@ from .._estimation.estimate import estimate
 from .._estimation.fit import fit_impedance
 from .._estimation.welch import ESTIMATION_FMAX
 from .._model.controllers import Joints, reads_joints
-from .._model.movement import path_at
+from .._model.movement import setpoint
 from .._model.plant import plant_model
 from .._model.robot import ik, jacobian
 from . import efficient
@@ -109,8 +109,7 @@ def replay_command(trial, f, x, fh):
     def step(memory, inputs):
         extra = {}
         if planned is not None:  # during a reach the controller follows the planned path, as in the simulation
-            offset, velocity = path_at(planned, inputs[4] * period)
-            extra["path"] = (jnp.stack(offset), jnp.stack(velocity))
+            extra["path"] = setpoint(planned, inputs[4] * period)
         if reads_joints(ctl):  # a joint-space law: the angles of the recorded hand, its rates through J
             q = ik(inputs[0], trial.robot)
             extra["joints"] = Joints(q, jnp.linalg.solve(jacobian(q, trial.robot), inputs[1]), trial.robot)

@@ -229,6 +229,13 @@ def path_at(p: PathTerms, t):
     return (p.delta[0] * shape, p.delta[1] * shape), (p.delta[0] * speed, p.delta[1] * speed)
 
 
+def setpoint(p: PathTerms, t):
+    """What a controller's ``step`` takes as ``path`` at ``t`` [s]: the planned offset
+    ``x_d(t) - x0`` [m] and velocity ``xd_e(t)`` [m/s], ``(2,)`` each."""
+    offset, velocity = path_at(p, t)
+    return jnp.stack(offset), jnp.stack(velocity)
+
+
 class MotionTerms(NamedTuple):
     """What the plant needs of a moving arm: its damping and stiffness (``ProfileTerms``) and its
     equilibrium's path (``PathTerms``, or ``None`` for a still endpoint)."""

@@ -6,13 +6,13 @@ follow it, and the still arms it passes through (``snapshots``) are each a human
 from __future__ import annotations
 
 import dataclasses
-import inspect
 
 import jax.numpy as jnp
 import numpy as np
 
 from .._checks import is_concrete
 from .arm import Arm
+from .controllers.base import step_takes
 from .movement import MinimumJerk, Profile
 from .plausibility import arm_input_warning
 from .robot import Robot, check_reach, fk, ik
@@ -20,7 +20,7 @@ from .robot import Robot, check_reach, fk, ik
 
 def follows_path(controller) -> bool:
     """Whether a controller's ``step`` takes the planned set point (a ``path`` argument)."""
-    return "path" in inspect.signature(type(controller).step).parameters
+    return step_takes(controller, "path")
 
 
 def check_moving(arm: Arm, controller, robot: Robot, acquisition: str, *, where: str = "make_trial") -> None:

@@ -8,6 +8,7 @@ from .base import Joints as Joints
 from .base import controller_kind as controller_kind
 from .base import matvec as matvec
 from .base import reads_joints as reads_joints
+from .base import step_takes as step_takes
 from .imbic import DEFAULT_MHAT as DEFAULT_MHAT
 from .imbic import IMBIC as IMBIC
 from .pd import PD as PD

@@ -54,9 +54,15 @@ class Joints(NamedTuple):
     robot: Any
 
 
+def step_takes(controller, argument: str) -> bool:
+    """Whether a controller's ``step`` takes the optional ``argument`` (``"path"``: the planned set
+    point; ``"joints"``: the measured joint state)."""
+    return argument in inspect.signature(type(controller).step).parameters
+
+
 def reads_joints(controller) -> bool:
     """Whether a controller's ``step`` takes the measured joint state (a ``joints`` argument)."""
-    return "joints" in inspect.signature(type(controller).step).parameters
+    return step_takes(controller, "joints")
 
 
 def matvec(a, v):
