@@ -51,7 +51,7 @@ def test_markdown_table_and_save(tmp_path):
 def test_the_reaches_a_spread_needs_follow_one_over_root_r_minus_one():
     import numpy as np
 
-    from armimp_bench.movement_reaches import needed
+    from armimp_bench.movement_model import needed
 
     rng = np.random.default_rng(1)
     true = np.array([100.0, -50.0])

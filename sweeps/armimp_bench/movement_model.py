@@ -23,6 +23,7 @@ from armimp_jax._identification import ensemble_identify as ei
 from armimp_jax._identification import path as ph
 from armimp_jax._identification import path_bound as pb
 from armimp_jax._identification.linear import without_friction
+from armimp_jax._identification.precision import Z95
 from armimp_jax.study import coverage as cov
 
 from .movement import DURATION, KNOTS, ONSET, PEAK, RECORD, base_arm, measured
@@ -98,6 +99,15 @@ def ensemble_row(case: str, seed: int, repetitions: int) -> dict:
     )
 
 
+def needed(estimates, true, repetitions, precision: float):
+    """Reaches the spread needs for ``+-precision`` at 95% per entry: the spread of ``R`` reaches
+    scaled as ``1 / sqrt(R - 1)`` (the mean path takes one reach's worth)."""
+    eff = np.mean(np.asarray(repetitions, float) - 1.0)
+    spread = np.std(estimates, axis=0, ddof=1)
+    with np.errstate(divide="ignore"):
+        return 1.0 + eff * (Z95 * spread / (precision * np.abs(true))) ** 2
+
+
 def summary(
     case: str, rows, repetitions: int, bound: pb.PathBound, level: float = 0.95, precision: float = 0.1
 ) -> dict:
@@ -112,24 +122,24 @@ def summary(
     true = true_values(case)
     e, s = np.array([r["estimate"] for r in ok]), np.array([r["se"] for r in ok])
     z = (e - true) / s
-    q = 1.959963984540054
+    q = Z95
     diag = [i for i, lab in enumerate(labels) if lab.endswith(("[0,0]", "[1,1]")) and lab.startswith("arm.")]
     spread = e.std(axis=0, ddof=1)
     reps = np.array([r.get("repetitions", repetitions) for r in ok], dtype=float)
     eff = float(np.mean(reps - 1.0))  # the mean path takes one reach's worth
     bound_se = dict(zip(bound.labels, bound.se / np.sqrt(eff), strict=True))
     predicted = bound.reaches_for(precision, level=level)
+    need = needed(e, true, reps, precision)
     entries = {}
     for i in diag:
         lab = labels[i]
-        need = 1.0 + eff * (q * spread[i] / (precision * abs(true[i]))) ** 2
         entries[lab] = dict(
             coverage=float(np.mean(np.abs(z[:, i]) <= q)),
             sd_z=float(z[:, i].std(ddof=1)),
             bias_over_spread=float((e[:, i].mean() - true[i]) / spread[i]),
             spread_over_bound=float(spread[i] / bound_se[lab]) if lab in bound_se else None,
             reaches_predicted=predicted.get(lab),
-            reaches_from_spread=float(need),
+            reaches_from_spread=float(need[i]),
         )
     covered = np.abs(z[:, diag]) <= q
     return dict(

@@ -15,9 +15,9 @@ import numpy as np
 
 from armimp_bench import movement_model as mm
 from armimp_bench.movement import measured
+from armimp_bench.movement_model import needed
 from armimp_jax._identification import path_bound as pb
 
-Q95 = 1.959963984540054
 MID = "arm.stiffness@t=0.8"  # the base reach's mid-reach knot (onset 0.4 s, 0.8 s long)
 
 
@@ -28,15 +28,6 @@ def load_rows(folders) -> list[dict]:
         for path in sorted(glob.glob(str(pathlib.Path(folder) / "trials" / "*.npz"))):
             rows.append(json.loads(str(np.load(path)["__record__"]))["meta"])
     return [r for r in rows if r["converged"]]
-
-
-def needed(estimates, true, repetitions, precision: float):
-    """Reaches the spread needs for ``+-precision`` at 95% per entry: the spread of ``R`` reaches
-    scaled as ``1 / sqrt(R - 1)`` (the mean path takes one reach's worth)."""
-    eff = np.mean(np.asarray(repetitions, float) - 1.0)
-    spread = np.std(estimates, axis=0, ddof=1)
-    with np.errstate(divide="ignore"):
-        return 1.0 + eff * (Q95 * spread / (precision * np.abs(true))) ** 2
 
 
 def pooled_bound(case: str, seeds, draws: int, precision: float) -> dict:
