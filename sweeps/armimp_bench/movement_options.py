@@ -55,6 +55,7 @@ def coverage(a) -> dict:
 
         paper, designed = (d.split(",") for d in a.check_reaches)
         out = stamped(dict(movement_reaches.check(paper, designed), folders=dict(paper=paper, designed=designed)))
+        pathlib.Path(a.out).mkdir(parents=True, exist_ok=True)
         atomic_write_json(pathlib.Path(a.out) / "reaches_check.json", out)
         return out
 
