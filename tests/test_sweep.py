@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from armimp_jax.study import grids, sweep
 from armimp_jax.study import points as sp
 from armimp_jax.study import stats as study_stats
-from armimp_jax.study import sweep
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "sweep.py"
@@ -195,8 +195,8 @@ def test_rerun_reuses_every_trial_and_toml_equals_the_command_line(tiny, main, t
     assert main(["--config", str(config), "--out", str(tiny)]) == 0  # the same run: nothing computed
     assert "12 trials on disk, 0 to run" in capsys.readouterr().out
     assert {p.name: p.stat().st_mtime_ns for p in (tiny / "trials").glob("*.npz")} == before
-    grid, points, run = sp.read_toml(config)
-    from_toml = sweep.SweepSettings(tuple(sp.expand(grid, points)), **run)
+    grid, points, run = grids.read_toml(config)
+    from_toml = sweep.SweepSettings(tuple(grids.expand(grid, points)), **run)
     from_cli = sweep.saved_settings(tiny)
     assert from_toml == from_cli
 
@@ -284,9 +284,33 @@ def test_bad_toml_fails_in_one_line(main, capsys, tmp_path, text, fragment):
     one_line_error(capsys, lambda: main(["--config", str(config), "--out", str(tmp_path / "o")]), str(fragment))
 
 
+def test_a_point_is_typed_from_parse_to_table_its_parts_built_once():
+    import jax
+
+    import armimp_jax as aj
+
+    point = sp.Point.parse(
+        dict(controller="imbic", mhat=0.5, tau_c=0.3, arm=2, seconds=4.0, nperseg=1024, force_noise=0.05)
+    )
+    assert point == sp.normalize_point(point) and sp.Point.parse(point) is point  # its settings, parsed once
+    assert point.trial is point.trial and isinstance(point.friction, aj.LuGre)  # built once, on first use
+    assert point.samples == 4000 and point.noisy and point.group[:2] == ("imbic", "lugre")
+    assert sweep.trial_id(dict(point), 3) == f"p{point.key}-s3"
+    assert point.columns["tau_s"] == pytest.approx(0.3 * point["stiction_ratio"])
+    # the same Trial as built by hand from the paper's parts
+    by_hand = aj.make_trial(
+        aj.IMBIC(mhat=0.5 * np.eye(2)),
+        arm=aj.presets.arm(2),
+        friction=aj.LuGre(0.3, 0.3 * point["stiction_ratio"]),
+        sensors=aj.Sensors(force_noise=0.05),
+    )
+    for a, b in zip(jax.tree.leaves(point.trial), jax.tree.leaves(by_hand), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
 def test_points_normalise_and_deduplicate():
     user = dict(mass=[[1.5, 0], [0, 1]], damping=[[5, 0], [0, 5]], stiffness=[[100, 0], [0, 100]], endpoint=[0, 0.4])
-    pts = sp.expand(
+    pts = grids.expand(
         dict(controller=["pd", "imbic"], mhat=[0.25, 0.5], arm=[1, user]), points=[dict(peak=3.0), dict(tau_c=1)]
     )
     # PD ignores mhat: 2 (peak/tau) x (PD 2 arms + IMBIC 2 mhat x 2 arms)
@@ -295,7 +319,7 @@ def test_points_normalise_and_deduplicate():
     assert pts[-1]["peak"] == [2.25, 2.25] and pts[-1]["noverlap"] == 6144
     assert sp.normalize_point(pts[3]) == pts[3]  # idempotent
     assert sp.point_columns(pts[1])["arm"].startswith("user-")
-    assert sp.parse_set(["tau_c=geom:0.001:4:3", "peak=[1,2],3", 'window=hann,["tukey",0.5]']) == dict(
+    assert grids.parse_set(["tau_c=geom:0.001:4:3", "peak=[1,2],3", 'window=hann,["tukey",0.5]']) == dict(
         tau_c=pytest.approx([1e-3, 0.063245553, 4.0]), peak=[[1, 2], 3], window=["hann", ["tukey", 0.5]]
     )
     trial = sp.build_trial(sp.normalize_point(dict(tau_c=2.0, arm=user, controller="imbic", mhat=0.5)))

@@ -7,8 +7,9 @@ run folder, the lock, resume, the perturbation cache, the batch loop and progres
 a specification), ``runfolder`` (the run folder as a handle, ``StudyRun``: ``run.json``,
 refusals, the lock, the trial records), ``console`` (what a study says on the terminal: the
 progress bar, the finishing steps), ``cli`` (what the scripts share: the parser, one-line
-errors; no JAX), ``points`` (the one trial description: a sweep's settings, grids, TOML and
-``--set``), ``config`` (TOML configs, read into the same schema), ``metrics`` (the saved
+errors; no JAX), ``points`` (the one trial description: a sweep's settings and the typed
+``Point``), ``grids`` (a run's points from grids, TOML and ``--set``), ``config`` (TOML
+configs, read into the same schema), ``metrics`` (the saved
 estimate fields, ``trial_metrics``), ``results`` (keys, checked records, atomic strict-JSON
 and npz writes), ``stats`` (``mean_ci``, the bootstrap and bootstrap thresholds), ``seeds``
 (common random numbers), ``tables`` (pandas tables, CSV and Parquet), ``figures``
@@ -39,15 +40,16 @@ if TYPE_CHECKING:  # what a type checker reads: every name from its module (none
     from .engine import Spec as Spec
     from .engine import run as run
     from .figures import save_figure as save_figure
+    from .grids import expand as expand
+    from .grids import parse_set as parse_set
+    from .grids import read_toml as read_toml
     from .identify_recording import IdentifyConfigError as IdentifyConfigError
     from .identify_recording import read_identify_config as read_identify_config
     from .points import POINT_DEFAULTS as POINT_DEFAULTS
+    from .points import Point as Point
     from .points import build_trial as build_trial
-    from .points import expand as expand
     from .points import known_settings as known_settings
     from .points import normalize_point as normalize_point
-    from .points import parse_set as parse_set
-    from .points import read_toml as read_toml
     from .recording import load_recording as load_recording
     from .results import ResultsError as ResultsError
     from .results import atomic_write_json as atomic_write_json
@@ -96,12 +98,13 @@ _EXPORTS = {
     "IdentifyConfigError": "identify_recording",
     "read_identify_config": "identify_recording",
     "POINT_DEFAULTS": "points",
+    "Point": "points",
     "known_settings": "points",
-    "expand": "points",
+    "expand": "grids",
     "normalize_point": "points",
     "build_trial": "points",
-    "parse_set": "points",
-    "read_toml": "points",
+    "parse_set": "grids",
+    "read_toml": "grids",
     "SweepSettings": "sweep",
     "run_sweep": "sweep",
     "run": "engine",

@@ -210,11 +210,11 @@ def _kind(lookup, table: dict):
     return lookup(values.pop("type"))(**values)
 
 
-def trial_parts(config: dict, *, where: str | None = "config", arm=None, friction=None) -> dict:
+def trial_parts(config: dict, *, where: str | None = "config", arm=None, friction=None, controller=None) -> dict:
     """The parameter values of ``config``'s trial sections, built by their constructors (the
     only validators): ``controller``, ``robot``, ``sensors``, ``voluntary``, ``arm``,
-    ``friction`` (``make_trial``'s keywords). ``arm`` (an ``Arm``) and ``friction`` (a friction
-    law) stand in for the ``[arm]`` and ``[friction]`` sections when given. A constructor's
+    ``friction`` (``make_trial``'s keywords). ``arm`` (an ``Arm``), ``friction`` (a friction
+    law) and ``controller`` stand in for their sections when given. A constructor's
     one-line error comes back as ``ConfigError``,
     prefixed with ``where`` and the section (``where=None``: the constructor's line alone)."""
 
@@ -228,7 +228,7 @@ def trial_parts(config: dict, *, where: str | None = "config", arm=None, frictio
         overrides = _given(t, ("shoulder_link", "elbow_link", "inertia", "base"))
         return dataclasses.replace(MIT_MANUS, **overrides) if overrides else MIT_MANUS
 
-    def controller(t):
+    def control(t):
         return _kind(controller_kind, t)
 
     def sensors(t):
@@ -236,7 +236,7 @@ def trial_parts(config: dict, *, where: str | None = "config", arm=None, frictio
 
     return dict(
         robot=make("robot", robot),
-        controller=make("controller", controller),
+        controller=controller if controller is not None else make("controller", control),
         sensors=make("sensors", sensors),
         voluntary=make("voluntary", lambda t: VoluntaryForce(t["std"], t["cutoff"]) if t else None),
         arm=arm

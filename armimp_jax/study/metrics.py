@@ -16,7 +16,6 @@ import numpy as np
 
 from .._estimation.metrics import largest_singular_value
 from .._model.arm import Arm
-from .points import point_arm
 from .tables import ELEMENTS, METRIC_COLUMNS
 
 ESTIMATE_FIELDS = ("f", "Z", "coh_multiple_x", "coh_partial_x", "coh_multiple_fh", "coh_partial_fh", "coh_inputs")
@@ -92,15 +91,15 @@ def _cells(prefix: str, a) -> dict:
     return {f"{prefix}_{e}": float(v) for e, v in zip(ELEMENTS, a, strict=True)}
 
 
-def trial_row(point: Mapping, outcome_i: Mapping, fit_i: Mapping) -> dict:
-    """A sweep's table row of one trial (``METRIC_COLUMNS`` plus ``diverged``, ``diverged_at``):
-    ``score`` of its estimate with the batch's ``phi_T``, ``phi_ij`` and input coherence, and
-    the fitted ``M, B, K`` with their SEs and VAF."""
+def trial_row(arm: Arm, outcome_i: Mapping, fit_i: Mapping) -> dict:
+    """A sweep's table row of one trial of ``arm`` (``METRIC_COLUMNS`` plus ``diverged``,
+    ``diverged_at``): ``score`` of its estimate with the batch's ``phi_T``, ``phi_ij`` and input
+    coherence, and the fitted ``M, B, K`` with their SEs and VAF."""
     m = score(
         outcome_i["f"],
         outcome_i["Z"],
         outcome_i,
-        point_arm(point),
+        arm,
         accuracy=(outcome_i["phi_T"], outcome_i["phi_ij"]),
         input_coherence=outcome_i["input_coherence"],
     )

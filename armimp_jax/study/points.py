@@ -1,6 +1,6 @@
-"""The points of a sweep: every setting of one trial, its default and unit, and how grids are read.
+"""The points of a sweep: every setting of one trial, its default and unit; the typed ``Point``.
 
-A *point* is a flat dict of JSON values that fixes one trial apart from its seed: the
+A *point*'s settings are a flat dict of JSON values that fixes one trial apart from its seed: the
 controller's kind and its gains, the friction law's kind and its parameters, the arm (paper
 location 1-4 or a user's matrices), the perturbation (level or peak, record length), the
 sensors, the acquisition and the Welch settings. The base settings are ``POINT_DEFAULTS``;
@@ -9,21 +9,19 @@ a kind's own settings come from its class (``point_parameters``: IMBIC's ``mhat`
 ...; a gain given as a number is that times the identity), so a kind of one's own sweeps
 with no edit here. ``known_settings()`` lists them all. ``normalize_point`` resolves every
 default into a number and drops the settings the point's kinds do not take (a PD point
-ignores ``mhat``), so equal trials give equal points (and keys). ``expand`` turns a grid of
-value lists and/or a list of points into the normalized, de-duplicated points of a run;
-``read_toml`` and ``parse_set`` read them from a TOML file and ``--set NAME=V1,V2`` options.
-``build_trial`` makes a point's ``Trial``; ``point_columns`` its table columns.
+ignores ``mhat``), so equal trials give equal points (and keys). ``Point`` is a point typed
+from parse to table: its settings, and the parts built from them once (the kinds, the arm,
+the ``Trial``, ``Welch``, its batch group and table columns). ``study.grids`` reads a run's
+points from grids, TOML and ``--set``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import itertools
+import functools
 import json
 import math
-import pathlib
-import tomllib
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -35,7 +33,7 @@ from .._model.controllers import CONTROLLER_KINDS, controller_kind
 from .._model.friction import FRICTION_KINDS, friction_kind
 from .._model.sensors import SETTINGS as SENSOR_SETTINGS
 from .._model.sensors import static_settings as sensor_static
-from .._simulate import ACQUISITIONS, Trial
+from .._simulate import ACQUISITIONS, Trial, make_trial
 from ..presets import LOCATIONS, PERTURBATION_LEVELS, perturbation_peak
 from ..presets import arm as paper_arm
 from . import config
@@ -170,6 +168,14 @@ def normalize_point(raw: Mapping) -> dict:
     or a value that cannot run: the parameter constructors (the kinds, ``Sensors``, ``Arm``;
     ``trial_parts``) and ``Welch``'s check are the validators, and their messages name the
     value and the allowed range."""
+    if isinstance(raw, Point):
+        return dict(raw.settings)
+    return dict(_normalized(raw)[0])
+
+
+def _settings(raw: Mapping) -> dict:
+    """A point's settings resolved to plain JSON values (``normalize_point``), before its parts
+    are built."""
     for setting, (_, kind_of) in KIND_SETTINGS.items():
         if setting in raw:  # an unknown kind first: its settings are unknown because it is
             kind_of(raw[setting], where=setting)
@@ -187,12 +193,23 @@ def normalize_point(raw: Mapping) -> dict:
     check_choice("acquisition", p["acquisition"], ACQUISITIONS)
     out["acquisition"] = p["acquisition"]
     out |= _welch_settings(p)
-    config.trial_parts(point_config(out), where=None, arm=point_arm(out))  # the constructors check the values
+    return out
+
+
+def _normalized(raw: Mapping) -> tuple[dict, dict, Welch]:
+    """``normalize_point``'s point, with the trial's parts its constructors built (the checks)
+    and its ``Welch``."""
+    out = _settings(raw)
+    controller, friction = point_parts(out)
+    # the constructors check the values (the kinds built once, from the point's own values)
+    sections = dict(acquisition=dict(mode=out["acquisition"]), sensors={k: out[k] for k in SENSOR_SETTINGS})
+    parts = config.trial_parts(sections, where=None, arm=point_arm(out), controller=controller, friction=friction)
+    welch = point_welch(out)
     try:
-        point_welch(out).check(n_samples(out))
+        welch.check(n_samples(out))
     except ValueError as err:
         raise ValueError(f"seconds={out['seconds']:g}, nperseg={out['nperseg']}: {err}") from None
-    return out
+    return out, parts, welch
 
 
 def _perturbation(raw: Mapping, p: Mapping) -> dict:
@@ -260,144 +277,102 @@ def point_parts(point: Mapping) -> tuple:
     return tuple(out)
 
 
-def point_config(point: Mapping) -> dict:
-    """A normalized point as the trial sections of a TOML config (``study.config``): one
-    schema, built by the same constructors (the arm is ``point_arm``'s; the controller and the
-    friction as their records)."""
-    controller, friction = point_parts(point)
-    return dict(
-        controller=controller.settings(),
-        acquisition=dict(mode=point["acquisition"]),
-        sensors={k: point[k] for k in SENSOR_SETTINGS},
-        friction=friction.settings(),
-    )
+class Point(Mapping):
+    """A sweep point, typed from parse to table: one trial apart from its seed (``Point.parse``).
+
+    As a read-only mapping it is its settings (``normalize_point``'s plain JSON values: what a
+    run saves and its trials' key hashes); its parts are built from them once, by their
+    constructors: ``controller``, ``friction``, ``arm`` ..., the ``trial`` (on first use; needs
+    float64), ``welch``, ``samples`` (record length at 1 kHz), ``group`` (what one compiled batch
+    shares), ``columns`` (its table columns) and ``key`` (its trials' file stem)."""
+
+    def __init__(self, settings: dict, parts: dict, welch: Welch):
+        self._settings, self._parts, self.welch = settings, parts, welch
+
+    @classmethod
+    def parse(cls, raw: Mapping) -> Point:
+        """The point of ``raw`` (settings by name; defaults filled in): ``ValueError`` (one line)
+        as ``normalize_point``."""
+        return raw if isinstance(raw, Point) else cls(*_normalized(raw))
+
+    def __getitem__(self, name: str):
+        return self._settings[name]
+
+    def __iter__(self):
+        return iter(self._settings)
+
+    def __len__(self) -> int:
+        return len(self._settings)
+
+    def __hash__(self) -> int:
+        return hash(self.key)
+
+    def __repr__(self) -> str:
+        return f"Point({self._settings!r})"
+
+    @property
+    def settings(self) -> dict:
+        """A copy of its settings as a plain dict (what a record saves)."""
+        return dict(self._settings)
+
+    @property
+    def controller(self):
+        return self._parts["controller"]
+
+    @property
+    def friction(self):
+        return self._parts["friction"]
+
+    @property
+    def arm(self) -> Arm:
+        return self._parts["arm"]
+
+    @property
+    def sensors(self):
+        return self._parts["sensors"]
+
+    @functools.cached_property
+    def trial(self) -> Trial:
+        """Its ``Trial`` on MIT-MANUS (``make_trial`` of its parts; needs float64)."""
+        parts = dict(self._parts)
+        return make_trial(parts.pop("controller"), acquisition=self._settings["acquisition"], **parts)
+
+    @functools.cached_property
+    def samples(self) -> int:
+        return n_samples(self._settings)
+
+    @functools.cached_property
+    def key(self) -> str:
+        """A short hash of its settings, stable across runs (its trials' file stem)."""
+        return settings_key(dict(point=dict(self._settings)))[:12]
+
+    @functools.cached_property
+    def group(self) -> tuple:
+        """What must agree within one compiled batch: controller and friction kinds (and their
+        text options), acquisition, the sensors' static settings, record length and Welch."""
+        p = self._settings
+        options = tuple((n, p[n]) for s in KIND_SETTINGS for n in kind_options(s, p[s]) if n in p)
+        return (p["controller"], p["friction"], p["acquisition"], *sensor_static(p), self.samples, self.welch, *options)
+
+    @functools.cached_property
+    def columns(self) -> dict:
+        """Its settings as flat table columns (``point_columns``)."""
+        return point_columns(self._settings)
+
+    @property
+    def noisy(self) -> bool:
+        """Whether its trials draw sensor noise."""
+        return self._settings["force_noise"] > 0 or self._settings["velocity_noise"] > 0
 
 
 def build_trial(point: Mapping) -> Trial:
-    """The ``Trial`` of a normalized point (``config.build_trial`` of ``point_config``, on
-    MIT-MANUS). Needs float64."""
-    return config.build_trial(point_config(point), where=None, arm=point_arm(point))
+    """The ``Trial`` of a point (``Point.parse(point).trial``, on MIT-MANUS). Needs float64."""
+    return Point.parse(point).trial
 
 
 def static_group(point: Mapping) -> tuple:
-    """What must agree within one compiled batch: controller and friction kinds (and their
-    text options), acquisition, encoder on/off, record length and Welch settings."""
-    options = tuple((n, point[n]) for s in KIND_SETTINGS for n in kind_options(s, point[s]) if n in point)
-    return (
-        point["controller"],
-        point["friction"],
-        point["acquisition"],
-        *sensor_static(point),
-        n_samples(point),
-        point_welch(point),
-        *options,
-    )
-
-
-def expand(grid: Mapping[str, Iterable] | None = None, points: Iterable[Mapping] | None = None) -> list[dict]:
-    """The normalized points of a run: every entry of ``points`` (default one empty point)
-    combined with the cartesian product of ``grid`` (setting -> list of values), de-duplicated
-    in order (e.g. PD points that differ only in ``mhat``). A setting named both in a point
-    and in the grid is refused."""
-    grid = {k: list(v) if isinstance(v, (list, tuple)) else [v] for k, v in (grid or {}).items()}
-    for name, values in grid.items():
-        if not values:
-            raise ValueError(f"grid setting {name!r} has no values")
-    bases = [dict(p) for p in points] if points is not None else [{}]
-    if not bases:
-        raise ValueError("the list of points is empty")
-    out, seen = [], set()
-    for base in bases:
-        both = sorted(set(base) & set(grid))
-        if both:
-            raise ValueError(f"setting(s) {', '.join(both)} given both in a point and in the grid")
-        for combo in itertools.product(*grid.values()):
-            point = normalize_point(base | dict(zip(grid, combo, strict=True)))
-            key = json.dumps(point, sort_keys=True)
-            if key not in seen:
-                seen.add(key)
-                out.append(point)
-    return out
-
-
-def _split_top(text: str) -> list[str]:
-    parts, depth, start, quote = [], 0, 0, None
-    for i, ch in enumerate(text):
-        if quote:
-            quote = None if ch == quote else quote
-        elif ch in "\"'":
-            quote = ch
-        elif ch in "[{(":
-            depth += 1
-        elif ch in "]})":
-            depth -= 1
-        elif ch == "," and depth == 0:
-            parts.append(text[start:i])
-            start = i + 1
-    parts.append(text[start:])
-    return [p.strip() for p in parts]
-
-
-def _value(text: str):
-    if text in ("none", "None", "null"):
-        return None
-    try:
-        return json.loads(text)
-    except ValueError:
-        return text  # a bare word: "pd", "hann", "interval_mean"
-
-
-def parse_set(options: Iterable[str]) -> dict[str, list]:
-    """Grid from ``--set`` options ``NAME=V1,V2,...``: values split at top-level commas, each
-    read as JSON (``[3,3]``, ``{"mass": ...}``, ``null``/``none``) or else as a bare word.
-    ``NAME=geom:A:B:N`` (N log-spaced values from A to B) and ``NAME=lin:A:B:N`` are ranges."""
-    grid: dict[str, list] = {}
-    for opt in options:
-        name, sep, text = opt.partition("=")
-        name = name.strip()
-        if not sep or not name or not text.strip():
-            raise ValueError(f"--set needs NAME=V1,V2,..., got {opt!r}")
-        if name in grid:
-            raise ValueError(f"--set {name} given twice")
-        if text.startswith(("geom:", "lin:")):
-            kind, *args = text.split(":")
-            try:
-                a, b, n = float(args[0]), float(args[1]), int(args[2])
-            except (ValueError, IndexError):
-                raise ValueError(f"--set {name}={text}: a range is {kind}:START:STOP:COUNT") from None
-            if n < 1 or (kind == "geom" and not (a > 0 and b > 0)):
-                raise ValueError(f"--set {name}={text}: need COUNT >= 1 (and START, STOP > 0 for geom)")
-            grid[name] = (np.geomspace(a, b, n) if kind == "geom" else np.linspace(a, b, n)).tolist()
-        else:
-            grid[name] = [_value(v) for v in _split_top(text)]
-    return grid
-
-
-def read_toml(path) -> tuple[dict, list | None, dict]:
-    """``(grid, points, options)`` from a TOML file: a ``[grid]`` table of settings (a list is
-    swept, a single value fixed), an optional ``[[points]]`` array of tables, and an optional
-    ``[run]`` table (``seeds``, ``base_seed``, ``method``, ``substeps``). One-line errors."""
-    path = pathlib.Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ValueError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
-        raise ValueError(f"{path}: not valid TOML ({' '.join(str(err).split())})") from None
-    extra = sorted(set(data) - {"grid", "points", "run"})
-    if extra:
-        raise ValueError(f"{path}: unknown table(s) {', '.join(extra)}; allowed: grid, points, run")
-    grid, points, run = data.get("grid", {}), data.get("points"), data.get("run", {})
-    if not isinstance(grid, dict) or not isinstance(run, dict):
-        raise ValueError(f"{path}: [grid] and [run] must be tables")
-    if points is not None and not (isinstance(points, list) and all(isinstance(p, dict) for p in points)):
-        raise ValueError(f"{path}: points must be an array of tables ([[points]])")
-    bad = sorted(set(run) - {"seeds", "base_seed", "method", "substeps"})
-    if bad:
-        raise ValueError(
-            f"{path}: unknown [run] option(s) {', '.join(bad)}; allowed: seeds, base_seed, method, substeps"
-        )
-    return grid, points, run
+    """What must agree within one compiled batch (``Point.group``)."""
+    return Point.parse(point).group
 
 
 def point_columns(point: Mapping) -> dict:

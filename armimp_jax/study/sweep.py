@@ -1,6 +1,6 @@
 """General sweeps: a grid (or a list of points) over any settings of a trial, times seeds.
 
-The points (``study.points``: ``POINT_DEFAULTS``, ``normalize_point``, ``expand``,
+The points (``study.points``: ``POINT_DEFAULTS``, ``Point``; read by ``study.grids``: ``expand``,
 ``read_toml``, ``parse_set``) and ``SweepSettings`` fix a run. ``SweepSettings`` is a
 specification of the study engine (``study.engine``): ``run_sweep`` hands it to
 ``engine.run``, which runs every ``(point, seed)`` that has no valid record in the output
@@ -36,22 +36,10 @@ from .._solver.numerics import SWEEP_NUMERICS, Numerics, named_solver
 from . import distributed, engine
 from .console import Console
 from .figures import plot_summary
+from .grids import expand, parse_set, read_toml
 from .metrics import estimate_arrays, trial_row
-from .points import (
-    build_trial,
-    default_x,
-    expand,
-    known_settings,
-    n_samples,
-    normalize_point,
-    parse_set,
-    point_columns,
-    point_welch,
-    read_toml,
-    static_group,
-    swept_settings,
-)
-from .results import ResultsError, atomic_write_json, describe_difference, read_json, settings_key, stamped, to_jsonable
+from .points import Point, default_x, known_settings, swept_settings
+from .results import ResultsError, atomic_write_json, describe_difference, read_json, stamped, to_jsonable
 from .runfolder import StudyRun, warn_stderr
 from .stats import seed_stats
 from .tables import METRIC_COLUMNS, summary_frame, trial_columns, trials_frame, write_table
@@ -70,14 +58,14 @@ class SweepSettings(engine.SimulationSpec):
     FORMAT = 1  # layout of a sweep's run.json
     NOUN = "sweep"
 
-    points: tuple
+    points: tuple[Point, ...]
     seeds: int = 3
     base_seed: int = 0
     method: str = SWEEP_NUMERICS.method
     substeps: int = SWEEP_NUMERICS.substeps
 
     def __post_init__(self):
-        object.__setattr__(self, "points", tuple(normalize_point(p) for p in self.points))
+        object.__setattr__(self, "points", tuple(Point.parse(p) for p in self.points))
 
     @property
     def numerics(self) -> Numerics:
@@ -97,7 +85,12 @@ class SweepSettings(engine.SimulationSpec):
     def run_settings(self) -> dict:
         """As saved in ``run.json`` (package version included)."""
         return stamped(
-            dict(points=list(self.points), seeds=self.seeds, base_seed=self.base_seed, numerics=self._numerics_dict())
+            dict(
+                points=[p.settings for p in self.points],
+                seeds=self.seeds,
+                base_seed=self.base_seed,
+                numerics=self._numerics_dict(),
+            )
         )
 
     def run_extra(self) -> dict:
@@ -106,11 +99,11 @@ class SweepSettings(engine.SimulationSpec):
     def _numerics_dict(self) -> dict:
         return dict(method=self.method, substeps=self.substeps, kernel="fast")
 
-    def trial_settings(self, point: Mapping, seed: int) -> dict:
+    def trial_settings(self, point: Point, seed: int) -> dict:
         """Every value that changes one trial's numbers: its point, seed, base seed and numerics
         (the seed count, the other points and the batch size do not)."""
         return stamped(
-            dict(point=dict(point), seed=int(seed), base_seed=self.base_seed, numerics=self._numerics_dict())
+            dict(point=point.settings, seed=int(seed), base_seed=self.base_seed, numerics=self._numerics_dict())
         )
 
     @classmethod
@@ -145,24 +138,24 @@ class SweepSettings(engine.SimulationSpec):
         return trial_id(self.points[i], s), self.trial_settings(self.points[i], s)
 
     def group(self, trial: tuple[int, int]) -> tuple:
-        return static_group(self.points[trial[0]])
+        return self.points[trial[0]].group
 
     def samples(self, trial: tuple[int, int]) -> int:
-        return n_samples(self.points[trial[0]])
+        return self.points[trial[0]].samples
 
     def compile_key(self, batch: list) -> tuple:
         """A batch's compiled shape: its group, size and whether it draws sensor noise."""
-        return self.group(batch[0]), len(batch), any(_noisy(self.points[i]) for i, _ in batch)
+        return self.group(batch[0]), len(batch), any(self.points[i].noisy for i, _ in batch)
 
     def build(self, batch, signals: engine.Perturbations) -> engine.Simulation:
         """The stacked trials of a batch of ``(point index, seed)`` sharing a ``static_group``,
         their perturbations and (if a point draws any) their sensor-noise keys."""
         points = [self.points[i] for i, _ in batch]
-        n = n_samples(points[0])
+        n = points[0].samples
         f_delta = np.stack([signals(s, n, p["peak"]) for p, (_, s) in zip(points, batch, strict=True)])
-        keys = np.stack([signals.noise_key(s) for _, s in batch]) if any(_noisy(p) for p in points) else None
-        params = stack_trials([build_trial(p) for p in points])
-        return engine.Simulation(params, f_delta, self.numerics, keys, point_welch(points[0]))
+        keys = np.stack([signals.noise_key(s) for _, s in batch]) if any(p.noisy for p in points) else None
+        params = stack_trials([p.trial for p in points])
+        return engine.Simulation(params, f_delta, self.numerics, keys, points[0].welch)
 
     def measure(self, batch, built, sim, outcome) -> list[tuple[dict, dict]]:
         """Per trial ``(arrays, meta)``: the estimate's arrays with the fit, and the record's
@@ -182,14 +175,14 @@ class SweepSettings(engine.SimulationSpec):
             )
             # the fit's numbers; its diagnostics restate the estimate's fields, which are saved already
             fit_j = {k: v[j] for k, v in fits._asdict().items() if k != "diagnostics"}
-            meta = dict(id=trial_id(point, s), point_index=i, seed=s, metrics=trial_row(point, out_j, fit_j))
+            meta = dict(id=trial_id(point, s), point_index=i, seed=s, metrics=trial_row(point.arm, out_j, fit_j))
             out.append((est | {f"fit_{k}": v for k, v in fit_j.items()}, meta))
         return out
 
 
 def trial_id(point: Mapping, seed: int) -> str:
     """File name stem of a trial: a short hash of its point (stable across runs) and the seed."""
-    return f"p{settings_key(dict(point=dict(point)))[:12]}-s{seed}"
+    return f"p{Point.parse(point).key}-s{seed}"
 
 
 def saved_settings(out) -> SweepSettings:
@@ -223,7 +216,7 @@ def resumed(out, config=None, sets=(), shortcuts: Mapping | None = None, run: Ma
     def change(saved: SweepSettings) -> SweepSettings:
         if sets or config:
             return requested(config, sets, shortcuts, run)
-        points = tuple(normalize_point(dict(p) | dict(shortcuts or {})) for p in saved.points)
+        points = tuple(Point.parse(dict(p) | dict(shortcuts or {})) for p in saved.points)
         return dataclasses.replace(saved, points=points, **dict(run or {}))
 
     return engine.resumed(SweepSettings, out, change)
@@ -240,10 +233,6 @@ def _vfit(estimates, *, acquisition: str):
 
 
 # --- running ----------------------------------------------------------------------------------
-
-
-def _noisy(point) -> bool:
-    return point["force_noise"] > 0 or point["velocity_noise"] > 0
 
 
 # --- tables and statistics -------------------------------------------------------------------
@@ -281,7 +270,7 @@ def collect(settings: SweepSettings, out, *, warn: Callable[[str], None] = warn_
     rows = []
     num = dict(method=settings.method, substeps=settings.substeps)
     for (i, s), rec in sorted(records.items()):
-        row = dict(point_index=i, seed=s, trial_id=rec.meta["id"]) | point_columns(settings.points[i])
+        row = dict(point_index=i, seed=s, trial_id=rec.meta["id"]) | settings.points[i].columns
         rows.append(row | dict(base_seed=settings.base_seed) | num | rec.meta["metrics"])
     return rows, missing
 
@@ -310,7 +299,7 @@ def numerics_check(settings: SweepSettings, rows: list[dict], sample: int, *, me
     signals = engine.Perturbations(settings.base_seed)
     by_group: dict[tuple, list] = {}
     for r in sorted(rows, key=lambda r: (r["point_index"], r["seed"])):
-        by_group.setdefault(static_group(settings.points[r["point_index"]]), []).append(r)
+        by_group.setdefault(settings.points[r["point_index"]].group, []).append(r)
     picked = []
     for group in by_group.values():
         idx = np.unique(np.linspace(0, len(group) - 1, min(sample, len(group))).round().astype(int))
@@ -331,7 +320,7 @@ def numerics_check(settings: SweepSettings, rows: list[dict], sample: int, *, me
         )
         return [(float(e), res.diverged if k == 0 else 0) for k, e in enumerate(res.rel_error)]
 
-    group = lambda r: static_group(settings.points[r["point_index"]])  # noqa: E731
+    group = lambda r: settings.points[r["point_index"]].group  # noqa: E731
     checked_rows = engine.map_batches(picked, group, max(sample, 1), check)
     errors = [e for e, _ in checked_rows if math.isfinite(e)]
     diverged, checked = sum(d for _, d in checked_rows), len(picked)

@@ -20,7 +20,7 @@ import warnings
 import numpy as np
 
 from .figures import save_figure
-from .points import expand
+from .grids import expand
 from .results import atomic_write_text, package_version
 from .stats import bootstrap, bootstrap_crossing, seed_stats
 from .sweep import SweepSettings, collect, run_sweep
