@@ -94,6 +94,31 @@ class Registry:
         return cls
 
 
+class Converter:
+    """A kind's field converter whose one-line refusals name the kind, the field and its unit
+    (``LuGre: tau_c [N m] must be finite, got nan``): ``check(value, where=, name=, unit=)``
+    converts and checks the value (``unit`` is ``None`` where ``UNITS`` gives none). The kind's
+    base class binds ``where`` (the class's name), ``name`` and ``unit`` when the class is
+    defined (``name_fields``); unbound, they are the ``where`` and ``name`` given here."""
+
+    def __init__(self, check, *, where: str, name: str):
+        self.check, self.where, self.name, self.unit = check, where, name, None
+
+    def __call__(self, value):
+        return self.check(value, where=self.where, name=self.name, unit=self.unit)
+
+
+def name_fields(cls) -> None:
+    """Bind the ``Converter`` of each field ``cls`` defines to the class, the field and its unit in
+    ``UNITS`` (called by the base classes' ``__init_subclass__``, before the dataclass is made:
+    the fields are still the class's attributes)."""
+    units = getattr(cls, "UNITS", None) or {}
+    for name, value in vars(cls).items():
+        converter = value.metadata.get("converter") if isinstance(value, dataclasses.Field) else None
+        if isinstance(converter, Converter):
+            converter.where, converter.name, converter.unit = cls.__name__, name, units.get(name)
+
+
 def check_units(cls) -> None:
     """A kind's ``UNITS`` must name its own fields (checked when the class is defined, from its
     annotations: the dataclass is made after ``__init_subclass__``)."""

@@ -25,11 +25,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..._checks import check_positive_semidefinite, is_concrete
+from ..._checks import is_concrete
 from ..._pytree import Param
 from ..plant import RestPlant, rest_plant
 from ..robot import cartesian_inertia
-from .base import AbstractController, gain, matvec
+from .base import AbstractController, gain_field, matvec
 
 EYE = ((1.0, 0.0), (0.0, 1.0))
 # The virtual model may sit on the unit circle (K_v = 0: a free mass-damper drifts); above this
@@ -159,28 +159,14 @@ class Admittance(AbstractController):
     UNITS: ClassVar[dict] = dict(m_v="kg", b_v="N s/m", k_v="N/m", kp="N/m", kv="N s/m")
     DESIGN_GAINS: ClassVar[tuple[str, str]] = ("k_v", "b_v")
 
-    m_v: Param = _scaled(2.0)
-    b_v: Param = _scaled(10.0)
-    k_v: Param = _scaled(50.0)
-    kp: Param = _scaled(4000.0)
-    kv: Param = _scaled(60.0)
+    m_v: Param = gain_field(_scaled(2.0))
+    b_v: Param = gain_field(_scaled(10.0), semidefinite=True)
+    k_v: Param = gain_field(_scaled(50.0), semidefinite=True)
+    kp: Param = gain_field(_scaled(4000.0))
+    kv: Param = gain_field(_scaled(60.0))
     phi: Param | None = None
     gamma: Param | None = None
     period: float | None = eqx.field(static=True, default=None)
-
-    def __post_init__(self):
-        w, set_ = "Admittance", object.__setattr__
-        set_(self, "m_v", gain("m_v", self.m_v, "kg", w))
-        for name, unit in (("b_v", "N s/m"), ("k_v", "N/m")):
-            set_(
-                self,
-                name,
-                check_positive_semidefinite(
-                    name, gain(name, getattr(self, name), unit, w, definite=False), where=w, unit=f" [{unit}]"
-                ),
-            )
-        set_(self, "kp", gain("kp", self.kp, "N/m", w))
-        set_(self, "kv", gain("kv", self.kv, "N s/m", w))
 
     def bind(self, robot, q0, x0, *, period: float) -> Admittance:
         """The virtual model discretised at ``period`` [s]; its stability and the servo's on the

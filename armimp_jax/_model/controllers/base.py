@@ -30,6 +30,7 @@ moves the two gains named by ``DESIGN_GAINS`` (stiffness [N/m], damping [N s/m])
 from __future__ import annotations
 
 import abc
+import functools
 import inspect
 from typing import Any, ClassVar, NamedTuple
 
@@ -37,7 +38,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ..._checks import as_param, check_positive_definite
+from ..._checks import as_param, check_positive_definite, check_positive_semidefinite
 from ..._pytree import replace_unchecked, show_fields
 from .. import kinds
 
@@ -71,12 +72,24 @@ def matvec(a, v):
     return jnp.stack([a[0, 0] * v[0] + a[0, 1] * v[1], a[1, 0] * v[0] + a[1, 1] * v[1]])
 
 
-def gain(name, value, unit, where, *, definite=True):
-    """A ``(2, 2)`` gain [unit], finite and (when ``definite``) with a positive definite symmetric part."""
-    arr = as_param(f"{name} [{unit}]", value, (2, 2), where=where)
-    if definite:
-        arr = check_positive_definite(name, arr, where=where, unit=f" [{unit}]")
-    return arr
+def _gain_value(value, *, where, name, unit, optional, semidefinite):
+    if value is None and optional:
+        return None
+    unit = "" if unit is None else f" [{unit}]"
+    arr = as_param(f"{name}{unit}", value, (2, 2), where=where)
+    if semidefinite:
+        return check_positive_semidefinite(name, arr, where=where, unit=unit)
+    return check_positive_definite(name, arr, where=where, unit=unit)
+
+
+def gain_field(default, *, semidefinite: bool = False):
+    """A controller's ``(2, 2)`` gain field: float64, finite, with a positive definite symmetric
+    part (positive semi-definite when ``semidefinite``), checked as ``per_joint`` checks (a
+    one-line ``ValueError`` naming the kind, the field and its unit when concrete, the rule
+    carried into the program when traced). A ``None`` default makes ``None`` a value (one the
+    kind resolves itself)."""
+    check = functools.partial(_gain_value, optional=default is None, semidefinite=semidefinite)
+    return eqx.field(converter=kinds.Converter(check, where="gain", name="a gain"), default=default)
 
 
 class AbstractController(eqx.Module):
@@ -95,6 +108,7 @@ class AbstractController(eqx.Module):
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
+        kinds.name_fields(cls)
         if "UNITS" in cls.__dict__:
             kinds.check_units(cls)
         CONTROLLER_KINDS.register(cls)

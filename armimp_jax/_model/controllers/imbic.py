@@ -14,9 +14,9 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from ..._checks import check_choice
-from ..._pytree import Param
+from ..._pytree import Param, replace_unchecked
 from ..robot import cartesian_inertia
-from .base import AbstractController, gain, matvec
+from .base import AbstractController, gain_field, matvec
 from .pd import PD_DAMPING, PD_STIFFNESS
 
 ACCEL_ESTIMATES = ("velocity", "position")
@@ -63,37 +63,28 @@ class IMBIC(AbstractController):
     DESIGN_GAINS: ClassVar[tuple[str, str]] = ("k_rd", "b_rd")
     RECORDED: ClassVar[tuple[str, ...]] = ("mhat", "k_rd", "b_rd", "m_rd")
 
-    mhat: Param = DEFAULT_MHAT
-    kp: Param = PD_STIFFNESS
-    kv: Param = PD_DAMPING
-    m_rd: Param | None = None
-    b_rd: Param | None = None
-    k_rd: Param | None = None
+    mhat: Param = gain_field(DEFAULT_MHAT)
+    kp: Param = gain_field(PD_STIFFNESS)
+    kv: Param = gain_field(PD_DAMPING)
+    m_rd: Param | None = gain_field(None)
+    b_rd: Param | None = gain_field(None)
+    k_rd: Param | None = gain_field(None)
     m_rd_inv: Param | None = None
     accel_estimate: str = eqx.field(static=True, default="velocity")
 
-    def __post_init__(self):
-        w = "IMBIC"
-        set_ = object.__setattr__
-        set_(self, "mhat", gain("mhat", self.mhat, "kg", w))
-        set_(self, "kp", gain("kp", self.kp, "N/m", w))
-        set_(self, "kv", gain("kv", self.kv, "N s/m", w))
-        for name, unit in (("m_rd", "kg"), ("b_rd", "N s/m"), ("k_rd", "N/m")):
-            if getattr(self, name) is not None:
-                set_(self, name, gain(name, getattr(self, name), unit, w))
+    def __check_init__(self):
         check_choice("accel_estimate", self.accel_estimate, ACCEL_ESTIMATES)
 
     def bind(self, robot, q0, x0, *, period: float) -> IMBIC:
         """Resolve the desired dynamics for the equilibrium ``q0`` (and invert ``M_rd`` once)."""
         m_rd = cartesian_inertia(q0, robot) if self.m_rd is None else jnp.asarray(self.m_rd)
-        out = object.__new__(IMBIC)
-        for name in ("mhat", "kp", "kv", "accel_estimate"):
-            object.__setattr__(out, name, getattr(self, name))
-        object.__setattr__(out, "m_rd", m_rd)
-        object.__setattr__(out, "b_rd", self.kv if self.b_rd is None else self.b_rd)
-        object.__setattr__(out, "k_rd", self.kp if self.k_rd is None else self.k_rd)
-        object.__setattr__(out, "m_rd_inv", jnp.linalg.inv(m_rd))
-        return out
+        return replace_unchecked(
+            self,
+            m_rd=m_rd,
+            b_rd=self.kv if self.b_rd is None else self.b_rd,
+            k_rd=self.kp if self.k_rd is None else self.k_rd,
+            m_rd_inv=jnp.linalg.inv(m_rd),
+        )
 
     def init(self, x0) -> IMBICMemory:
         """At rest at ``x0``: ``x_-1 = x_-2 = x0``, ``xd_-1 = 0``, ``F_u,-1 = 0``,

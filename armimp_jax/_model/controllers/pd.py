@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import ClassVar
 
 from ..._pytree import Param
-from .base import AbstractController, gain, matvec
+from .base import AbstractController, gain_field, matvec
 
 # Defaults as nested tuples (immutable): K_p [N/m], K_v [N s/m] (paper eq. 5)
 PD_STIFFNESS = ((250.0, 0.0), (0.0, 250.0))
@@ -27,12 +27,8 @@ class PD(AbstractController):
     UNITS: ClassVar[dict] = dict(kp="N/m", kv="N s/m")
     DESIGN_GAINS: ClassVar[tuple[str, str]] = ("kp", "kv")
 
-    kp: Param = PD_STIFFNESS
-    kv: Param = PD_DAMPING
-
-    def __post_init__(self):
-        object.__setattr__(self, "kp", gain("kp", self.kp, "N/m", "PD"))
-        object.__setattr__(self, "kv", gain("kv", self.kv, "N s/m", "PD"))
+    kp: Param = gain_field(PD_STIFFNESS)
+    kv: Param = gain_field(PD_DAMPING)
 
     def init(self, x0):
         return ()

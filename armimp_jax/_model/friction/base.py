@@ -27,6 +27,7 @@ Methods marked *one joint* act on ``joint(i)``, whose fields are scalars (they b
 from __future__ import annotations
 
 import abc
+import functools
 from typing import ClassVar
 
 import equinox as eqx
@@ -34,24 +35,32 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..._checks import as_param
+from ..._checks import as_param, check_range
 from ..._pytree import show_fields
 from .. import kinds
 
 FRICTION_KINDS = kinds.Registry("friction")
 
 
-def _per_joint_value(value):
-    return as_param("a per-joint value", value, (2,), where="per_joint", broadcast=True)
+def _per_joint_value(value, *, where, name, unit, minimum, exclusive):
+    value = as_param(name if unit is None else f"{name} [{unit}]", value, (2,), where=where, broadcast=True)
+    if minimum is None:
+        return value
+    unit = "" if unit is None else f" {unit}"
+    return check_range(name, value, where=where, minimum=minimum, exclusive=exclusive, unit=unit)
 
 
-def per_joint(default=kinds.REQUIRED, **kwargs):
+def per_joint(default=kinds.REQUIRED, *, minimum: float | None = None, exclusive: bool = False, **kwargs):
     """A friction law's field holding one value per joint: float64 ``(2,)``, a scalar used for
-    both joints, finite (checked when concrete). ``default`` as ``equinox.field`` takes it;
-    other keywords pass through. A range a value must keep is checked in ``__check_init__``."""
+    both joints, finite, and at least ``minimum`` (above it when ``exclusive``) when one is
+    given. Concrete values are checked at once (a one-line ``ValueError`` naming the law, the
+    field and its unit in ``UNITS``); traced ones carry the rules into the program, which
+    raises when it runs (``equinox.error_if``). ``default`` as ``equinox.field`` takes it;
+    other keywords pass through. A rule across fields goes in ``__check_init__``."""
     if default is not kinds.REQUIRED:
         kwargs["default"] = default
-    return eqx.field(converter=_per_joint_value, **kwargs)
+    check = functools.partial(_per_joint_value, minimum=minimum, exclusive=exclusive)
+    return eqx.field(converter=kinds.Converter(check, where="per_joint", name="a per-joint value"), **kwargs)
 
 
 class AbstractFriction(eqx.Module):
@@ -72,6 +81,7 @@ class AbstractFriction(eqx.Module):
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
+        kinds.name_fields(cls)
         if "UNITS" in cls.__dict__:
             kinds.check_units(cls)
         FRICTION_KINDS.register(cls)

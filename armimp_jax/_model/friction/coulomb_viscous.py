@@ -14,9 +14,8 @@ from typing import ClassVar
 import jax.numpy as jnp
 import numpy as np
 
-from ..._checks import as_param, check_range
 from ..._pytree import Param, replace_unchecked
-from .base import AbstractFriction
+from .base import AbstractFriction, per_joint
 
 UNITS = dict(tau_c="N m", viscous="N m s/rad", v_s="rad/s")
 
@@ -39,16 +38,9 @@ class CoulombViscous(AbstractFriction):
     STIFF_STATIC: ClassVar[bool] = True
     IDENTIFIABLE: ClassVar[tuple[str, ...]] = ("tau_c", "viscous")
 
-    tau_c: Param
-    viscous: Param = 0.0
-    v_s: Param = 0.01
-
-    def __post_init__(self):
-        w = "CoulombViscous"
-        for name, unit in UNITS.items():
-            value = as_param(f"{name} [{unit}]", getattr(self, name), (2,), where=w, broadcast=True)
-            value = check_range(name, value, where=w, minimum=0.0, exclusive=name == "v_s", unit=f" {unit}")
-            object.__setattr__(self, name, value)
+    tau_c: Param = per_joint(minimum=0.0)
+    viscous: Param = per_joint(0.0, minimum=0.0)
+    v_s: Param = per_joint(0.01, minimum=0.0, exclusive=True)
 
     # one joint
     def viscous_coefficient(self):

@@ -21,9 +21,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..._checks import as_param, check_range, is_concrete
+from ..._checks import is_concrete
 from ..._pytree import Param, replace_unchecked
-from .base import AbstractFriction
+from .base import AbstractFriction, per_joint
 
 UNITS = dict(tau_c="N m", tau_s="N m", sigma0="N m/rad", sigma1="N m s/rad", sigma2="N m s/rad", v_s="rad/s")
 
@@ -49,35 +49,27 @@ class LuGre(AbstractFriction):
     UNITS: ClassVar[dict] = UNITS
     IDENTIFIABLE: ClassVar[tuple[str, ...]] = ("tau_c", "tau_s", "sigma0", "sigma1", "sigma2")
 
-    tau_c: Param
-    tau_s: Param
-    sigma0: Param = 1e5
-    sigma1: Param = math.sqrt(1e5)
-    sigma2: Param = 0.5
-    v_s: Param = 1e-3
+    tau_c: Param = per_joint(minimum=0.0)
+    tau_s: Param = per_joint(minimum=0.0)
+    sigma0: Param = per_joint(1e5, minimum=0.0)
+    sigma1: Param = per_joint(math.sqrt(1e5), minimum=0.0)
+    sigma2: Param = per_joint(0.5, minimum=0.0)
+    v_s: Param = per_joint(1e-3, minimum=0.0, exclusive=True)
 
-    def __post_init__(self):
-        w = "LuGre"
-        for name, unit in UNITS.items():
-            value = as_param(f"{name} [{unit}]", getattr(self, name), (2,), where=w, broadcast=True)
-            value = check_range(name, value, where=w, minimum=0.0, exclusive=name == "v_s", unit=f" {unit}")
-            object.__setattr__(self, name, value)
-        if not is_concrete((self.tau_c, self.tau_s)):
-            bad = jnp.any(self.tau_s < self.tau_c)
-            message = "LuGre: tau_s must be >= tau_c (stiction at least the Coulomb torque)"
-            object.__setattr__(self, "tau_s", eqx.error_if(self.tau_s, bad, message))
-        elif np.any(np.asarray(self.tau_s) < np.asarray(self.tau_c)):
-            raise ValueError(
-                f"LuGre: tau_s must be >= tau_c (stiction at least the Coulomb torque), got tau_s = "
-                f"{np.asarray(self.tau_s).tolist()} and tau_c = {np.asarray(self.tau_c).tolist()} N m"
-            )
+    def __check_init__(self):
+        message = "LuGre: tau_s must be >= tau_c (stiction at least the Coulomb torque)"
+        if is_concrete((self.tau_c, self.tau_s)):
+            if np.any(np.asarray(self.tau_s) < np.asarray(self.tau_c)):
+                tau_s, tau_c = np.asarray(self.tau_s).tolist(), np.asarray(self.tau_c).tolist()
+                raise ValueError(f"{message}, got tau_s = {tau_s} and tau_c = {tau_c} N m")
+            return
+        bad = jnp.any(self.tau_s < self.tau_c)
+        # a traced rule must ride on a field; no converter sees two fields and __check_init__ cannot assign
+        object.__setattr__(self, "tau_s", eqx.error_if(self.tau_s, bad, message))
 
     def joint(self, i: int) -> LuGre:
         """The parameters of joint ``i`` (0 or 1) as scalars (what ``lugre`` takes)."""
-        out = object.__new__(LuGre)
-        for name in UNITS:
-            object.__setattr__(out, name, getattr(self, name)[..., i])
-        return out
+        return replace_unchecked(self, **{name: getattr(self, name)[..., i] for name in UNITS})
 
     @classmethod
     def point_parameters(cls) -> dict:
