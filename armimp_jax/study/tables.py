@@ -24,12 +24,15 @@ import importlib.util
 import io
 import pathlib
 from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
-from .points import point_columns
 from .results import atomic_write_bytes, atomic_write_text
+
+if TYPE_CHECKING:
+    from .points import Point
 
 STRING = "string"  # pandas' string dtype (missing: <NA>, an empty cell)
 INTEGER = "int64"
@@ -149,13 +152,13 @@ def write_csv(path: pathlib.Path | str, rows: Sequence[Mapping]) -> None:
 # --- a sweep's tables ---------------------------------------------------------------------
 
 
-def trial_columns(points: Mapping | Sequence[Mapping]) -> list[str]:
+def trial_columns(points: Point | Sequence[Point]) -> list[str]:
     """The columns of a sweep's ``trials.csv``, in order: every point column of ``points`` (a
     sweep's points, or one of them; points of other kinds have other settings)."""
     points = [points] if isinstance(points, Mapping) else points
     return (
         ["point_index", "seed", "trial_id"]
-        + list(dict.fromkeys(c for p in points for c in point_columns(p)))
+        + list(dict.fromkeys(c for p in points for c in p.columns))
         + ["base_seed", "method", "substeps"]
         + list(METRIC_COLUMNS)
         + ["diverged", "diverged_at"]
@@ -179,7 +182,7 @@ def summary_rows(summary: Sequence[Mapping], numerics: Mapping) -> list[dict]:
     ``numerics`` (method, substeps), counts, and ``<metric>_<stat>`` columns."""
     rows = []
     for entry in summary:
-        row = point_columns(entry["point"]) | dict(numerics)
+        row = entry["point"].columns | dict(numerics)
         row |= dict(trials=entry["trials"], n=entry["n"], diverged=entry["diverged"])
         for m, st in entry["stats"].items():
             row |= {f"{m}_{k}": st[k] for k in ("mean", "sd", "ci_lo", "ci_hi")}
