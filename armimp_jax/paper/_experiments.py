@@ -19,7 +19,7 @@ import dataclasses
 
 import numpy as np
 
-from ..study.points import normalize_point
+from ..study.points import Point
 from ..study.stats import mean_ci
 from .claims import friction_point
 
@@ -63,15 +63,15 @@ class Run:
     acquisition: str = "instant"
     sigma1: float | None = None  # bristle damping [N m s/rad]; None: the paper's (Canudas de Wit's)
 
-    def point(self, nperseg: int) -> dict:
-        """The run as the one trial description, a normalized sweep point (``study.points``)
-        with Welch segments of ``nperseg`` samples (overlap 3/4): its ``points.build_trial`` is
-        the run's trial on MIT-MANUS."""
+    def point(self, nperseg: int) -> Point:
+        """The run as the one trial description, a sweep point (``study.Point``) with Welch
+        segments of ``nperseg`` samples (overlap 3/4): its ``trial`` is the run's trial on
+        MIT-MANUS."""
         friction = friction_point(self.level) if self.level is not None else dict(tau_c=self.tau_c, stiction_ratio=1.5)
         if self.sigma1 is not None:
             friction["sigma1"] = self.sigma1
         controller = dict(mhat=self.mhat, accel_estimate=self.accel) if self.controller == "imbic" else {}
-        return normalize_point(
+        return Point.parse(
             dict(
                 controller=self.controller,
                 arm=self.location,

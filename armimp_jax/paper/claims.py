@@ -35,7 +35,7 @@ from .._estimation.fit import fit_impedance
 from .._estimation.welch import Welch
 from ..presets import arm
 from ..presets._tables import FRICTION_LEVELS
-from ..study.points import normalize_point
+from ..study.points import Point
 from ..study.stats import CI_LEVEL as CI_LEVEL
 from ..study.stats import mean_ci
 from ._judges import CLAIM_RULES as CLAIM_RULES
@@ -63,14 +63,14 @@ class Condition:
         acq = "" if self.acquisition == "instant" else "-mean"
         return f"{self.experiment}-L{self.location}-F{self.friction}-P{self.perturbation}{acq}"
 
-    def point(self, *, mhat: float = 0.25, seconds: float = 50.0, welch: Welch | None = None) -> dict:
-        """The condition as the one trial description, a normalized sweep point
-        (``study.points``): the paper's controller (IMBIC's ``mhat`` [kg] times the identity),
+    def point(self, *, mhat: float = 0.25, seconds: float = 50.0, welch: Welch | None = None) -> Point:
+        """The condition as the one trial description, a sweep point (``study.Point``): the
+        paper's controller (IMBIC's ``mhat`` [kg] times the identity),
         arm location, friction level (its LuGre parameters), perturbation level and
         acquisition, a record of ``seconds`` [s] and the ``welch`` settings (default
-        Table 4's). ``points.build_trial`` of it is ``presets.trial``'s trial, leaf for leaf."""
+        Table 4's). Its ``trial`` is ``presets.trial``'s trial, leaf for leaf."""
         w = Welch() if welch is None else welch
-        return normalize_point(
+        return Point.parse(
             dict(
                 controller=self.controller,
                 arm=self.location,

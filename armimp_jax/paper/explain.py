@@ -5,8 +5,8 @@ Each experiment (``paper._experiments``) changes one assumption of the reproduct
 the rest (the paper's arms, friction levels, gains, perturbation filter and Table 4 Welch
 settings; seed ``s`` draws its perturbation from ``fold_in(PRNGKey(0), s)`` like the
 reproduction, so seeds 0-2 are the reproduction's trials). A trial is one run of one
-experiment: its point (``Run.point``, the one trial description), built by
-``points.build_trial`` and simulated with ``SWEEP_NUMERICS`` (ARK3, 20 substeps); ``measure``
+experiment: its point (``Run.point``, the one trial description, a ``study.Point``), its
+``trial`` simulated with ``SWEEP_NUMERICS`` (ARK3, 20 substeps); ``measure``
 keeps its metrics (``study.metrics.trial_metrics`` per Welch segment, with where the
 coherence minimum falls; how often the joints slide; the perturbation's torque against
 stiction; the bristle load) as the record's meta. ``explain`` runs it on ``engine.run`` (a
@@ -31,7 +31,7 @@ from ..presets import arm
 from ..study import engine
 from ..study.console import Console
 from ..study.metrics import trial_metrics
-from ..study.points import build_trial, n_samples, point_parts, static_group
+from ..study.points import Point
 from ..study.results import ResultsError, atomic_write_text, describe_difference, settings_key, stamped
 from ..study.runfolder import StudyRun, warn_stderr
 from ._experiments import BASE_SEED, FULL, QUICK, SLIDE_RATE, Experiments, Run, Setup
@@ -89,7 +89,7 @@ class ExplainSettings(engine.SimulationSpec):
             plan[letter] = runs, segments, [r.point(segments[r.seconds][0]) for r in runs]
         return plan
 
-    def run(self, trial) -> tuple[Run, list[int], dict]:
+    def run(self, trial) -> tuple[Run, list[int], Point]:
         """``(run, its Welch segments, its point)`` of a trial."""
         letter, k = trial
         runs, segments, points = self.plan[letter]
@@ -102,21 +102,22 @@ class ExplainSettings(engine.SimulationSpec):
 
     def trial_record(self, trial) -> tuple[str, dict]:
         r, segments, point = self.run(trial)
-        settings = dict(experiment=trial[0], point=point, seed=r.seed, segments=segments, base_seed=self.base_seed)
+        settings = dict(experiment=trial[0], point=point.settings, seed=r.seed, segments=segments)
+        settings["base_seed"] = self.base_seed
         settings["numerics"] = SWEEP_NUMERICS.settings()
-        return f"{trial[0]}{trial[1]:04d}-{settings_key(dict(point=point))[:8]}-s{r.seed}", stamped(settings)
+        return f"{trial[0]}{trial[1]:04d}-{settings_key(dict(point=point.settings))[:8]}-s{r.seed}", stamped(settings)
 
     def group(self, trial) -> tuple:
-        return trial[0], static_group(self.run(trial)[2])
+        return trial[0], self.run(trial)[2].group
 
     def samples(self, trial) -> int:
-        return n_samples(self.run(trial)[2])
+        return self.run(trial)[2].samples
 
     def build(self, batch, signals: engine.Perturbations) -> engine.Simulation:
         runs = [self.run(t) for t in batch]
-        n = n_samples(runs[0][2])
+        n = runs[0][2].samples
         f_delta = np.stack([signals(r.seed, n, r.peak) for r, _, _ in runs])
-        return engine.Simulation(stack_trials([build_trial(p) for _, _, p in runs]), f_delta, SWEEP_NUMERICS)
+        return engine.Simulation(stack_trials([p.trial for _, _, p in runs]), f_delta, SWEEP_NUMERICS)
 
     def measure(self, batch, built, sim, outcome) -> list[tuple[dict, dict]]:
         out = []
@@ -126,7 +127,7 @@ class ExplainSettings(engine.SimulationSpec):
         return out
 
 
-def measure(r: Run, point: dict, f_delta, sim, j: int, segments) -> dict:
+def measure(r: Run, point: Point, f_delta, sim, j: int, segments) -> dict:
     """Trial ``j`` of a batch's simulation: whether it diverged, its sliding share, its
     perturbation-torque share over stiction, its bristle load, and per Welch segment the
     study's ``trial_metrics`` with the coherence minimum and where it falls."""
@@ -135,7 +136,7 @@ def measure(r: Run, point: dict, f_delta, sim, j: int, segments) -> dict:
     m["slide"] = float(np.mean(np.any(np.abs(np.diff(q, axis=0)) * 1000.0 > SLIDE_RATE, axis=1)))
     # the perturbation's own joint torque J(q0)^T F_Delta against the stiction torque
     tau = np.abs(f_delta @ np.asarray(jacobian(q[0], MIT_MANUS)))  # (N, 2): J^T F per sample
-    lugre = point_parts(point)[1]
+    lugre = point.friction
     tau_s = float(np.max(lugre.tau_s))
     m["over_stiction"] = float(np.mean(np.any(tau > tau_s, axis=1))) if tau_s > 0 else float("nan")
     # bristle load sigma0 |z| / tau_s: ~0 a linear spring, -> 1 at breakaway (LuGre's z' = v - sigma0 |v| z / g)

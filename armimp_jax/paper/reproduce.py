@@ -55,7 +55,7 @@ from ..presets import arm, perturbation_peak
 from ..study import engine
 from ..study.console import Console
 from ..study.metrics import ESTIMATE_FIELDS, estimate_arrays, trial_metrics
-from ..study.points import build_trial
+from ..study.points import Point
 from ..study.results import (
     ResultsError,
     atomic_write_json,
@@ -220,7 +220,7 @@ class ReproSettings(engine.SimulationSpec):
         """The trials of a batch of ``(Condition, seed)`` (each condition's point, ``Condition.point``)
         and their perturbations (``draw_perturbations``), on the paper's RK4, assessed with the
         run's Welch settings."""
-        params = stack_trials([build_trial(self.point(c)) for c, _ in batch])
+        params = stack_trials([self.point(c).trial for c, _ in batch])
         f_delta = np.stack([self.draw(s, signals)[0][c.perturbation] for c, s in batch])
         return engine.Simulation(params, f_delta, self.numerics, welch=self.welch)
 
@@ -246,8 +246,8 @@ class ReproSettings(engine.SimulationSpec):
             out.append((est, meta))
         return out
 
-    def point(self, cond: Condition) -> dict:
-        """The point (``study.points``) of a condition at this run's settings."""
+    def point(self, cond: Condition) -> Point:
+        """The point (``study.Point``) of a condition at this run's settings."""
         return cond.point(mhat=self.mhat, seconds=self.seconds, welch=self.welch)
 
     def draw(self, seed: int, signals: engine.Perturbations) -> tuple:
