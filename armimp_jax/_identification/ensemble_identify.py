@@ -7,11 +7,21 @@ Kalman filter of the loop linearised along the path (``path.py``):
 
     min_theta sum_r || W(theta) [ (y_r - y_bar) - (mu(theta, f_r) - mu_bar(theta)) ] ||^2,
 
-by a chord iteration from the classical route's answer (``estimate_ensemble``): the Jacobian and
-the filter held at the start (one binding serves every repetition and every step), so its fixed
-point solves ``J_0^T W_0 r(p) = 0``; at the answer both are computed anew for the covariance
-``(sum_r J_r^T J_r)^-1`` (the bound at the estimate), and the step they would still take is
-reported (``refreshed_step``, in SEs) and warned of above ``REFRESH_WARN``. The whitened
+by chord iterations from the classical route's answer: each holds the Jacobian and the filter
+at its start (one binding serves every repetition and every step) until its step is below
+``TOLERANCE`` SE, and the next starts from a loop linearised anew at that answer, until the step
+from there is below ``REFRESH_TOLERANCE`` SE. So the answer solves ``J(p)^T W(p) r(p) = 0``, the
+GLS with the loop linearised at the estimate, not at the start (a single chord held at the
+classical answer stopped 0.1-0.5 SE short of it). The covariance is ``(sum_r J_r^T J_r)^-1`` at
+the answer (the bound at the estimate); the step still left is reported (``refreshed_step``, in
+SEs) and warned of above ``REFRESH_WARN``.
+
+The bound is not the spread where the loop bends across the hand's excursions: PD at half its
+gains spread 1.2-1.3 times the bound on mid-reach ``K_yy`` and its intervals held 0.86-0.90
+(docs/movement.md, section 7). So the intervals are checked on each call: ``CHECK_DRAWS``
+ensembles are simulated at the answer (the lab's perturbations, the model's noise), each refitted
+by the chord held there, and each entry's interval is widened to their spread where it exceeds the
+bound (``spread_ratio``). The whitened
 residuals' variance is checked against the model's noise (1 when the trial's
 noise levels are the lab's): above it the intervals are widened by it and a warning says why.
 
@@ -27,11 +37,12 @@ from __future__ import annotations
 import dataclasses
 import importlib.metadata
 import time
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy.stats import norm
+from scipy.stats import chi2, norm
 
 from .._checks import require_x64
 from .._estimation.ensemble import Ensemble
@@ -48,7 +59,14 @@ from .indirect import IDENTIFY_NUMERICS
 MIN_REPETITIONS = 8  # below this the ensemble's mean path (a nuisance per sample) takes too much of the data
 MEASURED_REPETITIONS = 40  # the Monte Carlo's ensembles (docs/movement.md); fewer are warned of
 TOLERANCE = 0.01  # a step below this fraction of every SE ends the search
+REFRESH_TOLERANCE = 0.05  # [SE] the search re-linearises at its answer until the step from there is below this
+MAX_REFRESHES = 4  # re-linearisations at most (2 at most took it below 0.05 SE in 30 ensembles of each PD case)
 REFRESH_WARN = 0.1  # [SE] a step the refreshed Jacobian would still take beyond this is warned of
+# Ensembles simulated at the answer (the lab's perturbations, the model's noise) whose answers' spread
+# checks the bound's SEs; an entry's interval is widened to that spread where it is larger.
+CHECK_DRAWS = 16
+SPREAD_FALSE_ALARM = 0.05  # a spread at the bound is warned of this often over all the fit's entries
+CHECK_STREAM = 2**31 - 3  # the check's default draws: a stream of their own (ensemble_friction.DRAW_STREAM)
 # The pairs (controller, friction or "none") whose intervals the Monte Carlo measured over ensembles.
 MEASURED = {("imbic", "none"), ("pd", "none"), ("imbic", "lugre")}
 # Through friction: the laws, and the parameters of theirs that may be free (ensemble_friction.py).
@@ -64,6 +82,9 @@ class EnsembleIdentification:
     ``start`` ``(n,)``; ``covariance`` ``(n, n)``; ``converged``, ``steps``, ``message``;
     ``refreshed_step``: the largest step, in SEs, the Jacobian and filter at the answer would take
     (NaN through friction, whose search ends on its own binding);
+    ``spread_ratio`` ``(n,)``: each entry's spread over ensembles simulated at the answer over its
+    SE on the bound (the intervals are widened by it where above 1; NaN through friction, whose
+    intervals come from its simulated ensembles);
     ``noise_ratio``: the whitened residuals' variance over the model's (1 when the trial's noise is
     the lab's; the intervals are widened by it above 1; through friction, the whitened deviations'
     energy over the simulated ensembles', mostly the friction's: reported, not widened by);
@@ -80,6 +101,7 @@ class EnsembleIdentification:
     message: str
     noise_ratio: float
     refreshed_step: float
+    spread_ratio: np.ndarray
     warnings: tuple
     repetitions: int
     seconds: float
@@ -205,7 +227,7 @@ def _controller_name(model: Trial) -> str:
     return type(model.controller).__name__.lower()
 
 
-def _warnings(model, sound, noise_ratio, refreshed) -> list[str]:
+def _warnings(model, sound, noise_ratio, refreshed, spread=None, labels=()) -> list[str]:
     out = []
     kind = (_controller_name(model), type(model.friction).__name__.lower() if has_friction(model) else "none")
     if kind not in MEASURED:
@@ -223,6 +245,18 @@ def _warnings(model, sound, noise_ratio, refreshed) -> list[str]:
         out.append(
             f"the answer is {refreshed:.2f} SE from where the Jacobian at it points (more than {REFRESH_WARN:g}): the "
             "fit is not linear across its intervals; record more reaches, or start nearer (start=)"
+        )
+    if spread is not None and not np.all(np.isfinite(spread)):
+        out.append(
+            f"fewer than half of {CHECK_DRAWS} ensembles simulated at the answer could be refitted: the intervals "
+            "rest on the loop linearised at the answer alone; treat them as provisional"
+        )
+    elif spread is not None and np.max(spread) > _spread_warn(spread.size):
+        worst = int(np.argmax(spread))
+        out.append(
+            f"refitted to {CHECK_DRAWS} ensembles simulated at the answer, the estimates spread up to "
+            f"{spread[worst]:.2f} times the bound ({labels[worst]}): the hand's excursions bend the loop; those "
+            "intervals are widened to the spread (a stiffer robot, or a smaller perturbation, keeps the loop linear)"
         )
     if noise_ratio > 1.5 or noise_ratio < 0.5:
         widened = "" if has_friction(model) else ": the intervals are widened by it where above 1"
@@ -249,8 +283,8 @@ def identify_ensemble(
         max_steps: Gauss-Newton steps at most (8 without friction, whose chord iteration settles sooner).
         start: ``(n,)`` start on ``labels`` (default: the classical route's answer on the knots; through
             friction, then the model's ``tau_c`` per joint, the nuisance prior's centre).
-        key: through friction, the simulated ensembles' noise (default: a fixed stream; every call
-            the same draws).
+        key: the simulated ensembles' noise: through friction, the indirect inference's; without,
+            the check of the intervals' (default: a fixed stream; every call the same draws).
     """
     require_x64("identify")
     t0 = time.perf_counter()
@@ -261,30 +295,60 @@ def identify_ensemble(
         return _through_friction(model, sound, layout, free, numerics, max_steps, start, t0, key)
     p_start = _classical_start(layout, model, sound) if start is None else np.asarray(start, dtype=np.float64)
     y = jnp.asarray(_recorded(sound, model))
-    p, steps, converged, message = _search(layout, model, p_start, f, y, numerics, min(max_steps, 8))
+    p, steps, converged, message, lin = _search(layout, model, p_start, f, y, numerics, min(max_steps, 8))
     cov, noise_ratio, refreshed = np.full((p.size, p.size), np.nan), float("nan"), float("nan")
+    spread = np.full(p.size, np.nan)
     if not message:
-        cov, noise_ratio, refreshed = _at_answer(layout, model, p, f, y, numerics, sound.repetitions)
-    warnings = tuple(_warnings(model, sound, noise_ratio, refreshed)) if not message else ()
+        cov, noise_ratio, refreshed = _at_answer(lin, y, sound.repetitions)
+        base = jax.random.fold_in(jax.random.key(0), CHECK_STREAM) if key is None else key
+        spread = _spread_ratio(layout, model, lin, f, numerics, base)
+        widen = np.where(np.isfinite(spread), np.maximum(spread, 1.0), 1.0)
+        cov = cov * np.outer(widen, widen)
+    warnings = () if message else tuple(_warnings(model, sound, noise_ratio, refreshed, spread, layout.labels()))
     return _result(
         layout.labels(),
         p,
         cov,
         p_start,
         (converged, steps, message),
-        noise_ratio,
-        refreshed,
+        (noise_ratio, refreshed, spread),
         warnings,
         sound,
-        dict(free=free, numerics=numerics, max_steps=min(max_steps, 8)),
+        dict(free=free, numerics=numerics, max_steps=min(max_steps, 8), check_draws=CHECK_DRAWS, key=key is not None),
         t0,
     )
 
 
-def _result(labels, p, cov, p_start, state, noise_ratio, refreshed, warnings, sound, settings, t0):
+def _spread_warn(entries: int) -> float:
+    """The spread over the bound beyond which a fit of ``entries`` is warned of: the chi-square
+    bound of ``CHECK_DRAWS - 1`` dof at ``SPREAD_FALSE_ALARM`` over the entries (Bonferroni)."""
+    dof = CHECK_DRAWS - 1
+    return float(np.sqrt(chi2.ppf(1.0 - SPREAD_FALSE_ALARM / entries, dof) / dof))
+
+
+def _spread_ratio(layout, model, lin: _Linear, f, numerics, key) -> np.ndarray:
+    """Each entry's SD over the answers to ``CHECK_DRAWS`` ensembles simulated at the answer (the
+    lab's perturbations, the model's noise; each refitted by the chord held there) over its SE on
+    the bound; NaN where fewer than half of them refit."""
+    answers = []
+    for d in range(CHECK_DRAWS):
+        keys = jax.random.split(jax.random.fold_in(key, d), f.shape[0])
+        y, diverged = ph.noisy_responses(layout, model, jnp.asarray(lin.p), f, keys, numerics)
+        if np.any(np.asarray(diverged)):
+            continue
+        p, _, message = _chord(layout, model, lin, f, y, numerics, 8)
+        if not message:
+            answers.append(p)
+    if len(answers) < CHECK_DRAWS // 2:
+        return np.full(lin.p.size, np.nan)
+    return np.std(answers, axis=0, ddof=1) / np.sqrt(np.diag(lin.h_inv))
+
+
+def _result(labels, p, cov, p_start, state, diagnostics, warnings, sound, settings, t0):
     free = settings["free"]
     settings = dict(settings, free=[free] if isinstance(free, str) else list(free), numerics=repr(settings["numerics"]))
     converged, steps, message = state
+    noise_ratio, refreshed, spread = diagnostics
     return EnsembleIdentification(
         labels=labels,
         estimate=p,
@@ -296,6 +360,7 @@ def _result(labels, p, cov, p_start, state, noise_ratio, refreshed, warnings, so
         message=message,
         noise_ratio=noise_ratio,
         refreshed_step=refreshed,
+        spread_ratio=spread,
         warnings=warnings,
         repetitions=sound.repetitions,
         seconds=time.perf_counter() - t0,
@@ -345,47 +410,76 @@ def _through_friction(model, sound, knots, free, numerics, max_steps, start, t0,
         key=key is not None,
     )
     labels = knots.labels() + friction.labels()
-    return _result(
-        labels, estimate, cov, start_natural, state, answer.noise_ratio, float("nan"), warnings, sound, settings, t0
-    )
+    diagnostics = (answer.noise_ratio, float("nan"), np.full(estimate.size, np.nan))
+    return _result(labels, estimate, cov, start_natural, state, diagnostics, warnings, sound, settings, t0)
+
+
+class _Linear(NamedTuple):
+    """The loop linearised at ``p``: its filter, noise-free responses, whitened centred Jacobian
+    ``(R, N, 4, n)`` and ``(sum_r J_r^T J_r)^-1``."""
+
+    p: np.ndarray
+    filt: ph.PathFilter
+    mu: jnp.ndarray
+    wj: jnp.ndarray
+    h_inv: np.ndarray
+
+
+def _linearise(layout, model, p, f, numerics) -> _Linear:
+    filt, mu, jac = ph.linearised_at(layout, model, jnp.asarray(p), f, numerics)
+    wj = ph.whiten_centred(filt, jac)
+    return _Linear(p, filt, mu, wj, pb.whitened_inverse(wj, layout.labels(), "identify"))
+
+
+def _gls_step(lin: _Linear, mu, y) -> np.ndarray:
+    return lin.h_inv @ np.asarray(jnp.einsum("rkip,rki->p", lin.wj, ph.whiten_centred(lin.filt, y - mu)))
 
 
 def _search(layout, model, p, f, y, numerics, max_steps):
-    """The chord iteration (module docstring): ``(p, steps, converged, message)``; a step that takes a
-    simulated reach to divergence ends it at the last sound ``p``."""
-    filt, mu, jac = ph.linearised_at(layout, model, jnp.asarray(p), f, numerics)
+    """Chord iterations (module docstring), each from a refreshed linearisation, until the step the
+    loop linearised at the answer would take is below ``REFRESH_TOLERANCE`` SE: ``(p, steps,
+    converged, message, linear at p)``; a step that takes a simulated reach to divergence ends it
+    at the last sound ``p``."""
     if np.any(np.asarray(ph.responses(layout, model, jnp.asarray(p), f, numerics)[1])):
-        return p, 0, False, "the simulated reaches diverge at the start: check the model, or give start="
-    wj = ph.whiten_centred(filt, jac)
-    h_inv = pb.whitened_inverse(wj, layout.labels(), "identify")
-    se = np.sqrt(np.diag(h_inv))
+        return p, 0, False, "the simulated reaches diverge at the start: check the model, or give start=", None
+    lin, steps = _linearise(layout, model, p, f, numerics), 0
+    for _ in range(MAX_REFRESHES + 1):
+        p, taken, message = _chord(layout, model, lin, f, y, numerics, max_steps)
+        steps += taken
+        if message:
+            return p, steps, False, message, None
+        lin = _linearise(layout, model, p, f, numerics)
+        if _refreshed(lin, y) < REFRESH_TOLERANCE:
+            break
+    return p, steps, True, "", lin
+
+
+def _chord(layout, model, lin: _Linear, f, y, numerics, max_steps) -> tuple[np.ndarray, int, str]:
+    """Steps with ``lin``'s Jacobian and filter held, from ``lin.p``, until one is below ``TOLERANCE``
+    of every SE: ``(p, steps, message)``."""
+    p, mu, se = lin.p, lin.mu, np.sqrt(np.diag(lin.h_inv))
     for steps in range(1, max_steps + 1):
-        delta = h_inv @ np.asarray(jnp.einsum("rkip,rki->p", wj, ph.whiten_centred(filt, y - mu)))
+        delta = _gls_step(lin, mu, y)
         mu_new, diverged = ph.responses(layout, model, jnp.asarray(p + delta), f, numerics)
         if np.any(np.asarray(diverged)):
-            return (
-                p,
-                steps,
-                False,
-                "a step took the simulated reaches to divergence: start nearer (start=) or check the model",
-            )
+            return p, steps, "a step took the simulated reaches to divergence: start nearer (start=) or check the model"
         p, mu = p + delta, mu_new
         if np.max(np.abs(delta) / se) < TOLERANCE:
-            return p, steps, True, ""
-    return p, max_steps, False, f"no convergence in {max_steps} steps"
+            return p, steps, ""
+    return p, max_steps, f"no convergence in {max_steps} steps"
 
 
-def _at_answer(layout, model, p, f, y, numerics, repetitions):
-    """The covariance at ``p`` (widened by the noise ratio above 1), the noise ratio, and the step,
-    in SEs, the Jacobian and filter at ``p`` would still take."""
-    filt, mu, jac = ph.linearised_at(layout, model, jnp.asarray(p), f, numerics)
-    wj = ph.whiten_centred(filt, jac)
-    resid = ph.whiten_centred(filt, y - mu)  # the filter at the answer whitens the data anew
-    h_inv = pb.whitened_inverse(wj, layout.labels(), "identify")
-    step = h_inv @ np.asarray(jnp.einsum("rkip,rki->p", wj, resid))
-    noise_ratio = float(jnp.sum(resid**2)) / ((repetitions - 1) * resid.shape[1] * 4 - p.size)
-    refreshed = float(np.max(np.abs(step) / np.sqrt(np.diag(h_inv))))
-    return h_inv * max(noise_ratio, 1.0), noise_ratio, refreshed
+def _refreshed(lin: _Linear, y) -> float:
+    """The largest step, in SEs, the loop linearised at ``lin.p`` would still take."""
+    return float(np.max(np.abs(_gls_step(lin, lin.mu, y)) / np.sqrt(np.diag(lin.h_inv))))
+
+
+def _at_answer(lin: _Linear, y, repetitions):
+    """The covariance at the answer (widened by the noise ratio above 1), the noise ratio, and the
+    step, in SEs, the loop linearised there would still take."""
+    resid = ph.whiten_centred(lin.filt, y - lin.mu)  # the filter at the answer whitens the data anew
+    noise_ratio = float(jnp.sum(resid**2)) / ((repetitions - 1) * resid.shape[1] * 4 - lin.p.size)
+    return lin.h_inv * max(noise_ratio, 1.0), noise_ratio, _refreshed(lin, y)
 
 
 def identify_over(

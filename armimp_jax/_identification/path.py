@@ -263,6 +263,18 @@ def responses(layout, trial, p, f, numerics):
     return jax.lax.map(lambda fr: deterministic(with_values(layout, trial, p), fr, numerics, diverged=True), f)
 
 
+@functools.partial(jax.jit, static_argnames=("layout", "numerics"))
+def noisy_responses(layout, trial, p, f, keys, numerics):
+    """``(y (R, N, 4), diverged (R,))``: the recordings of ``trial`` at ``p`` under ``f`` with its noise
+    (sensors, the person's force), one draw per key of ``keys`` ``(R,)``."""
+
+    def one(fr, k):
+        sim = simulate(with_values(layout, trial, p), fr, key=k, numerics=numerics)
+        return jnp.concatenate([sim.x - trial.x0[None, :], sim.fh], axis=1), sim.diverged
+
+    return jax.vmap(one)(f, keys)
+
+
 @jax.jit
 def whiten_centred(filt, z):
     """Each repetition's whitened signal less the ensemble's mean (``W`` is linear)."""

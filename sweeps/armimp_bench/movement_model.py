@@ -96,6 +96,7 @@ def ensemble_row(case: str, seed: int, repetitions: int) -> dict:
         steps=fit.steps,
         repetitions=fit.repetitions,
         refreshed_step=getattr(fit, "refreshed_step", None),
+        spread_ratio=np.asarray(fit.spread_ratio).tolist(),
     )
 
 
