@@ -361,8 +361,8 @@ class Point(Mapping):
 
     @property
     def noisy(self) -> bool:
-        """Whether its trials draw sensor noise."""
-        return self._settings["force_noise"] > 0 or self._settings["velocity_noise"] > 0
+        """Whether its trials draw sensor noise (its ``Sensors``' force or rate noise is on)."""
+        return self.sensors.force_on or self.sensors.velocity_on
 
 
 def build_trial(point: Mapping) -> Trial:
