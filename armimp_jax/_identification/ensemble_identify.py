@@ -37,8 +37,8 @@ from __future__ import annotations
 import dataclasses
 import importlib.metadata
 import time
-from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -414,7 +414,7 @@ def _through_friction(model, sound, knots, free, numerics, max_steps, start, t0,
     return _result(labels, estimate, cov, start_natural, state, diagnostics, warnings, sound, settings, t0)
 
 
-class _Linear(NamedTuple):
+class _Linear(eqx.Module):
     """The loop linearised at ``p``: its filter, noise-free responses, whitened centred Jacobian
     ``(R, N, 4, n)`` and ``(sum_r J_r^T J_r)^-1``."""
 
