@@ -95,3 +95,20 @@ def test_the_shipped_kinds_convert_in_field_converters_and_check_in_check_init()
     assert not [k.__name__ for k in kinds if "__post_init__" in vars(k)]
     law = Checked(b=(0.0, 0.2))
     assert law.b.dtype == np.float64 and law.b.tolist() == [0.0, 0.2] and law.eps.tolist() == [1e-3, 1e-3]
+
+
+def test_a_field_object_two_laws_share_names_each_law_and_field():
+    shared = aj.per_joint(0.1, minimum=0.0)
+
+    class First(Checked):
+        UNITS: ClassVar[dict] = dict(b="N m s/rad", eps="rad/s", w="rad")
+        w: jnp.ndarray = shared
+
+    class Second(Checked):
+        UNITS: ClassVar[dict] = dict(b="N m s/rad", eps="rad/s", u="N m")
+        u: jnp.ndarray = shared
+
+    with pytest.raises(ValueError, match=r"^First: w must be >= 0 rad, got"):
+        First(w=-1.0)
+    with pytest.raises(ValueError, match=r"^Second: u must be >= 0 N m, got"):
+        Second(u=-1.0)

@@ -84,7 +84,7 @@ def test_per_joint_fields_broadcast_and_check_init_refuses_in_one_line(stribeck)
         stribeck(tau_c=0.2, tau_s=0.1)
     with pytest.raises(ValueError, match="Stribeck: eps must be > 0 rad/s"):
         stribeck(tau_c=0.2, eps=0.0)
-    # built inside a trace, the values are not checked there (they are tracers)
+    # built inside a trace: the ranges ride into the program (checked when it runs), the rule across fields waits
     jax.jit(lambda c: stribeck(tau_c=c).tau_c)(0.1)
 
 

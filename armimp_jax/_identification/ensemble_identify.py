@@ -66,7 +66,7 @@ REFRESH_WARN = 0.1  # [SE] a step the refreshed Jacobian would still take beyond
 # checks the bound's SEs; an entry's interval is widened to that spread where it is larger.
 CHECK_DRAWS = 16
 SPREAD_FALSE_ALARM = 0.05  # a spread at the bound is warned of this often over all the fit's entries
-CHECK_STREAM = 2**31 - 3  # the check's default draws: a stream of their own (ensemble_friction.DRAW_STREAM)
+CHECK_STREAM = 2**31 - 3  # the check's draws: their own stream, folded into any key (as ef.DRAW_STREAM)
 # The pairs (controller, friction or "none") whose intervals the Monte Carlo measured over ensembles.
 MEASURED = {("imbic", "none"), ("pd", "none"), ("imbic", "lugre")}
 # Through friction: the laws, and the parameters of theirs that may be free (ensemble_friction.py).
@@ -82,9 +82,10 @@ class EnsembleIdentification:
     ``start`` ``(n,)``; ``covariance`` ``(n, n)``; ``converged``, ``steps``, ``message``;
     ``refreshed_step``: the largest step, in SEs, the Jacobian and filter at the answer would take
     (NaN through friction, whose search ends on its own binding);
-    ``spread_ratio`` ``(n,)``: each entry's spread over ensembles simulated at the answer over its
-    SE on the bound (the intervals are widened by it where above 1; NaN through friction, whose
-    intervals come from its simulated ensembles);
+    ``spread_ratio`` ``(n,)``: each entry's RMS error over ensembles simulated at the answer (about
+    the answer, their truth) over its SE on the bound (the intervals are widened by it where above 1;
+    NaN through friction, whose intervals come from its simulated ensembles, where the search
+    failed, or where fewer than half of them refit); ``check_refits``: how many refit;
     ``noise_ratio``: the whitened residuals' variance over the model's (1 when the trial's noise is
     the lab's; the intervals are widened by it above 1; through friction, the whitened deviations'
     energy over the simulated ensembles', mostly the friction's: reported, not widened by);
@@ -102,6 +103,7 @@ class EnsembleIdentification:
     noise_ratio: float
     refreshed_step: float
     spread_ratio: np.ndarray
+    check_refits: int
     warnings: tuple
     repetitions: int
     seconds: float
@@ -227,7 +229,7 @@ def _controller_name(model: Trial) -> str:
     return type(model.controller).__name__.lower()
 
 
-def _warnings(model, sound, noise_ratio, refreshed, spread=None, labels=()) -> list[str]:
+def _warnings(model, sound, noise_ratio, refreshed, check=None, labels=()) -> list[str]:
     out = []
     kind = (_controller_name(model), type(model.friction).__name__.lower() if has_friction(model) else "none")
     if kind not in MEASURED:
@@ -244,20 +246,9 @@ def _warnings(model, sound, noise_ratio, refreshed, spread=None, labels=()) -> l
     if refreshed > REFRESH_WARN:
         out.append(
             f"the answer is {refreshed:.2f} SE from where the Jacobian at it points (more than {REFRESH_WARN:g}): the "
-            "fit is not linear across its intervals; record more reaches, or start nearer (start=)"
+            "fit is not linear across its intervals; record more reaches"
         )
-    if spread is not None and not np.all(np.isfinite(spread)):
-        out.append(
-            f"fewer than half of {CHECK_DRAWS} ensembles simulated at the answer could be refitted: the intervals "
-            "rest on the loop linearised at the answer alone; treat them as provisional"
-        )
-    elif spread is not None and np.max(spread) > _spread_warn(spread.size):
-        worst = int(np.argmax(spread))
-        out.append(
-            f"refitted to {CHECK_DRAWS} ensembles simulated at the answer, the estimates spread up to "
-            f"{spread[worst]:.2f} times the bound ({labels[worst]}): the hand's excursions bend the loop; those "
-            "intervals are widened to the spread (a stiffer robot, or a smaller perturbation, keeps the loop linear)"
-        )
+    out += _check_warnings(check, labels)
     if noise_ratio > 1.5 or noise_ratio < 0.5:
         widened = "" if has_friction(model) else ": the intervals are widened by it where above 1"
         out.append(
@@ -280,7 +271,8 @@ def identify_ensemble(
             one's perturbation; diverged repetitions are left out.
         free: arm matrices (each knot's, where the model's matrix is a profile).
         numerics: the simulation's integrator (default ``IDENTIFY_NUMERICS``).
-        max_steps: Gauss-Newton steps at most (8 without friction, whose chord iteration settles sooner).
+        max_steps: Gauss-Newton steps at most (without friction: per chord, at most 8, and a chord from
+            each of up to ``MAX_REFRESHES`` re-linearisations).
         start: ``(n,)`` start on ``labels`` (default: the classical route's answer on the knots; through
             friction, then the model's ``tau_c`` per joint, the nuisance prior's centre).
         key: the simulated ensembles' noise: through friction, the indirect inference's; without,
@@ -297,21 +289,23 @@ def identify_ensemble(
     y = jnp.asarray(_recorded(sound, model))
     p, steps, converged, message, lin = _search(layout, model, p_start, f, y, numerics, min(max_steps, 8))
     cov, noise_ratio, refreshed = np.full((p.size, p.size), np.nan), float("nan"), float("nan")
-    spread = np.full(p.size, np.nan)
+    spread, refits = np.full(p.size, np.nan), 0
     if not message:
         cov, noise_ratio, refreshed = _at_answer(lin, y, sound.repetitions)
-        base = jax.random.fold_in(jax.random.key(0), CHECK_STREAM) if key is None else key
-        spread = _spread_ratio(layout, model, lin, f, numerics, base)
+        # the check's own stream, whatever the key: never the lab's draws (simulate_ensemble(key=key))
+        base = jax.random.fold_in(jax.random.key(0) if key is None else key, CHECK_STREAM)
+        spread, refits = _spread_ratio(layout, model, lin, f, numerics, base)
         widen = np.where(np.isfinite(spread), np.maximum(spread, 1.0), 1.0)
         cov = cov * np.outer(widen, widen)
-    warnings = () if message else tuple(_warnings(model, sound, noise_ratio, refreshed, spread, layout.labels()))
+    check = (spread, refits)
+    warnings = () if message else tuple(_warnings(model, sound, noise_ratio, refreshed, check, layout.labels()))
     return _result(
         layout.labels(),
         p,
         cov,
         p_start,
         (converged, steps, message),
-        (noise_ratio, refreshed, spread),
+        (noise_ratio, refreshed, spread, refits),
         warnings,
         sound,
         dict(free=free, numerics=numerics, max_steps=min(max_steps, 8), check_draws=CHECK_DRAWS, key=key is not None),
@@ -319,17 +313,40 @@ def identify_ensemble(
     )
 
 
-def _spread_warn(entries: int) -> float:
-    """The spread over the bound beyond which a fit of ``entries`` is warned of: the chi-square
-    bound of ``CHECK_DRAWS - 1`` dof at ``SPREAD_FALSE_ALARM`` over the entries (Bonferroni)."""
-    dof = CHECK_DRAWS - 1
-    return float(np.sqrt(chi2.ppf(1.0 - SPREAD_FALSE_ALARM / entries, dof) / dof))
+def _check_warnings(check, labels) -> list[str]:
+    """What the check of the intervals tells a lab: draws that did not refit, a spread beyond the
+    bound's chance (the chi-square bound of as many dof as refits, at ``SPREAD_FALSE_ALARM`` over
+    the entries: Bonferroni)."""
+    if check is None:
+        return []
+    spread, refits = check
+    if not np.all(np.isfinite(spread)):
+        return [
+            f"only {refits} of {CHECK_DRAWS} ensembles simulated at the answer refitted (the others diverged or did "
+            "not settle): the intervals rest on the loop linearised at the answer alone; treat them as provisional"
+        ]
+    out = []
+    if refits < CHECK_DRAWS:
+        out.append(
+            f"{CHECK_DRAWS - refits} of {CHECK_DRAWS} ensembles simulated at the answer diverged or did not refit: "
+            "the loop is near its limits there; the intervals' check rests on the rest"
+        )
+    bound = float(np.sqrt(chi2.ppf(1.0 - SPREAD_FALSE_ALARM / spread.size, refits) / refits))
+    if np.max(spread) > bound:
+        worst = int(np.argmax(spread))
+        out.append(
+            f"refitted to {refits} ensembles simulated at the answer, the estimates err up to "
+            f"{spread[worst]:.2f} times the bound ({labels[worst]}): the hand's excursions bend the loop; those "
+            "intervals are widened to it (a stiffer robot, or a smaller perturbation, keeps the loop linear)"
+        )
+    return out
 
 
-def _spread_ratio(layout, model, lin: _Linear, f, numerics, key) -> np.ndarray:
-    """Each entry's SD over the answers to ``CHECK_DRAWS`` ensembles simulated at the answer (the
-    lab's perturbations, the model's noise; each refitted by the chord held there) over its SE on
-    the bound; NaN where fewer than half of them refit."""
+def _spread_ratio(layout, model, lin: _Linear, f, numerics, key) -> tuple[np.ndarray, int]:
+    """``(ratio (n,), refits)``: each entry's RMS error over the answers to ``CHECK_DRAWS``
+    ensembles simulated at the answer (the lab's perturbations, the model's noise; each refitted by
+    the chord held there; their truth is the answer) over its SE on the bound (NaN where fewer than
+    half of them refit), and how many refit."""
     answers = []
     for d in range(CHECK_DRAWS):
         keys = jax.random.split(jax.random.fold_in(key, d), f.shape[0])
@@ -340,15 +357,16 @@ def _spread_ratio(layout, model, lin: _Linear, f, numerics, key) -> np.ndarray:
         if not message:
             answers.append(p)
     if len(answers) < CHECK_DRAWS // 2:
-        return np.full(lin.p.size, np.nan)
-    return np.std(answers, axis=0, ddof=1) / np.sqrt(np.diag(lin.h_inv))
+        return np.full(lin.p.size, np.nan), len(answers)
+    rms = np.sqrt(np.mean((np.asarray(answers) - lin.p) ** 2, axis=0))
+    return rms / np.sqrt(np.diag(lin.h_inv)), len(answers)
 
 
 def _result(labels, p, cov, p_start, state, diagnostics, warnings, sound, settings, t0):
     free = settings["free"]
     settings = dict(settings, free=[free] if isinstance(free, str) else list(free), numerics=repr(settings["numerics"]))
     converged, steps, message = state
-    noise_ratio, refreshed, spread = diagnostics
+    noise_ratio, refreshed, spread, refits = diagnostics
     return EnsembleIdentification(
         labels=labels,
         estimate=p,
@@ -361,6 +379,7 @@ def _result(labels, p, cov, p_start, state, diagnostics, warnings, sound, settin
         noise_ratio=noise_ratio,
         refreshed_step=refreshed,
         spread_ratio=spread,
+        check_refits=refits,
         warnings=warnings,
         repetitions=sound.repetitions,
         seconds=time.perf_counter() - t0,
@@ -386,7 +405,8 @@ def _through_friction(model, sound, knots, free, numerics, max_steps, start, t0,
     p_start = np.concatenate([_classical_start(knots, model, sound) if start is None else start[:n_arm], tau_c])
     f = jnp.asarray(sound.f_delta)
     stat = ef.make_statistic(knots, model, p_start[:n_arm], f, numerics)
-    base = jax.random.fold_in(jax.random.key(0), ef.DRAW_STREAM) if key is None else key
+    # the draws' own stream, whatever the key: never the lab's (simulate_ensemble(key=key))
+    base = jax.random.fold_in(jax.random.key(0) if key is None else key, ef.DRAW_STREAM)
     keys = jnp.stack([jax.random.split(jax.random.fold_in(base, d), sound.repetitions) for d in range(ef.DRAWS)])
     route = ef.Route(knots, friction, model, f, stat, keys, numerics)
     contrib, energy = ef.observed(stat, model, f, jnp.asarray(_recorded(sound, model)))
@@ -410,7 +430,7 @@ def _through_friction(model, sound, knots, free, numerics, max_steps, start, t0,
         key=key is not None,
     )
     labels = knots.labels() + friction.labels()
-    diagnostics = (answer.noise_ratio, float("nan"), np.full(estimate.size, np.nan))
+    diagnostics = (answer.noise_ratio, float("nan"), np.full(estimate.size, np.nan), 0)
     return _result(labels, estimate, cov, start_natural, state, diagnostics, warnings, sound, settings, t0)
 
 
@@ -442,13 +462,13 @@ def _search(layout, model, p, f, y, numerics, max_steps):
     at the last sound ``p``."""
     if np.any(np.asarray(ph.responses(layout, model, jnp.asarray(p), f, numerics)[1])):
         return p, 0, False, "the simulated reaches diverge at the start: check the model, or give start=", None
-    lin, steps = _linearise(layout, model, p, f, numerics), 0
+    lin, steps, settled = _linearise(layout, model, p, f, numerics), 0, None
     for _ in range(MAX_REFRESHES + 1):
         p, taken, message = _chord(layout, model, lin, f, y, numerics, max_steps)
         steps += taken
-        if message:
-            return p, steps, False, message, None
-        lin = _linearise(layout, model, p, f, numerics)
+        if message:  # keep an earlier chord's answer, if one settled (its refreshed step is reported)
+            return (settled.p, steps, True, "", settled) if settled is not None else (p, steps, False, message, None)
+        settled = lin = _linearise(layout, model, p, f, numerics)
         if _refreshed(lin, y) < REFRESH_TOLERANCE:
             break
     return p, steps, True, "", lin

@@ -12,9 +12,11 @@ known ones.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import importlib.metadata
 import inspect
+import types
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -109,14 +111,19 @@ class Converter:
 
 
 def name_fields(cls) -> None:
-    """Bind the ``Converter`` of each field ``cls`` defines to the class, the field and its unit in
-    ``UNITS`` (called by the base classes' ``__init_subclass__``, before the dataclass is made:
-    the fields are still the class's attributes)."""
+    """Give each field ``cls`` defines with a ``Converter`` a converter of its own, bound to the
+    class, the field and its unit in ``UNITS`` (called by the base classes' ``__init_subclass__``,
+    before the dataclass is made: the fields are still the class's attributes). A field object
+    two classes or two fields share is copied, so each names its own."""
     units = getattr(cls, "UNITS", None) or {}
-    for name, value in vars(cls).items():
+    for name, value in list(vars(cls).items()):
         converter = value.metadata.get("converter") if isinstance(value, dataclasses.Field) else None
         if isinstance(converter, Converter):
-            converter.where, converter.name, converter.unit = cls.__name__, name, units.get(name)
+            bound = Converter(converter.check, where=cls.__name__, name=name)
+            bound.unit = units.get(name)
+            field = copy.copy(value)
+            field.metadata = types.MappingProxyType(dict(value.metadata, converter=bound))
+            setattr(cls, name, field)
 
 
 def check_units(cls) -> None:

@@ -8,7 +8,7 @@ design): sections of typed keys, read and checked into plain values, then the ``
 - ``trial_parts(config, where=...)``: the parameter values of the sections in
   ``TRIAL_SECTIONS``, built by their constructors, the only validators (their range
   checks come back as ``ConfigError`` naming the section); ``build_trial`` the ``Trial``.
-  A sweep's point (``study.points.point_config``) is read into the same sections.
+  A sweep's point (``study.Point``) is built through the same ``trial_parts``, its kinds given.
 - ``[controller]`` and ``[friction]`` name a kind (``type = "admittance"``, ``type =
   "coulomb_viscous"``; the friction's default is ``"lugre"``) and take that kind's own
   parameters, read from its class (``kind_section``): a kind of one's own, once its class is

@@ -17,6 +17,7 @@ points from grids, TOML and ``--set``.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import functools
 import json
@@ -296,7 +297,7 @@ class Point(Mapping):
         return raw if isinstance(raw, Point) else cls(*_normalized(raw))
 
     def __getitem__(self, name: str):
-        return self._settings[name]
+        return copy.deepcopy(self._settings[name])  # a list or table given out can't change the point
 
     def __iter__(self):
         return iter(self._settings)
@@ -313,7 +314,7 @@ class Point(Mapping):
     @property
     def settings(self) -> dict:
         """A copy of its settings as a plain dict (what a record saves)."""
-        return dict(self._settings)
+        return copy.deepcopy(self._settings)
 
     @property
     def controller(self):

@@ -9,8 +9,8 @@ kind "stribeck": a config names it, and the scripts load this file with --import
 
 From Python, import this module before the config, sweep or design that names the kind. Its
 slope for the implicit integrators is the forward-mode derivative of static_torque (the
-default); its fields are per-joint pairs (aj.per_joint), their ranges checked in
-__check_init__ (docs/extending.md).
+default); its fields are per-joint pairs (aj.per_joint, which checks each one's range), the rule
+across two of them checked in __check_init__ (docs/extending.md).
 """
 
 from typing import ClassVar
@@ -31,24 +31,18 @@ class Stribeck(aj.AbstractFriction):
     STIFF_STATIC: ClassVar[bool] = True  # tanh(v / eps) is steep: the integrators take it implicitly
     IDENTIFIABLE: ClassVar[tuple] = ("tau_c",)
 
-    tau_c: jnp.ndarray = aj.per_joint()
-    tau_s: jnp.ndarray = aj.per_joint(0.0)  # 0: no peak (tau_s = tau_c)
-    v_st: jnp.ndarray = aj.per_joint(0.01)
-    viscous: jnp.ndarray = aj.per_joint(0.0)
-    eps: jnp.ndarray = aj.per_joint(1e-3)
+    tau_c: jnp.ndarray = aj.per_joint(minimum=0.0)
+    tau_s: jnp.ndarray = aj.per_joint(0.0, minimum=0.0)  # 0: no peak (tau_s = tau_c)
+    v_st: jnp.ndarray = aj.per_joint(0.01, minimum=0.0, exclusive=True)
+    viscous: jnp.ndarray = aj.per_joint(0.0, minimum=0.0)
+    eps: jnp.ndarray = aj.per_joint(1e-3, minimum=0.0, exclusive=True)
 
     def __check_init__(self):
-        if any(isinstance(getattr(self, name), jax.core.Tracer) for name in self.UNITS):
+        if isinstance(self.tau_c, jax.core.Tracer) or isinstance(self.tau_s, jax.core.Tracer):
             return  # built inside jit, vmap or grad: checked where the values are concrete
-        values = {name: np.asarray(getattr(self, name)) for name in self.UNITS}
-        for name in ("tau_c", "viscous"):
-            if np.any(values[name] < 0):
-                raise ValueError(f"Stribeck: {name} must be >= 0, got {values[name].tolist()}")
-        for name in ("v_st", "eps"):
-            if np.any(values[name] <= 0):
-                raise ValueError(f"Stribeck: {name} must be > 0 rad/s, got {values[name].tolist()}")
-        if np.any((values["tau_s"] != 0) & (values["tau_s"] < values["tau_c"])):
-            raise ValueError(f"Stribeck: tau_s must be 0 or >= tau_c, got {values['tau_s'].tolist()}")
+        tau_c, tau_s = np.asarray(self.tau_c), np.asarray(self.tau_s)
+        if np.any((tau_s != 0) & (tau_s < tau_c)):
+            raise ValueError(f"Stribeck: tau_s must be 0 or >= tau_c, got {tau_s.tolist()}")
 
     # one joint: the fields are scalars here
     def viscous_coefficient(self):
