@@ -192,15 +192,16 @@ def test_design_reach_scores_designs_on_the_bound_and_keeps_the_paper_s_as_refer
 def test_the_model_route_ends_where_its_own_linearisation_points_and_widens_to_its_check_s_spread():
     from armimp_bench import movement_model as mm
     from armimp_jax._identification import ensemble_identify as ei
+    from armimp_jax._identification import ensemble_search as es
 
     truth, model, free = mm.case_trials("pd-designed")  # half the gains: the loop bends most
     family = mm.perturbation("pd-designed")
     ens = aj.simulate_ensemble(truth, family, key=jax.random.key(5), repetitions=12, samples=1600)
     fit = aj.identify(model, ens, free=free)
-    assert fit.converged and fit.refreshed_step < ei.REFRESH_TOLERANCE
+    assert fit.converged and fit.refreshed_step < es.REFRESH_TOLERANCE
     # the bound at the answer, as the noise ratio widens it; the check widens it further, never narrows it
     sound, layout = ei._check(model, ens, free, "test")
-    lin = ei._linearise(layout, model, fit.estimate, jnp.asarray(sound.f_delta), NUM)
+    lin = es.linearise(layout, model, fit.estimate, jnp.asarray(sound.f_delta), NUM)
     bound_se = np.sqrt(np.diag(lin.h_inv) * max(fit.noise_ratio, 1.0))
     np.testing.assert_allclose(fit.se, bound_se * np.maximum(fit.spread_ratio, 1.0), rtol=1e-6)
     assert np.all((fit.spread_ratio > 0.4) & (fit.spread_ratio < 2.5))  # 16 refits: about 18% noise per entry

@@ -18,7 +18,7 @@ SEs) and warned of above ``REFRESH_WARN``.
 
 The bound is not the spread where the loop bends across the hand's excursions: PD at half its
 gains spread 1.2-1.3 times the bound on mid-reach ``K_yy`` and its intervals held 0.86-0.90
-(docs/movement.md, section 7). So the intervals are checked on each call: ``CHECK_DRAWS``
+(docs/movement.md, section 7). So the intervals are checked on each call: ``CHECK_DRAWS`` (``ensemble_search.py``)
 ensembles are simulated at the answer (the lab's perturbations, the model's noise), each refitted
 by the chord held there, and each entry's interval is widened to their spread where it exceeds the
 bound (``spread_ratio``). The whitened
@@ -38,11 +38,10 @@ import dataclasses
 import importlib.metadata
 import time
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy.stats import chi2, norm
+from scipy.stats import norm
 
 from .._checks import require_x64
 from .._estimation.ensemble import Ensemble
@@ -50,23 +49,15 @@ from .._estimation.ensemble_fit import estimate_ensemble
 from .._pytree import replace_unchecked
 from .._simulate import Trial
 from . import ensemble_friction as ef
+from . import ensemble_search as es
 from . import layout as lay
 from . import path as ph
-from . import path_bound as pb
 from .bound import has_friction
 from .indirect import IDENTIFY_NUMERICS
 
 MIN_REPETITIONS = 8  # below this the ensemble's mean path (a nuisance per sample) takes too much of the data
 MEASURED_REPETITIONS = 40  # the Monte Carlo's ensembles (docs/movement.md); fewer are warned of
-TOLERANCE = 0.01  # a step below this fraction of every SE ends the search
-REFRESH_TOLERANCE = 0.05  # [SE] the search re-linearises at its answer until the step from there is below this
-MAX_REFRESHES = 4  # re-linearisations at most (2 at most took it below 0.05 SE in 30 ensembles of each PD case)
 REFRESH_WARN = 0.1  # [SE] a step the refreshed Jacobian would still take beyond this is warned of
-# Ensembles simulated at the answer (the lab's perturbations, the model's noise) whose answers' spread
-# checks the bound's SEs; an entry's interval is widened to that spread where it is larger.
-CHECK_DRAWS = 16
-SPREAD_FALSE_ALARM = 0.05  # a spread at the bound is warned of this often over all the fit's entries
-CHECK_STREAM = 2**31 - 3  # the check's draws: their own stream, folded into any key (as ef.DRAW_STREAM)
 # The pairs (controller, friction or "none") whose intervals the Monte Carlo measured over ensembles.
 MEASURED = {("imbic", "none"), ("pd", "none"), ("imbic", "lugre")}
 # Through friction: the laws, and the parameters of theirs that may be free (ensemble_friction.py).
@@ -248,7 +239,7 @@ def _warnings(model, sound, noise_ratio, refreshed, check=None, labels=()) -> li
             f"the answer is {refreshed:.2f} SE from where the Jacobian at it points (more than {REFRESH_WARN:g}): the "
             "fit is not linear across its intervals; record more reaches"
         )
-    out += _check_warnings(check, labels)
+    out += es.check_warnings(check, labels)
     if noise_ratio > 1.5 or noise_ratio < 0.5:
         widened = "" if has_friction(model) else ": the intervals are widened by it where above 1"
         out.append(
@@ -287,14 +278,14 @@ def identify_ensemble(
         return _through_friction(model, sound, layout, free, numerics, max_steps, start, t0, key)
     p_start = _classical_start(layout, model, sound) if start is None else np.asarray(start, dtype=np.float64)
     y = jnp.asarray(_recorded(sound, model))
-    p, steps, converged, message, lin = _search(layout, model, p_start, f, y, numerics, min(max_steps, 8))
+    p, steps, converged, message, lin = es.search(layout, model, p_start, f, y, numerics, min(max_steps, 8))
     cov, noise_ratio, refreshed = np.full((p.size, p.size), np.nan), float("nan"), float("nan")
     spread, refits = np.full(p.size, np.nan), 0
     if not message:
-        cov, noise_ratio, refreshed = _at_answer(lin, y, sound.repetitions)
+        cov, noise_ratio, refreshed = es.at_answer(lin, y, sound.repetitions)
         # the check's own stream, whatever the key: never the lab's draws (simulate_ensemble(key=key))
-        base = jax.random.fold_in(jax.random.key(0) if key is None else key, CHECK_STREAM)
-        spread, refits = _spread_ratio(layout, model, lin, f, numerics, base)
+        base = jax.random.fold_in(jax.random.key(0) if key is None else key, es.CHECK_STREAM)
+        spread, refits = es.spread_ratio(layout, model, lin, f, numerics, base)
         widen = np.where(np.isfinite(spread), np.maximum(spread, 1.0), 1.0)
         cov = cov * np.outer(widen, widen)
     check = (spread, refits)
@@ -308,58 +299,11 @@ def identify_ensemble(
         (noise_ratio, refreshed, spread, refits),
         warnings,
         sound,
-        dict(free=free, numerics=numerics, max_steps=min(max_steps, 8), check_draws=CHECK_DRAWS, key=key is not None),
+        dict(
+            free=free, numerics=numerics, max_steps=min(max_steps, 8), check_draws=es.CHECK_DRAWS, key=key is not None
+        ),
         t0,
     )
-
-
-def _check_warnings(check, labels) -> list[str]:
-    """What the check of the intervals tells a lab: draws that did not refit, a spread beyond the
-    bound's chance (the chi-square bound of as many dof as refits, at ``SPREAD_FALSE_ALARM`` over
-    the entries: Bonferroni)."""
-    if check is None:
-        return []
-    spread, refits = check
-    if not np.all(np.isfinite(spread)):
-        return [
-            f"only {refits} of {CHECK_DRAWS} ensembles simulated at the answer refitted (the others diverged or did "
-            "not settle): the intervals rest on the loop linearised at the answer alone; treat them as provisional"
-        ]
-    out = []
-    if refits < CHECK_DRAWS:
-        out.append(
-            f"{CHECK_DRAWS - refits} of {CHECK_DRAWS} ensembles simulated at the answer diverged or did not refit: "
-            "the loop is near its limits there; the intervals' check rests on the rest"
-        )
-    bound = float(np.sqrt(chi2.ppf(1.0 - SPREAD_FALSE_ALARM / spread.size, refits) / refits))
-    if np.max(spread) > bound:
-        worst = int(np.argmax(spread))
-        out.append(
-            f"refitted to {refits} ensembles simulated at the answer, the estimates err up to "
-            f"{spread[worst]:.2f} times the bound ({labels[worst]}): the hand's excursions bend the loop; those "
-            "intervals are widened to it (a stiffer robot, or a smaller perturbation, keeps the loop linear)"
-        )
-    return out
-
-
-def _spread_ratio(layout, model, lin: _Linear, f, numerics, key) -> tuple[np.ndarray, int]:
-    """``(ratio (n,), refits)``: each entry's RMS error over the answers to ``CHECK_DRAWS``
-    ensembles simulated at the answer (the lab's perturbations, the model's noise; each refitted by
-    the chord held there; their truth is the answer) over its SE on the bound (NaN where fewer than
-    half of them refit), and how many refit."""
-    answers = []
-    for d in range(CHECK_DRAWS):
-        keys = jax.random.split(jax.random.fold_in(key, d), f.shape[0])
-        y, diverged = ph.noisy_responses(layout, model, jnp.asarray(lin.p), f, keys, numerics)
-        if np.any(np.asarray(diverged)):
-            continue
-        p, _, message = _chord(layout, model, lin, f, y, numerics, 8)
-        if not message:
-            answers.append(p)
-    if len(answers) < CHECK_DRAWS // 2:
-        return np.full(lin.p.size, np.nan), len(answers)
-    rms = np.sqrt(np.mean((np.asarray(answers) - lin.p) ** 2, axis=0))
-    return rms / np.sqrt(np.diag(lin.h_inv)), len(answers)
 
 
 def _result(labels, p, cov, p_start, state, diagnostics, warnings, sound, settings, t0):
@@ -432,74 +376,6 @@ def _through_friction(model, sound, knots, free, numerics, max_steps, start, t0,
     labels = knots.labels() + friction.labels()
     diagnostics = (answer.noise_ratio, float("nan"), np.full(estimate.size, np.nan), 0)
     return _result(labels, estimate, cov, start_natural, state, diagnostics, warnings, sound, settings, t0)
-
-
-class _Linear(eqx.Module):
-    """The loop linearised at ``p``: its filter, noise-free responses, whitened centred Jacobian
-    ``(R, N, 4, n)`` and ``(sum_r J_r^T J_r)^-1``."""
-
-    p: np.ndarray
-    filt: ph.PathFilter
-    mu: jnp.ndarray
-    wj: jnp.ndarray
-    h_inv: np.ndarray
-
-
-def _linearise(layout, model, p, f, numerics) -> _Linear:
-    filt, mu, jac = ph.linearised_at(layout, model, jnp.asarray(p), f, numerics)
-    wj = ph.whiten_centred(filt, jac)
-    return _Linear(p, filt, mu, wj, pb.whitened_inverse(wj, layout.labels(), "identify"))
-
-
-def _gls_step(lin: _Linear, mu, y) -> np.ndarray:
-    return lin.h_inv @ np.asarray(jnp.einsum("rkip,rki->p", lin.wj, ph.whiten_centred(lin.filt, y - mu)))
-
-
-def _search(layout, model, p, f, y, numerics, max_steps):
-    """Chord iterations (module docstring), each from a refreshed linearisation, until the step the
-    loop linearised at the answer would take is below ``REFRESH_TOLERANCE`` SE: ``(p, steps,
-    converged, message, linear at p)``; a step that takes a simulated reach to divergence ends it
-    at the last sound ``p``."""
-    if np.any(np.asarray(ph.responses(layout, model, jnp.asarray(p), f, numerics)[1])):
-        return p, 0, False, "the simulated reaches diverge at the start: check the model, or give start=", None
-    lin, steps, settled = _linearise(layout, model, p, f, numerics), 0, None
-    for _ in range(MAX_REFRESHES + 1):
-        p, taken, message = _chord(layout, model, lin, f, y, numerics, max_steps)
-        steps += taken
-        if message:  # keep an earlier chord's answer, if one settled (its refreshed step is reported)
-            return (settled.p, steps, True, "", settled) if settled is not None else (p, steps, False, message, None)
-        settled = lin = _linearise(layout, model, p, f, numerics)
-        if _refreshed(lin, y) < REFRESH_TOLERANCE:
-            break
-    return p, steps, True, "", lin
-
-
-def _chord(layout, model, lin: _Linear, f, y, numerics, max_steps) -> tuple[np.ndarray, int, str]:
-    """Steps with ``lin``'s Jacobian and filter held, from ``lin.p``, until one is below ``TOLERANCE``
-    of every SE: ``(p, steps, message)``."""
-    p, mu, se = lin.p, lin.mu, np.sqrt(np.diag(lin.h_inv))
-    for steps in range(1, max_steps + 1):
-        delta = _gls_step(lin, mu, y)
-        mu_new, diverged = ph.responses(layout, model, jnp.asarray(p + delta), f, numerics)
-        if np.any(np.asarray(diverged)):
-            return p, steps, "a step took the simulated reaches to divergence: start nearer (start=) or check the model"
-        p, mu = p + delta, mu_new
-        if np.max(np.abs(delta) / se) < TOLERANCE:
-            return p, steps, ""
-    return p, max_steps, f"no convergence in {max_steps} steps"
-
-
-def _refreshed(lin: _Linear, y) -> float:
-    """The largest step, in SEs, the loop linearised at ``lin.p`` would still take."""
-    return float(np.max(np.abs(_gls_step(lin, lin.mu, y)) / np.sqrt(np.diag(lin.h_inv))))
-
-
-def _at_answer(lin: _Linear, y, repetitions):
-    """The covariance at the answer (widened by the noise ratio above 1), the noise ratio, and the
-    step, in SEs, the loop linearised there would still take."""
-    resid = ph.whiten_centred(lin.filt, y - lin.mu)  # the filter at the answer whitens the data anew
-    noise_ratio = float(jnp.sum(resid**2)) / ((repetitions - 1) * resid.shape[1] * 4 - lin.p.size)
-    return lin.h_inv * max(noise_ratio, 1.0), noise_ratio, _refreshed(lin, y)
 
 
 def identify_over(

@@ -303,10 +303,8 @@ def identify(
             ``"efficient"`` (module docstring), ``"welch"``, or ``"auto"`` (default: efficient
             unless a loop is far from linear).
         numerics: integration settings (default ``IDENTIFY_NUMERICS``: converged at every friction in [0, 4] N m).
-        key: ``jax.random`` key of the simulated noise draws (default ``key(0)``: the result
-            is deterministic); each recording draws on a stream of its own. Over an ensemble, the
-            draws of the ensembles simulated at the answer (the check of the intervals; through
-            friction, the indirect inference), on a stream of their own.
+        key: ``jax.random`` key of the simulated noise draws (default ``key(0)``: deterministic);
+            each recording, and an ensemble's simulated ensembles, draw on a stream of their own.
         draws: noise draws ``R`` behind the binding and the covariance (>= 8; rounded up to
             a multiple of the local devices). The SEs carry a Monte Carlo error of about
             ``1 / sqrt(2 R)``, the estimate's variance ``1 / R`` more; friction's check needs 11.
