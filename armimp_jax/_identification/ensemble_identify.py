@@ -20,8 +20,8 @@ The bound is not the spread where the loop bends across the hand's excursions: P
 gains spread 1.2-1.3 times the bound on mid-reach ``K_yy`` and its intervals held 0.86-0.90
 (docs/movement.md, section 7). So the intervals are checked on each call: ``CHECK_DRAWS`` (``ensemble_search.py``)
 ensembles are simulated at the answer (the lab's perturbations, the model's noise), each refitted
-by the chord held there, and each entry's interval is widened to their spread where it exceeds the
-bound (``spread_ratio``). The whitened
+by the chord held there, and each entry's interval is widened to their RMS error about the answer
+where it exceeds the bound (``spread_ratio``). The whitened
 residuals' variance is checked against the model's noise (1 when the trial's
 noise levels are the lab's): above it the intervals are widened by it and a warning says why.
 
