@@ -42,7 +42,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._simulate import Trial, simulate
+from .._simulate import Trial
 from . import layout as lay
 from . import path as ph
 from . import path_bound as pb
@@ -132,13 +132,8 @@ def _ensembles(knots, friction, model, stat, p, f, keys, numerics):
     """``(contributions (B, R, m), energies (B,), diverged (B, R))`` of ``B`` ensembles simulated at ``p``."""
     trial = with_parameters(knots, friction, model, p)
     b, r = keys.shape[:2]
-
-    def one(fr, k):
-        sim = simulate(trial, fr, key=k, numerics=numerics)
-        return jnp.concatenate([sim.x - model.x0[None], sim.fh], axis=1), sim.diverged
-
     fs = jnp.broadcast_to(f, (b, *f.shape)).reshape(-1, *f.shape[1:])
-    y, div = jax.vmap(one)(fs, keys.reshape(-1))
+    y, div = ph.recordings(trial, fs, keys.reshape(-1), numerics)
     y = y.reshape(b, r, *y.shape[1:])
     contrib, energy = jax.vmap(lambda yy: contributions(stat, model, f, yy))(y)
     return contrib, energy, div.reshape(b, r)

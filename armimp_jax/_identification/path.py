@@ -263,16 +263,22 @@ def responses(layout, trial, p, f, numerics):
     return jax.lax.map(lambda fr: deterministic(with_values(layout, trial, p), fr, numerics, diverged=True), f)
 
 
-@functools.partial(jax.jit, static_argnames=("layout", "numerics"))
-def noisy_responses(layout, trial, p, f, keys, numerics):
-    """``(y (R, N, 4), diverged (R,))``: the recordings of ``trial`` at ``p`` under ``f`` with its noise
-    (sensors, the person's force), one draw per key of ``keys`` ``(R,)``."""
+def recordings(trial: Trial, f, keys, numerics):
+    """``(y (R, N, 4), diverged (R,))``: what a lab records of ``trial`` (``x - x0`` [m], ``F_h`` [N])
+    under each perturbation of ``f`` ``(R, N, 2)`` with its noise, one draw per key of ``keys``
+    ``(R,)``; the model route's check and its route through friction simulate ensembles by it."""
 
     def one(fr, k):
-        sim = simulate(with_values(layout, trial, p), fr, key=k, numerics=numerics)
+        sim = simulate(trial, fr, key=k, numerics=numerics)
         return jnp.concatenate([sim.x - trial.x0[None, :], sim.fh], axis=1), sim.diverged
 
     return jax.vmap(one)(f, keys)
+
+
+@functools.partial(jax.jit, static_argnames=("layout", "numerics"))
+def noisy_responses(layout, trial, p, f, keys, numerics):
+    """``recordings`` of ``trial`` with ``layout``'s entries at ``p``."""
+    return recordings(with_values(layout, trial, p), f, keys, numerics)
 
 
 @jax.jit
