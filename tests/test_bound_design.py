@@ -7,6 +7,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 
 import armimp_jax as aj
@@ -218,3 +219,15 @@ def test_a_calibrated_design_weighs_the_bound_by_the_friction_and_predicts_its_m
         res.predicted_minutes,
         minutes,
     )
+
+
+def test_design_takes_the_steps_of_the_optimizer_it_is_given():
+    """``optimizer=`` reaches the loop (the design above, whose compiled programs serve): adamw reads
+    the parameters (weight decay), so the loop hands them over; at a zero rate the spectrum stays
+    where it was (Adam's first step moves it, above); a non-transformation is refused in one line."""
+    kw = dict(free=ARM, limits=dataclasses.replace(LIMITS, record=2.0), steps=2, key=jax.random.key(1))
+    method = aj.experiment.CramerRao(controller=False)
+    with pytest.raises(ValueError, match="design: optimizer must be an optax GradientTransformation"):
+        aj.design(_trial(location=2), _family(), method=method, optimizer=optax.adam, **kw)
+    still = aj.design(_trial(location=2), _family(), method=method, optimizer=optax.adamw(0.0), **kw)
+    assert still.trace[0] == still.trace[1] and np.isfinite(still.trace[0])

@@ -5,11 +5,7 @@ import numpy as np
 import optax
 import pytest
 
-import armimp_jax as aj
-from armimp_jax import presets
 from armimp_jax._design.descent import descend, optimizer_or_default
-
-ARM = ("arm.mass", "arm.damping", "arm.stiffness")
 
 
 def test_descend_steps_from_first_stops_and_reports():
@@ -28,21 +24,6 @@ def test_the_default_is_adam_and_anything_else_is_refused_in_one_line():
     np.testing.assert_array_equal(a["a"], b["a"])
     with pytest.raises(ValueError, match="^tune: optimizer must be an optax GradientTransformation"):
         optimizer_or_default("adam", 0.1, where="tune")
-
-
-def test_design_takes_the_steps_of_the_optimizer_it_is_given():
-    trial = aj.make_trial(
-        aj.PD(), arm=presets.arm(2), friction=aj.NO_FRICTION, sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18)
-    )
-    family = aj.signals.ShapedNoise(knots=np.linspace(1.0, 15.0, 3), shape=np.ones((2, 3)), rms=1.0)
-    limits = aj.experiment.Limits(0.66, 2.25, 2.0)
-    method = aj.experiment.CramerRao()
-    with pytest.raises(ValueError, match="design: optimizer must be an optax GradientTransformation"):
-        aj.design(trial, family, free=ARM, limits=limits, method=method, steps=2, optimizer=optax.adam)
-    # adamw reads the parameters (weight decay): the loop hands them over; at a zero rate the
-    # spectrum stays where it was (Adam's first step moves it: test_bound_design)
-    still = aj.design(trial, family, free=ARM, limits=limits, method=method, steps=2, optimizer=optax.adamw(0.0))
-    assert still.trace[0] == still.trace[1] and np.isfinite(still.trace[0])
 
 
 def test_a_tuning_state_records_a_custom_optimizer():

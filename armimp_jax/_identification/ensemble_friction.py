@@ -131,12 +131,16 @@ def with_parameters(knots: ph.KnotLayout, friction: lay.Layout, model: Trial, p)
 def _ensembles(knots, friction, model, stat, p, f, keys, numerics):
     """``(contributions (B, R, m), energies (B,), diverged (B, R))`` of ``B`` ensembles simulated at ``p``."""
     trial = with_parameters(knots, friction, model, p)
-    b, r = keys.shape[:2]
-    fs = jnp.broadcast_to(f, (b, *f.shape)).reshape(-1, *f.shape[1:])
-    y, div = ph.recordings(trial, fs, keys.reshape(-1), numerics)
-    y = y.reshape(b, r, *y.shape[1:])
-    contrib, energy = jax.vmap(lambda yy: contributions(stat, model, f, yy))(y)
-    return contrib, energy, div.reshape(b, r)
+
+    def ensembles(ks):  # whole ensembles on each device: their statistics reduce over its reaches
+        b, r = ks.shape[:2]
+        fs = jnp.broadcast_to(f, (b, *f.shape)).reshape(-1, *f.shape[1:])
+        y, div = ph.recordings(trial, fs, ks.reshape(-1), numerics)
+        y = y.reshape(b, r, *y.shape[1:])
+        contrib, energy = jax.vmap(lambda yy: contributions(stat, model, f, yy))(y)
+        return contrib, energy, div.reshape(b, r)
+
+    return ph.split_over_devices(ensembles, keys)
 
 
 def simulated(route: Route, p, draws: int):

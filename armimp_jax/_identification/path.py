@@ -29,7 +29,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
+from jax.sharding import PartitionSpec as P
 
+from .._batch import make_mesh
 from .._model.movement import Profile
 from .._model.plant import plant_model
 from .._model.sensors import IDEAL
@@ -249,18 +251,50 @@ def response_jacobians(layout: KnotLayout, trial: Trial, p, f, numerics):
     return jax.lax.map(one, f)
 
 
+def split_over_devices(fn, *xs):
+    """``fn(*xs)``, a map over the leading axis (reaches, or whole ensembles), each local device
+    mapping its own share (``shard_map``): the model route's simulations use every core. Nothing crosses
+    devices inside (a reduction across XLA:CPU devices hung at its collective: ``indirect.py``), so
+    callers take the result to the host (``_host``) before reducing. One device, or reaches the
+    devices do not divide: ``fn`` as it is."""
+    mesh = make_mesh()
+    if mesh.size == 1 or xs[0].shape[0] % mesh.size:
+        return fn(*xs)
+    spec = P("batch")
+    return jax.shard_map(fn, mesh=mesh, in_specs=(spec,) * len(xs), out_specs=spec, check_vma=False)(*xs)
+
+
+def _host(tree):
+    return jax.tree.map(np.asarray, tree)
+
+
 @functools.partial(jax.jit, static_argnames=("layout", "numerics"))
-def linearised_at(layout, trial, p, f, numerics):
-    """``(filter, mu (R, N, 4), J (R, N, 4, n))`` at ``p``: one program for every repetition."""
+def _linearised_at(layout, trial, p, f, numerics):
     filt = path_filter(path_loop(with_values(layout, trial, p), f.shape[1], numerics))
-    mu, jac = response_jacobians(layout, trial, p, f, numerics)
+    mu, jac = split_over_devices(lambda fs: response_jacobians(layout, trial, p, fs, numerics), f)
     return filt, mu, jac
 
 
+def linearised_at(layout, trial, p, f, numerics):
+    """``(filter, mu (R, N, 4), J (R, N, 4, n))`` at ``p`` (host arrays): one program for every
+    repetition. Split over several devices, XLA compiles it otherwise: its round-off differs from
+    one device's (4e-14 of the values, measured; the responses' and recordings' do not)."""
+    return _host(_linearised_at(layout, trial, p, f, numerics))
+
+
 @functools.partial(jax.jit, static_argnames=("layout", "numerics"))
+def _responses(layout, trial, p, f, numerics):
+    at_p = with_values(layout, trial, p)
+
+    def each(fs):
+        return jax.lax.map(lambda fr: deterministic(at_p, fr, numerics, diverged=True), fs)
+
+    return split_over_devices(each, f)
+
+
 def responses(layout, trial, p, f, numerics):
-    """``(mu (R, N, 4), diverged (R,))`` at ``p``."""
-    return jax.lax.map(lambda fr: deterministic(with_values(layout, trial, p), fr, numerics, diverged=True), f)
+    """``(mu (R, N, 4), diverged (R,))`` at ``p`` (host arrays)."""
+    return _host(_responses(layout, trial, p, f, numerics))
 
 
 def recordings(trial: Trial, f, keys, numerics):
@@ -276,9 +310,14 @@ def recordings(trial: Trial, f, keys, numerics):
 
 
 @functools.partial(jax.jit, static_argnames=("layout", "numerics"))
+def _noisy_responses(layout, trial, p, f, keys, numerics):
+    at_p = with_values(layout, trial, p)
+    return split_over_devices(lambda fs, ks: recordings(at_p, fs, ks, numerics), f, keys)
+
+
 def noisy_responses(layout, trial, p, f, keys, numerics):
-    """``recordings`` of ``trial`` with ``layout``'s entries at ``p``."""
-    return recordings(with_values(layout, trial, p), f, keys, numerics)
+    """``recordings`` of ``trial`` with ``layout``'s entries at ``p`` (host arrays)."""
+    return _host(_noisy_responses(layout, trial, p, f, keys, numerics))
 
 
 @jax.jit
