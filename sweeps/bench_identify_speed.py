@@ -7,6 +7,7 @@
     checked  issue 61's lab, 20 s: admittance through CoulombViscous(0.05), the self-check runs
              (target: 1.5 times 2.4.0's); three warm calls, their median
     linear   PD without friction, 20 s: nothing is checked (target: no slower than 2.4.0)
+    reaches  40 reaches (reaches-lugre: through LuGre, target 2 min warm), on 1 then all devices
     script   a 48 s IMBIC recording at 1 N m through estimate_recording.py --model, run twice
              in fresh processes (target: 60 s on the second run)
 
@@ -24,7 +25,7 @@ import sys
 from armimp_jax.study.cli import Parser, parse_names, script
 
 PROG = "bench_identify_speed"
-CASES = ("single", "pooled", "script", "checked", "linear")
+CASES = ("single", "pooled", "script", "checked", "linear", "reaches", "reaches-lugre")
 
 
 def parse(argv):
@@ -51,7 +52,8 @@ def main(argv=None):
             "a ratio to another version's" if target is None else ("within" if r["second_s"] <= target else "OVER")
         )
         goal = "" if target is None else f" {target:.0f} s"
-        print(f"{name}: first {r['first_s']:.1f} s, second {r['second_s']:.1f} s ({verdict}{goal})")
+        more = f"; on one device {r['one_device_s']:.1f} s, {r['speedup']:.2f} times" if "speedup" in r else ""
+        print(f"{name}: first {r['first_s']:.1f} s, second {r['second_s']:.1f} s ({verdict}{goal}){more}")
     return 0
 
 

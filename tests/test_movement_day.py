@@ -215,3 +215,65 @@ def test_the_day_s_model_route_writes_identify_s_numbers(tmp_path):
     doc = json.loads((tmp_path / "out" / "movement_model.json").read_text())
     assert doc["converged"] and len(doc["entries"]) == len(model_fit.labels)
     assert np.all(np.abs((written["estimate"] - written["truth"]) / written["se"]) < 4.5)
+    for name in ("stiffness_ellipses_model.png", "impedance_time_model.png"):  # its answer drawn as the classical
+        assert matplotlib.image.imread(tmp_path / "out" / name).shape[:2] == (675, 1050), name
+
+
+def _answer(knots, stiffness, damping, damping_knots=True) -> aj.results.EnsembleIdentification:
+    """The model route's answer with ``stiffness`` at ``knots`` and ``damping`` there (or constant),
+    a mass, and a covariance whose every entry is told apart (its SE from its place)."""
+    labels, values = ["arm.mass[0,0]"], [2.0]
+    for name, mats, at in (("damping", damping, damping_knots), ("stiffness", stiffness, True)):
+        for j, m in enumerate(mats):
+            where = f"@t={knots[j]:g}" if at else ""
+            labels += [f"arm.{name}{where}[{a},{b}]" for a in range(2) for b in range(2)]
+            values += list(np.ravel(m))
+    n = len(labels)
+    rng = np.random.default_rng(0)
+    root = rng.normal(size=(n, n)) * 0.1
+    cov = root @ root.T + np.diag(np.arange(1, n + 1) * 0.5)
+    estimate = np.asarray(values)
+    return aj.results.EnsembleIdentification(
+        labels=labels, estimate=estimate, se=np.sqrt(np.diag(cov)), start=estimate, covariance=cov,
+        converged=True, steps=3, message="", noise_ratio=1.0, refreshed_step=0.0, spread_ratio=np.ones(n),
+        check_refits=16, warnings=(), repetitions=40, seconds=1.0, settings={},
+    )  # fmt: skip
+
+
+def test_the_model_route_s_answer_is_drawn_on_its_knots():
+    """``knot_view``: every knot's ``K`` and ``B`` the answer's own entries (a constant ``B`` repeated
+    at each knot), their intervals ``interval``'s, each knot's ``K`` covariance the answer's block;
+    the ellipses of the view are its ``K``'s; nothing to draw where ``B``'s knots are others."""
+    knots = [0.4, 0.8]
+    k = [np.array([[400.0, 20.0], [10.0, 100.0]]), np.array([[150.0, 0.0], [5.0, 300.0]])]
+    b = [np.array([[12.0, 1.0], [0.5, 9.0]])]
+    fit = _answer(knots, k, b, damping_knots=False)
+    view = mf.knot_view(fit)
+    np.testing.assert_array_equal(view.knots, knots)
+    np.testing.assert_array_equal(view.stiffness, k)
+    np.testing.assert_array_equal(view.damping, [b[0], b[0]])
+    low, high = view.interval("stiffness")
+    assert (low[1, 0, 1], high[1, 0, 1]) == fit.interval("arm.stiffness@t=0.8[0,1]")
+    low, high = view.interval("damping", 0.9)
+    assert (low[1, 1, 1], high[1, 1, 1]) == fit.interval("arm.damping[1,1]", 0.9)
+    idx = [fit.labels.index(f"arm.stiffness@t=0.4[{a},{c}]") for a in range(2) for c in range(2)]
+    np.testing.assert_array_equal(view.stiffness_covariance[0], fit.covariance[np.ix_(idx, idx)])
+    draws = mf.stiffness_draws(view, n=20000)
+    np.testing.assert_allclose(
+        np.cov(draws[0].reshape(-1, 4).T), fit.covariance[np.ix_(idx, idx)], rtol=0.05, atol=0.05
+    )
+    times = np.arange(1200) * 1e-3
+    path = np.stack([np.zeros_like(times), 0.3 + 0.1 * times], axis=1)
+    ens = types.SimpleNamespace(x=np.stack([path, path]), period=1e-3, times=times)
+    ax = mf.path_figure(ens, view).axes[0]
+    (line,) = [ln for ln in ax.lines if ln.get_gid() == "estimate-1"]
+    centre = 100.0 * np.array([0.0, 0.3 + 0.1 * 0.8])
+    r = np.hypot(*(np.asarray(line.get_xydata()) - centre).T)
+    low_k, high_k = np.linalg.eigvalsh(0.5 * (k[1] + k[1].T))
+    assert np.isclose(r.max() / r.min(), high_k / low_k, rtol=1e-4)  # K at 0.8 s: its symmetric part's axes
+    assert mf.profile_figure(ens, view).axes
+    other = _answer(knots, k, [b[0], b[0]], damping_knots=True)
+    assert mf.knot_view(other) is not None
+    shifted = _answer([0.4, 0.8], k, [b[0], b[0]])
+    shifted.labels[1:5] = [lab.replace("@t=0.4", "@t=0.5") for lab in shifted.labels[1:5]]
+    assert mf.knot_view(shifted) is None

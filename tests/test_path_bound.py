@@ -156,6 +156,14 @@ def test_identify_over_an_ensemble_refuses_friction_it_has_not_measured_saying_w
     assert "\n" not in str(info.value)
 
 
+@pytest.mark.parametrize("controller", [aj.PD(), aj.Admittance()])
+def test_identify_over_an_ensemble_through_friction_refuses_a_controller_it_has_not_measured(controller):
+    trial = aj.make_trial(controller, arm=mv.base_arm(), friction=aj.LuGre(0.5, 0.75), **cov.noise())
+    with pytest.raises(ValueError, match="under IMBIC alone, not under .*did not settle.*estimate_ensemble") as e:
+        aj.identify(trial, _ensemble(), free=ph.ARM)
+    assert "\n" not in str(e.value) and type(controller).__name__ in str(e.value)
+
+
 def test_an_envelope_moves_the_perturbation_into_the_reach_keeping_its_rms_and_peak():
     raw_family, n = aj.signals.PaperNoise(peak=mv.PEAK), 1600
     shape = aj.experiment.Envelope(raw_family, 0.4, 1.2, 0.3, 1.0)

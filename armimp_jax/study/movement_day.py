@@ -17,7 +17,8 @@ The day, step by step (``run_day``):
    (``study.movement_figures``), each written atomically.
 6. With ``[identify] route = "model"``: the model route too (``identify`` over the ensemble, the
    config's trial the model, through its friction where it has one), ``write_model``:
-   ``movement_model.csv`` and ``movement_model.json``. The figures stay the classical route's.
+   ``movement_model.csv``, ``movement_model.json`` and the same two figures of its answer
+   (``stiffness_ellipses_model.png``, ``impedance_time_model.png``).
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ from .._model.friction import NO_FRICTION
 from .._model.movement import MinimumJerk, Profile
 from .config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
 from .figures import save_figure
-from .movement_figures import path_figure, profile_figure
+from .movement_figures import knot_view, path_figure, profile_figure
 from .recording import load_ensemble, parse_columns
 from .results import atomic_write_json, stamped
 from .tables import table, write_table
@@ -295,12 +296,23 @@ def model_rows(fit, trial=None) -> list[dict]:
     return [dict(row, truth=float(t)) for row, t in zip(rows, true, strict=True)]
 
 
-def write_model(out, fit, trial, settings: dict) -> list[pathlib.Path]:
+def write_model(out, fit, trial, settings: dict, *, ens=None) -> list[pathlib.Path]:
     """``movement_model.csv`` and ``movement_model.json`` (the rows, the covariance, the search's
-    state and warnings, the settings) under ``out``, each atomically."""
+    state and warnings, the settings) under ``out``, each atomically; given the (sound) ensemble
+    ``ens``, the two figures of the model route's answer too (``stiffness_ellipses_model.png``,
+    ``impedance_time_model.png``) where its stiffness has knots (``movement_figures.knot_view``)."""
     out = pathlib.Path(out)
     rows = model_rows(fit, trial)
+    view = None if ens is None else knot_view(fit)
     try:
+        figures = []
+        if view is not None:
+            true = None if trial is None else truth(trial, view.knots)
+            for name, fig in (
+                ("stiffness_ellipses_model.png", path_figure),
+                ("impedance_time_model.png", profile_figure),
+            ):
+                figures.append(save_figure(fig(ens, view, true), out / name, dpi=150))
         paths = write_table(table(rows, {"entry": "string"}), out / "movement_model.csv")
         doc = dict(
             settings=stamped(dict(settings, identify=fit.settings)),
@@ -315,7 +327,7 @@ def write_model(out, fit, trial, settings: dict) -> list[pathlib.Path]:
         atomic_write_json(out / "movement_model.json", doc)
     except OSError as err:
         raise ValueError(f"cannot write to {out}: {err.strerror or err}") from None
-    return [*paths, out / "movement_model.json"]
+    return [*paths, out / "movement_model.json", *figures]
 
 
 def run_day(config_path, out, *, simulate: bool = False, echo=print) -> tuple:
@@ -348,7 +360,7 @@ def run_day(config_path, out, *, simulate: bool = False, echo=print) -> tuple:
     if model_route:
         echo(f"the model route over {ens.sound().repetitions} reaches (a few minutes on 2 cores) ...")
         model_fit = identify_ensemble(trial, ens)
-        paths += write_model(out, model_fit, trial if simulated else None, settings)
+        paths += write_model(out, model_fit, trial if simulated else None, settings, ens=ens.sound())
         echo(model_fit.summary(LEVEL))
     echo(f"wrote {', '.join(str(p) for p in paths)}")
     return ens, fit, paths

@@ -9,9 +9,15 @@ made without pyplot, printed at 7 x 4.5 in (the caller saves it, ``study.figures
 - ``profile_figure``: ``K(t)`` and ``B(t)`` diagonals with their 95% intervals at the knots
   (joined linearly, as the model is), the truth dashed when known, and the hand's speed shaded
   behind.
+
+Both draw the classical route's ``EnsembleFit`` or, through ``knot_view``, the model route's answer
+(``identify`` over an ensemble).
 """
 
 from __future__ import annotations
+
+import dataclasses
+import re
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -31,11 +37,75 @@ def mean_path(ens) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return ens.times, path, speed
 
 
+_LABEL = re.compile(r"arm\.(stiffness|damping)(?:@t=([^\[]+))?\[(\d),(\d)\]$")
+
+
+@dataclasses.dataclass(frozen=True)
+class KnotView:
+    """The model route's answer as the figures read a fit: ``knots`` [s] ``(J,)``, ``stiffness`` and
+    ``damping`` ``(J, 2, 2)``, each knot's ``K`` entries' covariance ``(J, 4, 4)`` (row-major), and
+    every entry's interval by the answer's own ``interval`` (a constant matrix repeated at each knot)."""
+
+    knots: np.ndarray
+    stiffness: np.ndarray
+    damping: np.ndarray
+    stiffness_covariance: np.ndarray
+    fit: object
+    where: dict
+
+    def interval(self, name: str, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+        low, high = np.empty((2, self.knots.size, 2, 2))
+        for (j, a, b), label in self.where[name].items():
+            low[j, a, b], high[j, a, b] = self.fit.interval(label, level)
+        return low, high
+
+
+def knot_view(fit) -> KnotView | None:
+    """``fit`` (``identify`` over an ensemble) on its stiffness's knots, or None unless the stiffness
+    is a profile and the damping, free, is constant or a profile on the same knots (nothing to draw
+    together otherwise)."""
+    found = {"stiffness": {}, "damping": {}}  # (knot time or None for a constant, row, column) -> label
+    for label in fit.labels:
+        m = _LABEL.match(label)
+        if m:
+            found[m[1]][(None if m[2] is None else float(m[2]), int(m[3]), int(m[4]))] = label
+    knots = sorted({t for t, _, _ in found["stiffness"]} - {None})
+    damping_times = {t for t, _, _ in found["damping"]}
+    if not knots or None in {t for t, _, _ in found["stiffness"]} or damping_times not in ({None}, set(knots)):
+        return None
+    where = {
+        name: {
+            (j, a, b): cells.get((t, a, b), cells.get((None, a, b)))
+            for j, t in enumerate(knots)
+            for a in range(2)
+            for b in range(2)
+        }
+        for name, cells in found.items()
+    }
+    index = {label: i for i, label in enumerate(fit.labels)}
+    value = {name: np.zeros((len(knots), 2, 2)) for name in where}
+    for name, cells in where.items():
+        for (j, a, b), label in cells.items():
+            value[name][j, a, b] = fit.estimate[index[label]]
+    cov = np.asarray(fit.covariance)
+    k_index = [[index[where["stiffness"][(j, a, b)]] for a in range(2) for b in range(2)] for j in range(len(knots))]
+    k_cov = np.stack([cov[np.ix_(idx, idx)] for idx in k_index])
+    return KnotView(np.asarray(knots), value["stiffness"], value["damping"], k_cov, fit, where)
+
+
 def stiffness_draws(fit, n: int = ELLIPSE_DRAWS, seed: int = 0) -> np.ndarray:
     """``n`` draws of every knot's ``K`` ``(J, n, 2, 2)`` from the normal approximation: each force
-    axis's row from its covariance (``EnsembleFit.covariance``; the two axes are fitted apart)."""
+    axis's row from its covariance (``EnsembleFit.covariance``; the two axes are fitted apart), or
+    (a ``KnotView``) every entry from the knot's joint covariance."""
     rng = np.random.default_rng(seed)
     knots = np.asarray(fit.knots).size
+    if isinstance(fit, KnotView):
+        out = np.empty((knots, n, 2, 2))
+        for j in range(knots):
+            w, v = np.linalg.eigh(fit.stiffness_covariance[j])
+            z = rng.standard_normal((n, 4)) * np.sqrt(np.clip(w, 0.0, None))
+            out[j] = (fit.stiffness[j].reshape(4) + z @ v.T).reshape(n, 2, 2)
+        return out
     out = np.empty((knots, n, 2, 2))
     for j in range(knots):
         idx = slice(4 + 4 * j, 6 + 4 * j)  # K_j's row in each axis's parameters

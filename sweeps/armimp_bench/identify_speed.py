@@ -10,6 +10,10 @@
   1.5 times 2.4.0's; ``linear``: PD without friction at paper arm 2, 20 s, the same start: the
   loop is linear, nothing is checked; target no slower than 2.4.0. Each three warm calls
   (``REPEATS``), their median reported;
+- ``reaches``: ``identify`` over an ensemble of 40 reaches of the movement's base case (PD, no
+  friction: the intervals' check runs), and ``reaches-lugre`` (IMBIC through LuGre 0.5 / 0.75 N m,
+  ``tau_c`` free); each in a fresh process with one CPU device, then with one per core (the
+  route's simulations split over them), two calls each; target 2 min warm through friction;
 - ``script``: a 48 s IMBIC recording at 1 N m (LuGre 1 / 1.5 N m, the paper's level-1
   perturbation, arm 2) through ``estimate_recording.py --model`` as a lab runs it, twice (the
   second loads the compiled programs from the cache); target 60 s on the second run.
@@ -21,6 +25,7 @@ Every time is a wall time on this host; the truth's noise is the studies' (``cov
 from __future__ import annotations
 
 import json
+import os
 import pathlib
 import subprocess
 import sys
@@ -35,7 +40,8 @@ from armimp_jax.study import coverage as cov
 from armimp_jax.study.results import atomic_write_json
 
 FREE = (*cov.ARM, "friction.tau_c")
-TARGETS_S = dict(single=30.0, pooled=180.0, script=60.0, checked=None, linear=None)
+TARGETS_S = dict(single=30.0, pooled=180.0, script=60.0, checked=None, linear=None, reaches=None)
+TARGETS_S["reaches-lugre"] = 120.0
 REPEATS = 3  # warm calls of the checked and linear cases
 # issue 61's lab's subject (armimp_bench.matrix's OTHER_ARM): heavier along x, with off-diagonal terms
 LAB_ARM = dict(
@@ -176,6 +182,52 @@ def script(folder, seconds: float = 48.0) -> dict:
     return dict(first_s=runs[0]["wall_s"], second_s=runs[1]["wall_s"], runs=runs, seconds=seconds)
 
 
+def ensemble_calls(case: str) -> dict:
+    """Two calls of ``identify`` over 40 reaches of the movement's ``case`` (``armimp_bench.
+    movement_model``) in this process: their wall times, the devices, the answer's convergence."""
+    from armimp_bench import movement_model as mm
+
+    truth, model, free = mm.case_trials(case)
+    ens = aj.simulate_ensemble(truth, mm.perturbation(case), key=jax.random.key(5), repetitions=40, samples=1600)
+    times, res = [], None
+    for _ in range(2):
+        t0 = time.perf_counter()
+        res = aj.identify(model, ens, free=free)
+        times.append(time.perf_counter() - t0)
+    return dict(first_s=times[0], second_s=times[1], devices=len(jax.devices()), converged=bool(res.converged))
+
+
+def reaches(case: str) -> dict:
+    """The ``reaches`` cases (module docstring): ``ensemble_calls`` in a fresh process with one CPU
+    device, then with one per core; the warm ratio of the two."""
+    runs = {}
+    for devices in sorted({1, os.cpu_count() or 1}):
+        env = dict(os.environ, ARMIMP_JAX_CPU_DEVICES=str(devices), PYTHONPATH=str(ROOT / "sweeps"))
+        code = f"from armimp_bench import identify_speed as s; s.child({case!r})"
+        done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+        if done.returncode != 0:
+            raise RuntimeError(f"identify over an ensemble failed ({done.returncode}): {done.stderr.strip()[-400:]}")
+        runs[devices] = json.loads(done.stdout.strip().splitlines()[-1])
+    one, most = runs[1], runs[max(runs)]
+    return dict(
+        most,
+        runs={str(d): r for d, r in runs.items()},
+        one_device_s=one["second_s"],
+        speedup=one["second_s"] / most["second_s"],
+        case=case,
+        repetitions=40,
+        version=aj.__version__,
+    )
+
+
+def child(case: str) -> None:
+    """``ensemble_calls`` in a process the ``reaches`` case starts: JAX set up, one JSON line out."""
+    from armimp_jax.runtime import configure
+
+    configure(compilation_cache=False)  # each process compiles afresh: its first call is a user's first
+    print(json.dumps(ensemble_calls(case)))
+
+
 def run(cases, out) -> dict:
     """Each of ``cases`` (``single``, ``pooled``, ``script``); JSON in ``out`` (the script's files
     beside it)."""
@@ -183,6 +235,7 @@ def run(cases, out) -> dict:
     measure = dict(
         single=single, pooled=pooled, checked=checked, linear=linear, script=lambda: script(out.parent / "script")
     )
+    measure |= {"reaches": lambda: reaches("pd"), "reaches-lugre": lambda: reaches("imbic-lugre")}
     results = {}
     for name in cases:
         results[name] = measure[name]()

@@ -3,7 +3,7 @@ measured over Monte Carlo ensembles of the base case (``armimp_bench.movement``)
 the spread against ``crlb``, and ``reaches_for`` against the spread (``sweeps/bench_movement.py
 --route model``).
 
-Cases: ``imbic`` and ``pd``, without friction; ``imbic-lugre`` and ``pd-lugre``: through LuGre 0.5 / 0.75 N m,
+Cases: ``imbic`` and ``pd``, without friction; ``imbic-lugre``: IMBIC through LuGre 0.5 / 0.75 N m,
 ``tau_c`` free (``ensemble_friction``: indirect inference over simulated ensembles); and
 ``pd-designed``: PD at half its gains, the perturbation moved into the reach (``Envelope``: 0.3
 outside it), the best of ``design_reach``'s grid for the base case.
@@ -28,7 +28,7 @@ from armimp_jax.study import coverage as cov
 
 from .movement import DURATION, KNOTS, ONSET, PEAK, RECORD, base_arm, measured
 
-CASES = ("imbic", "pd", "pd-designed", "imbic-lugre", "pd-lugre")
+CASES = ("imbic", "pd", "pd-designed", "imbic-lugre")
 LUGRE = (0.5, 0.75)  # [N m] the friction case's Coulomb and stiction torques (tau_c free, tau_s held)
 DESIGNED = dict(gain_scale=0.5, rest=0.3)  # design_reach's best for the PD base case (docs/movement.md)
 BOUND_DRAWS = 32  # perturbation draws behind the bound's expectation

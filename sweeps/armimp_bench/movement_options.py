@@ -18,7 +18,7 @@ def setup(argv=None, description: str = ""):
     p.add_argument("--windows", default="0.1", help="windows [s] beyond the end knots, comma list (default 0.1)")
     p.add_argument("--out", default="results/movement-coverage", help="run folder (resumed)")
     p.add_argument("--route", choices=("classical", "model"), default="classical", help="the route measured")
-    cases = ("imbic", "pd", "pd-designed", "imbic-lugre", "pd-lugre")  # movement_model.CASES (JAX not yet set up)
+    cases = ("imbic", "pd", "pd-designed", "imbic-lugre")  # movement_model.CASES (JAX not yet set up)
     p.add_argument("--case", choices=cases, default="imbic", help="the model route's case")
     p.add_argument("--first", type=int, default=0, help="the first ensemble's seed (default 0)")
     p.add_argument(
