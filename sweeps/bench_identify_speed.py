@@ -48,9 +48,8 @@ def main(argv=None):
     results = identify_speed.run(a.cases, a.out)
     for name, r in results.items():
         target = r["target_s"]
-        verdict = (
-            "a ratio to another version's" if target is None else ("within" if r["second_s"] <= target else "OVER")
-        )
+        other = "against one device" if "speedup" in r else "a ratio to another version's"
+        verdict = other if target is None else ("within" if r["second_s"] <= target else "OVER")
         goal = "" if target is None else f" {target:.0f} s"
         more = f"; on one device {r['one_device_s']:.1f} s, {r['speedup']:.2f} times" if "speedup" in r else ""
         print(f"{name}: first {r['first_s']:.1f} s, second {r['second_s']:.1f} s ({verdict}{goal}){more}")

@@ -3,6 +3,7 @@ base case's config builds the base case's trial, a bad value is refused in one l
 script's table holds ``estimate_ensemble``'s numbers (simulated and from a lab's files), and the
 stiffness ellipses are drawn along ``K``'s eigenvectors at the stated scale."""
 
+import dataclasses
 import importlib.util
 import json
 import pathlib
@@ -230,8 +231,8 @@ def _answer(knots, stiffness, damping, damping_knots=True) -> aj.results.Ensembl
             values += list(np.ravel(m))
     n = len(labels)
     rng = np.random.default_rng(0)
-    root = rng.normal(size=(n, n)) * 0.1
-    cov = root @ root.T + np.diag(np.arange(1, n + 1) * 0.5)
+    root = rng.normal(size=(n, 2))  # two common factors: the entries strongly correlated
+    cov = root @ root.T + np.diag(np.arange(1, n + 1) * 0.05)
     estimate = np.asarray(values)
     return aj.results.EnsembleIdentification(
         labels=labels, estimate=estimate, se=np.sqrt(np.diag(cov)), start=estimate, covariance=cov,
@@ -240,7 +241,7 @@ def _answer(knots, stiffness, damping, damping_knots=True) -> aj.results.Ensembl
     )  # fmt: skip
 
 
-def test_the_model_route_s_answer_is_drawn_on_its_knots():
+def test_the_model_route_s_answer_is_drawn_on_its_knots(tmp_path):
     """``knot_view``: every knot's ``K`` and ``B`` the answer's own entries (a constant ``B`` repeated
     at each knot), their intervals ``interval``'s, each knot's ``K`` covariance the answer's block;
     the ellipses of the view are its ``K``'s; nothing to draw where ``B``'s knots are others."""
@@ -259,9 +260,11 @@ def test_the_model_route_s_answer_is_drawn_on_its_knots():
     idx = [fit.labels.index(f"arm.stiffness@t=0.4[{a},{c}]") for a in range(2) for c in range(2)]
     np.testing.assert_array_equal(view.stiffness_covariance[0], fit.covariance[np.ix_(idx, idx)])
     draws = mf.stiffness_draws(view, n=20000)
-    np.testing.assert_allclose(
-        np.cov(draws[0].reshape(-1, 4).T), fit.covariance[np.ix_(idx, idx)], rtol=0.05, atol=0.05
-    )
+    block = fit.covariance[np.ix_(idx, idx)]
+    corr = block / np.sqrt(np.outer(np.diag(block), np.diag(block)))
+    assert np.abs(corr[np.triu_indices(4, 1)]).max() > 0.5  # draws that ignored the correlations would fail
+    np.testing.assert_allclose(np.corrcoef(draws[0].reshape(-1, 4).T), corr, atol=0.03)
+    np.testing.assert_allclose(np.var(draws[0].reshape(-1, 4), axis=0), np.diag(block), rtol=0.05)
     times = np.arange(1200) * 1e-3
     path = np.stack([np.zeros_like(times), 0.3 + 0.1 * times], axis=1)
     ens = types.SimpleNamespace(x=np.stack([path, path]), period=1e-3, times=times)
@@ -274,6 +277,9 @@ def test_the_model_route_s_answer_is_drawn_on_its_knots():
     assert mf.profile_figure(ens, view).axes
     other = _answer(knots, k, [b[0], b[0]], damping_knots=True)
     assert mf.knot_view(other) is not None
+    assert day.model_figures(tmp_path, ens, fit) and (tmp_path / "impedance_time_model.png").exists()
+    lost = dataclasses.replace(fit, covariance=np.full_like(fit.covariance, np.nan), converged=False)
+    assert day.model_figures(tmp_path / "lost", ens, lost) == []  # no intervals: nothing drawn, nothing raised
     shifted = _answer([0.4, 0.8], k, [b[0], b[0]])
     shifted.labels[1:5] = [lab.replace("@t=0.4", "@t=0.5") for lab in shifted.labels[1:5]]
     assert mf.knot_view(shifted) is None

@@ -215,3 +215,23 @@ def test_the_model_route_ends_where_its_own_linearisation_points_and_widens_to_i
     assert np.all((fit.spread_ratio > 0.4) & (fit.spread_ratio < 2.5))  # 16 refits: about 18% noise per entry
     again = aj.identify(model, ens, free=free)
     np.testing.assert_array_equal(again.se, fit.se)  # the check's draws are fixed: every call the same intervals
+
+
+@pytest.mark.parametrize("length", [7, 8])
+@pytest.mark.parametrize("raw", [False, True])
+def test_a_map_split_over_the_devices_is_the_map_for_any_length_and_key_kind(length, raw):
+    """``split_over_devices`` on the suite's two devices, the leading axis padded to them and the
+    padding dropped on the host: bitwise the map on one device, typed or raw keys alike."""
+    assert jax.local_device_count() == 2  # the suite's set-up (conftest): the split is exercised
+    x = jnp.arange(length * 3.0).reshape(length, 3)
+    keys = jax.random.split(jax.random.PRNGKey(4) if raw else jax.random.key(4), length)
+
+    def fn(xs, ks):
+        return jax.vmap(lambda a, k: jnp.sin(a) + jax.random.normal(k, a.shape))(xs, ks), jnp.sum(xs, axis=1)
+
+    (xp, kp), n = ph.padded_for_devices(x, keys)
+    assert n == length and xp.shape[0] % 2 == 0
+    split = ph.on_host(jax.jit(lambda a, k: ph.split_over_devices(fn, a, k))(xp, kp), n)
+    whole = ph.on_host(jax.jit(fn)(x, keys))
+    for a, b in zip(split, whole, strict=True):
+        np.testing.assert_array_equal(a, b)

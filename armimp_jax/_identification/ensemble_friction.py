@@ -135,7 +135,7 @@ def _ensembles(knots, friction, model, stat, p, f, keys, numerics):
     def ensembles(ks):  # whole ensembles on each device: their statistics reduce over its reaches
         b, r = ks.shape[:2]
         fs = jnp.broadcast_to(f, (b, *f.shape)).reshape(-1, *f.shape[1:])
-        y, div = ph.recordings(trial, fs, ks.reshape(-1), numerics)
+        y, div = ph.recordings(trial, fs, ks.reshape(-1, *ks.shape[2:]), numerics)  # typed or raw keys
         y = y.reshape(b, r, *y.shape[1:])
         contrib, energy = jax.vmap(lambda yy: contributions(stat, model, f, yy))(y)
         return contrib, energy, div.reshape(b, r)
@@ -147,19 +147,12 @@ def simulated(route: Route, p, draws: int):
     """``(contributions (draws, R, m), energies (draws,), diverged)`` at ``p`` on the first ``draws`` keys."""
     out, energies, div = [], [], False
     for i in range(0, draws, BATCH):
-        c, e, d = _ensembles(
-            route.knots,
-            route.friction,
-            route.model,
-            route.stat,
-            jnp.asarray(p),
-            route.f,
-            route.keys[i : i + BATCH],
-            route.numerics,
-        )
-        out.append(np.asarray(c))
-        energies.append(np.asarray(e))
-        div |= bool(np.asarray(d).any())
+        (keys,), b = ph.padded_for_devices(route.keys[i : i + BATCH])
+        args = (route.knots, route.friction, route.model, route.stat, jnp.asarray(p), route.f, keys, route.numerics)
+        c, e, d = ph.on_host(_ensembles(*args), b)
+        out.append(c)
+        energies.append(e)
+        div |= bool(d.any())
     return np.concatenate(out)[:draws], np.concatenate(energies)[:draws], div
 
 

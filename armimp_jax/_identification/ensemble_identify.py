@@ -184,8 +184,8 @@ def _split_free(model: Trial, free, where: str) -> tuple[tuple, tuple]:
         raise ValueError(
             f"{where}: over an ensemble, the route through friction is measured under "
             f"{', '.join(c.upper() for c in FRICTION_CONTROLLERS)} alone, not under {type(model.controller).__name__} "
-            "(under PD its search did not settle: docs/movement.md): use estimate_ensemble (the classical route), "
-            "or identify each still posture"
+            "(PD's search did not settle; the admittance controllers are not measured: docs/movement.md): use "
+            "estimate_ensemble (the classical route), or identify each still posture"
         )
     if has_friction(model) and (law not in FRICTION_LAWS or not set(friction) <= set(FRICTION_FREE)):
         raise ValueError(
@@ -234,7 +234,8 @@ def _warnings(model, sound, noise_ratio, refreshed, check=None, labels=()) -> li
     kind = (_controller_name(model), type(model.friction).__name__.lower() if has_friction(model) else "none")
     if kind not in MEASURED:
         out.append(
-            f"the model route over an ensemble has not been measured by Monte Carlo under {kind[0]}: its intervals "
+            f"the model route over an ensemble has not been measured by Monte Carlo under "
+            f"{type(model.controller).__name__}: its intervals "
             "rest on this call's check (ensembles refitted at the answer); treat them as provisional (docs/movement.md)"
         )
     if sound.repetitions < MEASURED_REPETITIONS / 2:

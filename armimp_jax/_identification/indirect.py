@@ -21,7 +21,7 @@ errors, which statistics close to the parameters make it (docs/identification.md
 diagonal ``W`` rather than ``Omega^-1``: the inverse of a covariance estimated from ``R``
 draws is biased by ``R / (R - m - 2)`` and would make the intervals too narrow.
 
-Draws are spread over the local devices (``shard_map`` over ``_batch.make_mesh()``):
+Draws are spread over the local devices (``shard_map`` over ``_batch.make_mesh(jax.local_devices())``):
 ``R`` must be a multiple of their number.
 """
 
@@ -136,7 +136,9 @@ def _sharded(fn, n_out: int, n_in: int = 1):
     """``fn(*inputs)`` run with its ``n_in`` inputs split along their first axis over the local
     devices; its ``n_out`` outputs concatenated."""
     spec = P("batch")
-    return jax.shard_map(fn, mesh=make_mesh(), in_specs=(spec,) * n_in, out_specs=(spec,) * n_out, check_vma=False)
+    return jax.shard_map(
+        fn, mesh=make_mesh(jax.local_devices()), in_specs=(spec,) * n_in, out_specs=(spec,) * n_out, check_vma=False
+    )
 
 
 @functools.partial(jax.jit, static_argnames=("layout", "numerics", "stat_layout"))

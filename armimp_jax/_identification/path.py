@@ -252,20 +252,30 @@ def response_jacobians(layout: KnotLayout, trial: Trial, p, f, numerics):
 
 
 def split_over_devices(fn, *xs):
-    """``fn(*xs)``, a map over the leading axis (reaches, or whole ensembles), each local device
-    mapping its own share (``shard_map``): the model route's simulations use every core. Nothing crosses
-    devices inside (a reduction across XLA:CPU devices hung at its collective: ``indirect.py``), so
-    callers take the result to the host (``_host``) before reducing. One device, or reaches the
-    devices do not divide: ``fn`` as it is."""
-    mesh = make_mesh()
+    """``fn(*xs)``, a map over the leading axis (reaches, or whole ensembles), each of this process's
+    devices mapping its own share (``shard_map``): the model route's simulations use every core.
+    Nothing crosses devices inside (a reduction across XLA:CPU devices hung at its collective:
+    ``indirect.py``), so callers take the result to the host before reducing. The leading axis is a
+    multiple of the devices (``padded_for_devices``); one device, or one that is not: ``fn`` as it is."""
+    mesh = make_mesh(jax.local_devices())
     if mesh.size == 1 or xs[0].shape[0] % mesh.size:
         return fn(*xs)
     spec = P("batch")
     return jax.shard_map(fn, mesh=mesh, in_specs=(spec,) * len(xs), out_specs=spec, check_vma=False)(*xs)
 
 
-def _host(tree):
-    return jax.tree.map(np.asarray, tree)
+def padded_for_devices(*xs):
+    """``(xs, n)``: each of ``xs`` with its leading axis (length ``n``) padded to a multiple of this
+    process's devices by repeating its last row (keys too), so that ``split_over_devices`` splits it;
+    the padded rows' results are dropped (``on_host``)."""
+    n, pad = xs[0].shape[0], -xs[0].shape[0] % jax.local_device_count()
+    return (xs if pad == 0 else tuple(jnp.concatenate([x, *[x[-1:]] * pad]) for x in xs)), n
+
+
+def on_host(tree, n: int | None = None):
+    """``tree`` as NumPy arrays, each cut to its first ``n`` rows (a split map's padding dropped):
+    whatever reduces them next runs on one device, never across them."""
+    return jax.tree.map(lambda a: np.asarray(a)[:n], tree)
 
 
 @functools.partial(jax.jit, static_argnames=("layout", "numerics"))
@@ -279,7 +289,9 @@ def linearised_at(layout, trial, p, f, numerics):
     """``(filter, mu (R, N, 4), J (R, N, 4, n))`` at ``p`` (host arrays): one program for every
     repetition. Split over several devices, XLA compiles it otherwise: its round-off differs from
     one device's (4e-14 of the values, measured; the responses' and recordings' do not)."""
-    return _host(_linearised_at(layout, trial, p, f, numerics))
+    (f,), n = padded_for_devices(f)
+    filt, mu, jac = _linearised_at(layout, trial, p, f, numerics)
+    return on_host(filt), *on_host((mu, jac), n)
 
 
 @functools.partial(jax.jit, static_argnames=("layout", "numerics"))
@@ -294,7 +306,8 @@ def _responses(layout, trial, p, f, numerics):
 
 def responses(layout, trial, p, f, numerics):
     """``(mu (R, N, 4), diverged (R,))`` at ``p`` (host arrays)."""
-    return _host(_responses(layout, trial, p, f, numerics))
+    (f,), n = padded_for_devices(f)
+    return on_host(_responses(layout, trial, p, f, numerics), n)
 
 
 def recordings(trial: Trial, f, keys, numerics):
@@ -317,7 +330,8 @@ def _noisy_responses(layout, trial, p, f, keys, numerics):
 
 def noisy_responses(layout, trial, p, f, keys, numerics):
     """``recordings`` of ``trial`` with ``layout``'s entries at ``p`` (host arrays)."""
-    return _host(_noisy_responses(layout, trial, p, f, keys, numerics))
+    (f, keys), n = padded_for_devices(f, keys)
+    return on_host(_noisy_responses(layout, trial, p, f, keys, numerics), n)
 
 
 @jax.jit

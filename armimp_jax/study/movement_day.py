@@ -298,21 +298,11 @@ def model_rows(fit, trial=None) -> list[dict]:
 
 def write_model(out, fit, trial, settings: dict, *, ens=None) -> list[pathlib.Path]:
     """``movement_model.csv`` and ``movement_model.json`` (the rows, the covariance, the search's
-    state and warnings, the settings) under ``out``, each atomically; given the (sound) ensemble
-    ``ens``, the two figures of the model route's answer too (``stiffness_ellipses_model.png``,
-    ``impedance_time_model.png``) where its stiffness has knots (``movement_figures.knot_view``)."""
+    state and warnings, the settings) under ``out``, each atomically; then, given the (sound)
+    ensemble ``ens``, the two figures of the model route's answer (``model_figures``)."""
     out = pathlib.Path(out)
     rows = model_rows(fit, trial)
-    view = None if ens is None else knot_view(fit)
     try:
-        figures = []
-        if view is not None:
-            true = None if trial is None else truth(trial, view.knots)
-            for name, fig in (
-                ("stiffness_ellipses_model.png", path_figure),
-                ("impedance_time_model.png", profile_figure),
-            ):
-                figures.append(save_figure(fig(ens, view, true), out / name, dpi=150))
         paths = write_table(table(rows, {"entry": "string"}), out / "movement_model.csv")
         doc = dict(
             settings=stamped(dict(settings, identify=fit.settings)),
@@ -325,9 +315,22 @@ def write_model(out, fit, trial, settings: dict, *, ens=None) -> list[pathlib.Pa
             warnings=list(fit.warnings),
         )
         atomic_write_json(out / "movement_model.json", doc)
+        figures = [] if ens is None else model_figures(out, ens, fit, trial)
     except OSError as err:
         raise ValueError(f"cannot write to {out}: {err.strerror or err}") from None
     return [*paths, out / "movement_model.json", *figures]
+
+
+def model_figures(out, ens, fit, trial=None) -> list[pathlib.Path]:
+    """``stiffness_ellipses_model.png`` and ``impedance_time_model.png``: the model route's answer
+    drawn as the classical route's (``movement_figures.knot_view``), with the simulated ``trial``'s
+    arm dashed; none where the fit gave no intervals or its knots cannot be drawn together."""
+    view = knot_view(fit) if fit.converged and np.all(np.isfinite(fit.covariance)) else None
+    if view is None:
+        return []
+    true = None if trial is None else truth(trial, view.knots)
+    pairs = (("stiffness_ellipses_model.png", path_figure), ("impedance_time_model.png", profile_figure))
+    return [save_figure(fig(ens, view, true), pathlib.Path(out) / name, dpi=150) for name, fig in pairs]
 
 
 def run_day(config_path, out, *, simulate: bool = False, echo=print) -> tuple:
@@ -362,5 +365,7 @@ def run_day(config_path, out, *, simulate: bool = False, echo=print) -> tuple:
         model_fit = identify_ensemble(trial, ens)
         paths += write_model(out, model_fit, trial if simulated else None, settings, ens=ens.sound())
         echo(model_fit.summary(LEVEL))
+        if not any(p.name.endswith("_model.png") for p in paths):
+            echo("the model route's answer is not drawn: it gave no intervals, or its K has no knots (or B others)")
     echo(f"wrote {', '.join(str(p) for p in paths)}")
     return ens, fit, paths

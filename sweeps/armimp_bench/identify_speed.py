@@ -194,7 +194,9 @@ def ensemble_calls(case: str) -> dict:
         t0 = time.perf_counter()
         res = aj.identify(model, ens, free=free)
         times.append(time.perf_counter() - t0)
-    return dict(first_s=times[0], second_s=times[1], devices=len(jax.devices()), converged=bool(res.converged))
+    return dict(
+        first_s=times[0], second_s=times[1], devices=len(jax.devices()), converged=bool(res.converged), steps=res.steps
+    )
 
 
 def reaches(case: str) -> dict:
@@ -208,6 +210,8 @@ def reaches(case: str) -> dict:
         if done.returncode != 0:
             raise RuntimeError(f"identify over an ensemble failed ({done.returncode}): {done.stderr.strip()[-400:]}")
         runs[devices] = json.loads(done.stdout.strip().splitlines()[-1])
+        if runs[devices]["devices"] != devices:  # XLA_FLAGS' own device count wins over the variable
+            raise RuntimeError(f"asked for {devices} CPU devices, the process had {runs[devices]['devices']}")
     one, most = runs[1], runs[max(runs)]
     return dict(
         most,
