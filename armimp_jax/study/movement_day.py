@@ -281,8 +281,7 @@ def write_day(out, ens, fit, *, true=None, settings: dict) -> list[pathlib.Path]
         )
         atomic_write_json(out / "movement.json", doc)
         paths.append(out / "movement.json")
-        for name, fig in (("stiffness_ellipses.png", path_figure), ("impedance_time.png", profile_figure)):
-            paths.append(save_figure(fig(sound, fit, true), out / name, dpi=150))
+        paths += draw(out, sound, fit, true)
     except OSError as err:
         raise ValueError(f"cannot write to {out}: {err.strerror or err}") from None
     return paths
@@ -328,9 +327,13 @@ def model_figures(out, ens, fit, trial=None) -> list[pathlib.Path]:
     view = knot_view(fit) if fit.converged and np.all(np.isfinite(fit.covariance)) else None
     if view is None:
         return []
-    true = None if trial is None else truth(trial, view.knots)
-    pairs = (("stiffness_ellipses_model.png", path_figure), ("impedance_time_model.png", profile_figure))
-    return [save_figure(fig(ens, view, true), pathlib.Path(out) / name, dpi=150) for name, fig in pairs]
+    return draw(out, ens, view, None if trial is None else truth(trial, view.knots), suffix="_model")
+
+
+def draw(out, ens, fit, true=None, *, suffix: str = "") -> list[pathlib.Path]:
+    """``stiffness_ellipses{suffix}.png`` and ``impedance_time{suffix}.png`` of ``fit`` under ``out``."""
+    pairs = (("stiffness_ellipses", path_figure), ("impedance_time", profile_figure))
+    return [save_figure(fig(ens, fit, true), pathlib.Path(out) / f"{name}{suffix}.png", dpi=150) for name, fig in pairs]
 
 
 def run_day(config_path, out, *, simulate: bool = False, echo=print) -> tuple:
