@@ -60,9 +60,9 @@ MEASURED_REPETITIONS = 40  # the Monte Carlo's ensembles (docs/movement.md); few
 REFRESH_WARN = 0.1  # [SE] a step the refreshed Jacobian would still take beyond this is warned of
 # The pairs (controller, friction or "none") whose intervals the Monte Carlo measured over ensembles.
 MEASURED = {("imbic", "none"), ("pd", "none"), ("imbic", "lugre")}
-# Through friction: the controllers, the laws, and the parameters of theirs that may be free
-# (ensemble_friction.py). Under PD through LuGre 0.5 N m the search did not end on any of 8 ensembles.
-FRICTION_CONTROLLERS = ("imbic",)
+# Through friction: the controllers measured there (under PD through LuGre 0.5 N m the search did not
+# end on any of 8 ensembles), the laws, and the parameters of theirs that may be free (ensemble_friction.py).
+FRICTION_CONTROLLERS = tuple(sorted({controller for controller, law in MEASURED if law != "none"}))
 FRICTION_LAWS = ("LuGre",)
 FRICTION_FREE = ("friction.tau_c",)
 
