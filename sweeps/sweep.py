@@ -2,10 +2,10 @@
 
     python sweeps/sweep.py --set controller=pd,imbic --set tau_c=0,0.1,1 --seeds 5 --out results/my-sweep
     python sweeps/sweep.py --set tau_c=geom:0.001:4:13 --set arm=1,2,3,4 --seconds 20 --out DIR
-    python sweeps/sweep.py --config grid.toml --out DIR      # [grid], [[points]], [run] tables
+    python sweeps/sweep.py --config sweep.toml --out DIR     # [friction], [record] ..., [[points]], [run]
     python sweeps/sweep.py --resume DIR                      # finish an interrupted sweep
 
-Settings (``--set NAME=V1,V2,...``, or ``[grid]``/``[[points]]`` in TOML; see docs/sweeps.md):
+Settings (``--set NAME=V1,V2,...``, or a trial's sections and ``[[points]]`` in TOML; see docs/sweeps.md):
 controller, tau_c [N m], stiction_ratio, sigma0, sigma1, sigma2, v_s, arm (1-4 or a user
 arm in TOML), perturbation_level or peak [N], seconds, force_noise [N], encoder_counts,
 velocity_noise [rad/s], acquisition, mhat [kg], nperseg, noverlap, fmax [Hz], window, nfft.
@@ -34,7 +34,7 @@ RUN_OPTIONS = ("seeds", "base_seed", "method", "substeps")
 def parse(argv):
     ap = Parser(prog=PROG, description=__doc__, kinds=True)
     ap.add_argument("--set", action="append", default=[], metavar="NAME=V1,V2", help="sweep (or fix) a setting")
-    ap.add_argument("--config", type=pathlib.Path, metavar="TOML", help="grid and points from a TOML file")
+    ap.add_argument("--config", type=pathlib.Path, metavar="TOML", help="settings and points from a TOML file")
     ap.add_argument("--seconds", type=float, help="record length [s] (default 50)")
     ap.add_argument("--nperseg", type=int, help="Welch segment [samples] (default 8192)")
     ap.add_argument("--noverlap", type=int, help="Welch overlap [samples] (default 3/4 nperseg)")

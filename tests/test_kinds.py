@@ -130,8 +130,8 @@ def test_intervals_of_a_pair_no_monte_carlo_measured_come_with_a_warning():
 def test_the_toy_kinds_sweep_from_a_config(tmp_path):
     config = tmp_path / "toy.toml"
     config.write_text(
-        '[grid]\ncontroller = "toy_damper"\nfriction = "toy_smooth_coulomb"\nd = [15.0, 30.0]\ntau_c = 0.05\n'
-        "seconds = 2.0\nnperseg = 512\n"
+        '[controller]\ntype = "toy_damper"\nd = [15.0, 30.0]\n[friction]\ntype = "toy_smooth_coulomb"\ntau_c = 0.05\n'
+        "[record]\nseconds = 2.0\n[welch]\nnperseg = 512\n"
     )
     grid, points, _ = study.read_toml(config)
     pts = study.expand(grid, points)

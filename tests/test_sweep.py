@@ -24,16 +24,22 @@ SCRIPT = ROOT / "sweeps" / "sweep.py"
 # IMBIC with mhat = 40 kg (far above 2 M_x) diverges: those trials must be counted and left out.
 CLI = [
     "--set", "controller=pd,imbic",
-    "--set", "tau_c=0,0.5",
     "--set", "mhat=0.25,40",
+    "--set", "friction.tau_c=0,0.5",
     "--seconds", "2", "--nperseg", "512", "--seeds", "2", "--substeps", "5",
 ]  # fmt: skip
 TOML = """
-[grid]
-controller = ["pd", "imbic"]
-tau_c = [0.0, 0.5]
+[controller]
+type = ["pd", "imbic"]
 mhat = [0.25, 40]
+
+[friction]
+tau_c = [0.0, 0.5]
+
+[record]
 seconds = 2
+
+[welch]
 nperseg = 512
 
 [run]
@@ -204,7 +210,7 @@ def test_rerun_reuses_every_trial_and_toml_equals_the_command_line(tiny, main, t
 def test_other_settings_are_refused_in_one_line(tiny, main, capsys):
     line = one_line_error(capsys, lambda: main([*CLI[:-2], "--substeps", "6", "--out", str(tiny)]))
     assert "numerics.substeps=5 (you asked 6)" in line
-    line = one_line_error(capsys, lambda: main([*CLI[:3], "tau_c=0,0.4", *CLI[4:], "--out", str(tiny)]))
+    line = one_line_error(capsys, lambda: main([*CLI[:5], "tau_c=0,0.4", *CLI[6:], "--out", str(tiny)]))
     assert "tau_c=0.5 (you asked 0.4)" in line
     one_line_error(
         capsys, lambda: main(["--resume", str(tiny), "--seconds", "3"]), "--resume", "seconds=2 (you asked 3)"
@@ -271,11 +277,21 @@ def test_bad_options_fail_in_one_line(main, capsys, tmp_path, argv, fragment):
 @pytest.mark.parametrize(
     "text, fragment",
     [
-        ("[grid\ntau_c = 1", "not valid TOML"),
-        ("[grids]\ntau_c = [1]", "unknown table(s) grids"),
-        ("[grid]\ntau_c = [0]\n[run]\nseed = 3", "unknown [run] option(s) seed"),
-        ("[grid]\ntau_c = [0]\n[[points]]\ntau_c = 1", "given both in a point and in the grid"),
+        ("[friction\ntau_c = 1", "not valid TOML"),
+        ("[frictions]\ntau_c = [1]", "unknown section [frictions]; allowed: arm, perturbation"),
+        ("[friction]\ntau_c = [0]\n[run]\nseed = 3", "unknown [run] option(s) seed"),
+        ("[friction]\ntau_c = [0]\n[[points]]\nfriction.tau_c = 1", "given both in a point and in the grid"),
         ("[[points]]\narm = {mass = [[1, 0], [0, 1]]}", "a user arm needs exactly the keys"),
+        ("[arm]\nlocation = 1\nmass = [[1, 0], [0, 1]]", "[arm] takes a location or a user's mass"),
+        ("[friction]\nnperseg = 512", "unknown key 'nperseg' in [friction]; allowed: type, tau_c"),
+        ("tau_c = 0.5", "tau_c = 0.5 sits outside a section; write it as [friction] tau_c"),
+        ("[[points]]\narm = 2", "arm = 2 sits outside a section; write it as [arm] location"),
+        # the old flat dialect: one line naming each setting's section
+        (
+            "[grid]\ntau_c = [0]\nseconds = 2",
+            "[grid] is the old sweep dialect: name each setting in its section, "
+            "as the trial configs do; tau_c under [friction] tau_c; seconds under [record] seconds",
+        ),
     ],
 )
 def test_bad_toml_fails_in_one_line(main, capsys, tmp_path, text, fragment):

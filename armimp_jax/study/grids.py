@@ -12,7 +12,7 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
-from .points import Point
+from .points import KIND_SETTINGS, USER_ARM, Point, known_settings, setting_place, setting_sections
 
 
 def expand(grid: Mapping[str, Iterable] | None = None, points: Iterable[Mapping] | None = None) -> list[Point]:
@@ -76,6 +76,7 @@ def parse_set(options: Iterable[str]) -> dict[str, list]:
     for opt in options:
         name, sep, text = opt.partition("=")
         name = name.strip()
+        name = setting_name(name) if sep and name else name
         if not sep or not name or not text.strip():
             raise ValueError(f"--set needs NAME=V1,V2,..., got {opt!r}")
         if name in grid:
@@ -94,10 +95,16 @@ def parse_set(options: Iterable[str]) -> dict[str, list]:
     return grid
 
 
+RUN_OPTIONS = ("seeds", "base_seed", "method", "substeps")
+
+
 def read_toml(path) -> tuple[dict, list | None, dict]:
-    """``(grid, points, options)`` from a TOML file: a ``[grid]`` table of settings (a list is
-    swept, a single value fixed), an optional ``[[points]]`` array of tables, and an optional
-    ``[run]`` table (``seeds``, ``base_seed``, ``method``, ``substeps``). One-line errors."""
+    """``(grid, points, options)`` from a sweep's TOML file, in the trial configs' dialect
+    (``study.config``): a point's sections (``points.setting_sections``: ``[controller]``,
+    ``[friction]``, ``[arm]``, ``[perturbation]``, ``[record]``, ``[sensors]``, ``[acquisition]``,
+    ``[welch]``), in which a list is swept and a single value fixed; an optional ``[[points]]``
+    array of tables of the same sections; an optional ``[run]`` table (``RUN_OPTIONS``). One-line
+    errors; a file in the old flat ``[grid]`` dialect is refused, naming each setting's section."""
     path = pathlib.Path(path)
     try:
         data = tomllib.loads(path.read_text())
@@ -105,17 +112,63 @@ def read_toml(path) -> tuple[dict, list | None, dict]:
         raise ValueError(f"{path}: no such file") from None
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
         raise ValueError(f"{path}: not valid TOML ({' '.join(str(err).split())})") from None
-    extra = sorted(set(data) - {"grid", "points", "run"})
-    if extra:
-        raise ValueError(f"{path}: unknown table(s) {', '.join(extra)}; allowed: grid, points, run")
-    grid, points, run = data.get("grid", {}), data.get("points"), data.get("run", {})
-    if not isinstance(grid, dict) or not isinstance(run, dict):
-        raise ValueError(f"{path}: [grid] and [run] must be tables")
+    if "grid" in data:
+        grid = data["grid"] if isinstance(data["grid"], dict) else {}
+        moves = "".join(f"; {name} under {setting_place(name)}" for name in grid)
+        raise ValueError(
+            f"{path}: [grid] is the old sweep dialect: name each setting in its section, as the trial "
+            f"configs do{moves} (docs/sweeps.md)"
+        )
+    run, points = data.pop("run", {}), data.pop("points", None)
+    if not isinstance(run, dict):
+        raise ValueError(f"{path}: [run] must be a table")
+    bad = sorted(set(run) - set(RUN_OPTIONS))
+    if bad:
+        raise ValueError(f"{path}: unknown [run] option(s) {', '.join(bad)}; allowed: {', '.join(RUN_OPTIONS)}")
     if points is not None and not (isinstance(points, list) and all(isinstance(p, dict) for p in points)):
         raise ValueError(f"{path}: points must be an array of tables ([[points]])")
-    bad = sorted(set(run) - {"seeds", "base_seed", "method", "substeps"})
-    if bad:
-        raise ValueError(
-            f"{path}: unknown [run] option(s) {', '.join(bad)}; allowed: seeds, base_seed, method, substeps"
-        )
+    grid = sectioned(data, str(path))
+    points = None if points is None else [sectioned(p, f"{path}: points[{i}]") for i, p in enumerate(points)]
     return grid, points, run
+
+
+def sectioned(tables: Mapping, where: str) -> dict:
+    """The settings by name (a point's, or a grid's value lists) of a config's sections
+    ``{section: {key: value}}`` (``points.setting_sections``); ``[arm]`` takes a ``location`` or
+    a user's ``mass``, ``damping``, ``stiffness`` and ``endpoint``. One line naming the section
+    and key otherwise."""
+    sections = setting_sections()
+    out: dict = {}
+    for section, table in tables.items():
+        if not isinstance(table, Mapping):
+            known = section in known_settings()
+            hint = f"; write it as {setting_place(section)}" if known else ""
+            raise ValueError(f"{where}: {section} = {table!r} sits outside a section{hint}")
+        if section not in sections:
+            raise ValueError(f"{where}: unknown section [{section}]; allowed: {', '.join(sections)}, run, points")
+        table = dict(table)
+        if section in KIND_SETTINGS and "type" in table:  # an unknown kind first: its keys are unknown because it is
+            for kind in table["type"] if isinstance(table["type"], list) else [table["type"]]:
+                KIND_SETTINGS[section][1](kind, where=section)
+        if section == "arm" and set(USER_ARM) & set(table):
+            if "location" in table:
+                raise ValueError(f"{where}: [arm] takes a location or a user's {', '.join(USER_ARM)}, not both")
+            out["arm"] = {k: table.pop(k) for k in USER_ARM if k in table}
+        for key, value in table.items():
+            if key not in sections[section]:
+                allowed = ", ".join(sections[section]) + (f", {', '.join(USER_ARM)}" if section == "arm" else "")
+                raise ValueError(f"{where}: unknown key {key!r} in [{section}]; allowed: {allowed}")
+            out[sections[section][key]] = value
+    return out
+
+
+def setting_name(name: str) -> str:
+    """A ``--set`` name: a point's setting (``tau_c``, a table column), or its config place
+    ``section.key`` (``friction.tau_c``)."""
+    section, dot, key = name.partition(".")
+    if not dot:
+        return name
+    keys = setting_sections().get(section)
+    if keys is None or key not in keys:
+        raise ValueError(f"--set {name}: no such setting; name a setting (tau_c) or its section.key (friction.tau_c)")
+    return keys[key]

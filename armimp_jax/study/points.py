@@ -71,6 +71,18 @@ POINT_UNITS = dict(
     nfft="samples",
 )
 KIND_SETTINGS = {"controller": (CONTROLLER_KINDS, controller_kind), "friction": (FRICTION_KINDS, friction_kind)}
+# A config's sections (the one TOML dialect, shared with the trial configs of ``study.config``):
+# section -> {key: the point's setting}; ``[controller]`` and ``[friction]`` take ``type`` and the
+# kinds' own settings (``setting_sections``), ``[arm]`` a location or a user's four matrices.
+BASE_SECTIONS = {
+    "arm": {"location": "arm"},
+    "perturbation": {"level": "perturbation_level", "peak": "peak"},
+    "record": {"seconds": "seconds"},
+    "sensors": {name: name for name in SENSOR_SETTINGS},
+    "acquisition": {"mode": "acquisition"},
+    "welch": {name: name for name in ("nperseg", "noverlap", "fmax", "window", "nfft")},
+}
+USER_ARM = ("mass", "damping", "stiffness", "endpoint")  # [arm]'s keys of a user's arm
 
 
 def kind_settings(setting: str, kind: str) -> dict:
@@ -101,6 +113,27 @@ def known_settings() -> dict:
     return out
 
 
+def setting_sections() -> dict:
+    """``{section: {key: setting}}`` of every setting a point may name: ``BASE_SECTIONS``, and
+    ``[controller]`` / ``[friction]`` with ``type`` and every registered kind's own settings."""
+    out = {section: dict(keys) for section, keys in BASE_SECTIONS.items()}
+    for setting, (registry, _) in KIND_SETTINGS.items():
+        keys = {"type": setting}
+        for kind in registry.names():
+            keys |= {name: name for name in kind_settings(setting, kind) | kind_options(setting, kind)}
+        out[setting] = keys
+    return out
+
+
+def setting_place(name: str) -> str:
+    """Where a config names a point setting: ``"[friction] tau_c"``, ``"[record] seconds"``."""
+    for section, keys in setting_sections().items():
+        for key, setting in keys.items():
+            if setting == name:
+                return f"[{section}] {key}"
+    return f"no section takes {name!r}"
+
+
 def setting_unit(name: str) -> str | None:
     """The unit of a point setting (``None``: unitless or unknown)."""
     unit = known_settings().get(name, (None, None))[1]
@@ -119,7 +152,7 @@ def _number(name: str, value, *, minimum: float | None = None, exclusive: bool =
 
 def _arm_setting(value):
     if isinstance(value, Mapping):
-        need = {"mass", "damping", "stiffness", "endpoint"}
+        need = set(USER_ARM)
         if set(value) != need:
             raise ValueError(f"a user arm needs exactly the keys {', '.join(sorted(need))}; got {', '.join(value)}")
         arm = Arm(**{k: value[k] for k in need})  # the constructor checks shapes and values (one line)
