@@ -73,8 +73,8 @@ if TYPE_CHECKING:  # what a type checker reads: every public name from its modul
     from ._simulate import make_trial as make_trial
     from ._simulate import simulate as simulate
     from ._solver.numerics import Numerics as Numerics
-    from .study.recording import load_ensemble as load_ensemble
-    from .study.recording import load_recording as load_recording
+    from .study.recording.recording import load_ensemble as load_ensemble
+    from .study.recording.recording import load_recording as load_recording
 
 __version__ = importlib.metadata.version("armimp_jax")  # pyproject.toml's, the one place it is written
 
@@ -106,8 +106,8 @@ _EXPORTS = {
     "simulate_batch": "._batch",
     "simulate_ensemble": "._batch",
     "Ensemble": "._estimation.ensemble",
-    "load_recording": ".study.recording",
-    "load_ensemble": ".study.recording",
+    "load_recording": ".study.recording.recording",
+    "load_ensemble": ".study.recording.recording",
     "Recording": "._identification.pool",
     "RobotRecording": "._calibration.robot_calibration",
     "estimate": "._estimation.estimate",

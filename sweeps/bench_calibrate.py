@@ -15,7 +15,7 @@ import json
 import pathlib
 import sys
 
-from armimp_jax.study.cli import Parser, fail, parse_names, script
+from armimp_jax.study.runs.cli import Parser, fail, parse_names, script
 
 PROG = "bench_calibrate"
 PARTS = ("coverage", "force", "speed", "arm")

@@ -35,7 +35,7 @@ import argparse
 import pathlib
 import sys
 
-from armimp_jax.study.cli import METHODS
+from armimp_jax.study.runs.cli import METHODS
 
 DEFAULT_TAUS = (0.0, 1e-4, 1e-3, 1e-2, 0.1, 1.0, 4.0)  # issue 26's Coulomb torques [N m]
 DEFAULT_SETTINGS = "rk4:25,rk4:100,ark3:10,ark3:20,ark4:5,ark4:10,gark4:4,gark4:5"

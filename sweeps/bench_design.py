@@ -21,7 +21,7 @@ from __future__ import annotations
 import sys
 import time
 
-from armimp_jax.study.cli import Parser, fail, parse_cases, script
+from armimp_jax.study.runs.cli import Parser, fail, parse_cases, script
 
 PROG = "bench_design"
 
@@ -64,7 +64,7 @@ def main(argv=None):
 
     configure()
     from armimp_bench import design
-    from armimp_jax.study.results import atomic_write_json, stamped
+    from armimp_jax.study.runs.results import atomic_write_json, stamped
 
     t0 = time.perf_counter()
     settings = {k: v for k, v in vars(a).items() if k != "out"}

@@ -20,7 +20,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-from armimp_jax.study.cli import Parser, script
+from armimp_jax.study.runs.cli import Parser, script
 
 PROG = "bench_design_bound"
 
@@ -51,7 +51,7 @@ def main(argv=None):
 
     configure()
     from armimp_bench import design
-    from armimp_jax.study.results import read_json
+    from armimp_jax.study.runs.results import read_json
 
     if a.markdown:
         design.print_markdown(read_json(a.out / "design_bound.json"))

@@ -2,7 +2,7 @@
 
 For each case (controller x Coulomb torque ``tau_c``, stiction ``1.5 tau_c``; paper arm 2,
 force noise 0.05 N, 30 s records at 1 kHz, perturbation level 1), ``--seeds`` trials with
-fixed seeds (perturbation ``study.seeds.perturbation_key(20250, seed)``, sensor noise
+fixed seeds (perturbation ``study.runs.seeds.perturbation_key(20250, seed)``, sensor noise
 ``split(PRNGKey(20251), seeds)``) are simulated in one batch (``aj.simulate_batch``,
 ``aj.solvers.SWEEP_NUMERICS``) under each acquisition of ``--acquisitions``, estimated by
 ``aj.estimate`` at its defaults (segments that follow the record, the error model) and fitted

@@ -28,7 +28,7 @@ from __future__ import annotations
 import sys
 import time
 
-from armimp_jax.study.cli import Parser, fail, parse_cases, script
+from armimp_jax.study.runs.cli import Parser, fail, parse_cases, script
 
 PROG = "bench_identify_coverage"
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
@@ -76,7 +76,7 @@ def main(argv=None):
     configure()
     import armimp_jax as aj
     from armimp_bench import identification
-    from armimp_jax.study.results import atomic_write_json, stamped
+    from armimp_jax.study.runs.results import atomic_write_json, stamped
 
     t0 = time.perf_counter()
     for controller, _ in a.cases:  # a controller kind (one line naming the known ones if not)

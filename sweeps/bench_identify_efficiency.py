@@ -23,7 +23,7 @@ import pathlib
 import sys
 import time
 
-from armimp_jax.study.cli import Parser, fail, script
+from armimp_jax.study.runs.cli import Parser, fail, script
 
 PROG = "bench_identify_efficiency"
 CASES = (  # armimp_bench.identification.CASES's names (spelled out: --help imports no JAX)
@@ -63,7 +63,7 @@ def main(argv=None):
     a = parse(sys.argv[1:] if argv is None else argv)
     if a.markdown:
         from armimp_bench.identification import print_markdown
-        from armimp_jax.study.results import read_json
+        from armimp_jax.study.runs.results import read_json
 
         print_markdown(read_json(pathlib.Path(a.out) / "efficiency.json"))
         return 0

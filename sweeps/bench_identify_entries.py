@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import sys
 
-from armimp_jax.study.cli import Parser, fail, parse_names, script
+from armimp_jax.study.runs.cli import Parser, fail, parse_names, script
 
 PROG = "bench_identify_entries"
 CELLS = ("base", "record-5", "record-20", "force-0.1", "force-0.3", "friction-0", "friction-1")

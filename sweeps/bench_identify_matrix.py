@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import sys
 
-from armimp_jax.study.cli import Parser, fail, parse_names, script
+from armimp_jax.study.runs.cli import Parser, fail, parse_names, script
 
 PROG = "bench_identify_matrix"
 
@@ -49,7 +49,7 @@ def main(argv=None):
     summaries = {name: matrix.summary(c["seeds"]) for name, c in done.items()}
     print("\n".join(matrix.table_lines(summaries)))
     if a.json:
-        from armimp_jax.study.results import atomic_write_json
+        from armimp_jax.study.runs.results import atomic_write_json
 
         atomic_write_json(a.json, {k: dict(s, verdict=matrix.verdict(s)) for k, s in summaries.items()})
     return 0

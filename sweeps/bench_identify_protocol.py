@@ -23,7 +23,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-from armimp_jax.study.cli import Parser, fail, parse_names, script
+from armimp_jax.study.runs.cli import Parser, fail, parse_names, script
 
 PROG = "bench_identify_protocol"
 CASES = ("uncalibrated", "calibrated", "motor-force", "one-trial", "four-trials", "four-postures")

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import sys
 
-from armimp_jax.study.cli import Parser, parse_names, script
+from armimp_jax.study.runs.cli import Parser, parse_names, script
 
 PROG = "bench_identify_speed"
 CASES = ("single", "pooled", "script", "checked", "linear", "reaches", "reaches-lugre")

@@ -13,7 +13,7 @@ import json
 import sys
 
 from armimp_bench.movement_options import coverage, setup
-from armimp_jax.study.cli import script
+from armimp_jax.study.runs.cli import script
 
 
 @script("bench_movement")

@@ -23,7 +23,7 @@ from __future__ import annotations
 import sys
 import time
 
-from armimp_jax.study.cli import Parser, fail, script
+from armimp_jax.study.runs.cli import Parser, fail, script
 
 PROG = "bench_pd_gains"
 
@@ -67,7 +67,7 @@ def main(argv=None):
     import numpy as np
 
     from armimp_bench import design
-    from armimp_jax.study.results import atomic_write_json, stamped
+    from armimp_jax.study.runs.results import atomic_write_json, stamped
 
     rows, t0 = [], time.perf_counter()
     for kp, kv in a.gains:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import sys
 
-from armimp_jax.study.cli import Parser
+from armimp_jax.study.runs.cli import Parser
 
 
 def main(argv=None):

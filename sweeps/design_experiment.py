@@ -34,7 +34,7 @@ import pathlib
 import sys
 import time
 
-from armimp_jax.study.cli import Parser, error_line, import_kinds
+from armimp_jax.study.runs.cli import Parser, error_line, import_kinds
 
 PROG = "design_experiment"
 
@@ -85,15 +85,15 @@ def main(argv=None) -> int:
     from tqdm import tqdm
 
     import armimp_jax as aj
-    from armimp_jax.study import design_check as dc
-    from armimp_jax.study import design_experiment as dx
-    from armimp_jax.study import design_report as dr
+    from armimp_jax.study.design import design_check as dc
+    from armimp_jax.study.design import design_experiment as dx
+    from armimp_jax.study.design import design_report as dr
 
     try:
         config = dx.read_design_config(args.config)
         trials, family, limits, options = dx.build_design(config, where=str(args.config))
         if args.sensitivity is not None:
-            from armimp_jax.study.identify_recording import check_sensitivity
+            from armimp_jax.study.recording.identify_recording import check_sensitivity
 
             check_sensitivity(trials[0], options["free"], "[design]")
     except ValueError as err:  # ConfigError included

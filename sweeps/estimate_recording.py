@@ -72,10 +72,10 @@ import pathlib
 import sys
 import time
 
-from armimp_jax.study.cli import Parser, error_line, import_kinds
+from armimp_jax.study.runs.cli import Parser, error_line, import_kinds
 
 PROG = "estimate_recording"
-# the Welch route's options (study.estimate_recording.ROUTE_DEFAULTS, then --friction); the model route takes none
+# the Welch route's options (estimate_recording.ROUTE_DEFAULTS, then --friction); the model route takes none
 WELCH_OPTIONS = ("nperseg", "noverlap", "nfft", "window", "fmax", "weights", "acquisition", "period", "se", "friction")
 
 
@@ -195,7 +195,7 @@ def main(argv=None) -> int:
         return fail(f"--period must be a finite hold period > 0 s, got {args.period:g}")
     start_jax(args)
     import armimp_jax as aj
-    from armimp_jax.study import estimate_recording, recording, recording_report
+    from armimp_jax.study.recording import estimate_recording, recording, recording_report
 
     options = {k: getattr(args, k) for k in WELCH_OPTIONS if k != "friction" and getattr(args, k) is not None}
     try:
@@ -251,12 +251,12 @@ def main(argv=None) -> int:
 
 
 def model_route(args) -> int:
-    """Identify through the closed-loop model (armimp_jax.study.identify_recording), with the
+    """Identify through the closed-loop model (armimp_jax.study.recording.identify_recording), with the
     Welch route's answer at its defaults beside it (the classical column)."""
     start_jax(args)
-    from armimp_jax.study import calibration_files as cf
-    from armimp_jax.study import identify_recording as idr
-    from armimp_jax.study import recording, recording_report
+    from armimp_jax.study.recording import calibration_files as cf
+    from armimp_jax.study.recording import identify_recording as idr
+    from armimp_jax.study.recording import recording, recording_report
 
     try:  # every check before the fit: the config, the rate, the recording, the calibration
         config = idr.read_identify_config(args.model)
@@ -313,12 +313,12 @@ def model_route(args) -> int:
 
 
 def pooled_route(args, config: dict, options: dict) -> int:
-    """Every recording of the config's [recordings] in one identification (study.identify_pool):
+    """Every recording of the config's [recordings] in one identification (study.recording.identify_pool):
     one table of the arm per group and the shared robot."""
     import armimp_jax as aj
-    from armimp_jax.study import calibration_files as cf
-    from armimp_jax.study import identify_pool, recording, recording_report
-    from armimp_jax.study import identify_recording as idr
+    from armimp_jax.study.recording import calibration_files as cf
+    from armimp_jax.study.recording import identify_pool, recording, recording_report
+    from armimp_jax.study.recording import identify_recording as idr
 
     try:
         columns = recording.parse_columns(args.columns)

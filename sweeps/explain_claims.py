@@ -37,7 +37,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-from armimp_jax.study.cli import Parser, fail, script
+from armimp_jax.study.runs.cli import Parser, fail, script
 
 PROG = "explain_claims"
 
@@ -66,7 +66,7 @@ def main(argv=None) -> int:
 
     configure()
     from armimp_jax.paper import explain
-    from armimp_jax.study.console import Console
+    from armimp_jax.study.runs.console import Console
 
     console = Console()
     settings = explain.ExplainSettings(quick=args.quick, only=args.only)

@@ -18,7 +18,7 @@ import pathlib
 import sys
 import time
 
-from armimp_jax.study.cli import METHODS, Parser, fail, script
+from armimp_jax.study.runs.cli import METHODS, Parser, fail, script
 
 PROG = "friction_threshold"
 FULL = dict(seconds=50.0, nperseg=8192, seeds=5, points=13)
@@ -62,8 +62,8 @@ def main(argv=None) -> int:
     from armimp_jax.runtime import configure
 
     configure()
-    from armimp_jax.study import sweep, threshold
-    from armimp_jax.study.console import Console
+    from armimp_jax.study.runs.console import Console
+    from armimp_jax.study.sweep import sweep, threshold
 
     settings = threshold.threshold_settings(
         seconds=args.seconds,

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import sys
 
-from armimp_jax.study.cli import Parser, fail, script
+from armimp_jax.study.runs.cli import Parser, fail, script
 
 PROG = "identify_study"
 

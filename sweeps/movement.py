@@ -9,7 +9,7 @@ stiffness_ellipses.png and impedance_time.png in DIR.
 
 import sys
 
-from armimp_jax.study.cli import Parser, import_kinds, script
+from armimp_jax.study.runs.cli import Parser, import_kinds, script
 
 
 @script("movement")
@@ -23,7 +23,7 @@ def main(argv=None):
 
     configure()  # float64, the devices, XLA:CPU's options
     import_kinds(a.imports, "movement")
-    from armimp_jax.study.movement_day import run_day
+    from armimp_jax.study.recording.movement_day import run_day
 
     run_day(a.config, a.out, simulate=a.simulate)
     return 0

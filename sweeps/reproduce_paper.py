@@ -24,8 +24,8 @@ import pathlib
 import sys
 import time
 
-from armimp_jax.study.cli import Parser, distributed_options, script
-from armimp_jax.study.cli import fail as cli_fail
+from armimp_jax.study.runs.cli import Parser, distributed_options, script
+from armimp_jax.study.runs.cli import fail as cli_fail
 
 PROG = "reproduce_paper"
 DEFAULT_SEEDS = 3  # keep equal to armimp_jax.paper.reproduce.DEFAULT_SEEDS (read here before importing jax)
@@ -117,7 +117,7 @@ def settings_for(args, repro):
     if args.resume is None:
         out = args.out or pathlib.Path("results/paper-quick" if args.quick else "results/paper")
         return repro.ReproSettings(**asked), out
-    from armimp_jax.study import engine
+    from armimp_jax.study.runs import engine
 
     saved = engine.resumed(repro.ReproSettings, args.resume, lambda saved: dataclasses.replace(saved, **asked))
     return saved, args.resume
@@ -128,14 +128,14 @@ def main(argv=None) -> int:
     start = time.perf_counter()  # the recorded wall time covers the whole command
     args = parse(argv)
     check_args(args)
-    from armimp_jax.study import distributed
+    from armimp_jax.study.runs import distributed
 
     distributed.initialize(args)  # before the backend starts (configure starts it)
     from armimp_jax.runtime import configure
 
     configure()
     from armimp_jax.paper import reproduce as repro
-    from armimp_jax.study.console import Console
+    from armimp_jax.study.runs.console import Console
 
     console = Console()
     if args.replot:

@@ -24,7 +24,7 @@ import pathlib
 import sys
 import time
 
-from armimp_jax.study.cli import METHODS, Parser, distributed_options, fail, import_kinds, script
+from armimp_jax.study.runs.cli import METHODS, Parser, distributed_options, fail, import_kinds, script
 
 PROG = "sweep"
 SHORTCUTS = ("seconds", "nperseg", "noverlap", "mhat")  # options that set one value of a point setting
@@ -74,8 +74,8 @@ def main(argv=None) -> int:
 
     configure()
     import_kinds(args.imports, PROG)
-    from armimp_jax.study import sweep
-    from armimp_jax.study.console import Console
+    from armimp_jax.study.runs.console import Console
+    from armimp_jax.study.sweep import sweep
 
     given = dict(
         config=args.config,

@@ -22,7 +22,7 @@ import pathlib
 import shlex
 import sys
 
-from armimp_jax.study.cli import Parser, fail, script
+from armimp_jax.study.runs.cli import Parser, fail, script
 
 PROG = "tune_mhat"
 DEFAULTS = dict(
@@ -131,7 +131,7 @@ def main(argv=None) -> int:
     import numpy as np
 
     from armimp_jax.paper import mhat_experiment
-    from armimp_jax.study.console import Console
+    from armimp_jax.study.runs.console import Console
 
     out = args.resume or args.out or pathlib.Path("results/tune-quick" if args.quick else "results/tune")
     resume = args.resume is not None

@@ -1,4 +1,4 @@
-"""What the scripts share (armimp_jax.study.cli) and the benchmarks' timing helpers
+"""What the scripts share (armimp_jax.study.runs.cli) and the benchmarks' timing helpers
 (armimp_bench.timing): solver names held to the library's, ``--cases`` parsing,
 round-robin timing, Markdown tables."""
 
@@ -7,7 +7,7 @@ import pytest
 
 from armimp_bench import timing as _bench_run
 from armimp_jax._solver.numerics import METHODS, named_solver
-from armimp_jax.study import cli as _cli
+from armimp_jax.study.runs import cli as _cli
 
 
 def test_the_scripts_solver_names_are_the_library_s():

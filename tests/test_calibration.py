@@ -13,7 +13,7 @@ import scipy.stats
 import armimp_jax as aj
 from armimp_jax._calibration import idim
 from armimp_jax._calibration.robot_calibration import _torque
-from armimp_jax.study.coverage import record
+from armimp_jax.study.sweep.coverage import record
 
 ROBOT = aj.Robot(inertia=1.15 * np.asarray(aj.presets.MIT_MANUS.inertia))  # the protocol's truth: 15% above the model
 ENDPOINT = [0.0765, 0.45]  # the paper's arm location 2

@@ -18,8 +18,8 @@ import scipy.stats
 import armimp_jax as aj
 from armimp_jax import paper
 from armimp_jax._design import limits as des
-from armimp_jax.study import design_check as dc
-from armimp_jax.study import design_experiment as dx
+from armimp_jax.study.design import design_check as dc
+from armimp_jax.study.design import design_experiment as dx
 
 NOISE = dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(0.3, 2.0))
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")

@@ -1,4 +1,4 @@
-"""armimp_jax.study.distributed: the command-line options (one-line refusals before JAX starts), and a
+"""armimp_jax.study.runs.distributed: the command-line options (one-line refusals before JAX starts), and a
 two-process ``jax.distributed`` job on one machine (one CPU device each, Gloo collectives)
 that gives the single-process results bit for bit."""
 
@@ -14,8 +14,8 @@ import sys
 import numpy as np
 import pytest
 
-from armimp_jax.study import distributed
-from armimp_jax.study import results as res
+from armimp_jax.study.runs import distributed
+from armimp_jax.study.runs import results as res
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "reproduce_paper.py"

@@ -1,4 +1,4 @@
-"""armimp_jax.study.engine: one engine (run folder, lock, resume, batches, progress, finish)
+"""armimp_jax.study.runs.engine: one engine (run folder, lock, resume, batches, progress, finish)
 for every study, tested on a toy specification whose batches simulate nothing."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from armimp_jax.study import engine
-from armimp_jax.study.results import ResultsError, describe_difference, load_record, stamped
-from armimp_jax.study.runfolder import StudyRun
+from armimp_jax.study.runs import engine
+from armimp_jax.study.runs.results import ResultsError, describe_difference, load_record, stamped
+from armimp_jax.study.runs.runfolder import StudyRun
 
 
 @dataclasses.dataclass(frozen=True)
@@ -153,7 +153,7 @@ def test_a_run_made_by_another_version_is_refused_in_one_line_naming_both(tmp_pa
     resumed by this version (its numbers might differ), and the refusal says so."""
     import json
 
-    from armimp_jax.study.results import settings_key
+    from armimp_jax.study.runs.results import settings_key
 
     run(Toy(), tmp_path, batch_size=8)
     path = tmp_path / "run.json"

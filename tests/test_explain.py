@@ -8,7 +8,7 @@ import armimp_jax as aj
 from armimp_jax import paper
 from armimp_jax.paper import explain
 from armimp_jax.paper._experiments import SIGMA1_LOW, Experiments, Run
-from armimp_jax.study.points import build_trial
+from armimp_jax.study.schema.points import build_trial
 
 
 def _leaves_equal(a, b):

@@ -1,4 +1,4 @@
-"""Several recordings through sweeps/estimate_recording.py --model (armimp_jax.study.identify_pool):
+"""Several recordings through sweeps/estimate_recording.py --model (armimp_jax.study.recording.identify_pool):
 a config's [recordings] (postures and the robot alone) becomes one Recording each, at the
 recording's own rest position; bad lists get one line; slow: the script's pooled table. And
 ``aj.identify`` with a list of ``Recording``: every refusal, in one line, before long work."""
@@ -19,8 +19,8 @@ from helpers import write_toml
 
 import armimp_jax as aj
 from armimp_jax import presets
-from armimp_jax.study import identify_pool
-from armimp_jax.study import identify_recording as idr
+from armimp_jax.study.recording import identify_pool
+from armimp_jax.study.recording import identify_recording as idr
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 _spec = importlib.util.spec_from_file_location("estimate_recording_pool", ROOT / "sweeps" / "estimate_recording.py")
@@ -70,7 +70,7 @@ def test_each_recording_is_a_model_at_its_own_rest_position_and_the_robot_alone_
     config = idr.read_identify_config(path)
     listed = identify_pool.files(config, path)
     assert [(p.name, g) for p, g in listed] == [("p1.csv", "1"), ("p2.csv", "2"), ("alone.csv", "alone")]
-    from armimp_jax.study import recording
+    from armimp_jax.study.recording import recording
 
     loaded = [(g, recording.load_recording(p)) for p, g in listed]
     recs = identify_pool.build_recordings(config, loaded, str(path))
@@ -127,7 +127,7 @@ def test_the_pooled_printout_shows_each_recordings_classical_value_vaf_whiteness
     name, and the single route's warnings about it (prefixed with it): coloured residuals, a
     classical fit no human arm gives; none for the robot alone's force, which has no variance."""
     from armimp_jax._identification.result import Identification, RecordingFit
-    from armimp_jax.study import recording_report
+    from armimp_jax.study.recording import recording_report
 
     k1, k2 = (np.asarray(presets.arm(i).stiffness) for i in (1, 2))
     trials = [aj.make_trial(aj.PD(), arm=presets.arm(i), friction=aj.NO_FRICTION) for i in (1, 2)] + [

@@ -1,4 +1,4 @@
-"""The model route of sweeps/estimate_recording.py (armimp_jax.study.identify_recording): a
+"""The model route of sweeps/estimate_recording.py (armimp_jax.study.recording.identify_recording): a
 simulated PD recording with friction, sensor noise and a voluntary force, written to CSV and
 identified from a start 15-20% off the truth; every bad config gets one line before any work."""
 
@@ -20,8 +20,8 @@ from helpers import write_toml
 
 import armimp_jax as aj
 from armimp_jax import presets
-from armimp_jax.study import estimate_recording, recording, recording_figures
-from armimp_jax.study import identify_recording as idr
+from armimp_jax.study.recording import estimate_recording, recording, recording_figures
+from armimp_jax.study.recording import identify_recording as idr
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "estimate_recording.py"
@@ -475,7 +475,7 @@ def _calibrated_config(folder, **calibration) -> pathlib.Path:
 def test_the_calibration_section_calibrates_the_robot_and_the_transducer_from_files(calibration_files):
     """``[calibration]``'s files (relative to the config) give ``calibrate_robot``'s and
     ``calibrate_force``'s answers on the same arrays, and their tables in that order."""
-    from armimp_jax.study import calibration_files as cf
+    from armimp_jax.study.recording import calibration_files as cf
 
     path = _calibrated_config(calibration_files)
     config = idr.read_identify_config(path)

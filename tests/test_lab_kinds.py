@@ -19,7 +19,7 @@ from armimp_jax import presets
 from armimp_jax._model import kinds
 from armimp_jax._model.controllers import CONTROLLER_KINDS
 from armimp_jax._model.friction import FRICTION_KINDS, friction_kind
-from armimp_jax.study import cli
+from armimp_jax.study.runs import cli
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "docs" / "examples" / "stribeck_law.py"

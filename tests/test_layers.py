@@ -206,6 +206,26 @@ def test_no_import_cycle():
     )
 
 
+STUDY_FOLDERS = ("runs", "schema", "sweep", "recording", "design")  # docs/design.md: none imports a later one
+
+
+def test_study_s_folders_import_only_earlier_ones():
+    folders = {parts[1] for parts in MODULES if parts[0] == "study" and len(parts) > 2}
+    assert folders == set(STUDY_FOLDERS), "study/'s folders differ from docs/design.md's"
+    assert not [p for p in MODULES if p[:1] == ("study",) and len(p) == 2 and p[1] not in STUDY_FOLDERS], "outside"
+    for parts in MODULES:
+        if parts[0] == "study" and len(parts) > 2:
+            later = [
+                t
+                for t in imports(parts)
+                if t[0] == "study"
+                and len(t) > 1
+                and t[1] in STUDY_FOLDERS
+                and STUDY_FOLDERS.index(t[1]) > STUDY_FOLDERS.index(parts[1])
+            ]
+            assert not later, f"{'.'.join(parts)} imports the later {['.'.join(t) for t in later]}"
+
+
 def test_no_general_layer_imports_paper():
     for parts in MODULES:
         if _floor_of(parts[0]) != "paper":

@@ -1,4 +1,4 @@
-"""A lab's day for a movement (``sweeps/movement.py``, ``study.movement_day``, docs/movement.md): the
+"""A lab's day for a movement (``sweeps/movement.py``, ``study.recording.movement_day``, docs/movement.md): the
 base case's config builds the base case's trial, a bad value is refused in one line naming it, the
 script's table holds ``estimate_ensemble``'s numbers (simulated and from a lab's files), and the
 stiffness ellipses are drawn along ``K``'s eigenvectors at the stated scale."""
@@ -18,9 +18,9 @@ from helpers import tree_allclose
 
 import armimp_jax as aj
 from armimp_bench import movement as bench
-from armimp_jax.study import movement_day as day
-from armimp_jax.study import movement_figures as mf
-from armimp_jax.study.config import ConfigError
+from armimp_jax.study.recording import movement_day as day
+from armimp_jax.study.recording import movement_figures as mf
+from armimp_jax.study.schema.config import ConfigError
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 BASE = ROOT / "sweeps" / "configs" / "movement_base.toml"

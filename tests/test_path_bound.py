@@ -13,7 +13,7 @@ from armimp_jax._identification import bound, indirect, kalman, linear
 from armimp_jax._identification import layout as lay
 from armimp_jax._identification import path as ph
 from armimp_jax._identification import path_bound as pb
-from armimp_jax.study import coverage as cov
+from armimp_jax.study.sweep import coverage as cov
 
 NUM = indirect.IDENTIFY_NUMERICS
 

@@ -1,5 +1,5 @@
-"""sweeps/estimate_recording.py and armimp_jax.study.recording, .estimate_recording: a simulated trial through CSV, NPZ
-and MAT-files gives the library's numbers; every bad recording gets its own one-line message."""
+"""sweeps/estimate_recording.py and armimp_jax.study.recording (recording, estimate_recording): a simulated
+trial through CSV, NPZ and MAT-files gives the library's numbers; every bad recording gets its own one-line message."""
 
 import importlib.util
 import json
@@ -15,7 +15,7 @@ from helpers import env_without_jax
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax.study import estimate_recording, recording
+from armimp_jax.study.recording import estimate_recording, recording
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "estimate_recording.py"
@@ -406,7 +406,7 @@ def _noisy_z(seed: int = 0):
 
 
 def test_bode_phase_of_a_noisy_estimate_stays_on_the_models_branch():
-    from armimp_jax.study import recording_figures as rf
+    from armimp_jax.study.recording import recording_figures as rf
 
     f, z_fit, z = _noisy_z()
     unwrapped = np.degrees(np.unwrap(np.angle(z), axis=0))

@@ -29,9 +29,9 @@ from armimp_jax.paper.claims import (
     true_matrices,
 )
 from armimp_jax.presets._paper import arm
-from armimp_jax.study import engine
-from armimp_jax.study import results as res
-from armimp_jax.study.runfolder import StudyRun
+from armimp_jax.study.runs import engine
+from armimp_jax.study.runs import results as res
+from armimp_jax.study.runs.runfolder import StudyRun
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "reproduce_paper.py"
@@ -156,7 +156,7 @@ def test_report_tables_fitted_matrices_and_the_sampled_data_bias(quick_run, tmp_
 def test_the_tables_are_tidy_dataframes_and_csv_files_of_the_results(quick_run):
     import pandas as pd
 
-    from armimp_jax.study import tables
+    from armimp_jax.study.sweep import tables
 
     out, _ = quick_run
     results = strict_loads((out / "results.json").read_text())
@@ -234,7 +234,7 @@ def test_rerun_with_other_settings_is_refused_and_changes_nothing(quick_run):
 
 def test_a_folder_in_use_by_another_run_is_refused_at_once(tmp_path):
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from armimp_jax.study.runfolder import RunLock\n"
+        [sys.executable, "-c", "import sys; from armimp_jax.study.runs.runfolder import RunLock\n"
          "with RunLock(sys.argv[1]):\n    print('held', flush=True); sys.stdin.read()", str(tmp_path)],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,

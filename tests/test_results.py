@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from armimp_jax import __version__
-from armimp_jax.study import results as res
-from armimp_jax.study.runfolder import RunLock
+from armimp_jax.study.runs import results as res
+from armimp_jax.study.runs.runfolder import RunLock
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -221,7 +221,7 @@ def test_run_lock_takes_over_a_lock_of_a_dead_process_but_not_of_another_host(tm
 
 HOLD = """
 import sys
-from armimp_jax.study.runfolder import RunLock
+from armimp_jax.study.runs.runfolder import RunLock
 with RunLock(sys.argv[1]):
     print("held", flush=True)
     sys.stdin.read()

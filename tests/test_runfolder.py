@@ -1,4 +1,4 @@
-"""armimp_jax.study.runfolder: the one run-folder protocol (run.json, refusals naming the
+"""armimp_jax.study.runs.runfolder: the one run-folder protocol (run.json, refusals naming the
 difference, resume, edited settings, other studies, trial status, the lock), on plain dicts."""
 
 import json
@@ -7,8 +7,8 @@ import re
 import numpy as np
 import pytest
 
-from armimp_jax.study import results as res
-from armimp_jax.study.runfolder import RUN_FILE, StudyRun
+from armimp_jax.study.runs import results as res
+from armimp_jax.study.runs.runfolder import RUN_FILE, StudyRun
 
 SETTINGS = dict(seconds=6.0, welch=dict(nperseg=1024), frictions=[0, 1])
 

@@ -70,7 +70,7 @@ def test_the_progress_bar_leaves_compilation_out_and_ends_at_100(monkeypatch):
     """Two batches of 2 trials, 3 chunks each: the first chunk of a batch (compilation) is
     left out of the rate, chunk ends that finish a batch say what runs next, and the bar
     ends at 100% with every trial."""
-    from armimp_jax.study import console
+    from armimp_jax.study.runs import console
 
     clock = [0.0]
     monkeypatch.setattr(console.time, "monotonic", lambda: clock[0])

@@ -1,4 +1,4 @@
-"""armimp_jax.study.stats: the one t-interval of a mean (sweeps, the reproduction's conditions and
+"""armimp_jax.study.sweep.stats: the one t-interval of a mean (sweeps, the reproduction's conditions and
 claims, their figures) and its flat form in a sweep's summary."""
 
 import math
@@ -8,7 +8,7 @@ import pytest
 from scipy import stats as sps
 
 from armimp_jax.paper import claims
-from armimp_jax.study import stats, sweep
+from armimp_jax.study.sweep import stats, sweep
 
 
 def test_mean_ci_is_the_t_interval_of_the_mean():

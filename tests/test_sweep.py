@@ -1,4 +1,4 @@
-"""The general sweep (armimp_jax/study/sweep.py, sweeps/sweep.py) on a tiny grid, end to end."""
+"""The general sweep (armimp_jax/study/sweep/sweep.py, sweeps/sweep.py) on a tiny grid, end to end."""
 
 from __future__ import annotations
 
@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from armimp_jax.study import grids, sweep
-from armimp_jax.study import points as sp
-from armimp_jax.study import stats as study_stats
+from armimp_jax.study.schema import grids
+from armimp_jax.study.schema import points as sp
+from armimp_jax.study.sweep import stats as study_stats
+from armimp_jax.study.sweep import sweep
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "sweeps" / "sweep.py"
@@ -159,7 +160,8 @@ def test_the_dataframes_are_the_csv_files_read_back(tiny):
     (and the Parquet ones, with pyarrow) hold the same table, every number exactly."""
     import pandas as pd
 
-    from armimp_jax.study import load_summary, load_sweep, tables
+    from armimp_jax.study import load_summary, load_sweep
+    from armimp_jax.study.sweep import tables
 
     trials = load_sweep(tiny)
     assert len(trials) == 12 and list(trials.columns) == tables.trial_columns(sweep.saved_settings(tiny).points)
@@ -239,7 +241,7 @@ def test_a_damaged_record_is_named_and_recomputed(tiny, tmp_path, capsys):
 
 def test_a_folder_in_use_is_refused_at_once(tmp_path, main, capsys):
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time; from armimp_jax.study.runfolder import RunLock\n"
+        [sys.executable, "-c", "import sys, time; from armimp_jax.study.runs.runfolder import RunLock\n"
          f"with RunLock({str(tmp_path)!r}):\n    print('held', flush=True); time.sleep(60)"],
         stdout=subprocess.PIPE, text=True,
     )  # fmt: skip

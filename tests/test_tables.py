@@ -1,4 +1,4 @@
-"""armimp_jax.study.tables: tables written by pandas read back exactly, in the CSV format the
+"""armimp_jax.study.sweep.tables: tables written by pandas read back exactly, in the CSV format the
 sweep's files have always had (empty cells for undefined numbers, floats as Python's repr)."""
 
 import csv
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from armimp_jax.study import tables
+from armimp_jax.study.sweep import tables
 
 DTYPES = dict(name=tables.STRING, level=tables.NULLABLE_INTEGER, count=tables.INTEGER, ok=tables.BOOLEAN)
 

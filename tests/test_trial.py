@@ -297,7 +297,7 @@ def test_the_sensors_schema_is_read_not_restated():
     # table's columns) and identify's names with no other file touched
     from armimp_jax._identification import layout
     from armimp_jax._model import sensors
-    from armimp_jax.study import config, points
+    from armimp_jax.study.schema import config, points
 
     assert list(config.TRIAL_SECTIONS["sensors"]) == list(sensors.SETTINGS)
     assert [k for k in points.POINT_DEFAULTS if k in sensors.SETTINGS] == list(sensors.SETTINGS)

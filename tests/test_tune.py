@@ -21,10 +21,10 @@ from armimp_jax import Welch
 from armimp_jax import paper as presets
 from armimp_jax._batch import make_mesh
 from armimp_jax.paper import mhat_experiment as paper_tune
-from armimp_jax.study import engine
-from armimp_jax.study import results as res
-from armimp_jax.study import tuning as tune
-from armimp_jax.study.runfolder import StudyRun
+from armimp_jax.study.design import tuning as tune
+from armimp_jax.study.runs import engine
+from armimp_jax.study.runs import results as res
+from armimp_jax.study.runs.runfolder import StudyRun
 
 WELCH = Welch(512, 384)
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -181,7 +181,7 @@ from armimp_jax.runtime import configure
 configure(host_devices=3)
 import jax, numpy as np
 from armimp_jax import Welch
-from armimp_jax.study import tuning as tune
+from armimp_jax.study.design import tuning as tune
 from armimp_jax.paper import mhat_experiment as paper_tune
 params, f_delta = paper_tune.training_batch((0, 2), (1,), (0,), seconds=1.6)
 NUM = paper_tune.training_numerics(4)

@@ -26,7 +26,7 @@ guard included): ``tune`` drives them in memory, the study engine one iteration 
 
 The run's state is a ``TuneState`` (a NamedTuple pytree: ``theta``, Adam's state, the
 gradient, counters, and a ``History`` of arrays). Pure JAX, no files: saving and resuming
-it is ``armimp_jax.study.tuning``.
+it is ``armimp_jax.study.design.tuning``.
 """
 
 from __future__ import annotations

@@ -132,7 +132,7 @@ class Numerics:
 # below, docs/performance.md) it diverges or is far off; use Numerics() there.
 PAPER_NUMERICS = Numerics(solver=RK4(), substeps=PAPER_SUBSTEPS)
 
-# The setting of sweeps over arbitrary friction (study.sweep's default; sweeps/sweep.py,
+# The setting of sweeps over arbitrary friction (study.sweep.sweep's default; sweeps/sweep.py,
 # friction_threshold.py, explain_claims.py, bench_fit_coverage.py): stable for every tau_c >= 0
 # and within 1e-4 of a refined phi_T from 0 to 4 N m, PD and IMBIC, the four paper arms
 # (sweeps/bench_convergence.py; docs/performance.md). It is ARK3 at 20 substeps although

@@ -19,8 +19,8 @@ import dataclasses
 
 import numpy as np
 
-from ..study.points import Point
-from ..study.stats import mean_ci
+from ..study.schema.points import Point
+from ..study.sweep.stats import mean_ci
 from .claims import friction_point
 
 SLIDE_RATE = 0.01  # [rad/s]; pre-sliding bristle motion stays below ~2e-3 rad/s at 15 Hz

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 import pathlib
 
-from ..study.stats import CI_LEVEL
+from ..study.sweep.stats import CI_LEVEL
 from ._text import DASH, interval, num, short
 
 # Why a claim is only partly reproduced, from the controlled runs of sweeps/explain_claims.py

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..study.stats import CI_LEVEL
+from ..study.sweep.stats import CI_LEVEL
 from ._text import DASH, mean_pm, times
 
 UNITS = dict(M="kg", B="N s/m", K="N/m")

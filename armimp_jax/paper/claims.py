@@ -17,7 +17,7 @@ side of its threshold that the verdict says. The rules themselves (``CLAIM_RULES
 ``JUDGES``) and the text of what each claim measured live in ``_judges``; this module
 holds the conditions, the statistics and the judging over seeds.
 
-Each trial's scores are ``study.metrics.trial_metrics``'s. ``fit_metrics`` fits ``M, B, K``
+Each trial's scores are ``study.sweep.metrics.trial_metrics``'s. ``fit_metrics`` fits ``M, B, K``
 to each trial's estimate (``fit_impedance``, uniform weights) and scores them against the
 arm's (``true_matrices``); the report tables them.
 """
@@ -35,9 +35,9 @@ from .._estimation.fit import fit_impedance
 from .._estimation.welch import Welch
 from ..presets import arm
 from ..presets._tables import FRICTION_LEVELS
-from ..study.points import Point
-from ..study.stats import CI_LEVEL as CI_LEVEL
-from ..study.stats import mean_ci
+from ..study.schema.points import Point
+from ..study.sweep.stats import CI_LEVEL as CI_LEVEL
+from ..study.sweep.stats import mean_ci
 from ._judges import CLAIM_RULES as CLAIM_RULES
 from ._judges import CLAIM_TEXT as CLAIM_TEXT
 from ._judges import JUDGES as JUDGES
@@ -168,7 +168,7 @@ def condition_summary(metas: list[dict]) -> dict:
     """``Condition -> stats`` over the trials of each condition that did not diverge.
 
     ``metas`` are trial records (``condition``, ``seed``, ``diverged``, ``metrics``). For
-    every metric ``m`` of ``study.metrics.trial_metrics``: ``m`` (mean), ``m_sd`` (sample standard
+    every metric ``m`` of ``study.sweep.metrics.trial_metrics``: ``m`` (mean), ``m_sd`` (sample standard
     deviation), ``m_ci`` (half-width of the 95% t-interval of the mean; ``None`` with fewer
     than two trials); and ``n`` (trials averaged), ``trials``, ``diverged`` (count),
     ``seeds`` and ``diverged_seeds``. A condition whose every trial diverged has ``n = 0``
@@ -397,7 +397,7 @@ def evaluate_claims(summary: Mapping, per_seed: Mapping | None = None) -> list[C
 
     Args:
         summary: ``Condition`` -> mean metrics (``condition_summary``; the keys of
-            ``study.metrics.trial_metrics``). Conditions with ``n == 0`` (every trial diverged) are left
+            ``study.sweep.metrics.trial_metrics``). Conditions with ``n == 0`` (every trial diverged) are left
             out, and the claims that read them say so.
         per_seed: ``seed -> {Condition: metrics}`` (``seed_summaries``): each seed is judged
             alone, and each comparison gets a t-interval over the seeds. ``None``: no

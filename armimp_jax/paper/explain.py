@@ -7,7 +7,7 @@ settings; seed ``s`` draws its perturbation from ``fold_in(PRNGKey(0), s)`` like
 reproduction, so seeds 0-2 are the reproduction's trials). A trial is one run of one
 experiment: its point (``Run.point``, the one trial description, a ``study.Point``), its
 ``trial`` simulated with ``SWEEP_NUMERICS`` (ARK3, 20 substeps); ``measure``
-keeps its metrics (``study.metrics.trial_metrics`` per Welch segment, with where the
+keeps its metrics (``study.sweep.metrics.trial_metrics`` per Welch segment, with where the
 coherence minimum falls; how often the joints slide; the perturbation's torque against
 stiction; the bristle load) as the record's meta. ``explain`` runs it on ``engine.run`` (a
 folder holds one study: resumable, its records checked) and writes ``claims_explained.md``.
@@ -28,12 +28,12 @@ from .._model.robot import MIT_MANUS, jacobian
 from .._simulate import stack_trials
 from .._solver.numerics import SWEEP_NUMERICS
 from ..presets import arm
-from ..study import engine
-from ..study.console import Console
-from ..study.metrics import trial_metrics
-from ..study.points import Point
-from ..study.results import ResultsError, atomic_write_text, describe_difference, settings_key, stamped
-from ..study.runfolder import StudyRun, warn_stderr
+from ..study.runs import engine
+from ..study.runs.console import Console
+from ..study.runs.results import ResultsError, atomic_write_text, describe_difference, settings_key, stamped
+from ..study.runs.runfolder import StudyRun, warn_stderr
+from ..study.schema.points import Point
+from ..study.sweep.metrics import trial_metrics
 from ._experiments import BASE_SEED, FULL, QUICK, SLIDE_RATE, Experiments, Run, Setup
 
 MARKDOWN = "claims_explained.md"

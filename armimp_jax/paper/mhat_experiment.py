@@ -1,7 +1,7 @@
 """The paper's Mhat-tuning experiment: training and held-out batches, the tuning run as a
 specification of the study engine, and the comparison table.
 
-Built on the general tuner (``armimp_jax.study.tuning``): IMBIC trials of the paper's arms and
+Built on the general tuner (``armimp_jax.study.design.tuning``): IMBIC trials of the paper's arms and
 friction levels, perturbation level 1, training and held-out seeds that never overlap.
 ``Tuning`` is the run: a trial is one iteration of the optimiser (0: the start), its record
 the ``TuneState`` after it, so ``engine.run`` resumes a run where it stopped and
@@ -25,19 +25,7 @@ from .._simulate import stack_trials
 from .._solver.numerics import Numerics
 from .._solver.rk4 import RK4
 from ..presets import perturbation_peak, trial
-from ..study import engine
-from ..study.console import Console
-from ..study.results import (
-    atomic_write_json,
-    atomic_write_text,
-    describe_difference,
-    settings_key,
-    stamped,
-    to_jsonable,
-)
-from ..study.runfolder import StudyRun
-from ..study.seeds import seed_perturbation
-from ..study.tuning import (
+from ..study.design.tuning import (
     TuneConfig,
     TuneState,
     config_settings,
@@ -49,6 +37,18 @@ from ..study.tuning import (
     step_state,
     theta_from_mhat,
 )
+from ..study.runs import engine
+from ..study.runs.console import Console
+from ..study.runs.results import (
+    atomic_write_json,
+    atomic_write_text,
+    describe_difference,
+    settings_key,
+    stamped,
+    to_jsonable,
+)
+from ..study.runs.runfolder import StudyRun
+from ..study.runs.seeds import seed_perturbation
 
 TRAIN_SEED_OFFSET = 100  # training and held-out perturbation seeds never overlap
 HELDOUT_SEED_OFFSET = 1000
@@ -56,7 +56,7 @@ HELDOUT_SEED_OFFSET = 1000
 
 def seed_perturbations(base_seed: int, seeds, n_samples: int, level: int = 1):
     """``(len(seeds), n, 2)`` perturbations [N] from ``fold_in(PRNGKey(base_seed), seed)``
-    (``study.seeds``; the seeds given here carry the training or held-out offset)."""
+    (``study.runs.seeds``; the seeds given here carry the training or held-out offset)."""
     return np.stack([seed_perturbation(base_seed, s, n_samples, perturbation_peak(level)) for s in seeds])
 
 

@@ -26,8 +26,8 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
 from ..presets._paper import arm  # noqa: E402
-from ..study.figures import save_figure  # noqa: E402
-from ..study.stats import mean_ci  # noqa: E402
+from ..study.sweep.figures import save_figure  # noqa: E402
+from ..study.sweep.stats import mean_ci  # noqa: E402
 from ._text import short  # noqa: E402
 
 FRICTION_COLORS = {0: "tab:blue", 1: "tab:orange", 2: "tab:red"}

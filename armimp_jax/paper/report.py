@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import pathlib
 
-from ..study.metrics import LOW_BAND_HZ
-from ..study.results import atomic_write_text
-from ..study.stats import CI_LEVEL
+from ..study.runs.results import atomic_write_text
+from ..study.sweep.metrics import LOW_BAND_HZ
+from ..study.sweep.stats import CI_LEVEL
 from ._report_claims import claims_section
 from ._report_fits import fits_section
 from ._text import DASH, mean_pm, num, short, times

@@ -1,12 +1,12 @@
 """Run the paper reproduction: a specification of the study engine, and its aggregation.
 
-A run folder holds one run (``study.engine``, ``study.runfolder``, ``docs/results.md``):
+A run folder holds one run (``study.runs.engine``, ``study.runs.runfolder``, ``docs/results.md``):
 
 - ``run.json``: the run's settings (``ReproSettings``, the condition set included, and the
   package version), their key, the library versions and the accumulated wall time
   (``wall_s``: simulation, aggregation and figures of every session; ``record_wall_time``).
-- ``trials/<id>.npz``: one checked record per finished trial (``armimp_jax.study.results``): the
-  estimate's arrays, the trial's metrics (``study.metrics.trial_metrics``), and the settings
+- ``trials/<id>.npz``: one checked record per finished trial (``armimp_jax.study.runs.results``): the
+  estimate's arrays, the trial's metrics (``study.sweep.metrics.trial_metrics``), and the settings
   that fix its numbers (``trial_settings``: record length, substeps, Welch, base seed,
   condition, seed, and ``mhat`` for IMBIC) with their key.
 - ``results.json`` / ``results.npz``: the aggregate, from which the report and figures are
@@ -21,7 +21,7 @@ written as soon as its batch finishes, so an interrupted run keeps every finishe
 ``reproduce`` does that and then, under the same lock, aggregates, draws and writes the
 report (``finish``).
 
-Seeds (``study.seeds``): trial seed ``s`` draws its perturbation from
+Seeds (``study.runs.seeds``): trial seed ``s`` draws its perturbation from
 ``fold_in(PRNGKey(base_seed), s)`` (attempt ``a > 0``, if input coherence is capped, from
 that key folded with ``a``); every condition sees the same
 signal shape for the same seed (common random numbers), scaled to its level's peak.
@@ -30,7 +30,7 @@ Diverged trials are saved and counted, and left out of every mean and claim.
 Fits: ``aggregate`` adds each trial's fitted ``M, B, K`` (``claims.fit_metrics``, from its
 stored ``f`` and ``Z``) to its metrics, so the records stay as written.
 
-Many processes (``armimp_jax.study.distributed``, ``docs/cluster.md``): process 0 holds the
+Many processes (``armimp_jax.study.runs.distributed``, ``docs/cluster.md``): process 0 holds the
 lock and reads the folder and sends its list of trials to run to every process; every
 process computes its shards of every batch, and only process 0 writes.
 """
@@ -52,11 +52,9 @@ from .._estimation.welch import Welch
 from .._simulate import stack_trials
 from .._solver.numerics import PAPER_NUMERICS, Numerics
 from ..presets import arm, perturbation_peak
-from ..study import engine
-from ..study.console import Console
-from ..study.metrics import ESTIMATE_FIELDS, estimate_arrays, trial_metrics
-from ..study.points import Point
-from ..study.results import (
+from ..study.runs import engine
+from ..study.runs.console import Console
+from ..study.runs.results import (
     ResultsError,
     atomic_write_json,
     describe_difference,
@@ -68,8 +66,10 @@ from ..study.results import (
     stamped,
     to_jsonable,
 )
-from ..study.runfolder import StudyRun, warn_stderr
-from ..study.tables import write_table
+from ..study.runs.runfolder import StudyRun, warn_stderr
+from ..study.schema.points import Point
+from ..study.sweep.metrics import ESTIMATE_FIELDS, estimate_arrays, trial_metrics
+from ..study.sweep.tables import write_table
 from .claims import (
     Condition,
     condition_summary,
@@ -95,7 +95,7 @@ class ReproSettings(engine.SimulationSpec):
     interval-mean ``ablation``, ``max_input_coherence`` (redraw a seed's perturbation until
     below it; ``None``: never), IMBIC's ``mhat`` [kg] (times the identity), and the
     experiments' ``locations``, ``frictions`` and ``perturbations`` levels (stored sorted,
-    without repeats). A specification of the study engine (``study.engine.Spec``): a trial
+    without repeats). A specification of the study engine (``study.runs.engine.Spec``): a trial
     is ``(Condition, seed)``.
     """
 
@@ -226,7 +226,7 @@ class ReproSettings(engine.SimulationSpec):
 
     def measure(self, batch, built, sim, outcome) -> list[tuple[dict, dict]]:
         """Per trial ``(arrays, meta)``: the estimate's arrays, and its metrics
-        (``study.metrics.trial_metrics``) with the condition, seed and perturbation draw."""
+        (``study.sweep.metrics.trial_metrics``) with the condition, seed and perturbation draw."""
         signals = built.signals
         out = []
         for i, (c, s) in enumerate(batch):
@@ -263,7 +263,7 @@ def draw_perturbations(
     settings: ReproSettings, seed: int, levels, signals: engine.Perturbations | None = None
 ) -> tuple[dict, float, int]:
     """Perturbations of one seed for each level, the input coherence and the attempt used
-    (``study.seeds``: attempt ``a > 0`` redraws from the seed's key folded with ``a``), from
+    (``study.runs.seeds``: attempt ``a > 0`` redraws from the seed's key folded with ``a``), from
     ``signals`` (a run's cache; default a new one)."""
     w = settings.welch
     signals = engine.Perturbations(settings.base_seed) if signals is None else signals

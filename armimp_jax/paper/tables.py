@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ..study.tables import INTEGER, STRING, table
+from ..study.sweep.tables import INTEGER, STRING, table
 from .claims import Condition
 
 CONDITION_DTYPES = (

@@ -2,9 +2,13 @@
 statistics, tidy tables, figures, recordings, sweeps, many-host runs and gradient tuning.
 Files live here and above; nothing below this layer reads or writes one.
 
-The modules, one job each: ``engine`` (the one engine of every study: ``engine.run`` owns the
-run folder, the lock, resume, the perturbation cache, the batch loop and progress; a study is
-a specification), ``runfolder`` (the run folder as a handle, ``StudyRun``: ``run.json``,
+Five folders by purpose, in an order where none imports from a later one: ``runs`` (engine,
+runfolder, results, seeds, distributed, console, cli), ``schema`` (points, grids, config),
+``sweep`` (sweep, tables, figures, metrics, stats, threshold, coverage), ``recording`` (the lab's
+recordings, both routes, calibration files, a movement's day) and ``design`` (experiment design's
+files and check, the tuner). The modules, one job each: ``engine`` (the one engine of every
+study: ``engine.run`` owns the run folder, the lock, resume, the perturbation cache, the batch
+loop and progress; a study is a specification), ``runfolder`` (the run folder as a handle, ``StudyRun``: ``run.json``,
 refusals, the lock, the trial records), ``console`` (what a study says on the terminal: the
 progress bar, the finishing steps), ``cli`` (what the scripts share: the parser, one-line
 errors; no JAX), ``points`` (the one trial description: a sweep's settings and the typed
@@ -26,7 +30,7 @@ ensemble, the classical route's table and figures) and ``tuning`` (the tuner, an
 disk).
 
 The names below (one list, ``_EXPORTS``) are imported on first use (so
-``armimp_jax.study.distributed``'s option helpers and ``cli`` stay importable without JAX).
+``armimp_jax.study.runs.distributed``'s option helpers and ``cli`` stay importable without JAX).
 """
 
 from __future__ import annotations
@@ -35,92 +39,106 @@ import importlib
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # what a type checker reads: every name from its module (none loads here)
-    from .engine import Perturbations as Perturbations
-    from .engine import SimulationSpec as SimulationSpec
-    from .engine import Spec as Spec
-    from .engine import run as run
-    from .figures import save_figure as save_figure
-    from .grids import expand as expand
-    from .grids import parse_set as parse_set
-    from .grids import read_toml as read_toml
-    from .identify_recording import IdentifyConfigError as IdentifyConfigError
-    from .identify_recording import read_identify_config as read_identify_config
-    from .points import POINT_DEFAULTS as POINT_DEFAULTS
-    from .points import Point as Point
-    from .points import build_trial as build_trial
-    from .points import known_settings as known_settings
-    from .points import normalize_point as normalize_point
-    from .recording import load_recording as load_recording
-    from .results import ResultsError as ResultsError
-    from .results import atomic_write_json as atomic_write_json
-    from .results import load_record as load_record
-    from .results import read_json as read_json
-    from .results import save_record as save_record
-    from .results import settings_key as settings_key
-    from .results import stamped as stamped
-    from .runfolder import RunLock as RunLock
-    from .runfolder import StudyRun as StudyRun
-    from .seeds import perturbation_key as perturbation_key
-    from .stats import CI_LEVEL as CI_LEVEL
-    from .stats import MeanCI as MeanCI
-    from .stats import bootstrap_crossing as bootstrap_crossing
-    from .stats import first_crossing as first_crossing
-    from .stats import mean_ci as mean_ci
-    from .stats import seed_stats as seed_stats
-    from .sweep import SweepSettings as SweepSettings
-    from .sweep import load_summary as load_summary
-    from .sweep import load_sweep as load_sweep
-    from .sweep import run_sweep as run_sweep
-    from .tables import read_table as read_table
-    from .tables import write_table as write_table
+    from .recording.identify_recording import IdentifyConfigError as IdentifyConfigError
+    from .recording.identify_recording import read_identify_config as read_identify_config
+    from .recording.recording import load_recording as load_recording
+    from .runs.engine import Perturbations as Perturbations
+    from .runs.engine import SimulationSpec as SimulationSpec
+    from .runs.engine import Spec as Spec
+    from .runs.engine import run as run
+    from .runs.results import ResultsError as ResultsError
+    from .runs.results import atomic_write_json as atomic_write_json
+    from .runs.results import load_record as load_record
+    from .runs.results import read_json as read_json
+    from .runs.results import save_record as save_record
+    from .runs.results import settings_key as settings_key
+    from .runs.results import stamped as stamped
+    from .runs.runfolder import RunLock as RunLock
+    from .runs.runfolder import StudyRun as StudyRun
+    from .runs.seeds import perturbation_key as perturbation_key
+    from .schema.grids import expand as expand
+    from .schema.grids import parse_set as parse_set
+    from .schema.grids import read_toml as read_toml
+    from .schema.points import POINT_DEFAULTS as POINT_DEFAULTS
+    from .schema.points import Point as Point
+    from .schema.points import build_trial as build_trial
+    from .schema.points import known_settings as known_settings
+    from .schema.points import normalize_point as normalize_point
+    from .sweep.figures import save_figure as save_figure
+    from .sweep.stats import CI_LEVEL as CI_LEVEL
+    from .sweep.stats import MeanCI as MeanCI
+    from .sweep.stats import bootstrap_crossing as bootstrap_crossing
+    from .sweep.stats import first_crossing as first_crossing
+    from .sweep.stats import mean_ci as mean_ci
+    from .sweep.stats import seed_stats as seed_stats
+    from .sweep.sweep import SweepSettings as SweepSettings
+    from .sweep.sweep import load_summary as load_summary
+    from .sweep.sweep import load_sweep as load_sweep
+    from .sweep.sweep import run_sweep as run_sweep
+    from .sweep.tables import read_table as read_table
+    from .sweep.tables import write_table as write_table
 
 _EXPORTS = {
-    "CI_LEVEL": "stats",
-    "MeanCI": "stats",
-    "mean_ci": "stats",
-    "seed_stats": "stats",
-    "first_crossing": "stats",
-    "bootstrap_crossing": "stats",
-    "StudyRun": "runfolder",
-    "RunLock": "runfolder",
-    "ResultsError": "results",
-    "atomic_write_json": "results",
-    "read_json": "results",
-    "stamped": "results",
-    "save_record": "results",
-    "load_record": "results",
-    "settings_key": "results",
-    "perturbation_key": "seeds",
-    "read_table": "tables",
-    "write_table": "tables",
-    "save_figure": "figures",
-    "load_recording": "recording",
-    "IdentifyConfigError": "identify_recording",
-    "read_identify_config": "identify_recording",
-    "POINT_DEFAULTS": "points",
-    "Point": "points",
-    "known_settings": "points",
-    "expand": "grids",
-    "normalize_point": "points",
-    "build_trial": "points",
-    "parse_set": "grids",
-    "read_toml": "grids",
-    "SweepSettings": "sweep",
-    "run_sweep": "sweep",
-    "run": "engine",
-    "Spec": "engine",
-    "SimulationSpec": "engine",
-    "Perturbations": "engine",
-    "load_sweep": "sweep",
-    "load_summary": "sweep",
+    "CI_LEVEL": "sweep.stats",
+    "MeanCI": "sweep.stats",
+    "mean_ci": "sweep.stats",
+    "seed_stats": "sweep.stats",
+    "first_crossing": "sweep.stats",
+    "bootstrap_crossing": "sweep.stats",
+    "StudyRun": "runs.runfolder",
+    "RunLock": "runs.runfolder",
+    "ResultsError": "runs.results",
+    "atomic_write_json": "runs.results",
+    "read_json": "runs.results",
+    "stamped": "runs.results",
+    "save_record": "runs.results",
+    "load_record": "runs.results",
+    "settings_key": "runs.results",
+    "perturbation_key": "runs.seeds",
+    "read_table": "sweep.tables",
+    "write_table": "sweep.tables",
+    "save_figure": "sweep.figures",
+    "load_recording": "recording.recording",
+    "IdentifyConfigError": "recording.identify_recording",
+    "read_identify_config": "recording.identify_recording",
+    "POINT_DEFAULTS": "schema.points",
+    "Point": "schema.points",
+    "known_settings": "schema.points",
+    "expand": "schema.grids",
+    "normalize_point": "schema.points",
+    "build_trial": "schema.points",
+    "parse_set": "schema.grids",
+    "read_toml": "schema.grids",
+    "SweepSettings": "sweep.sweep",
+    "run_sweep": "sweep.sweep",
+    "run": "runs.engine",
+    "Spec": "runs.engine",
+    "SimulationSpec": "runs.engine",
+    "Perturbations": "runs.engine",
+    "load_sweep": "sweep.sweep",
+    "load_summary": "sweep.sweep",
 }
 __all__ = sorted(_EXPORTS)
+# the modules that moved into folders (3.3.0), by their old names: a user's import is told where
+_MOVED = {
+    **dict.fromkeys(("engine", "runfolder", "results", "seeds", "distributed", "console", "cli"), "runs"),
+    **dict.fromkeys(("points", "grids", "config"), "schema"),
+    **dict.fromkeys(("tables", "figures", "metrics", "stats", "threshold", "coverage"), "sweep"),
+    **dict.fromkeys(
+        ("estimate_recording", "identify_recording", "identify_pool", "recording_figures", "recording_report"),
+        "recording",
+    ),
+    **dict.fromkeys(("calibration_files", "movement_day", "movement_figures"), "recording"),
+    **dict.fromkeys(("design_experiment", "design_check", "design_report", "tuning"), "design"),
+}
 
 
 if not TYPE_CHECKING:  # a type checker reads the imports above, and flags a name they lack
 
     def __getattr__(name: str):
         module = _EXPORTS.get(name)
+        if name in _MOVED:
+            raise AttributeError(f"{__name__}.{name} moved to {__name__}.{_MOVED[name]}.{name}")
         if module is None:
             raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
         value = getattr(importlib.import_module(f".{module}", __name__), name)

@@ -28,7 +28,7 @@ import armimp_jax as aj
 from armimp_bench import protocol as pr
 from armimp_jax._calibration import idim
 from armimp_jax._calibration.robot_calibration import MIN_RATE
-from armimp_jax.study import coverage as cov
+from armimp_jax.study.sweep import coverage as cov
 
 SECONDS = 20.0
 PEAK = 10.0  # [N] the robot-alone perturbation's peak (protocol.py's)

@@ -1,7 +1,7 @@
 """``identify`` against the classical route over friction, controller and acquisition, with
 the person's own force on (``sweeps/identify_study.py``; docs/identification.md, section 7):
 per cell, recordings of the paper's arm at location 2 identified both ways, on the study
-engine (``study.coverage.Recordings``); the coverage and bias of each route, a table and a
+engine (``study.sweep.coverage.Recordings``); the coverage and bias of each route, a table and a
 figure.
 """
 
@@ -14,9 +14,9 @@ import numpy as np
 from matplotlib.figure import Figure
 
 import armimp_jax as aj
-from armimp_jax.study import coverage as cov
-from armimp_jax.study.figures import save_figure
-from armimp_jax.study.results import atomic_write_json, stamped
+from armimp_jax.study.runs.results import atomic_write_json, stamped
+from armimp_jax.study.sweep import coverage as cov
+from armimp_jax.study.sweep.figures import save_figure
 
 from .identification import make_truth
 

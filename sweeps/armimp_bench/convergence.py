@@ -13,7 +13,7 @@ import statistics
 import sys
 import time
 
-from armimp_jax.study.cli import solver
+from armimp_jax.study.runs.cli import solver
 
 DEFAULT_TAUS = (0.0, 1e-4, 1e-3, 1e-2, 0.1, 1.0, 4.0)  # issue 26's Coulomb torques [N m]
 DEFAULT_SETTINGS = "rk4:25,rk4:100,ark3:10,ark3:20,ark4:5,ark4:10,gark4:4,gark4:5"

@@ -2,7 +2,7 @@
 the flat noise, checked by Monte Carlo (``sweeps/bench_design.py``); what PD's gains do for
 identification through friction (``bench_pd_gains.py``); a design on the bound checked by
 Monte Carlo identification at each arm (``bench_design_bound.py``, on the study engine:
-``study.coverage.Recordings``, resumable).
+``study.sweep.coverage.Recordings``, resumable).
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ import numpy as np
 import armimp_jax as aj
 from armimp_jax import paper
 from armimp_jax._identification.precision import record_minutes
-from armimp_jax.study import coverage as cov
-from armimp_jax.study import design_check as dc
-from armimp_jax.study import design_experiment as dx
-from armimp_jax.study.results import atomic_write_json, stamped
+from armimp_jax.study.design import design_check as dc
+from armimp_jax.study.design import design_experiment as dx
+from armimp_jax.study.runs.results import atomic_write_json, stamped
+from armimp_jax.study.sweep import coverage as cov
 
 ARM = cov.ARM
 TARGETS = [f"arm.{n}[{i},{i}]" for n in ("mass", "damping", "stiffness") for i in (0, 1)]

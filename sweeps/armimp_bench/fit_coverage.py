@@ -143,7 +143,7 @@ def run(args) -> None:
 
     import armimp_jax as aj
     from armimp_jax import paper
-    from armimp_jax.study import results, seeds
+    from armimp_jax.study.runs import results, seeds
 
     n = int(round(args.seconds * 1000))
     cases = CASES[:2] if args.quick else CASES

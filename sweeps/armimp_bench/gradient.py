@@ -15,7 +15,7 @@ import subprocess
 import sys
 import time
 
-from armimp_jax.study.cli import solver
+from armimp_jax.study.runs.cli import solver
 
 from .timing import alternate, markdown_head, save_table
 
@@ -46,7 +46,7 @@ def child(mode, kernel, checkpoint, seconds, substeps, repeats, codegen):
 
     from armimp_jax import Welch
     from armimp_jax.paper import mhat_experiment as paper_tune
-    from armimp_jax.study import tuning as tune
+    from armimp_jax.study.design import tuning as tune
 
     welch = Welch() if seconds >= 10.24 else Welch(1024, 768)
     kind = "full" if mode.endswith("full") else "diagonal"
@@ -163,7 +163,7 @@ def child_training(repeats, codegen):
 
     from armimp_jax import Welch
     from armimp_jax.paper import mhat_experiment as paper_tune
-    from armimp_jax.study import tuning as tune
+    from armimp_jax.study.design import tuning as tune
 
     theta = tune.theta_from_mhat(0.25 * np.eye(2), "diagonal")
     # tune_mhat.py's defaults: friction 1-2 x 4 locations x 2 seeds, 16 s, 20 substeps

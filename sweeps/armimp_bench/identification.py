@@ -1,6 +1,6 @@
 """What the identification benchmarks compute (``sweeps/bench_identify_coverage.py``,
 ``bench_identify_efficiency.py``): their cases, the recordings study of each on the study
-engine (``study.coverage.Recordings``), its summary and tables, and issue 27's example of
+engine (``study.sweep.coverage.Recordings``), its summary and tables, and issue 27's example of
 ``identify`` from a generic start (``must_show``).
 """
 
@@ -11,8 +11,8 @@ import numpy as np
 
 import armimp_jax as aj
 from armimp_jax import presets
-from armimp_jax.study import coverage as cov
-from armimp_jax.study.results import atomic_write_json, stamped
+from armimp_jax.study.runs.results import atomic_write_json, stamped
+from armimp_jax.study.sweep import coverage as cov
 
 ARM = cov.ARM
 COVERAGE_CASES = "pd:0.2,pd:1,imbic:0.2,imbic:1"  # bench_identify_coverage's --cases default

@@ -36,8 +36,8 @@ import numpy as np
 
 import armimp_jax as aj
 from armimp_jax import presets
-from armimp_jax.study import coverage as cov
-from armimp_jax.study.results import atomic_write_json
+from armimp_jax.study.runs.results import atomic_write_json
+from armimp_jax.study.sweep import coverage as cov
 
 FREE = (*cov.ARM, "friction.tau_c")
 TARGETS_S = dict(single=30.0, pooled=180.0, script=60.0, checked=None, linear=None, reaches=None)

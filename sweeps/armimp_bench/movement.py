@@ -5,7 +5,7 @@ The base case: the paper's arm at location 3 (its matrices), a 12 cm minimum-jer
 from that location lasting 0.8 s from 0.4 s, in a 1.6 s record; ``K(t)`` dips to 40% of its still
 value at mid-reach, through five knots (the reach's start, quarter, middle, three quarters and
 end); ``B`` and ``M`` stay the paper's; PD without friction; the person's force and sensor noise of
-the still studies (``study.coverage.noise``: 0.05 N force noise, 2^18-count encoders, 0.3 N RMS
+the still studies (``study.sweep.coverage.noise``: 0.05 N force noise, 2^18-count encoders, 0.3 N RMS
 of the person's own force below 2 Hz); the paper's perturbation at level 1 (2.25 N peak),
 drawn anew for every repetition.
 """
@@ -17,8 +17,8 @@ import numpy as np
 
 import armimp_jax as aj
 from armimp_jax import presets
-from armimp_jax.study import coverage as cov
-from armimp_jax.study.movement_day import truth  # the arm at the knots: the lab's day's own
+from armimp_jax.study.recording.movement_day import truth  # the arm at the knots: the lab's day's own
+from armimp_jax.study.sweep import coverage as cov
 
 ONSET, DURATION, RECORD = 0.4, 0.8, 1.6  # [s]
 REACH = (0.0, 0.12)  # [m]
@@ -121,7 +121,7 @@ def classical_coverage(a, out, *, console=None) -> dict:
     """The classical route's coverage over ``a.ensembles`` ensembles of the base case (options ``a``,
     ``sweeps/bench_movement.py``'s) in run folder ``out``, one record per ensemble (resumable):
     ``{rows, summary}``, also written to ``out/movement_coverage.json`` with the settings."""
-    from armimp_jax.study.results import atomic_write_json, stamped
+    from armimp_jax.study.runs.results import atomic_write_json, stamped
 
     settings = {k: v for k, v in vars(a).items() if k not in ("out", "ensembles")}
 

@@ -24,7 +24,7 @@ from armimp_jax._identification import path as ph
 from armimp_jax._identification import path_bound as pb
 from armimp_jax._identification.linear import without_friction
 from armimp_jax._identification.precision import Z95
-from armimp_jax.study import coverage as cov
+from armimp_jax.study.sweep import coverage as cov
 
 from .movement import DURATION, KNOTS, ONSET, PEAK, RECORD, base_arm, measured
 
@@ -158,7 +158,7 @@ def model_coverage(a, out, *, console=None) -> dict:
     reaches each, in run folder ``out`` (one record per ensemble, resumable): ``{rows, summary}``,
     written to ``out/movement_model.json`` with the settings (the answer also holds ``rows`` and the
     ``bound``)."""
-    from armimp_jax.study.results import atomic_write_json, stamped
+    from armimp_jax.study.runs.results import atomic_write_json, stamped
 
     settings = dict(case=a.case, repetitions=a.repetitions, peak=PEAK, bound_draws=BOUND_DRAWS)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from armimp_jax.study.cli import Parser, fail
+from armimp_jax.study.runs.cli import Parser, fail
 
 
 def setup(argv=None, description: str = ""):
@@ -50,7 +50,7 @@ def coverage(a) -> dict:
         import pathlib
 
         from armimp_bench import movement_reaches
-        from armimp_jax.study.results import atomic_write_json, stamped
+        from armimp_jax.study.runs.results import atomic_write_json, stamped
 
         paper, designed = (d.split(",") for d in a.check_reaches)
         out = stamped(dict(movement_reaches.check(paper, designed), folders=dict(paper=paper, designed=designed)))

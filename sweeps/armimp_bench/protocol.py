@@ -39,7 +39,7 @@ import numpy as np
 import armimp_jax as aj
 from armimp_jax import presets
 from armimp_jax._identification.result import bent_entries
-from armimp_jax.study import coverage as cov
+from armimp_jax.study.sweep import coverage as cov
 
 ARM = cov.ARM
 SECONDS = 20.0
@@ -159,8 +159,8 @@ CASES = {
 def designed(folder) -> tuple[list, np.ndarray]:
     """``(trials, signal)`` of a ``design_experiment.py`` folder: each arm's trial on the designed
     controller (``design.json``'s, as its config builds it) and the perturbation ``(N, 2)`` [N]."""
-    from armimp_jax.study.config import build_trial
-    from armimp_jax.study.design_experiment import paper_arm
+    from armimp_jax.study.design.design_experiment import paper_arm
+    from armimp_jax.study.schema.config import build_trial
 
     folder = pathlib.Path(folder)
     doc = json.loads((folder / "design.json").read_text())
@@ -324,7 +324,7 @@ def study(
     ``sensitivity`` case needs ``design`` (a ``design_experiment.py`` folder) and its arm.
     ``catalogue``: the cases by name (default ``CASES``; ``armimp_bench.entrywise.cells``', say), with
     ``catalogue_settings``, what describes them (the run's settings)."""
-    from armimp_jax.study.results import atomic_write_json, stamped
+    from armimp_jax.study.runs.results import atomic_write_json, stamped
 
     described = dict(seconds=SECONDS) if catalogue is None else dict(cases=catalogue_settings)
     settings = dict(draws=draws, **described)

@@ -28,7 +28,7 @@ import numpy as np
 
 import armimp_jax as aj
 from armimp_jax import paper, runtime
-from armimp_jax.study import design_experiment as dx
+from armimp_jax.study.design import design_experiment as dx
 
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
 NOISE = dict(sensors=aj.Sensors(force_noise=0.05, encoder_counts=2**18), voluntary=aj.VoluntaryForce(0.3, 2.0))

@@ -7,14 +7,14 @@ The day, step by step (``run_day``):
 1. ``read_movement_config``: the config as plain values, every bad value one line
    (``ConfigError``) naming the file, the section and the key.
 2. ``movement_trial``: the config's moving arm and trial (``[arm]``, ``[reach]``, ``[profile]``
-   and the trial sections of ``study.config``), when the day simulates.
+   and the trial sections of ``study.schema.config``), when the day simulates.
 3. ``plan_reaches``: the perturbation and the number of reaches, the config's (``[perturbation]``,
    ``[ensemble] repetitions``); with a ``[plan]`` section, ``reaches_needed``: the reaches its
    ``precision`` needs on each knot's diagonals (``aj.reaches_for``, the bound along the path).
 4. ``gather``: the ensemble, simulated (``simulate_ensemble``) or read (``load_ensemble``).
 5. ``estimate_ensemble`` at the config's knots, then ``write_day``: ``movement.csv`` (and
    ``movement.parquet`` with pyarrow), ``movement.json`` and the two figures
-   (``study.movement_figures``), each written atomically.
+   (``study.recording.movement_figures``), each written atomically.
 6. With ``[identify] route = "model"``: the model route too (``identify`` over the ensemble, the
    config's trial the model, through its friction where it has one), ``write_model``:
    ``movement_model.csv``, ``movement_model.json`` and the same two figures of its answer
@@ -29,20 +29,20 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
-from .. import presets
-from .._batch import simulate_ensemble
-from .._estimation.ensemble_fit import estimate_ensemble
-from .._identification.ensemble_identify import identify_ensemble, trial_values
-from .._model.arm import Arm
-from .._model.families import PaperNoise
-from .._model.friction import NO_FRICTION
-from .._model.movement import MinimumJerk, Profile
-from .config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
-from .figures import save_figure
+from ... import presets
+from ..._batch import simulate_ensemble
+from ..._estimation.ensemble_fit import estimate_ensemble
+from ..._identification.ensemble_identify import identify_ensemble, trial_values
+from ..._model.arm import Arm
+from ..._model.families import PaperNoise
+from ..._model.friction import NO_FRICTION
+from ..._model.movement import MinimumJerk, Profile
+from ..runs.results import atomic_write_json, stamped
+from ..schema.config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
+from ..sweep.figures import save_figure
+from ..sweep.tables import table, write_table
 from .movement_figures import knot_view, path_figure, profile_figure
 from .recording import load_ensemble, parse_columns
-from .results import atomic_write_json, stamped
-from .tables import table, write_table
 
 SECTIONS = {
     **{k: v for k, v in TRIAL_SECTIONS.items() if k != "arm"},
@@ -199,8 +199,8 @@ def plan_reaches(config: dict, trial) -> Plan:
 def reaches_needed(config: dict, trial, plan: Plan):
     """``[plan] precision``'s reaches on the bound along the path (``aj.reaches_for``, the config's
     perturbation drawn ``[plan] draws`` times), or ``None`` without a ``[plan]`` section."""
-    from .._identification.path import perturbation_draws
-    from .._identification.path_bound import reaches_for
+    from ..._identification.path import perturbation_draws
+    from ..._identification.path_bound import reaches_for
 
     wanted = config.get("plan", {}).get("precision")
     if wanted is None:

@@ -5,7 +5,7 @@ phi_T and the minimum multiple coherence against the Coulomb torque tau_c from 0
 stiction 1.5 tau_c, the paper's bristle and viscous parameters), PD and IMBIC (Mhat = 0.25 I
 kg), the four paper arms, perturbation level 1, seeds with common random numbers,
 ``SWEEP_NUMERICS`` (ARK3, 20 substeps). The study is a sweep (``threshold_settings``, run by
-``study.sweep.run_sweep`` on the study engine); ``analyse`` finds the thresholds
+``study.sweep.sweep.run_sweep`` on the study engine); ``analyse`` finds the thresholds
 (``stats.bootstrap_crossing``), ``plot`` draws ``friction_threshold.png`` and ``write_report``
 writes ``report.md`` (``run_threshold`` does all of it).
 """
@@ -19,9 +19,9 @@ import warnings
 
 import numpy as np
 
+from ..runs.results import atomic_write_text, package_version
+from ..schema.grids import expand
 from .figures import save_figure
-from .grids import expand
-from .results import atomic_write_text, package_version
 from .stats import bootstrap, bootstrap_crossing, seed_stats
 from .sweep import SweepSettings, collect, run_sweep
 

@@ -27,15 +27,15 @@ import tomllib
 
 import numpy as np
 
-from .._model import kinds
-from .._model.arm import Arm
-from .._model.controllers import controller_kind
-from .._model.friction import friction_kind
-from .._model.robot import MIT_MANUS
-from .._model.sensors import SETTINGS as SENSOR_SETTINGS
-from .._model.sensors import Sensors
-from .._model.voluntary import VoluntaryForce
-from .._simulate import make_trial
+from ..._model import kinds
+from ..._model.arm import Arm
+from ..._model.controllers import controller_kind
+from ..._model.friction import friction_kind
+from ..._model.robot import MIT_MANUS
+from ..._model.sensors import SETTINGS as SENSOR_SETTINGS
+from ..._model.sensors import Sensors
+from ..._model.voluntary import VoluntaryForce
+from ..._simulate import make_trial
 
 REQUIRED = object()  # a key without a default
 ROBOT_PRESETS = ("mit_manus",)

@@ -15,8 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._design.descent import optimizer_or_default
-from .._design.tuner import (
+from ..._design.descent import optimizer_or_default
+from ..._design.tuner import (
     MAX_START_SHRINKS,
     PARAMETERISATIONS,
     History,
@@ -38,7 +38,7 @@ from .._design.tuner import (
     value_and_grad_fn,
     with_mhat,
 )
-from .results import ResultsError, load_record, save_record
+from ..runs.results import ResultsError, load_record, save_record
 
 __all__ = [
     "MAX_START_SHRINKS",
@@ -84,7 +84,7 @@ def state_arrays(state: TuneState) -> dict:
 
 
 def save_state(path: pathlib.Path, state: TuneState, settings: dict, *, meta: dict | None = None) -> str:
-    """Save ``state`` atomically as one checked record (``armimp_jax.study.results``) with the
+    """Save ``state`` atomically as one checked record (``armimp_jax.study.runs.results``) with the
     ``settings`` that produced it (``config_settings`` plus the caller's description of the
     training problem); returns their key. ``meta``: further JSON-able notes."""
     arrays, notes = state_arrays(state)

@@ -1,13 +1,13 @@
 """Figures of a lab's recording, for both routes of ``sweeps/estimate_recording.py``.
 
-- The Welch route (``study.estimate_recording``): ``bode_figure`` (the estimate of ``Z`` and the fitted
+- The Welch route (``study.recording.estimate_recording``): ``bode_figure`` (the estimate of ``Z`` and the fitted
   model; the estimate's phase drawn on the model's branch, ``phase_near``) and
   ``coherence_figure``.
-- The model route (``study.identify_recording``): ``position_figure``, ``residual_figure``,
+- The model route (``study.recording.identify_recording``): ``position_figure``, ``residual_figure``,
   ``frf_figure`` and ``ellipse_figure`` (with ``ellipse_radius`` and ``stiffness_draws``).
 
 Each returns a matplotlib ``Figure`` made without pyplot (no global figure state); the
-caller saves it (``study.figures.save_figure``).
+caller saves it (``study.sweep.figures.save_figure``).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import scipy.signal
 from matplotlib.figure import Figure
 from matplotlib.ticker import NullFormatter
 
-from .._estimation.welch import welch_segments
+from ..._estimation.welch import welch_segments
 
 ELEMENTS = ((0, 0), (0, 1), (1, 0), (1, 1))
 AXES = ("x", "y")

@@ -2,7 +2,7 @@
 
 Every study that writes a folder (the sweep, the reproduction, the claim explanations, the
 friction threshold, the tuner, the benchmarks' resumable runs) keeps one run in it, and
-the engine (``study.engine``), the collectors and the writers take the folder as a
+the engine (``study.runs.engine``), the collectors and the writers take the folder as a
 ``StudyRun``:
 
 - ``read`` / ``saved_settings``: ``run.json`` checked (kind, format, and the key of its

@@ -14,8 +14,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from .._estimation.metrics import largest_singular_value
-from .._model.arm import Arm
+from ..._estimation.metrics import largest_singular_value
+from ..._model.arm import Arm
 from .tables import ELEMENTS, METRIC_COLUMNS
 
 ESTIMATE_FIELDS = ("f", "Z", "coh_multiple_x", "coh_partial_x", "coh_multiple_fh", "coh_partial_fh", "coh_inputs")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-from .._model.perturbation import perturbation
+from ..._model.perturbation import perturbation
 
 
 def perturbation_key(base_seed: int, seed: int, *, redraw: int = 0) -> jax.Array:

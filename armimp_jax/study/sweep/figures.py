@@ -15,8 +15,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from .points import default_x, known_settings, point_columns, setting_unit, swept_settings
-from .results import atomic_write_bytes
+from ..runs.results import atomic_write_bytes
+from ..schema.points import default_x, known_settings, point_columns, setting_unit, swept_settings
 from .stats import CI_LEVEL
 
 

@@ -11,7 +11,7 @@ with no edit here. ``known_settings()`` lists them all. ``normalize_point`` reso
 default into a number and drops the settings the point's kinds do not take (a PD point
 ignores ``mhat``), so equal trials give equal points (and keys). ``Point`` is a point typed
 from parse to table: its settings, and the parts built from them once (the kinds, the arm,
-the ``Trial``, ``Welch``, its batch group and table columns). ``study.grids`` reads a run's
+the ``Trial``, ``Welch``, its batch group and table columns). ``study.schema.grids`` reads a run's
 points from grids, TOML and ``--set``.
 """
 
@@ -27,18 +27,18 @@ from typing import Any
 
 import numpy as np
 
-from .._checks import check_choice
-from .._estimation.welch import Welch
-from .._model.arm import Arm
-from .._model.controllers import CONTROLLER_KINDS, controller_kind
-from .._model.friction import FRICTION_KINDS, friction_kind
-from .._model.sensors import SETTINGS as SENSOR_SETTINGS
-from .._model.sensors import static_settings as sensor_static
-from .._simulate import ACQUISITIONS, Trial, make_trial
-from ..presets import LOCATIONS, PERTURBATION_LEVELS, perturbation_peak
-from ..presets import arm as paper_arm
+from ..._checks import check_choice
+from ..._estimation.welch import Welch
+from ..._model.arm import Arm
+from ..._model.controllers import CONTROLLER_KINDS, controller_kind
+from ..._model.friction import FRICTION_KINDS, friction_kind
+from ..._model.sensors import SETTINGS as SENSOR_SETTINGS
+from ..._model.sensors import static_settings as sensor_static
+from ..._simulate import ACQUISITIONS, Trial, make_trial
+from ...presets import LOCATIONS, PERTURBATION_LEVELS, perturbation_peak
+from ...presets import arm as paper_arm
+from ..runs.results import settings_key
 from . import config
-from .results import settings_key
 
 # The settings of every point, their defaults and units (the kinds' own settings follow each
 # kind: ``kind_settings``). ``None`` defaults are resolved by ``normalize_point`` (the peak from
@@ -71,7 +71,7 @@ POINT_UNITS = dict(
     nfft="samples",
 )
 KIND_SETTINGS = {"controller": (CONTROLLER_KINDS, controller_kind), "friction": (FRICTION_KINDS, friction_kind)}
-# A config's sections (the one TOML dialect, shared with the trial configs of ``study.config``):
+# A config's sections (the one TOML dialect, shared with the trial configs of ``study.schema.config``):
 # section -> {key: the point's setting}; ``[controller]`` and ``[friction]`` take ``type`` and the
 # kinds' own settings (``setting_sections``), ``[arm]`` a location or a user's four matrices.
 BASE_SECTIONS = {

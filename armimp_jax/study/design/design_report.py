@@ -18,23 +18,23 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-from .._calibration.robot_calibration import RobotRecording, calibrate_robot
-from .._design.bound_design import BoundDesign
-from .._design.criterion import default_targets
-from .._design.design import design
-from .._design.record import design_lines
-from .._identification.bound import calibration_seconds, crlb
-from .._identification.layout import make_layout
-from .._identification.predict import predict_se
-from .._model.arm import no_arm
-from .._model.controllers.pd import PD
-from .._model.families import PaperNoise
-from .._model.perturbation import perturbation
-from .._simulate import make_trial
+from ..._calibration.robot_calibration import RobotRecording, calibrate_robot
+from ..._design.bound_design import BoundDesign
+from ..._design.criterion import default_targets
+from ..._design.design import design
+from ..._design.record import design_lines
+from ..._identification.bound import calibration_seconds, crlb
+from ..._identification.layout import make_layout
+from ..._identification.predict import predict_se
+from ..._model.arm import no_arm
+from ..._model.controllers.pd import PD
+from ..._model.families import PaperNoise
+from ..._model.perturbation import perturbation
+from ..._simulate import make_trial
+from ..runs.cli import Z95
+from ..sweep.coverage import record
 from . import design_check as dc
 from . import design_experiment as dx
-from .cli import Z95
-from .coverage import record
 
 
 def describe(trials, family, limits, options) -> str:

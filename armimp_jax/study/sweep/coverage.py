@@ -23,17 +23,17 @@ from collections.abc import Callable, Sequence
 import jax
 import numpy as np
 
-from .._identification.bound import crlb
-from .._identification.identify import identify
-from .._identification.indirect import IDENTIFY_NUMERICS
-from .._identification.predict import predict_se
-from .._model.sensors import Sensors
-from .._model.voluntary import VoluntaryForce
-from .._simulate import simulate
-from . import engine
-from .console import Console
-from .results import describe_difference, stamped
-from .runfolder import StudyRun, warn_stderr
+from ..._identification.bound import crlb
+from ..._identification.identify import identify
+from ..._identification.indirect import IDENTIFY_NUMERICS
+from ..._identification.predict import predict_se
+from ..._model.sensors import Sensors
+from ..._model.voluntary import VoluntaryForce
+from ..._simulate import simulate
+from ..runs import engine
+from ..runs.console import Console
+from ..runs.results import describe_difference, stamped
+from ..runs.runfolder import StudyRun, warn_stderr
 
 ARM = ("arm.mass", "arm.damping", "arm.stiffness")
 Z95 = 1.959963984540054  # the two-sided 95% normal quantile

@@ -25,15 +25,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._design.bound_design import BoundDesign, friction_ratios
-from .._design.limits import Limits, _peak_displacement, limited_signal
-from .._identification.bound import crlb
-from .._identification.identify import identify
-from .._identification.indirect import IDENTIFY_NUMERICS
-from .._identification.layout import make_layout, natural, pack
-from .._identification.precision import record_minutes
-from .._identification.predict import predict_se
-from .._simulate import simulate
+from ..._design.bound_design import BoundDesign, friction_ratios
+from ..._design.limits import Limits, _peak_displacement, limited_signal
+from ..._identification.bound import crlb
+from ..._identification.identify import identify
+from ..._identification.indirect import IDENTIFY_NUMERICS
+from ..._identification.layout import make_layout, natural, pack
+from ..._identification.precision import record_minutes
+from ..._identification.predict import predict_se
+from ..._simulate import simulate
 
 
 def truth(trial, free) -> np.ndarray:

@@ -8,7 +8,7 @@ transducer against known loads, calibrated from the lab's files before the arm i
 - ``check(config, path)``: one line, before any file is read, for a section that calibrates
   nothing or a calibrated parameter also named in ``[identify] free``.
 - ``calibrate(config, path, fs, columns, robot)``: the files read and checked (one line each, as
-  ``study.recording``'s), the calibrations, and the lines the script prints before the arm's.
+  ``study.recording.recording``'s), the calibrations, and the lines the script prints before the arm's.
 - ``record(calibrations)``: every number of them for ``identification.json``.
 """
 
@@ -19,10 +19,10 @@ import pathlib
 
 import numpy as np
 
-from .._calibration.force_calibration import calibrate_force
-from .._calibration.robot_calibration import MIN_RATE, RobotRecording, calibrate_robot
-from .._identification.calibration_prior import ESTIMABLE
-from .config import ConfigError
+from ..._calibration.force_calibration import calibrate_force
+from ..._calibration.robot_calibration import MIN_RATE, RobotRecording, calibrate_robot
+from ..._identification.calibration_prior import ESTIMABLE
+from ..schema.config import ConfigError
 from .recording import load_recording
 
 SECTION = {
@@ -32,7 +32,7 @@ SECTION = {
     "min_rate": ("scalar", "rad/s", None),
     "load_files": ("texts", None, []),
 }
-# The columns of each kind of file (study.recording's groups): the robot alone, its Cartesian
+# The columns of each kind of file (study.recording.recording's groups): the robot alone, its Cartesian
 # command F_u [N] (the motors applying J^T F_u), hand position [m] and force reading [N]; the loads
 # [N] and the transducer's readings under them [N], one row per reading
 ROBOT_GROUPS = {"command": ("command_x", "command_y"), "x": ("x", "y"), "fh": ("fh_x", "fh_y")}

@@ -1,18 +1,18 @@
 """General sweeps: a grid (or a list of points) over any settings of a trial, times seeds.
 
-The points (``study.points``: ``POINT_DEFAULTS``, ``Point``; read by ``study.grids``: ``expand``,
+The points (``study.schema.points``: ``POINT_DEFAULTS``, ``Point``; read by ``study.schema.grids``: ``expand``,
 ``read_toml``, ``parse_set``) and ``SweepSettings`` fix a run. ``SweepSettings`` is a
-specification of the study engine (``study.engine``): ``run_sweep`` hands it to
+specification of the study engine (``study.runs.engine``): ``run_sweep`` hands it to
 ``engine.run``, which runs every ``(point, seed)`` that has no valid record in the output
 folder (batched by static structure, sharded over the devices, in chunks for progress) and
-saves one checked record per trial (``study.results``); ``write_outputs`` then writes
+saves one checked record per trial (``study.runs.results``); ``write_outputs`` then writes
 the tidy table ``trials.csv`` (one row per trial, ``trial_row``), ``summary.csv`` and
 ``summary.json`` (per point over seeds: mean, standard deviation, 95% t-interval, count
-of diverged trials, which are left out of every statistic; ``study.stats``) and a figure
-of ``phi_T`` against the swept quantity (``study.figures``). ``docs/sweeps.md`` describes the files. ``load_sweep`` and
-``load_summary`` give the tables as pandas DataFrames from the checked records.
+of diverged trials, which are left out of every statistic; ``study.sweep.stats``) and a figure
+of ``phi_T`` against the swept quantity (``study.sweep.figures``). ``docs/sweeps.md``
+describes the files. ``load_sweep`` and ``load_summary`` give the tables as pandas DataFrames from the checked records.
 
-Seeds (``study.seeds``): trial seed ``s`` draws its perturbation from
+Seeds (``study.runs.seeds``): trial seed ``s`` draws its perturbation from
 ``fold_in(PRNGKey(base_seed), s)`` (every point sees the same signal shape for the same
 seed: common random numbers) and its sensor noise, if any, from ``fold_in`` of that key
 with 1.
@@ -29,18 +29,18 @@ import jax
 import numpy as np
 import pandas as pd
 
-from .._batch import check_numerics
-from .._estimation.fit import fit_impedance
-from .._simulate import stack_trials
-from .._solver.numerics import SWEEP_NUMERICS, Numerics, named_solver
-from . import distributed, engine
-from .console import Console
+from ..._batch import check_numerics
+from ..._estimation.fit import fit_impedance
+from ..._simulate import stack_trials
+from ..._solver.numerics import SWEEP_NUMERICS, Numerics, named_solver
+from ..runs import distributed, engine
+from ..runs.console import Console
+from ..runs.results import ResultsError, atomic_write_json, describe_difference, read_json, stamped, to_jsonable
+from ..runs.runfolder import StudyRun, warn_stderr
+from ..schema.grids import expand, parse_set, read_toml
+from ..schema.points import Point, default_x, known_settings, swept_settings
 from .figures import plot_summary
-from .grids import expand, parse_set, read_toml
 from .metrics import estimate_arrays, trial_row
-from .points import Point, default_x, known_settings, swept_settings
-from .results import ResultsError, atomic_write_json, describe_difference, read_json, stamped, to_jsonable
-from .runfolder import StudyRun, warn_stderr
 from .stats import seed_stats
 from .tables import METRIC_COLUMNS, summary_frame, trial_columns, trials_frame, write_table
 
@@ -52,7 +52,7 @@ class SweepSettings(engine.SimulationSpec):
     """Everything that fixes a sweep's numbers: its normalized ``points`` (``expand``), the
     number of ``seeds`` per point from ``base_seed``, and the integration ``method`` and
     ``substeps`` per 1 ms period (default ``SWEEP_NUMERICS``). A specification of the
-    study engine (``study.engine.Spec``): a trial is ``(point index, seed)``."""
+    study engine (``study.runs.engine.Spec``): a trial is ``(point index, seed)``."""
 
     KIND = "sweep"
     FORMAT = 1  # layout of a sweep's run.json
@@ -397,7 +397,7 @@ def run_sweep(
     re-runs that many trials per static group at 4x the substeps and puts the observed
     maximum relative ``phi_T`` error into ``summary.json``. Returns the ``summary.json``
     contents plus ``computed`` (ids of the trials run now; in a ``jax.distributed`` job the
-    processes other than 0 get only ``computed``). ``console`` (``study.console``) says what
+    processes other than 0 get only ``computed``). ``console`` (``study.runs.console``) says what
     runs where and shows the progress (default quiet).
     """
     settings.validate()

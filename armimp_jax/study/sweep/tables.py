@@ -29,10 +29,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from .results import atomic_write_bytes, atomic_write_text
+from ..runs.results import atomic_write_bytes, atomic_write_text
 
 if TYPE_CHECKING:
-    from .points import Point
+    from ..schema.points import Point
 
 STRING = "string"  # pandas' string dtype (missing: <NA>, an empty cell)
 INTEGER = "int64"

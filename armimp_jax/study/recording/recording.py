@@ -19,8 +19,8 @@ refused with how to re-save it): the six names as vectors, or ``f_delta``, ``x``
 ``(N, 2)`` arrays. ``columns`` maps the standard names to the file's own. Every problem is
 a ``RecordingError`` with a one-line message, raised before any computation.
 
-What is done with a loaded recording: ``study.estimate_recording`` (the Welch route) and
-``study.identify_recording`` (the model route). ``load_ensemble`` reads one file per repetition
+What is done with a loaded recording: ``study.recording.estimate_recording`` (the Welch route) and
+``study.recording.identify_recording`` (the model route). ``load_ensemble`` reads one file per repetition
 of a reach into an ``Ensemble`` (``estimate_ensemble``'s input).
 """
 
@@ -33,7 +33,7 @@ import zipfile
 
 import numpy as np
 
-from .._estimation.ensemble import Ensemble
+from ..._estimation.ensemble import Ensemble
 
 COLUMNS = ("f_delta_x", "f_delta_y", "x", "y", "fh_x", "fh_y")
 GROUPS = {"f_delta": ("f_delta_x", "f_delta_y"), "x": ("x", "y"), "fh": ("fh_x", "fh_y")}
@@ -297,7 +297,7 @@ def load_recording(path, *, columns=None, groups=None) -> dict[str, np.ndarray]:
         columns: ``{standard name: the file's name}`` for columns named otherwise (the
             standard names are ``COLUMNS``); unmapped columns keep their standard names.
         groups: ``{name: (x column, y column)}`` of another kind of file (a robot-alone record's
-            command, known loads: ``study.calibration_files``); default ``GROUPS``, the six.
+            command, known loads: ``study.recording.calibration_files``); default ``GROUPS``, the six.
 
     Returns ``{"f_delta": (N, 2), "x": (N, 2), "fh": (N, 2)}`` float64 NumPy arrays
     (``[:, 0]`` the x axis, ``[:, 1]`` the y axis), ready for ``estimate``, and ``"time"``

@@ -1,5 +1,5 @@
-"""Figures of a lab's day for a movement (``study.movement_day``), each a matplotlib ``Figure``
-made without pyplot, printed at 7 x 4.5 in (the caller saves it, ``study.figures.save_figure``):
+"""Figures of a lab's day for a movement (``study.recording.movement_day``), each a matplotlib ``Figure``
+made without pyplot, printed at 7 x 4.5 in (the caller saves it, ``study.sweep.figures.save_figure``):
 
 - ``path_figure``: the hand's mean path in x-y [cm] and, at each knot, the stiffness ellipse (the
   force per unit displacement: the unit circle mapped through ``K``'s symmetric part, drawn to a

@@ -21,19 +21,19 @@ import jax
 import numpy as np
 from matplotlib.figure import Figure  # no pyplot: no global figure state
 
-from .._design.bound_design import BoundDesign
-from .._design.criterion import default_targets, relative_se
-from .._design.design import AGGREGATES, CRITERIA, METHODS, Auto, CramerRao, MonteCarlo
-from .._design.limits import Limits
-from .._identification.bound import has_friction
-from .._identification.layout import make_layout, parameter_units
-from .._model.families import ShapedNoise, multisine
-from ..presets import arm as paper_arm
-from .config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
+from ..._design.bound_design import BoundDesign
+from ..._design.criterion import default_targets, relative_se
+from ..._design.design import AGGREGATES, CRITERIA, METHODS, Auto, CramerRao, MonteCarlo
+from ..._design.limits import Limits
+from ..._identification.bound import has_friction
+from ..._identification.layout import make_layout, parameter_units
+from ..._model.families import ShapedNoise, multisine
+from ...presets import arm as paper_arm
+from ..recording.estimate_recording import SPARSE_SHARE, input_bins, route_settings
+from ..runs.results import atomic_write_json, atomic_write_npz, atomic_write_text, package_version
+from ..schema.config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
+from ..sweep.figures import save_figure
 from .design_check import truth
-from .estimate_recording import SPARSE_SHARE, input_bins, route_settings
-from .figures import save_figure
-from .results import atomic_write_json, atomic_write_npz, atomic_write_text, package_version
 
 FAMILIES = ("shaped_noise", "multisine")
 # the record the Monte Carlo check runs at: the design's own, or the one its minutes predict
@@ -212,7 +212,7 @@ def sensitivity_report(trials, signal, free, percent: float, labels, *, draws: i
     """How well must the lab know its robot for this design: ``identify_recording``'s
     ``sensitivity_lines`` of each arm's trial at the signal written, under its head, each arm's
     lines after its label."""
-    from .identify_recording import SENSITIVITY_HEAD, sensitivity_lines
+    from ..recording.identify_recording import SENSITIVITY_HEAD, sensitivity_lines
 
     lines = [f"{SENSITIVITY_HEAD}, at the signal written"]
     for label, trial in zip(labels, trials, strict=True):

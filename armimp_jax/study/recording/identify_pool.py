@@ -10,7 +10,7 @@ identify config with a ``[recordings]`` section -> one pooled ``identify`` -> on
 - ``rows(res)``: every estimated entry, per group for the arm and once for the shared robot.
 - ``write_results``: ``identification.json`` (strict: settings and version, every entry, the
   joint covariance, each recording's fit quality and classical answer) and
-  ``identification.csv``, atomically. What the script prints is ``study.recording_report``'s.
+  ``identification.csv``, atomically. What the script prints is ``study.recording.recording_report``'s.
 """
 
 from __future__ import annotations
@@ -19,12 +19,12 @@ import pathlib
 
 import numpy as np
 
-from .._identification.layout import parameter_units
-from .._identification.pool import Recording
-from .._model.arm import Arm, no_arm
-from .config import ConfigError, build_trial
-from .results import atomic_write_json, package_version
-from .tables import table, write_table
+from ..._identification.layout import parameter_units
+from ..._identification.pool import Recording
+from ..._model.arm import Arm, no_arm
+from ..runs.results import atomic_write_json, package_version
+from ..schema.config import ConfigError, build_trial
+from ..sweep.tables import table, write_table
 
 SECTION = {
     "files": ("texts", None, []),
@@ -54,7 +54,7 @@ def files(config: dict, config_path) -> list[tuple[pathlib.Path, str]]:
 
 
 def build_recordings(config: dict, loaded, where: str) -> list[Recording]:
-    """One ``Recording`` per ``(group, rec)`` of ``loaded`` (``study.recording``'s dicts): the
+    """One ``Recording`` per ``(group, rec)`` of ``loaded`` (``study.recording.recording``'s dicts): the
     config's trial with its arm at the recording's first hand position (``aj.presets.no_arm`` there for
     an ``alone`` group). Needs float64."""
     alone, arm = set(config["recordings"]["alone"]), config["arm"]

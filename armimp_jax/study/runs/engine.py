@@ -3,10 +3,10 @@ the perturbation cache, the batch loop, progress and the records.
 
 A study is a *specification* (``Spec``): a frozen settings object that names its run
 folder's kind, lists its trials, says which of them may share a compiled batch, and how to
-build and measure a batch (``runner``). The sweep (``study.sweep.SweepSettings``), the
-friction threshold (``study.threshold``), the paper reproduction
+build and measure a batch (``runner``). The sweep (``study.sweep.sweep.SweepSettings``), the
+friction threshold (``study.sweep.threshold``), the paper reproduction
 (``paper.reproduce.ReproSettings``), the claim explanations (``paper.explain``), the tuner
-(``paper.mhat_experiment``) and the benchmarks' resumable runs (``study.coverage``) are
+(``paper.mhat_experiment``) and the benchmarks' resumable runs (``study.sweep.coverage``) are
 specifications; none has a loop, a cache or a resume of its own.
 
 - ``run``: open (or resume) the run in ``out`` (``StudyRun.open``: the lock, ``run.json``
@@ -17,7 +17,7 @@ specifications; none has a loop, a cache or a resume of its own.
 - ``SimulationSpec``: the runner of a study whose batch is one ``simulate_batch`` (and
   ``assess_batch``): it supplies ``build`` (the stacked trials and their perturbations) and
   ``measure`` (the records).
-- ``Perturbations``: the perturbation cache of a run (``study.seeds``: common random numbers).
+- ``Perturbations``: the perturbation cache of a run (``study.runs.seeds``: common random numbers).
 - ``records``: the checked records of a finished (or partial) run, for the collectors.
 - ``batches``, ``map_batches``: the batch split, also for studies that keep no folder.
 """
@@ -43,7 +43,7 @@ BATCH_FIELDS = ("batch_wall_s", "batch_size")
 
 
 class Perturbations:
-    """The perturbations of a run's seeds, each drawn once (``study.seeds``): seed ``s`` from
+    """The perturbations of a run's seeds, each drawn once (``study.runs.seeds``): seed ``s`` from
     ``fold_in(PRNGKey(base_seed), s)`` (``redraw`` > 0 folds the attempt in once more), at
     ``n`` samples scaled to ``peak`` [N] per axis; ``noise_key`` is the seed's sensor-noise key."""
 
@@ -129,7 +129,7 @@ class SimulationSpec:
     -> [(arrays, meta), ...]`` (``outcome``: ``assess_batch``'s, or ``None`` without ``welch``)."""
 
     def runner(self, context: Context) -> BatchRunner:
-        from .._batch import assess_batch, simulate_batch
+        from ..._batch import assess_batch, simulate_batch
 
         def run(batch, progress):
             built = self.build(batch, context.signals)._replace(signals=context.signals)
@@ -335,7 +335,7 @@ def run(
 
 
 def _run_batches(spec, study, plan, outcome, chunk_seconds, progress, stop_after_batches) -> None:
-    from .._batch import make_mesh
+    from ..._batch import make_mesh
 
     signals = Perturbations(getattr(spec, "base_seed", 0))
     context = Context(study, make_mesh(), max(1, int(chunk_seconds * 1000)), signals)

@@ -53,9 +53,9 @@ class Parser(argparse.ArgumentParser):
 def solver(method: str, *, kernel: str = "fast"):
     """The solver named ``method`` (one of ``METHODS``) with RK4's ``kernel`` (or the kernel
     the others accept)."""
-    from .._solver.ark import ARK3, ARK4
-    from .._solver.graded import GradedARK4
-    from .._solver.rk4 import RK4
+    from ..._solver.ark import ARK3, ARK4
+    from ..._solver.graded import GradedARK4
+    from ..._solver.rk4 import RK4
 
     return dict(zip(METHODS, (RK4, ARK3, ARK4, GradedARK4)))[method](kernel=kernel)
 
@@ -108,8 +108,8 @@ def import_kinds(sources, prog: str) -> tuple[str, ...]:
     import importlib
     import importlib.util
 
-    from .._model.controllers import AbstractController
-    from .._model.friction import AbstractFriction
+    from ..._model.controllers import AbstractController
+    from ..._model.friction import AbstractFriction
 
     names = []
     for source in sources:
@@ -145,7 +145,7 @@ def import_kinds(sources, prog: str) -> tuple[str, ...]:
 
 
 def distributed_options():
-    """``armimp_jax.study.distributed``, for its option helpers (``add_arguments``,
+    """``armimp_jax.study.runs.distributed``, for its option helpers (``add_arguments``,
     ``check_arguments``): they need no JAX (the module imports it only to start a job)."""
     from . import distributed
 

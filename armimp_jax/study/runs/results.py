@@ -16,7 +16,7 @@ its key equals the key of the settings asked for now. The pieces:
   their key, free metadata, and a SHA-256 digest of all of it; ``load_record`` names the
   file and says what is wrong when it is truncated, altered, or made with other settings.
 Every refusal is a ``ResultsError`` (a ``ValueError``) with a one-line message.
-The run folder that holds them, with its lock, is ``study.runfolder``'s ``StudyRun``;
+The run folder that holds them, with its lock, is ``study.runs.runfolder``'s ``StudyRun``;
 ``docs/results.md`` says how the studies use them.
 """
 

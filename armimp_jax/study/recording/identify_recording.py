@@ -9,12 +9,12 @@
 - ``build_model(config)``: the starting ``Trial`` and the keyword arguments of ``identify``
   (the constructors' own range checks come back as ``IdentifyConfigError`` naming the section).
 - ``check_rate(fs, model)``: a recording not sampled at the trial's control rate is refused.
-- ``run(rec, model, options)``: ``identify`` on a loaded recording (``study.recording``).
+- ``run(rec, model, options)``: ``identify`` on a loaded recording (``study.recording.recording``).
 - ``trust_warnings``, ``pooled_warnings``, ``entries``: where the fit cannot be trusted (per
   recording: ``recording_warnings``); every estimated number beside the classical answer (the
   Welch route at its defaults, ``estimate_recording.analyse``).
 - ``write_results``: ``identification.json`` (strict), ``identification.csv`` and four figures
-  (drawn by ``study.recording_figures``; the printed text is ``study.recording_report``'s).
+  (drawn by ``study.recording.recording_figures``; the printed text is ``study.recording.recording_report``'s).
 
 The keys, units and defaults are in docs/identify_recording.md.
 """
@@ -30,22 +30,22 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from .._estimation.diagnose import implausible
-from .._identification.identify import identify
-from .._identification.indirect import IDENTIFY_NUMERICS
-from .._identification.layout import ARM_PARAMETERS, parameter_units
-from .._model.sensors import Sensors
-from .._simulate import simulate
-from .._solver.numerics import METHODS, Numerics, named_solver
+from ..._estimation.diagnose import implausible
+from ..._identification.identify import identify
+from ..._identification.indirect import IDENTIFY_NUMERICS
+from ..._identification.layout import ARM_PARAMETERS, parameter_units
+from ..._model.sensors import Sensors
+from ..._simulate import simulate
+from ..._solver.numerics import METHODS, Numerics, named_solver
+from ..runs.results import atomic_write_json, package_version, to_jsonable
+from ..schema.config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
+from ..sweep.figures import save_figure
+from ..sweep.tables import table, write_table
 from . import calibration_files
-from .config import REQUIRED, TRIAL_SECTIONS, ConfigError, build_trial, read_config
 from .estimate_recording import analyse, route_settings, settings_record
-from .figures import save_figure
 from .identify_pool import SECTION as RECORDINGS_SECTION
 from .recording import RecordingError
 from .recording_figures import ellipse_figure, frf_figure, position_figure, residual_figure, stiffness_draws
-from .results import atomic_write_json, package_version, to_jsonable
-from .tables import table, write_table
 
 SECTIONS = {
     **TRIAL_SECTIONS,
@@ -59,7 +59,7 @@ SECTIONS = {
         "method": ("text", METHODS, IDENTIFY_NUMERICS.method),  # identify's default numerics
         "substeps": ("int", 1, IDENTIFY_NUMERICS.substeps),
     },
-    "recordings": RECORDINGS_SECTION,  # several recordings in one identification (study.identify_pool)
+    "recordings": RECORDINGS_SECTION,  # several recordings in one identification (study.recording.identify_pool)
     "calibration": calibration_files.SECTION,  # the robot alone and known loads, calibrated first
 }
 REQUIRED_SECTIONS = ("controller", "arm", "friction", "identify")
@@ -147,7 +147,7 @@ def sensitivity_lines(trial, f, free, percent: float, **options) -> list[str]:
     per 1% error in each (per ms of force delay) [SE], then a warning per parameter a ``percent``
     error (1 ms of delay) would move an entry by more than one SE. ``options``: the sampling
     (``numerics``, ``draws``, ``jacobian_draws``)."""
-    from .._design.sensitivity import robot_names, robot_sensitivity
+    from ..._design.sensitivity import robot_names, robot_sensitivity
 
     robot = [n for n in robot_names(trial) if n not in free]  # a free one is estimated
     if not robot:

@@ -4,7 +4,7 @@ its settings, the estimate and fit, the verdict on them, the results on disk.
 - ``ROUTE_DEFAULTS``, ``route_settings``: the route's options and what a record decides
   (Welch segments that follow the record, ``welch_segments``; a fitted force-channel delay;
   spectral SEs); ``settings_record``: them as the results record them.
-- ``analyse``: ``estimate`` then ``fit_impedance`` on a loaded recording (``study.recording``);
+- ``analyse``: ``estimate`` then ``fit_impedance`` on a loaded recording (``study.recording.recording``);
   with ``lines``, the fit weighs only the bins that hold the perturbation's power on both axes
   (``input_bins``: a multisine's lines), where ``Z`` is the arm's.
 - ``verdict``: the lack-of-fit test, the VAF and where the perturbation has its power read
@@ -12,10 +12,10 @@ its settings, the estimate and fit, the verdict on them, the results on disk.
   the person's own force and the noise, and a fit over every bin says nothing of the arm);
   ``intervals``, ``coherence_summary``: what the report and the JSON hold.
 - ``write_results``: ``estimate.json`` (strict: non-finite numbers become ``null``),
-  ``estimate.npz``, ``bode.png`` and ``coherence.png`` (``study.recording_figures``), each
-  written atomically (``study.results.atomic_write_*``, ``study.figures.save_figure``).
+  ``estimate.npz``, ``bode.png`` and ``coherence.png`` (``study.recording.recording_figures``), each
+  written atomically (``study.runs.results.atomic_write_*``, ``study.sweep.figures.save_figure``).
 
-What the script prints is ``study.recording_report``'s.
+What the script prints is ``study.recording.recording_report``'s.
 """
 
 from __future__ import annotations
@@ -24,12 +24,12 @@ import pathlib
 
 import numpy as np
 
-from .._estimation.diagnose import LACK_OF_FIT_ALPHA, input_coherence_chance
-from .._estimation.estimate import estimate
-from .._estimation.welch import ESTIMATION_FMAX, check_welch, welch_segments
-from .figures import save_figure
+from ..._estimation.diagnose import LACK_OF_FIT_ALPHA, input_coherence_chance
+from ..._estimation.estimate import estimate
+from ..._estimation.welch import ESTIMATION_FMAX, check_welch, welch_segments
+from ..runs.results import atomic_write_json, atomic_write_npz
+from ..sweep.figures import save_figure
 from .recording_figures import OUTPUTS, bode_figure, coherence_figure
-from .results import atomic_write_json, atomic_write_npz
 
 
 def _summary(f, c) -> dict:
@@ -122,7 +122,7 @@ def analyse(rec: dict, *, fs: float, lines: bool = False, **options):
     delay, spectral SEs); returns ``(Estimate, ImpedanceFit)``. With ``lines``, only the bins
     that hold the perturbation on both axes are fitted (``input_bins``). Needs float64
     switched on; ``window`` must be a name or tuple."""
-    from .._estimation.fit import fit_impedance
+    from ..._estimation.fit import fit_impedance
 
     welch, fit, _ = route_settings(rec["x"].shape[0], fs=fs, **options)
     # Each is one compiled program per record shape and settings, shared with any other caller

@@ -1,12 +1,12 @@
 """What ``sweeps/estimate_recording.py`` prints, for both routes: one item a line.
 
-- ``welch_report``: the Welch route (``study.estimate_recording``): the fit's 95% intervals,
+- ``welch_report``: the Welch route (``study.recording.estimate_recording``): the fit's 95% intervals,
   the delay, VAF and lack of fit with their ``estimate_recording.verdict`` (the sentence that also titles
   ``bode.png``), the coherence summary and the warnings.
-- ``model_report``: the model route (``study.identify_recording``): convergence, each entry
+- ``model_report``: the model route (``study.recording.identify_recording``): convergence, each entry
   as value +- SE beside the classical answer, VAF, whiteness and the warnings.
 - ``pooled_report``: the same for several recordings in one identification
-  (``study.identify_pool``): the arm's entries beside each of its group's classical answers,
+  (``study.recording.identify_pool``): the arm's entries beside each of its group's classical answers,
   each recording's VAF and whiteness.
 """
 
