@@ -5,7 +5,7 @@
     python sweeps/sweep.py --config sweep.toml --out DIR     # [friction], [record] ..., [[points]], [run]
     python sweeps/sweep.py --resume DIR                      # finish an interrupted sweep
 
-Settings (``--set NAME=V1,V2,...``, or a trial's sections and ``[[points]]`` in TOML; see docs/sweeps.md):
+Settings (``--set NAME=V1,...`` or ``--set section.key=V1,...``, or a trial's sections in TOML; docs/sweeps.md):
 controller, tau_c [N m], stiction_ratio, sigma0, sigma1, sigma2, v_s, arm (1-4 or a user
 arm in TOML), perturbation_level or peak [N], seconds, force_noise [N], encoder_counts,
 velocity_noise [rad/s], acquisition, mhat [kg], nperseg, noverlap, fmax [Hz], window, nfft.

@@ -82,3 +82,15 @@ def test_a_type_checker_reads_every_public_name_from_its_module():
     for name, where in armimp_jax._EXPORTS.items():
         assert seen.get(name) == where, name
     assert all(seen.get(ns) == "." for ns in NAMESPACES)
+
+
+def test_a_moved_study_module_says_where_it_went():
+    with pytest.raises(ImportError, match=r"armimp_jax\.study\.points moved to armimp_jax\.study\.schema\.points"):
+        from armimp_jax.study import points  # noqa: F401
+    with pytest.raises(ImportError, match=r"moved to armimp_jax\.study\.runs\.engine"):
+        importlib.import_module("armimp_jax.study.engine")
+    from armimp_jax.study import sweep
+
+    with pytest.raises(AttributeError, match=r"a folder since 3\.3\.0.*armimp_jax\.study\.sweep\.sweep"):
+        sweep.run_sweep  # noqa: B018
+    assert importlib.import_module("armimp_jax.study.sweep.sweep").run_sweep is armimp_jax.study.run_sweep

@@ -282,12 +282,29 @@ def test_bad_options_fail_in_one_line(main, capsys, tmp_path, argv, fragment):
         ("[friction\ntau_c = 1", "not valid TOML"),
         ("[frictions]\ntau_c = [1]", "unknown section [frictions]; allowed: arm, perturbation"),
         ("[friction]\ntau_c = [0]\n[run]\nseed = 3", "unknown [run] option(s) seed"),
-        ("[friction]\ntau_c = [0]\n[[points]]\nfriction.tau_c = 1", "given both in a point and in the grid"),
+        ("[friction]\ntau_c = [0]\n[[points]]\nfriction.tau_c = 1", "given both in a point and for every point"),
         ("[[points]]\narm = {mass = [[1, 0], [0, 1]]}", "a user arm needs exactly the keys"),
         ("[arm]\nlocation = 1\nmass = [[1, 0], [0, 1]]", "[arm] takes a location or a user's mass"),
         ("[friction]\nnperseg = 512", "unknown key 'nperseg' in [friction]; allowed: type, tau_c"),
         ("tau_c = 0.5", "tau_c = 0.5 sits outside a section; write it as [friction] tau_c"),
-        ("[[points]]\narm = 2", "arm = 2 sits outside a section; write it as [arm] location"),
+        ("arm = 2", "arm = 2 sits outside a section; write it as [arm] location"),
+        ("[[points]]\narm = 2", "points[0]: arm = 2 sits outside a section; write it as arm.location = ..."),
+        (
+            "[[points]]\nrun.seeds = 3",
+            "unknown section [run]; allowed: arm, perturbation, record, sensors, "
+            "acquisition, welch, controller, friction",
+        ),
+        ("[[points]]\nrecord.seconds = [1, 2]", "a point's values are not swept: seconds in a point is a list"),
+        ('[controller]\ntype = "nope"', "bad.toml: controller: unknown controller type 'nope'"),
+        # a kind's setting the run's kinds do not take is refused, not dropped in silence
+        (
+            '[controller]\ntype = "pd"\nmhat = 3',
+            "mhat: not a setting of the kinds this run names (controller pd; friction lugre)",
+        ),
+        (
+            "[grid]\narm = { mass = 1 }\nbogus = 2",
+            "arm under [arm] location (or a user's mass, damping, stiffness, endpoint); bogus (no such setting)",
+        ),
         # the old flat dialect: one line naming each setting's section
         (
             "[grid]\ntau_c = [0]\nseconds = 2",
@@ -300,6 +317,15 @@ def test_bad_toml_fails_in_one_line(main, capsys, tmp_path, text, fragment):
     config = tmp_path / "bad.toml"
     config.write_text(text)
     one_line_error(capsys, lambda: main(["--config", str(config), "--out", str(tmp_path / "o")]), str(fragment))
+
+
+def test_a_point_s_per_joint_friction_reaches_its_columns(tmp_path):
+    config = tmp_path / "pairs.toml"
+    config.write_text('[controller]\ntype = ["pd", "imbic"]\nmhat = 0.5\n[[points]]\nfriction.tau_c = [0.1, 0.2]\n')
+    grid, points, _ = grids.read_toml(config)
+    pts = grids.expand(grid, points)
+    assert [p["controller"] for p in pts] == ["pd", "imbic"] and pts[1]["mhat"] == 0.5 and "mhat" not in pts[0]
+    assert json.loads(pts[0].columns["tau_s"]) == pytest.approx([0.15, 0.3])  # per joint, as tau_c
 
 
 def test_a_point_is_typed_from_parse_to_table_its_parts_built_once():

@@ -36,6 +36,8 @@ The names below (one list, ``_EXPORTS``) are imported on first use (so
 from __future__ import annotations
 
 import importlib
+import importlib.abc
+import sys
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # what a type checker reads: every name from its module (none loads here)
@@ -131,6 +133,21 @@ _MOVED = {
     **dict.fromkeys(("calibration_files", "movement_day", "movement_figures"), "recording"),
     **dict.fromkeys(("design_experiment", "design_check", "design_report", "tuning"), "design"),
 }
+
+
+class _Moved(importlib.abc.MetaPathFinder):
+    """Tells ``import armimp_jax.study.points`` (and ``from armimp_jax.study import points``) where
+    a module that moved into its folder went; other names it leaves to the other finders."""
+
+    def find_spec(self, fullname, path=None, target=None):
+        head, _, name = fullname.rpartition(".")
+        if head == __name__ and name in _MOVED:
+            raise ImportError(f"{fullname} moved to {__name__}.{_MOVED[name]}.{name}")
+        return None
+
+
+if not any(type(f).__name__ == "_Moved" for f in sys.meta_path):
+    sys.meta_path.append(_Moved())
 
 
 if not TYPE_CHECKING:  # a type checker reads the imports above, and flags a name they lack

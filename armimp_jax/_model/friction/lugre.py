@@ -84,7 +84,7 @@ class LuGre(AbstractFriction):
     def from_point(cls, values: dict) -> LuGre:
         values = dict(values)
         ratio = values.pop("stiction_ratio")
-        return cls(tau_s=values["tau_c"] * ratio, **values)
+        return cls(tau_s=np.multiply(values["tau_c"], ratio), **values)  # per joint where tau_c is
 
     # one joint
     def torque_and_rate(self, v, z):

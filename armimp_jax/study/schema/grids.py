@@ -12,7 +12,20 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
-from .points import KIND_SETTINGS, USER_ARM, Point, known_settings, setting_place, setting_sections
+from .points import (
+    KIND_SETTINGS,
+    POINT_DEFAULTS,
+    USER_ARM,
+    Point,
+    kind_options,
+    kind_settings,
+    known_settings,
+    setting_place,
+    setting_sections,
+)
+
+# a point's settings whose one value is never a list (a kind's may be a per-joint pair or a matrix)
+SCALAR_SETTINGS = tuple(k for k in POINT_DEFAULTS if k not in ("peak", "window", "arm"))
 
 
 def expand(grid: Mapping[str, Iterable] | None = None, points: Iterable[Mapping] | None = None) -> list[Point]:
@@ -27,11 +40,18 @@ def expand(grid: Mapping[str, Iterable] | None = None, points: Iterable[Mapping]
     bases = [dict(p) for p in points] if points is not None else [{}]
     if not bases:
         raise ValueError("the list of points is empty")
+    _check_kind_settings(grid, bases)
     out, seen = [], set()
     for base in bases:
         both = sorted(set(base) & set(grid))
         if both:
-            raise ValueError(f"setting(s) {', '.join(both)} given both in a point and in the grid")
+            raise ValueError(f"setting(s) {', '.join(both)} given both in a point and for every point")
+        listed = sorted(k for k, v in base.items() if isinstance(v, list) and k in SCALAR_SETTINGS)
+        if listed:
+            raise ValueError(
+                f"a point's values are not swept: {', '.join(listed)} in a point is a list; "
+                "sweep it outside the points (a section, or --set)"
+            )
         for combo in itertools.product(*grid.values()):
             point = Point.parse(base | dict(zip(grid, combo, strict=True)))
             key = json.dumps(point.settings, sort_keys=True)
@@ -39,6 +59,25 @@ def expand(grid: Mapping[str, Iterable] | None = None, points: Iterable[Mapping]
                 seen.add(key)
                 out.append(point)
     return out
+
+
+def _check_kind_settings(grid: Mapping, bases: list) -> None:
+    """Refuse a kind's setting that no kind the run names takes (a PD-only sweep given ``mhat``,
+    LuGre given ``tau_s``): a point drops the settings of other kinds, so it would be ignored in
+    silence. A kind not named for every point is its default too."""
+    takes, named_kinds = set(POINT_DEFAULTS), {}
+    for setting in KIND_SETTINGS:
+        kinds = set(grid.get(setting, [])) | {b[setting] for b in bases if setting in b}
+        if setting not in grid and any(setting not in b for b in bases):
+            kinds.add(POINT_DEFAULTS[setting])
+        if not all(isinstance(k, str) for k in kinds):
+            return  # a kind that is no name: the point's own check says so
+        named_kinds[setting] = sorted(kinds)
+        takes |= {n for kind in kinds for n in kind_settings(setting, kind) | kind_options(setting, kind)}
+    stray = sorted({k for k in [*grid, *(k for b in bases for k in b)] if k not in takes and k in known_settings()})
+    if stray:
+        kinds = "; ".join(f"{setting} {', '.join(k)}" for setting, k in named_kinds.items())
+        raise ValueError(f"{', '.join(stray)}: not a setting of the kinds this run names ({kinds})")
 
 
 def _split_top(text: str) -> list[str]:
@@ -100,7 +139,7 @@ RUN_OPTIONS = ("seeds", "base_seed", "method", "substeps")
 
 def read_toml(path) -> tuple[dict, list | None, dict]:
     """``(grid, points, options)`` from a sweep's TOML file, in the trial configs' dialect
-    (``study.config``): a point's sections (``points.setting_sections``: ``[controller]``,
+    (``study.schema.config``): a point's sections (``points.setting_sections``: ``[controller]``,
     ``[friction]``, ``[arm]``, ``[perturbation]``, ``[record]``, ``[sensors]``, ``[acquisition]``,
     ``[welch]``), in which a list is swept and a single value fixed; an optional ``[[points]]``
     array of tables of the same sections; an optional ``[run]`` table (``RUN_OPTIONS``). One-line
@@ -113,12 +152,7 @@ def read_toml(path) -> tuple[dict, list | None, dict]:
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
         raise ValueError(f"{path}: not valid TOML ({' '.join(str(err).split())})") from None
     if "grid" in data:
-        grid = data["grid"] if isinstance(data["grid"], dict) else {}
-        moves = "".join(f"; {name} under {setting_place(name)}" for name in grid)
-        raise ValueError(
-            f"{path}: [grid] is the old sweep dialect: name each setting in its section, as the trial "
-            f"configs do{moves} (docs/sweeps.md)"
-        )
+        raise ValueError(_old_dialect(path, data))
     run, points = data.pop("run", {}), data.pop("points", None)
     if not isinstance(run, dict):
         raise ValueError(f"{path}: [run] must be a table")
@@ -128,28 +162,51 @@ def read_toml(path) -> tuple[dict, list | None, dict]:
     if points is not None and not (isinstance(points, list) and all(isinstance(p, dict) for p in points)):
         raise ValueError(f"{path}: points must be an array of tables ([[points]])")
     grid = sectioned(data, str(path))
-    points = None if points is None else [sectioned(p, f"{path}: points[{i}]") for i, p in enumerate(points)]
+    points = (
+        None if points is None else [sectioned(p, f"{path}: points[{i}]", point=True) for i, p in enumerate(points)]
+    )
     return grid, points, run
 
 
-def sectioned(tables: Mapping, where: str) -> dict:
+def _old_dialect(path, data) -> str:
+    """The one line refusing a file in the old flat dialect: each setting's section named."""
+    flat = [data["grid"] if isinstance(data["grid"], dict) else {}]
+    flat += [p for p in data.get("points", []) if isinstance(p, dict)]
+    names = list(dict.fromkeys(name for table in flat for name in table))
+
+    def place(name):
+        if name == "arm" and any(isinstance(t.get("arm"), Mapping) for t in flat):
+            return f"arm under [arm] location (or a user's {', '.join(USER_ARM)})"
+        return f"{name} under {setting_place(name)}" if name in known_settings() else f"{name} (no such setting)"
+
+    moves = "".join(f"; {place(name)}" for name in names)
+    return f"{path}: [grid] is the old sweep dialect: name each setting in its section, as the trial configs do{moves}"
+
+
+def sectioned(tables: Mapping, where: str, *, point: bool = False) -> dict:
     """The settings by name (a point's, or a grid's value lists) of a config's sections
     ``{section: {key: value}}`` (``points.setting_sections``); ``[arm]`` takes a ``location`` or
     a user's ``mass``, ``damping``, ``stiffness`` and ``endpoint``. One line naming the section
-    and key otherwise."""
+    and key otherwise (``point``: an entry of ``[[points]]``, whose sections are dotted keys)."""
     sections = setting_sections()
     out: dict = {}
     for section, table in tables.items():
         if not isinstance(table, Mapping):
-            known = section in known_settings()
-            hint = f"; write it as {setting_place(section)}" if known else ""
+            hint = ""
+            if section in known_settings():
+                place = setting_place(section)
+                hint = "; write it as " + (place.replace("[", "").replace("] ", ".") + " = ..." if point else place)
             raise ValueError(f"{where}: {section} = {table!r} sits outside a section{hint}")
         if section not in sections:
-            raise ValueError(f"{where}: unknown section [{section}]; allowed: {', '.join(sections)}, run, points")
+            extra = "" if point else ", run, points"
+            raise ValueError(f"{where}: unknown section [{section}]; allowed: {', '.join(sections)}{extra}")
         table = dict(table)
         if section in KIND_SETTINGS and "type" in table:  # an unknown kind first: its keys are unknown because it is
             for kind in table["type"] if isinstance(table["type"], list) else [table["type"]]:
-                KIND_SETTINGS[section][1](kind, where=section)
+                try:
+                    KIND_SETTINGS[section][1](kind, where=section)
+                except ValueError as err:
+                    raise ValueError(f"{where}: {err}") from None
         if section == "arm" and set(USER_ARM) & set(table):
             if "location" in table:
                 raise ValueError(f"{where}: [arm] takes a location or a user's {', '.join(USER_ARM)}, not both")

@@ -426,8 +426,9 @@ def point_columns(point: Mapping) -> dict:
             cols[k] = json.dumps(v)
         else:
             cols[k] = v
-        if k == "stiction_ratio":
-            cols["tau_s"] = point["tau_c"] * point["stiction_ratio"]
+        if k == "stiction_ratio":  # per joint where tau_c is
+            tau_s = np.multiply(point["tau_c"], point["stiction_ratio"])
+            cols["tau_s"] = json.dumps(tau_s.tolist()) if np.ndim(tau_s) else float(tau_s)
     return cols
 
 

@@ -203,7 +203,7 @@ def requested(config=None, sets=(), shortcuts: Mapping | None = None, run: Mappi
     grid = dict(grid) | cli
     for name, value in (shortcuts or {}).items():
         if name in grid:
-            raise ValueError(f"--{name} and --set {name} (or the TOML grid) both given")
+            raise ValueError(f"--{name} and --set {name} (or the TOML file) both given")
         grid[name] = [value]
     return SweepSettings(tuple(expand(grid, points)), **(dict(toml_run) | dict(run or {})))
 
