@@ -296,6 +296,7 @@ def test_bad_options_fail_in_one_line(main, capsys, tmp_path, argv, fragment):
         ),
         ("[[points]]\nrecord.seconds = [1, 2]", "a point's values are not swept: seconds in a point is a list"),
         ('[controller]\ntype = "nope"', "bad.toml: controller: unknown controller type 'nope'"),
+        ('[friction]\ntype = ["lugre", "coulomb_viscous"]', "friction 'coulomb_viscous' needs tau_c: it has no"),
         # a kind's setting the run's kinds do not take is refused, not dropped in silence
         (
             '[controller]\ntype = "pd"\nmhat = 3',

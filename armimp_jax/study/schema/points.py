@@ -32,6 +32,7 @@ from ..._estimation.welch import Welch
 from ..._model.arm import Arm
 from ..._model.controllers import CONTROLLER_KINDS, controller_kind
 from ..._model.friction import FRICTION_KINDS, friction_kind
+from ..._model.kinds import REQUIRED
 from ..._model.sensors import SETTINGS as SENSOR_SETTINGS
 from ..._model.sensors import static_settings as sensor_static
 from ..._simulate import ACQUISITIONS, Trial, make_trial
@@ -184,6 +185,8 @@ def _kind(setting: str, p: Mapping) -> dict:
         raise ValueError(f"{setting} must name a kind, got {kind!r}")
     out: dict[str, Any] = {setting: kind}
     for name, (default, _) in kind_settings(setting, kind).items():
+        if default is REQUIRED and name not in p:
+            raise ValueError(f"{setting} {kind!r} needs {name}: it has no default")
         out[name] = _kind_value(name, p.get(name, default), default)
     for name, (default, words) in kind_options(setting, kind).items():
         if p.get(name, default) != default:
