@@ -17,8 +17,7 @@ from .points import (
     POINT_DEFAULTS,
     USER_ARM,
     Point,
-    kind_options,
-    kind_settings,
+    kind_takes,
     known_settings,
     setting_place,
     setting_sections,
@@ -65,7 +64,7 @@ def _check_kind_settings(grid: Mapping, bases: list) -> None:
     """Refuse a kind's setting that no kind the run names takes (a PD-only sweep given ``mhat``,
     LuGre given ``tau_s``): a point drops the settings of other kinds, so it would be ignored in
     silence. A kind not named for every point is its default too."""
-    takes, named_kinds = set(POINT_DEFAULTS), {}
+    takes, named_kinds, known = set(POINT_DEFAULTS), {}, known_settings()
     for setting in KIND_SETTINGS:
         kinds = set(grid.get(setting, [])) | {b[setting] for b in bases if setting in b}
         if setting not in grid and any(setting not in b for b in bases):
@@ -73,8 +72,8 @@ def _check_kind_settings(grid: Mapping, bases: list) -> None:
         if not all(isinstance(k, str) for k in kinds):
             return  # a kind that is no name: the point's own check says so
         named_kinds[setting] = sorted(kinds)
-        takes |= {n for kind in kinds for n in kind_settings(setting, kind) | kind_options(setting, kind)}
-    stray = sorted({k for k in [*grid, *(k for b in bases for k in b)] if k not in takes and k in known_settings()})
+        takes |= {n for kind in kinds for n in kind_takes(setting, kind)}
+    stray = sorted({k for k in [*grid, *(k for b in bases for k in b)] if k not in takes and k in known})
     if stray:
         kinds = "; ".join(f"{setting} {', '.join(k)}" for setting, k in named_kinds.items())
         raise ValueError(f"{', '.join(stray)}: not a setting of the kinds this run names ({kinds})")
@@ -177,7 +176,8 @@ def _old_dialect(path, data) -> str:
     def place(name):
         if name == "arm" and any(isinstance(t.get("arm"), Mapping) for t in flat):
             return f"arm under [arm] location (or a user's {', '.join(USER_ARM)})"
-        return f"{name} under {setting_place(name)}" if name in known_settings() else f"{name} (no such setting)"
+        where = setting_place(name)
+        return f"{name} (no such setting)" if where is None else f"{name} under [{where[0]}] {where[1]}"
 
     moves = "".join(f"; {place(name)}" for name in names)
     return f"{path}: [grid] is the old sweep dialect: name each setting in its section, as the trial configs do{moves}"
@@ -192,10 +192,10 @@ def sectioned(tables: Mapping, where: str, *, point: bool = False) -> dict:
     out: dict = {}
     for section, table in tables.items():
         if not isinstance(table, Mapping):
+            place = setting_place(section)  # a setting outside its section (the old flat dialect)
             hint = ""
-            if section in known_settings():
-                place = setting_place(section)
-                hint = "; write it as " + (place.replace("[", "").replace("] ", ".") + " = ..." if point else place)
+            if place is not None:
+                hint = "; write it as " + (f"{place[0]}.{place[1]} = ..." if point else f"[{place[0]}] {place[1]}")
             raise ValueError(f"{where}: {section} = {table!r} sits outside a section{hint}")
         if section not in sections:
             extra = "" if point else ", run, points"

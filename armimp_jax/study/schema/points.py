@@ -102,6 +102,12 @@ def kind_options(setting: str, kind: str) -> dict:
     }
 
 
+def kind_takes(setting: str, kind: str) -> dict:
+    """Every point setting the ``kind`` chosen for ``setting`` takes: its settings and its text
+    options (``kind_settings`` | ``kind_options``)."""
+    return kind_settings(setting, kind) | kind_options(setting, kind)
+
+
 def known_settings() -> dict:
     """``{name: (default, unit)}`` of every setting a point may name: ``POINT_DEFAULTS`` and the
     settings of every registered kind (a name two kinds share appears once, with the first's
@@ -109,7 +115,7 @@ def known_settings() -> dict:
     out = {k: (v, POINT_UNITS.get(k)) for k, v in POINT_DEFAULTS.items()}
     for setting, (registry, _) in KIND_SETTINGS.items():
         for kind in registry.names():
-            for name, spec in (kind_settings(setting, kind) | kind_options(setting, kind)).items():
+            for name, spec in kind_takes(setting, kind).items():
                 out.setdefault(name, spec)
     return out
 
@@ -121,18 +127,19 @@ def setting_sections() -> dict:
     for setting, (registry, _) in KIND_SETTINGS.items():
         keys = {"type": setting}
         for kind in registry.names():
-            keys |= {name: name for name in kind_settings(setting, kind) | kind_options(setting, kind)}
+            keys |= {name: name for name in kind_takes(setting, kind)}
         out[setting] = keys
     return out
 
 
-def setting_place(name: str) -> str:
-    """Where a config names a point setting: ``"[friction] tau_c"``, ``"[record] seconds"``."""
+def setting_place(name: str) -> tuple[str, str] | None:
+    """Where a config names a point setting, ``(section, key)``: ``("friction", "tau_c")``,
+    ``("record", "seconds")``; ``None`` for a name no section takes."""
     for section, keys in setting_sections().items():
         for key, setting in keys.items():
             if setting == name:
-                return f"[{section}] {key}"
-    return f"no section takes {name!r}"
+                return section, key
+    return None
 
 
 def setting_unit(name: str) -> str | None:
