@@ -127,12 +127,35 @@ _MOVED = {
     **dict.fromkeys(("points", "grids", "config"), "schema"),
     **dict.fromkeys(("tables", "figures", "metrics", "stats", "threshold", "coverage"), "sweep"),
     **dict.fromkeys(
-        ("estimate_recording", "identify_recording", "identify_pool", "recording_figures", "recording_report"),
+        (
+            "estimate_recording",
+            "identify_recording",
+            "identify_pool",
+            "recording_figures",
+            "recording_report",
+            "calibration_files",
+            "movement_day",
+            "movement_figures",
+        ),
         "recording",
     ),
-    **dict.fromkeys(("calibration_files", "movement_day", "movement_figures"), "recording"),
     **dict.fromkeys(("design_experiment", "design_check", "design_report", "tuning"), "design"),
 }
+
+
+def _folder_getattr(package: str, module: str):
+    """The ``__getattr__`` of a folder named as 3.2.0's module ``module`` was (``sweep``,
+    ``recording``): a name that module held is now in ``{package}.{module}``, and says so."""
+
+    def __getattr__(name: str):
+        if name.startswith("__"):
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        raise AttributeError(
+            f"module {package!r} (a folder since 3.3.0) has no attribute {name!r}: import it from its module, "
+            f"{package}.{module}, or another of the folder's"
+        )
+
+    return __getattr__
 
 
 class _Moved(importlib.abc.MetaPathFinder):
