@@ -8,7 +8,7 @@ import armimp_jax as aj
 from armimp_jax import paper
 from armimp_jax.paper import explain
 from armimp_jax.paper._experiments import SIGMA1_LOW, Experiments, Run
-from armimp_jax.study.schema.points import build_trial
+from armimp_jax.study.schema.points import Point
 
 
 def _leaves_equal(a, b):
@@ -37,7 +37,7 @@ def _leaves_equal(a, b):
     ],
 )
 def test_a_run_is_the_paper_trial_through_its_point(run, expected):
-    assert _leaves_equal(build_trial(run.point(1024)), expected())
+    assert _leaves_equal(Point.parse(run.point(1024)).trial, expected())
 
 
 def test_every_experiment_lists_runs_with_segments_for_each_length():

@@ -140,7 +140,7 @@ def test_the_toy_kinds_sweep_from_a_config(tmp_path):
     result = study.run_sweep(settings, tmp_path / "out", warn=lambda _: None)
     rows = result["conditions"]
     assert len(rows) == 2 and all(r["n"] == 1 and np.isfinite(r["stats"]["phi_T"]["mean"]) for r in rows)
-    trial = study.build_trial(pts[1])
+    trial = study.Point.parse(pts[1]).trial
     np.testing.assert_array_equal(trial.controller.d, 30.0 * np.eye(2))
 
 

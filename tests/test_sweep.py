@@ -367,7 +367,7 @@ def test_points_normalise_and_deduplicate():
     assert grids.parse_set(["tau_c=geom:0.001:4:3", "peak=[1,2],3", 'window=hann,["tukey",0.5]']) == dict(
         tau_c=pytest.approx([1e-3, 0.063245553, 4.0]), peak=[[1, 2], 3], window=["hann", ["tukey", 0.5]]
     )
-    trial = sp.build_trial(sp.normalize_point(dict(tau_c=2.0, arm=user, controller="imbic", mhat=0.5)))
+    trial = sp.Point.parse(dict(tau_c=2.0, arm=user, controller="imbic", mhat=0.5)).trial
     np.testing.assert_allclose(trial.friction.tau_s, [3.0, 3.0])
     np.testing.assert_allclose(trial.controller.mhat, 0.5 * np.eye(2))
 

@@ -305,3 +305,22 @@ def test_the_sensors_schema_is_read_not_restated():
     for module in (config, points, layout):
         text = pathlib.Path(module.__file__).read_text()
         assert not [n for n in (*sensors.SETTINGS, *sensors.IDENTIFIABLE) if f'"{n}"' in text], module.__name__
+
+
+def test_one_builder_of_a_trial_from_settings():
+    # a config's sections and a sweep's point build through the one study.build_trial: the same
+    # trial (leaf for leaf) from either; a flat point handed to it is refused in one line
+    from armimp_jax import study
+    from armimp_jax.study.schema.config import ConfigError
+
+    sections = dict(
+        controller=dict(type="imbic", mhat=[[0.5, 0.0], [0.0, 0.5]]),
+        friction=dict(type="lugre", tau_c=0.5, tau_s=0.75),
+        arm={n: np.asarray(getattr(paper.arm(2), n)).tolist() for n in ("mass", "damping", "stiffness", "endpoint")},
+    )
+    point = study.Point.parse(dict(controller="imbic", mhat=0.5, tau_c=0.5, arm=2))
+    assert tree_equal(study.build_trial(sections), point.trial)
+    flat = dict(controller="imbic", mhat=0.5, tau_c=0.5, arm=2)
+    with pytest.raises(ConfigError, match=r"flat key\(s\) 'arm'.*study\.Point\.parse\(point\)\.trial") as e:
+        study.build_trial(flat)
+    assert "\n" not in str(e.value)

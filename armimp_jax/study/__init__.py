@@ -58,12 +58,12 @@ if TYPE_CHECKING:  # what a type checker reads: every name from its module (none
     from .runs.runfolder import RunLock as RunLock
     from .runs.runfolder import StudyRun as StudyRun
     from .runs.seeds import perturbation_key as perturbation_key
+    from .schema.config import build_trial as build_trial
     from .schema.grids import expand as expand
     from .schema.grids import parse_set as parse_set
     from .schema.grids import read_toml as read_toml
     from .schema.points import POINT_DEFAULTS as POINT_DEFAULTS
     from .schema.points import Point as Point
-    from .schema.points import build_trial as build_trial
     from .schema.points import known_settings as known_settings
     from .schema.points import normalize_point as normalize_point
     from .sweep.figures import save_figure as save_figure
@@ -108,7 +108,7 @@ _EXPORTS = {
     "known_settings": "schema.points",
     "expand": "schema.grids",
     "normalize_point": "schema.points",
-    "build_trial": "schema.points",
+    "build_trial": "schema.config",
     "parse_set": "schema.grids",
     "read_toml": "schema.grids",
     "SweepSettings": "sweep.sweep",

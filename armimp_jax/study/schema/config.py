@@ -7,8 +7,8 @@ design): sections of typed keys, read and checked into plain values, then the ``
   the key and what is allowed.
 - ``trial_parts(config, where=...)``: the parameter values of the sections in
   ``TRIAL_SECTIONS``, built by their constructors, the only validators (their range
-  checks come back as ``ConfigError`` naming the section); ``build_trial`` the ``Trial``.
-  A sweep's point (``study.Point``) is built through the same ``trial_parts``, its kinds given.
+  checks come back as ``ConfigError`` naming the section); ``build_trial`` the ``Trial``, the
+  one builder: a sweep's point (``study.Point``) is built through it, its kinds given.
 - ``[controller]`` and ``[friction]`` name a kind (``type = "admittance"``, ``type =
   "coulomb_viscous"``; the friction's default is ``"lugre"``) and take that kind's own
   parameters, read from its class (``kind_section``): a kind of one's own, once its class is
@@ -248,11 +248,18 @@ def trial_parts(config: dict, *, where: str | None = "config", arm=None, frictio
     )
 
 
-def build_trial(config: dict, *, where: str | None = "config", arm=None, friction=None):
+def build_trial(config: dict, *, where: str | None = "config", arm=None, friction=None, controller=None):
     """The ``Trial`` of ``config``'s trial sections (``trial_parts``, then ``make_trial`` with
-    the ``[acquisition]`` mode); ``arm`` (an ``Arm``) and ``friction`` in place of the ``[arm]``
-    and ``[friction]`` sections when given. Needs float64."""
-    parts = trial_parts(config, where=where, arm=arm, friction=friction)
+    the ``[acquisition]`` mode); ``arm`` (an ``Arm``), ``friction`` and ``controller`` in place
+    of their sections when given. The one way a trial is built from settings: a sweep's point
+    gives its own (``Point.trial``) through it. Needs float64."""
+    flat = sorted(k for k, v in config.items() if not isinstance(v, dict))
+    if flat:  # a sweep's flat point (controller = "pd", tau_c = 0.5) is no config of sections
+        raise ConfigError(
+            f"{where or 'build_trial'}: takes a trial's sections ({{'controller': {{'type': 'pd'}}, ...}}), got "
+            f"flat key(s) {', '.join(map(repr, flat[:4]))}: a sweep point's trial is study.Point.parse(point).trial"
+        )
+    parts = trial_parts(config, where=where, arm=arm, friction=friction, controller=controller)
     acquisition = config.get("acquisition", {}).get("mode", "instant")
     ctrl = parts.pop("controller")
     try:

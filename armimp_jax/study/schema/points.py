@@ -35,7 +35,7 @@ from ..._model.friction import FRICTION_KINDS, friction_kind
 from ..._model.kinds import REQUIRED
 from ..._model.sensors import SETTINGS as SENSOR_SETTINGS
 from ..._model.sensors import static_settings as sensor_static
-from ..._simulate import ACQUISITIONS, Trial, make_trial
+from ..._simulate import ACQUISITIONS, Trial
 from ...presets import LOCATIONS, PERTURBATION_LEVELS, perturbation_peak
 from ...presets import arm as paper_arm
 from ..runs.results import settings_key
@@ -246,14 +246,18 @@ def _normalized(raw: Mapping) -> tuple[dict, dict, Welch]:
     out = _settings(raw)
     controller, friction = point_parts(out)
     # the constructors check the values (the kinds built once, from the point's own values)
-    sections = dict(acquisition=dict(mode=out["acquisition"]), sensors={k: out[k] for k in SENSOR_SETTINGS})
-    parts = config.trial_parts(sections, where=None, arm=point_arm(out), controller=controller, friction=friction)
+    parts = config.trial_parts(_sections(out), where=None, arm=point_arm(out), controller=controller, friction=friction)
     welch = point_welch(out)
     try:
         welch.check(n_samples(out))
     except ValueError as err:
         raise ValueError(f"seconds={out['seconds']:g}, nperseg={out['nperseg']}: {err}") from None
     return out, parts, welch
+
+
+def _sections(point: Mapping) -> dict:
+    """The trial sections a point's settings fill (its kinds and arm are given as built)."""
+    return dict(acquisition=dict(mode=point["acquisition"]), sensors={k: point[k] for k in SENSOR_SETTINGS})
 
 
 def _perturbation(raw: Mapping, p: Mapping) -> dict:
@@ -377,9 +381,9 @@ class Point(Mapping):
 
     @functools.cached_property
     def trial(self) -> Trial:
-        """Its ``Trial`` on MIT-MANUS (``make_trial`` of its parts; needs float64)."""
-        parts = dict(self._parts)
-        return make_trial(parts.pop("controller"), acquisition=self._settings["acquisition"], **parts)
+        """Its ``Trial`` on MIT-MANUS (``config.build_trial`` of its parts; needs float64)."""
+        kinds = dict(arm=self.arm, friction=self.friction, controller=self.controller)
+        return config.build_trial(_sections(self._settings), where=None, **kinds)
 
     @functools.cached_property
     def samples(self) -> int:
@@ -407,11 +411,6 @@ class Point(Mapping):
     def noisy(self) -> bool:
         """Whether its trials draw sensor noise (its ``Sensors``' force or rate noise is on)."""
         return self.sensors.force_on or self.sensors.velocity_on
-
-
-def build_trial(point: Mapping) -> Trial:
-    """The ``Trial`` of a point (``Point.parse(point).trial``, on MIT-MANUS). Needs float64."""
-    return Point.parse(point).trial
 
 
 def static_group(point: Mapping) -> tuple:
