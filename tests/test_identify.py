@@ -3,6 +3,8 @@ data, the binding's Jacobian against finite differences, the statistics it match
 classical and the efficient one), one-line errors before long work, a nuisance the recording
 cannot tell, a diagnosis in a lab's terms, predict_se against Monte Carlo."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -534,3 +536,15 @@ def test_the_chord_is_exact_on_a_quadratic_binding_and_narrows_where_draws_diver
     np.testing.assert_array_equal(out[:, 0], 9.0)
     np.testing.assert_allclose(out[:, 1], exact[:, 1], rtol=1e-12)
     assert indirect.chord(lambda q: binding(q, 0.1), p, half, lambda: None) is None
+
+
+def test_the_stuck_advice_names_what_held_the_joints():
+    """Under IMBIC with a transducer the advice does not send a lab to IMBIC; with the force read
+    from the motors it says the friction sits inside that force (IMBIC cannot cancel it)."""
+    from armimp_jax._identification.diagnosis import _remedy
+
+    pd, imbic = _trial(), aj.make_trial(aj.IMBIC(), arm=paper.arm(2), friction=aj.LuGre(tau_c=0.5, tau_s=0.75))
+    motor = dataclasses.replace(imbic, sensors=aj.Sensors(force_model=aj.presets.MIT_MANUS))
+    assert _remedy(pd).endswith("or under IMBIC") and "burst" in _remedy(pd)
+    assert "IMBIC" not in _remedy(imbic) and "burst" in _remedy(imbic)
+    assert "motor torques" in _remedy(motor) and "force transducer" in _remedy(motor)

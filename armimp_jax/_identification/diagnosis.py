@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._estimation.plausibility import plausibility_warnings
+from .._model.controllers.imbic import IMBIC
 from .._model.robot import ik
 from .auxiliary import lowpass
 from .layout import ARM_PARAMETERS
@@ -55,10 +56,23 @@ def motion_diagnosis(trial, x) -> Motion:
     if np.max(fraction) > STUCK_ADVICE:
         advice.append(
             f"the joints stood still for {np.max(fraction):.0%} of the record (joint 1 {fraction[0]:.0%}, joint 2 "
-            f"{fraction[1]:.0%}): the robot's friction held them, so the recording shows little of the arm; record "
-            "with a larger perturbation or one in bursts (ShapedNoise(duty=...)), or under IMBIC"
+            f"{fraction[1]:.0%}): the robot's friction held them, so the recording shows little of the arm; "
+            + _remedy(trial)
         )
     return Motion(fraction, advice)
+
+
+def _remedy(trial) -> str:
+    """What to change, by what held the joints: a force read from the motors carries the
+    friction into the controller, so IMBIC cannot cancel it (measured: 84-86% stuck against 4-5%
+    with a transducer, the protocol's IMBIC through LuGre 0.5 N m, docs/identification.md)."""
+    larger = "record with a larger perturbation or one in bursts (ShapedNoise(duty=...))"
+    if trial.sensors.motor_force:
+        return (
+            "the hand force is read from the motor torques (Sensors.force_model), so the friction is inside it and "
+            f"the controller cannot compensate it: fit a force transducer at the handle, or {larger}"
+        )
+    return larger if isinstance(trial.controller, IMBIC) else f"{larger}, or under IMBIC"
 
 
 def plausibility(values: dict, se: dict) -> list[str]:

@@ -83,7 +83,8 @@ class Sensors:
             ``F = F_u,k-1 - M_x,model(q_k) a_k`` (``J^-T tau_motor`` less the model's inertial
             force; ``a_k = (xd_k - xd_k-1) / L``, the acceleration while ``F_u,k-1`` acted): what
             the controller and the recording read, plus the force noise. The robot's own
-            friction and any error of the model stay in it. Default ``None`` (a transducer).
+            friction and any error of the model stay in it: IMBIC, reading this force, cannot cancel
+            the friction, and its joints stick as PD's do. Default ``None`` (a transducer).
 
     The static flags ``force_on``, ``encoder_on``, ``velocity_on`` and ``calibrated`` (any of
     gain, offset and delay not at its default, or traced; derived, not arguments) say which
