@@ -63,6 +63,15 @@ def test_the_version_is_stated_once_in_pyproject():
     assert res.stamped({})["armimp_jax"] == stated
 
 
+def test_a_record_is_stamped_with_the_version_this_process_imported(monkeypatch):
+    # a reinstall under a running study changes the installed metadata, not the code it runs
+    import importlib.metadata
+
+    monkeypatch.setattr(importlib.metadata, "version", lambda name: "99.0.0")
+    assert res.package_version() == __version__ != "99.0.0"
+    assert res.stamped({})["armimp_jax"] == __version__
+
+
 def test_describe_difference_is_one_line_naming_each_setting():
     saved = res.stamped(dict(seconds=6.0, mhat=0.25, welch=dict(nperseg=1024), frictions=[0, 1, 2]))
     wanted = dict(seconds=8.0, mhat=0.25, welch=dict(nperseg=512), frictions=[0], extra=1)

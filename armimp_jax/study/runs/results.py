@@ -25,7 +25,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import hashlib
-import importlib.metadata
 import io
 import json
 import math
@@ -106,8 +105,12 @@ def canonical_json(obj: Any) -> str:
 
 
 def package_version() -> str:
-    """The installed armimp_jax's version (``pyproject.toml``'s, from the package metadata)."""
-    return importlib.metadata.version("armimp_jax")
+    """The version of the armimp_jax this process imported (``armimp_jax.__version__``, read
+    from the metadata once, at import): a reinstall under a running study does not restamp its
+    later records with code it is not running."""
+    import armimp_jax
+
+    return armimp_jax.__version__
 
 
 def stamped(settings: Mapping) -> dict:
