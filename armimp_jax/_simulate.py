@@ -29,8 +29,17 @@ from ._model.friction import FRICTION_KINDS, AbstractFriction
 from ._model.movement import setpoint
 from ._model.plant import PlantState, Trig, displacement, measure, near_path, plant_model, rest_state, trig_of
 from ._model.reach import arm_warnings, check_moving, motion_kind, still_trials
-from ._model.robot import MIT_MANUS, Robot, cartesian_inertia, fk, ik, jacobian_from_trig
-from ._model.sensors import FORCE_HISTORY, IDEAL, Sensors, check_calibration, delayed_force, read_joints, sample_noise
+from ._model.robot import MIT_MANUS, Robot, cartesian_inertia, fk, ik, jacobian, jacobian_from_trig
+from ._model.sensors import (
+    FORCE_HISTORY,
+    IDEAL,
+    Sensors,
+    check_calibration,
+    compensated_torque,
+    delayed_force,
+    read_joints,
+    sample_noise,
+)
 from ._model.timing import CONTROL_PERIOD
 from ._model.voluntary import VoluntaryForce, voluntary_init, voluntary_key, voluntary_normals, voluntary_update
 from ._pytree import params
@@ -180,6 +189,8 @@ def _align_sensors(trials: list[Trial]) -> list[Trial]:
             t.sensors.force_gain,
             t.sensors.force_offset,
             t.sensors.force_delay,
+            t.sensors.force_model,
+            t.sensors.force_friction,
             force_on=force_on,
             velocity_on=velocity_on,
             calibrated=calibrated,
@@ -367,11 +378,16 @@ def _record(trial: Trial, state: PlantState, x, xd, fh, carry: SimCarry):
     return xbar, fbar
 
 
-def motor_force(trial: Trial, q, xd, carry: SimCarry):
+def motor_force(trial: Trial, q, qd, xd, carry: SimCarry):
     """The hand force [N] ``(2,)`` a robot without a transducer computes from its motor torques:
-    ``F_u,k-1 - M_x,model(q) (xd_k - xd_k-1) / L`` (``Sensors.force_model``)."""
-    inertia = cartesian_inertia(q, trial.sensors.force_model)
-    return carry.fu_prev - matvec(inertia, (xd - carry.xd_prev) / trial.period)
+    ``F_u,k-1 - M_x,model(q) (xd_k - xd_k-1) / L`` (``Sensors.force_model``), less ``J^-T
+    tau_f,model(qd)`` where the lab subtracts a friction law (``Sensors.force_friction``)."""
+    model = trial.sensors.force_model
+    force = carry.fu_prev - matvec(cartesian_inertia(q, model), (xd - carry.xd_prev) / trial.period)
+    if trial.sensors.force_friction is None:
+        return force
+    tau = compensated_torque(trial.sensors.force_friction, qd)
+    return force - jnp.linalg.solve(jacobian(q, model).T, tau)
 
 
 def period_step(trial: Trial, model, numerics: Numerics, carry: SimCarry, fd, inputs: PeriodInputs):
@@ -393,7 +409,7 @@ def period_step(trial: Trial, model, numerics: Numerics, carry: SimCarry, fd, in
     if carry.voluntary is not None:
         fh = fh - carry.voluntary.force
     if trial.sensors.motor_force:  # no transducer: the force from the motor torques, through the model
-        fh = motor_force(trial, jnp.stack([state.q1, state.q2]), xd, carry)
+        fh = motor_force(trial, jnp.stack([state.q1, state.q2]), jnp.stack([state.qd1, state.qd2]), xd, carry)
     history = None
     x_rec, fh_rec = _record(trial, state, x, xd, fh, carry)
     if not trial.sensors.ideal or inputs.encoder is not None:

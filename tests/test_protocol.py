@@ -10,7 +10,7 @@ import pytest
 
 import armimp_jax as aj
 from armimp_jax import paper
-from armimp_jax._model.robot import cartesian_inertia
+from armimp_jax._model.robot import cartesian_inertia, jacobian
 
 # Frictionless loops are not stiff: RK4 at 2 substeps (the suite is compile-bound).
 NUM = aj.Numerics(solver=aj.solvers.RK4(), substeps=2)
@@ -44,6 +44,43 @@ def test_a_force_from_the_motor_torques_is_the_command_less_the_models_inertial_
     inertia = np.asarray(jax.vmap(lambda qq: cartesian_inertia(qq, model))(q[1:]))
     want = fu[:-1] - np.einsum("kij,kj->ki", inertia, (xd[1:] - xd[:-1]) / trial.period)
     np.testing.assert_allclose(np.asarray(sim.fh)[1:], want, rtol=1e-12, atol=1e-12)
+
+
+def test_a_motor_force_less_the_labs_friction_law_is_the_closed_form():
+    # a static law in the plant and the same law subtracted: F_u - M_x a - J^-T tau_f(qd), qd = J^-1 xd
+    law = aj.CoulombViscous(0.3, 0.5, v_s=0.01)
+    sensors = aj.Sensors(force_model=aj.presets.MIT_MANUS, force_friction=law)
+    trial = aj.make_trial(aj.IMBIC(), arm=paper.arm(2), friction=law, sensors=sensors)
+    sim = jax.jit(aj.simulate, static_argnames="numerics")(trial, F, numerics=aj.Numerics(substeps=4))
+    fu, xd, q = (np.asarray(a) for a in (sim.fu, sim.xd, sim.q))
+    jac = np.asarray(jax.vmap(jacobian)(q[1:]))
+    inertia = np.asarray(jax.vmap(cartesian_inertia)(q[1:]))
+    qd = np.linalg.solve(jac, xd[1:, :, None])[..., 0]
+    tau = 0.3 * np.tanh(qd / 0.01) + 0.5 * qd
+    want = fu[:-1] - np.einsum("kij,kj->ki", inertia, (xd[1:] - xd[:-1]) / trial.period)
+    want = want - np.linalg.solve(np.swapaxes(jac, 1, 2), tau[..., None])[..., 0]
+    np.testing.assert_allclose(np.asarray(sim.fh)[1:], want, rtol=1e-9, atol=1e-9)
+
+
+def test_imbic_cancels_the_friction_through_a_motor_force_only_once_the_lab_subtracts_it():
+    """Without a transducer IMBIC reads the friction as the person's force and its joints stick
+    (as PD's); with the lab's static law subtracted they move as with a transducer."""
+    from armimp_jax._identification.diagnosis import motion_diagnosis
+
+    lugre = aj.LuGre(0.5, 0.75)
+    f = aj.perturbation(jax.random.key(7), 4000, paper.perturbation_peak(1))
+    robot = aj.presets.MIT_MANUS
+    cases = dict(
+        transducer=aj.Sensors(),
+        motor=aj.Sensors(force_model=robot),
+        subtracted=aj.Sensors(force_model=robot, force_friction=aj.CoulombViscous(0.5, lugre.sigma2, v_s=1e-3)),
+    )
+    stuck = {}
+    for name, sensors in cases.items():
+        trial = aj.make_trial(aj.IMBIC(), arm=paper.arm(2), friction=lugre, sensors=sensors)
+        x = jax.jit(aj.simulate, static_argnames="numerics")(trial, f, numerics=aj.Numerics()).x
+        stuck[name] = float(np.max(motion_diagnosis(trial, x).fraction))
+    assert stuck["motor"] > 0.5 and stuck["transducer"] < 0.15 and stuck["subtracted"] < 0.15, stuck
 
 
 @pytest.mark.slow  # 50 s cold: the pooled layout's compile (the suite's 10-minute budget)

@@ -21,6 +21,7 @@ import numpy as np
 
 from .._checks import as_param, check_range, is_concrete
 from .._pytree import Param, params
+from .friction.base import AbstractFriction
 from .robot import Robot
 
 
@@ -56,6 +57,29 @@ def static_settings(values) -> tuple:
     return (values["encoder_counts"] is not None,)
 
 
+def _check_force_friction(law, motor_force: bool) -> None:
+    """A law subtracted from the motor torques: a friction law without a bristle state, and only
+    where the force comes from the motors."""
+    if law is None:
+        return
+    if not isinstance(law, AbstractFriction):
+        raise ValueError(f"Sensors: force_friction must be a friction law (CoulombViscous, say), got {law!r}")
+    if not motor_force:
+        raise ValueError("Sensors: force_friction is subtracted from the motor torques: it needs force_model (a Robot)")
+    state = law.has_state()
+    if is_concrete(state) and bool(np.any(np.asarray(state))):
+        raise ValueError(
+            f"Sensors: force_friction must be a static law (no bristle state), got {type(law).__name__}: "
+            "use the calibration's RobotCalibration.friction(v_s)"
+        )
+
+
+def compensated_torque(law, qd):
+    """The friction torque ``tau_f`` [N m] ``(2,)`` a static ``law`` gives at joint rates ``qd``
+    (what ``Sensors.force_friction`` subtracts)."""
+    return law.static_torque(qd) + law.viscous_coefficient() * qd
+
+
 @params(static=("force_on", "encoder_on", "velocity_on", "calibrated", "motor_force"))
 class Sensors:
     """Sensor imperfections (an immutable pytree).
@@ -85,6 +109,10 @@ class Sensors:
             the controller and the recording read, plus the force noise. The robot's own
             friction and any error of the model stay in it: IMBIC, reading this force, cannot cancel
             the friction, and its joints stick as PD's do. Default ``None`` (a transducer).
+        force_friction: with ``force_model``, the friction law the lab subtracts from the motor
+            torques before the force is computed, ``F - J^-T tau_f,model(qd)`` (a static law
+            such as the calibration's ``RobotCalibration.friction(v_s)``; no bristle state):
+            what lets IMBIC cancel the friction without a transducer. Default ``None``.
 
     The static flags ``force_on``, ``encoder_on``, ``velocity_on`` and ``calibrated`` (any of
     gain, offset and delay not at its default, or traced; derived, not arguments) say which
@@ -98,6 +126,7 @@ class Sensors:
     force_offset: Param = 0.0
     force_delay: Param = 0.0
     force_model: object = None
+    force_friction: object = None
     force_on: bool = False
     encoder_on: bool = False
     velocity_on: bool = False
@@ -134,6 +163,7 @@ class Sensors:
         if self.force_model is not None and not isinstance(self.force_model, Robot):
             raise ValueError(f"Sensors: force_model must be a Robot (the model of the robot), got {self.force_model!r}")
         set_(self, "motor_force", self.force_model is not None)
+        _check_force_friction(self.force_friction, self.motor_force)
         set_(self, "force_on", bool(self.force_on) or _active(self.force_noise))
         set_(self, "velocity_on", bool(self.velocity_on) or _active(self.velocity_noise))
         set_(self, "encoder_on", counts is not None)
