@@ -73,16 +73,17 @@ def without_friction(trial: Trial) -> Trial:
 
 def _routed(sensors: Sensors) -> Sensors:
     """The linearisation's sensors: every noise routed through an input, the force channel's
-    calibration (gain, delay line, offset) kept."""
-    if not sensors.calibrated:
-        return _ROUTED
-    return replace_unchecked(
-        _ROUTED,
-        force_gain=sensors.force_gain,
-        force_offset=sensors.force_offset,
-        force_delay=sensors.force_delay,
-        calibrated=True,
-    )
+    calibration (gain, delay line, offset) kept, and a force from the motor torques (its model
+    robot, and the subtracted law's viscous part: its Coulomb part dropped, as the plant's is)."""
+    routed = _ROUTED
+    if sensors.calibrated:
+        gain, offset, delay = sensors.force_gain, sensors.force_offset, sensors.force_delay
+        routed = replace_unchecked(routed, force_gain=gain, force_offset=offset, force_delay=delay, calibrated=True)
+    if sensors.motor_force:
+        law = sensors.force_friction
+        law = None if law is None else law.without_coulomb()
+        routed = replace_unchecked(routed, force_model=sensors.force_model, force_friction=law, motor_force=True)
+    return routed
 
 
 def _noise_variances(trial: Trial):
