@@ -36,6 +36,7 @@ HEAVY_FIRST = (
     "test_claims_matrix.py",
     "test_claims_identify.py",
     "test_claims_design.py",
+    "test_claims_calibration.py",
     "test_claims_friction.py",
     "test_claims_fit.py",
     "test_claims_readme.py",
