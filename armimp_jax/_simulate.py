@@ -29,17 +29,8 @@ from ._model.friction import FRICTION_KINDS, AbstractFriction
 from ._model.movement import setpoint
 from ._model.plant import PlantState, Trig, displacement, measure, near_path, plant_model, rest_state, trig_of
 from ._model.reach import arm_warnings, check_moving, motion_kind, still_trials
-from ._model.robot import MIT_MANUS, Robot, cartesian_inertia, fk, ik, jacobian, jacobian_from_trig
-from ._model.sensors import (
-    FORCE_HISTORY,
-    IDEAL,
-    Sensors,
-    check_calibration,
-    compensated_torque,
-    delayed_force,
-    read_joints,
-    sample_noise,
-)
+from ._model.robot import MIT_MANUS, Robot, cartesian_inertia, fk, ik, jacobian_from_trig
+from ._model.sensors import FORCE_HISTORY, IDEAL, Sensors, check_calibration, delayed_force, read_joints, sample_noise
 from ._model.timing import CONTROL_PERIOD
 from ._model.voluntary import VoluntaryForce, voluntary_init, voluntary_key, voluntary_normals, voluntary_update
 from ._pytree import params
@@ -382,12 +373,8 @@ def motor_force(trial: Trial, q, qd, xd, carry: SimCarry):
     """The hand force [N] ``(2,)`` a robot without a transducer computes from its motor torques:
     ``F_u,k-1 - M_x,model(q) (xd_k - xd_k-1) / L`` (``Sensors.force_model``), less ``J^-T
     tau_f,model(qd)`` where the lab subtracts a friction law (``Sensors.force_friction``)."""
-    model = trial.sensors.force_model
-    force = carry.fu_prev - matvec(cartesian_inertia(q, model), (xd - carry.xd_prev) / trial.period)
-    if trial.sensors.force_friction is None:
-        return force
-    tau = compensated_torque(trial.sensors.force_friction, qd)
-    return force - jnp.linalg.solve(jacobian(q, model).T, tau)
+    force = carry.fu_prev - matvec(cartesian_inertia(q, trial.sensors.force_model), (xd - carry.xd_prev) / trial.period)
+    return force if trial.sensors.force_friction is None else force - trial.sensors.friction_force(q, qd)
 
 
 def period_step(trial: Trial, model, numerics: Numerics, carry: SimCarry, fd, inputs: PeriodInputs):

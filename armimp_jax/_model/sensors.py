@@ -22,7 +22,7 @@ import numpy as np
 from .._checks import as_param, check_range, is_concrete
 from .._pytree import Param, params
 from .friction.base import AbstractFriction
-from .robot import Robot
+from .robot import Robot, jacobian
 
 
 def _active(x) -> bool:
@@ -72,12 +72,6 @@ def _check_force_friction(law, motor_force: bool) -> None:
             f"Sensors: force_friction must be a static law (no bristle state), got {type(law).__name__}: "
             "use the calibration's RobotCalibration.friction(v_s)"
         )
-
-
-def compensated_torque(law, qd):
-    """The friction torque ``tau_f`` [N m] ``(2,)`` a static ``law`` gives at joint rates ``qd``
-    (what ``Sensors.force_friction`` subtracts)."""
-    return law.static_torque(qd) + law.viscous_coefficient() * qd
 
 
 @params(static=("force_on", "encoder_on", "velocity_on", "calibrated", "motor_force"))
@@ -167,6 +161,14 @@ class Sensors:
         set_(self, "force_on", bool(self.force_on) or _active(self.force_noise))
         set_(self, "velocity_on", bool(self.velocity_on) or _active(self.velocity_noise))
         set_(self, "encoder_on", counts is not None)
+
+    def friction_force(self, q, qd):
+        """The Cartesian force [N] ``(2,)`` of the friction law the lab subtracts
+        (``force_friction``) at joint angles ``q`` [rad] and rates ``qd`` [rad/s]: ``J^-T tau_f(qd)``,
+        ``tau_f = static_torque + viscous qd``, through ``force_model``'s Jacobian."""
+        law = self.force_friction
+        tau = law.static_torque(qd) + law.viscous_coefficient() * qd
+        return jnp.linalg.solve(jacobian(q, self.force_model).T, tau)
 
     @property
     def ideal(self) -> bool:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import hashlib
+import importlib.metadata
 import io
 import json
 import math
@@ -104,13 +105,14 @@ def canonical_json(obj: Any) -> str:
 # --- settings and keys ------------------------------------------------------------------
 
 
-def package_version() -> str:
-    """The version of the armimp_jax this process imported (``armimp_jax.__version__``, read
-    from the metadata once, at import): a reinstall under a running study does not restamp its
-    later records with code it is not running."""
-    import armimp_jax
+# Read once, as the study tools load: a reinstall under a running study does not restamp its
+# later records with a version whose code it is not running.
+_VERSION = importlib.metadata.version("armimp_jax")
 
-    return armimp_jax.__version__
+
+def package_version() -> str:
+    """The armimp_jax version this process loaded (``pyproject.toml``'s, from the metadata)."""
+    return _VERSION
 
 
 def stamped(settings: Mapping) -> dict:
