@@ -215,10 +215,11 @@ def stack_trials(trials: list[Trial]) -> Trial:
         raise ValueError(f"trials in one batch must move alike (a reach or none, the knots); got {sorted(motions)}")
     structures = {jax.tree.structure(t) for t in trials}
     if len(structures) > 1:
-        kinds = sorted({(type(t.controller).__name__, t.acquisition, t.period) for t in trials})
+        force = lambda s: "motor" + " less a law" * (s.force_friction is not None) if s.motor_force else "transducer"  # noqa: E731
+        kinds = sorted({(type(t.controller).__name__, t.acquisition, t.period, force(t.sensors)) for t in trials})
         raise ValueError(
-            "trials in one batch must share the controller type and its static options, the acquisition and "
-            f"the period; got (controller, acquisition, period) in {kinds}"
+            "trials in one batch must share the controller type and its static options, the acquisition, the period "
+            f"and the hand force's reading; got (controller, acquisition, period, force) in {kinds}"
         )
     return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *trials)
 

@@ -547,4 +547,11 @@ def test_the_stuck_advice_names_what_held_the_joints():
     motor = dataclasses.replace(imbic, sensors=aj.Sensors(force_model=aj.presets.MIT_MANUS))
     assert _remedy(pd).endswith("or under IMBIC") and "burst" in _remedy(pd)
     assert "IMBIC" not in _remedy(imbic) and "burst" in _remedy(imbic)
-    assert "motor torques" in _remedy(motor) and "force transducer" in _remedy(motor)
+    assert (
+        "motor torques" in _remedy(motor)
+        and "force transducer" in _remedy(motor)
+        and "force_friction" in _remedy(motor)
+    )
+    law = aj.CoulombViscous(0.5, 1.0, v_s=1e-3)
+    subtracted = dataclasses.replace(imbic, sensors=aj.Sensors(force_model=aj.presets.MIT_MANUS, force_friction=law))
+    assert _remedy(subtracted) == _remedy(imbic)  # the law subtracted, IMBIC cancels the friction again

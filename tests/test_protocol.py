@@ -83,6 +83,41 @@ def test_imbic_cancels_the_friction_through_a_motor_force_only_once_the_lab_subt
     assert stuck["motor"] > 0.5 and stuck["transducer"] < 0.15 and stuck["subtracted"] < 0.15, stuck
 
 
+def test_a_subtracted_friction_law_is_refused_in_one_line_where_it_cannot_be():
+    robot, law = aj.presets.MIT_MANUS, aj.CoulombViscous(0.5, 1.0, v_s=1e-3)
+    cases = [
+        (dict(force_friction=law), r"^Sensors: force_friction CoulombViscous is subtracted from the motor torques: "),
+        (
+            dict(force_model=robot, force_friction=aj.LuGre(0.5, 0.75)),
+            r"must be a static law \(no bristle state\), got LuGre",
+        ),
+        (
+            dict(force_model=robot, force_friction=0.5),
+            r"force_friction must be a friction law \(CoulombViscous, say\), got 0.5",
+        ),
+    ]
+    for kwargs, message in cases:
+        with pytest.raises(ValueError, match=message) as e:
+            aj.Sensors(**kwargs)
+        assert "\n" not in str(e.value)
+    # a batch reads its hand force one way: one line naming each trial's reading
+    plain = aj.make_trial(aj.IMBIC(), arm=paper.arm(2), friction=aj.NO_FRICTION)
+    motor = dataclasses.replace(plain, sensors=aj.Sensors(force_model=robot, force_friction=law))
+    with pytest.raises(ValueError, match=r"the hand force's reading; got .*'motor less a law'.*'transducer'"):
+        aj.batch.stack_trials([plain, motor])
+
+
+def test_a_noise_free_check_reads_the_force_as_the_trial_does():
+    # the loop check (crlb's, identify's choice of statistic) compares the noise-free simulation with
+    # the linearised loop: both read the motor force, so a heavy model robot is no nonlinearity
+    from armimp_jax._identification.bound import nonlinearity
+
+    model = aj.Robot(inertia=1.15 * np.asarray(aj.presets.MIT_MANUS.inertia))
+    sensors = aj.Sensors(force_model=model, force_friction=aj.CoulombViscous(0.0, 0.25))
+    trial = aj.make_trial(aj.IMBIC(), arm=paper.arm(2), friction=aj.CoulombViscous(0.0, 0.5), sensors=sensors)
+    assert np.max(nonlinearity(trial, F[:2000])) < 1e-2
+
+
 @pytest.mark.slow  # 50 s cold: the pooled layout's compile (the suite's 10-minute budget)
 def test_two_postures_in_one_identification_share_the_robot_and_keep_their_own_arms():
     """Noise-free: each posture's stiffness its own, the robot's inertia (15% off the model's)

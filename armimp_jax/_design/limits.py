@@ -13,7 +13,7 @@ import numpy as np
 
 from .._checks import require_x64
 from .._identification.indirect import IDENTIFY_NUMERICS
-from .._model.sensors import IDEAL
+from .._model.sensors import quiet
 from .._model.timing import CONTROL_PERIOD
 from .._pytree import replace_unchecked
 from .._simulate import Trial, simulate
@@ -69,7 +69,7 @@ class Limits:
 
 
 def _quiet(trial: Trial) -> Trial:
-    return replace_unchecked(trial, sensors=IDEAL, voluntary=None)
+    return replace_unchecked(trial, sensors=quiet(trial.sensors), voluntary=None)
 
 
 @jax.jit

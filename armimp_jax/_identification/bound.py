@@ -31,7 +31,7 @@ import numpy as np
 
 from .._checks import as_float64, require_x64
 from .._estimation.welch import check_finite
-from .._model.sensors import IDEAL
+from .._model.sensors import quiet
 from .._pytree import replace_unchecked
 from .._simulate import Trial, simulate
 from . import calibration_prior, kalman, linear
@@ -202,7 +202,7 @@ def _no_bound(trial: Trial, f, check: bool, numerics, friction: bool) -> tuple[s
 
 @functools.partial(jax.jit, static_argnames="numerics")
 def _noise_free(trial, f, numerics):
-    sim = simulate(replace_unchecked(trial, sensors=IDEAL, voluntary=None), f, numerics=numerics)
+    sim = simulate(replace_unchecked(trial, sensors=quiet(trial.sensors), voluntary=None), f, numerics=numerics)
     return jnp.concatenate([sim.x - trial.x0[None, :], sim.fh], axis=1), sim.diverged
 
 

@@ -64,13 +64,16 @@ def motion_diagnosis(trial, x) -> Motion:
 
 def _remedy(trial) -> str:
     """What to change, by what held the joints: a force read from the motors carries the
-    friction into the controller, so IMBIC cannot cancel it (measured: 84-86% stuck against 4-5%
-    with a transducer, the protocol's IMBIC through LuGre 0.5 N m, docs/identification.md)."""
+    friction into the controller unless the lab subtracts its law, so IMBIC cannot cancel it
+    (measured: 87% of a record stuck, against 5% with the law subtracted and 6% with a
+    transducer; model.md section 8.2)."""
     larger = "record with a larger perturbation or one in bursts (ShapedNoise(duty=...))"
-    if trial.sensors.motor_force:
+    s = trial.sensors
+    if s.motor_force and s.force_friction is None:
         return (
             "the hand force is read from the motor torques (Sensors.force_model), so the friction is inside it and "
-            f"the controller cannot compensate it: fit a force transducer at the handle, or {larger}"
+            "the controller cannot compensate it: subtract the calibrated friction law "
+            f"(Sensors(force_friction=calibration.friction(v_s))) or fit a force transducer, or {larger}"
         )
     return larger if isinstance(trial.controller, IMBIC) else f"{larger}, or under IMBIC"
 

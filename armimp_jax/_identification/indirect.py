@@ -36,7 +36,7 @@ import numpy as np
 from jax.sharding import PartitionSpec as P
 
 from .._batch import make_mesh
-from .._model.sensors import IDEAL
+from .._model.sensors import quiet
 from .._pytree import replace_unchecked
 from .._simulate import Trial, simulate
 from .._solver.graded import GradedARK4
@@ -96,8 +96,8 @@ def arm_statistic(layout: Layout, model: Trial, p, f, weight=None):
 def predict(layout: Layout, model: Trial, p, f, numerics):
     """``(y (N, 4), diverged)``: the model at ``p`` without noise (ideal sensors, no voluntary
     force), its recorded ``x`` [m] then ``F_h`` [N]."""
-    quiet = replace_unchecked(with_values(layout, model, p), sensors=IDEAL, voluntary=None)
-    sim = simulate(quiet, f, numerics=numerics)
+    noiseless = replace_unchecked(with_values(layout, model, p), sensors=quiet(model.sensors), voluntary=None)
+    sim = simulate(noiseless, f, numerics=numerics)
     return jnp.concatenate([sim.x, sim.fh], axis=1), sim.diverged
 
 

@@ -34,7 +34,7 @@ from jax.sharding import PartitionSpec as P
 from .._batch import make_mesh
 from .._model.movement import Profile
 from .._model.plant import plant_model
-from .._model.sensors import IDEAL
+from .._model.sensors import quiet
 from .._pytree import replace_unchecked
 from .._simulate import PeriodInputs, Trial, period_step, simulate, simulate_init
 from . import kalman, linear
@@ -232,7 +232,7 @@ def perturbation_draws(family, key, count: int, samples: int, period: float) -> 
 def deterministic(trial: Trial, f, numerics, *, diverged: bool = False):
     """The noise-free recording ``(N, 4)`` (``x - x0`` [m], ``F_h`` [N]) of ``trial`` under ``f``
     (and, with ``diverged``, whether it diverged: the simulation then freezes, finite)."""
-    sim = simulate(replace_unchecked(trial, sensors=IDEAL, voluntary=None), f, numerics=numerics)
+    sim = simulate(replace_unchecked(trial, sensors=quiet(trial.sensors), voluntary=None), f, numerics=numerics)
     y = jnp.concatenate([sim.x - trial.x0[None, :], sim.fh], axis=1)
     return (y, sim.diverged) if diverged else y
 

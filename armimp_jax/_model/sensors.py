@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import as_param, check_range, is_concrete
-from .._pytree import Param, params
+from .._pytree import Param, params, replace_unchecked
 from .friction.base import AbstractFriction
 from .robot import Robot, jacobian
 
@@ -65,7 +65,10 @@ def _check_force_friction(law, motor_force: bool) -> None:
     if not isinstance(law, AbstractFriction):
         raise ValueError(f"Sensors: force_friction must be a friction law (CoulombViscous, say), got {law!r}")
     if not motor_force:
-        raise ValueError("Sensors: force_friction is subtracted from the motor torques: it needs force_model (a Robot)")
+        raise ValueError(
+            f"Sensors: force_friction {type(law).__name__} is subtracted from the motor torques: it needs force_model "
+            "(a Robot)"
+        )
     state = law.has_state()
     if is_concrete(state) and bool(np.any(np.asarray(state))):
         raise ValueError(
@@ -167,7 +170,9 @@ class Sensors:
         (``force_friction``) at joint angles ``q`` [rad] and rates ``qd`` [rad/s]: ``J^-T tau_f(qd)``,
         ``tau_f = static_torque + viscous qd``, through ``force_model``'s Jacobian."""
         law = self.force_friction
-        tau = law.static_torque(qd) + law.viscous_coefficient() * qd
+        tau = jnp.stack(
+            [law.joint(i).static_torque(qd[i]) + law.joint(i).viscous_coefficient() * qd[i] for i in (0, 1)]
+        )
         return jnp.linalg.solve(jacobian(q, self.force_model).T, tau)
 
     @property
@@ -176,6 +181,17 @@ class Sensors:
 
 
 IDEAL = Sensors()
+
+
+def quiet(sensors: Sensors) -> Sensors:
+    """The sensors of a noise-free run (a prediction, a check of the loop): ideal, but a force
+    from the motor torques stays one (its model robot and subtracted law change what a controller
+    that reads the force does)."""
+    if not sensors.motor_force:
+        return IDEAL
+    return replace_unchecked(
+        IDEAL, force_model=sensors.force_model, force_friction=sensors.force_friction, motor_force=True
+    )
 
 
 def sample_noise(sensors: Sensors, key, k):
