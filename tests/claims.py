@@ -10,6 +10,7 @@ import pathlib
 
 import numpy as np
 import scipy.stats
+import validation
 from acceptance import (
     ALPHA,
     SCALE,
@@ -58,17 +59,16 @@ def progress(text: str) -> None:
 
 
 def report(name: str, figures: dict, raw: dict | None = None) -> None:
-    """Print ``figures`` (seen with ``-s`` and in a failure's captured output) and, when
-    ``ARMIMP_STATS_OUT`` names a folder, write them there as ``NAME.json`` (with ``raw``, the
-    Monte Carlo's own numbers, beside them): the numbers docs/performance.md cites."""
+    """Print ``figures`` (seen with ``-s`` and in a failure's captured output) and write them as
+    ``NAME.json`` in the tier's figures folder (``validation.figures_folder``), with ``raw`` (the
+    Monte Carlo's own numbers) and the measuring run beside them: what docs/validation.md, the
+    report the session writes at its end, shows."""
     text = json.dumps(figures, indent=1, default=float)
     print(f"\n[{name}]\n{text}")
-    folder = os.environ.get("ARMIMP_STATS_OUT")
-    if folder:
-        path = pathlib.Path(folder)
-        path.mkdir(parents=True, exist_ok=True)
-        saved = dict(figures, raw={k: np.asarray(v).tolist() for k, v in (raw or {}).items()})
-        (path / f"{name}.json").write_text(json.dumps(saved, indent=1, default=float) + "\n")
+    path = validation.figures_folder()
+    path.mkdir(parents=True, exist_ok=True)
+    saved = dict(figures, raw={k: np.asarray(v).tolist() for k, v in (raw or {}).items()}, run=validation.run_stamp())
+    (path / f"{name}.json").write_text(json.dumps(saved, indent=1, default=float) + "\n")
 
 
 # The precision the docs may print for what the tier holds: the smallest factor on the SEs (a

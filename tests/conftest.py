@@ -60,3 +60,21 @@ HEAVY_FIRST = (
 def pytest_collection_modifyitems(items):
     rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(HEAVY_FIRST)))  # stable: file order kept otherwise
+
+
+# The statistics tier's report (tests/validation.py): the outcome of every stats test this session
+# ran, and docs/validation.md written from the figures at the session's end (by the controller
+# alone under xdist; not at all when no stats test ran).
+_STATS_OUTCOMES: dict[str, str] = {}
+
+
+def pytest_runtest_logreport(report):
+    if "stats" in report.keywords and (report.when == "call" or report.outcome != "passed"):
+        _STATS_OUTCOMES[report.nodeid] = report.outcome
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if _STATS_OUTCOMES and not hasattr(session.config, "workerinput"):
+        import validation
+
+        validation.write(_STATS_OUTCOMES)

@@ -13,24 +13,32 @@ Claim: "the arm's 95% intervals held 0.92-0.98 of its diagonals, and each diagon
 0.8-1.25" over 50 recordings. Held as in ``test_claims_identify``: the pooled coverage and RMS
 of z on the six diagonals and each diagonal's within their bands of a true 0.95 and 1
 (``calibration_check``); a fit that did not converge is a miss unless its message says why in
-a lab's terms (then counted apart, within the band of a claim of 98% converged)."""
+a lab's terms (then counted apart, within the band of a claim of 98% converged).
+About 2 hours per variant on 2 cores; ``ARMIMP_JAX_CALIBRATION_RUN`` names a folder of run
+folders ``calib-<variant>`` to resume (``bench_calibrate.py --parts arm`` writes the same records)."""
+
+import os
+import pathlib
 
 import pytest
-from claims import RESOLVES, calibration_check, convergence, diagonal_z, progress, report
+from claims import RESOLVES, calibration_check, convergence, diagonal_z, report
 
 pytestmark = pytest.mark.stats
 
 RECORDINGS = 50
 
 
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    given = os.environ.get("ARMIMP_JAX_CALIBRATION_RUN")
+    return pathlib.Path(given) if given else tmp_path_factory.mktemp("calibration")
+
+
 @pytest.mark.parametrize("variant", ["calibrated", "motor-force"])
-def test_the_arm_through_the_calibration_holds_its_intervals(variant):
+def test_the_arm_through_the_calibration_holds_its_intervals(variant, folder):
     from armimp_bench import calibration
 
-    rows = []
-    for seed in range(RECORDINGS):
-        rows.append(calibration.arm_row(variant, seed))
-        progress(f"calibration {variant} seed {seed}: {rows[-1]['time_s']:.1f} s, converged {rows[-1]['converged']}")
+    rows = calibration.arm_study([variant], RECORDINGS, folder / f"calib-{variant}")[variant]["seeds"]
     done = convergence([r["message"] for r in rows], [r["converged"] for r in rows])
     check = calibration_check(diagonal_z(rows), unexplained=len(done["unexplained"]))
     report(f"calibration-arm-{variant}", dict(check, convergence=done))

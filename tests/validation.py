@@ -1,0 +1,106 @@
+"""The validation report: what the statistics tier (``pytest -m stats``) measured, written by the
+run that measured it. Each figure the tier reports (``claims.report``) is saved as ``NAME.json`` in
+the figures folder (``ARMIMP_STATS_OUT``, default ``results/stats``) with its run: the date, the
+armimp_jax and JAX versions, the host and the test that asserted it. At the session's end the
+report ``docs/validation.md`` is written from every figure in the folder, each with the outcome
+of its test in the run that measured it: a partial run updates its figures and keeps the rest."""
+
+from __future__ import annotations
+
+import datetime
+import json
+import os
+import pathlib
+import platform
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+REPORT = ROOT / "docs" / "validation.md"
+
+
+def figures_folder() -> pathlib.Path:
+    """Where the tier's figures go (``ARMIMP_STATS_OUT``, or ``results/stats``)."""
+    return pathlib.Path(os.environ.get("ARMIMP_STATS_OUT") or ROOT / "results" / "stats")
+
+
+def run_stamp() -> dict:
+    """The measuring run: date (UTC), versions, host, and the test running now."""
+    import jax
+
+    import armimp_jax
+
+    return dict(
+        date=datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        armimp_jax=armimp_jax.__version__,
+        jax=jax.__version__,
+        host=f"{platform.machine()}, {os.cpu_count()} cores, {platform.processor() or platform.system()}",
+        test=os.environ.get("PYTEST_CURRENT_TEST", "").rsplit(" ", 1)[0],
+    )
+
+
+def _scalars(figures: dict) -> list[str]:
+    """The figure's top-level numbers and short lists, as ``name: value`` (bands and raw data left out)."""
+    out = []
+    for key, value in figures.items():
+        if key in ("raw", "run", "outside", "bands") or isinstance(value, dict):
+            continue
+        if isinstance(value, float):
+            out.append(f"{key} {value:.4g}")
+        elif isinstance(value, (int, str)) and not isinstance(value, bool):
+            out.append(f"{key} {value}")
+        elif isinstance(value, list) and len(value) <= 12 and all(isinstance(v, (int, float)) for v in value):
+            out.append(f"{key} " + ", ".join(f"{v:.3g}" for v in value))
+    return out
+
+
+def render(folder: pathlib.Path, outcomes: dict[str, str]) -> str:
+    """The report's Markdown from every ``NAME.json`` in ``folder``; ``outcomes``: this session's
+    ``{test node id: "passed" | "failed"}`` (a figure from an earlier run keeps its own outcome)."""
+    lines = [
+        "# Validation report",
+        "",
+        "Written by the statistics tier from its own output: `python -m pytest -m stats` (hours on 2 cores;",
+        "a part, such as `tests/test_claims_calibration.py`, updates its own figures). Each",
+        "figure gives the run that measured it and the outcome of the test that asserted it; the bands are",
+        "the Monte Carlo's own (`tests/acceptance.py`). [performance.md](performance.md) keeps earlier",
+        "measurements.",
+        "",
+    ]
+    names = sorted(p.stem for p in folder.glob("*.json"))
+    if not names:
+        return "\n".join(lines + ["No figure has been measured on this tree yet.", ""])
+    lines += ["| figure | outcome | measured | armimp_jax | host |", "|---|---|---|---|---|"]
+    saved = {n: json.loads((folder / f"{n}.json").read_text()) for n in names}
+    for name in names:
+        run = saved[name].setdefault("run", {})
+        run["outcome"] = outcomes.get(run.get("test"), run.get("outcome", "not recorded"))
+        cells = (run["outcome"], run.get("date", "?"), run.get("armimp_jax", "?"), run.get("host", "?"))
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    for name in names:
+        fig, run = saved[name], saved[name]["run"]
+        lines += ["", f"## {name}", "", f"`{run.get('test', '?')}`: {run['outcome']}.", ""]
+        lines += [f"- {s}" for s in _scalars(fig)]
+        if "outside" in fig:
+            lines.append(f"- outside its band: {fig['outside'] or 'none'}")
+    return "\n".join(lines) + "\n"
+
+
+def write(outcomes: dict[str, str], report: pathlib.Path = REPORT) -> pathlib.Path | None:
+    """Record this session's outcomes in their figures, then write ``report`` from the figures
+    folder (nothing when it holds no figure)."""
+    folder = figures_folder()
+    if not folder.is_dir() or not any(folder.glob("*.json")):
+        return None
+    for path in folder.glob("*.json"):
+        figure = json.loads(path.read_text())
+        test = figure.get("run", {}).get("test")
+        if test in outcomes:
+            figure["run"]["outcome"] = outcomes[test]
+            _atomic(path, json.dumps(figure, indent=1) + "\n")
+    _atomic(report, render(folder, outcomes))
+    return report
+
+
+def _atomic(path: pathlib.Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
