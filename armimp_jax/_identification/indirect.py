@@ -94,8 +94,8 @@ def arm_statistic(layout: Layout, model: Trial, p, f, weight=None):
 
 
 def predict(layout: Layout, model: Trial, p, f, numerics):
-    """``(y (N, 4), diverged)``: the model at ``p`` without noise (ideal sensors, no voluntary
-    force), its recorded ``x`` [m] then ``F_h`` [N]."""
+    """``(y (N, 4), diverged)``: the model at ``p`` without noise (``sensors.quiet``: a force from
+    the motor torques stays one; no voluntary force), its recorded ``x`` [m] then ``F_h`` [N]."""
     noiseless = replace_unchecked(with_values(layout, model, p), sensors=quiet(model.sensors), voluntary=None)
     sim = simulate(noiseless, f, numerics=numerics)
     return jnp.concatenate([sim.x, sim.fh], axis=1), sim.diverged
