@@ -21,7 +21,7 @@ import os
 import pathlib
 
 import pytest
-from claims import RESOLVES, calibration_check, convergence, diagonal_z, report
+from claims import RESOLVES, calibration_check, convergence, diagonal_z, progress, report
 
 pytestmark = pytest.mark.stats
 
@@ -38,6 +38,7 @@ def folder(tmp_path_factory):
 def test_the_arm_through_the_calibration_holds_its_intervals(variant, folder):
     from armimp_bench import calibration
 
+    progress(f"calibration {variant}: {RECORDINGS} recordings")  # about two hours: where the tier stands
     rows = calibration.arm_study([variant], RECORDINGS, folder / f"calib-{variant}")[variant]["seeds"]
     done = convergence([r["message"] for r in rows], [r["converged"] for r in rows])
     check = calibration_check(diagonal_z(rows), unexplained=len(done["unexplained"]))
