@@ -8,7 +8,10 @@ file's own), on a grid dense where the claims sit. A threshold is where the seed
 crosses (linear in ``log tau_c`` between grid points, linear from 0); per controller and arm the
 threshold must lie in the claimed range and its 99% bootstrap interval over the seeds (seeds
 resampled whole), reported beside it, is the precision the claim can be printed at (PD's
-arm 1 phi_T: 0.260-0.300 N m, about +-0.02)."""
+arm 1 phi_T: 0.260-0.300 N m, about +-0.02).
+
+The negative control: the same study with the perturbation halved, where the friction's share of
+the motion doubles, must move every arm's threshold out of its claimed range."""
 
 import jax
 import numpy as np
@@ -57,11 +60,11 @@ def thresholds(taus, phi, coh):
     return crossing(taus, p, 2.0 * p[0], True), crossing(taus, c, 0.9, False)
 
 
-@pytest.fixture(scope="module", params=list(GRIDS))
-def curves(request):
-    """Per arm ``(taus, phi_T (S, P), coh_min (S, P))`` of one controller."""
-    controller, taus = request.param, np.array(GRIDS[request.param])
-    peak = presets.perturbation_peak(1)
+def _curves(controller, scale):
+    """Per arm ``(taus, phi_T (S, P), coh_min (S, P))`` of one controller, the paper's level 1
+    perturbation times ``scale``."""
+    taus = np.array(GRIDS[controller])
+    peak = scale * presets.perturbation_peak(1)
     f = [np.asarray(aj.perturbation(jax.random.key(40_000 + s), SAMPLES, peak)) for s in range(SEEDS)]
     cases = [(loc, i, s) for loc in (1, 2, 3, 4) for i in range(len(taus)) for s in range(SEEDS)]
     phi, coh = np.full((5, SEEDS, len(taus)), np.nan), np.full((5, SEEDS, len(taus)), np.nan)
@@ -86,11 +89,23 @@ def curves(request):
         )
         for j, (loc, i, s) in enumerate(part):
             phi[loc, s, i], coh[loc, s, i] = float(out.phi_T[j]), float(lowest[j])
-        progress(f"friction {controller}: {lo + len(part)} of {len(cases)} trials")
+        progress(f"friction {controller} x{scale}: {lo + len(part)} of {len(cases)} trials")
     return controller, {loc: (taus, phi[loc], coh[loc]) for loc in (1, 2, 3, 4)}
 
 
-def test_thresholds_are_where_the_readme_says(curves):
+@pytest.fixture(scope="module", params=list(GRIDS))
+def curves(request):
+    return _curves(request.param, 1.0)
+
+
+@pytest.fixture(scope="module", params=list(GRIDS))
+def halved(request):
+    return _curves(request.param, 0.5)
+
+
+def _judged(curves):
+    """Each arm's thresholds with their 99% bootstrap intervals, the raw curves, and the
+    ``(arm, curve, threshold, interval, claim)`` outside their claimed range."""
     controller, per_arm = curves
     rng = np.random.default_rng(0)
     figures, misses = {}, []
@@ -105,5 +120,18 @@ def test_thresholds_are_where_the_readme_says(curves):
                 misses.append((loc, curve, point[k], interval, claim))
         figures[f"arm {loc} coh_min at 0"] = float(coh[:, 0].mean())
     raw = {f"arm {loc} {k}": v for loc, (taus, phi, coh) in per_arm.items() for k, v in (("phi", phi), ("coh", coh))}
-    report(f"friction-threshold-{controller}", figures, dict(raw, taus=GRIDS[controller]))
+    return figures, dict(raw, taus=GRIDS[controller]), misses
+
+
+def test_thresholds_are_where_the_readme_says(curves):
+    figures, raw, misses = _judged(curves)
+    report(f"friction-threshold-{curves[0]}", figures, raw)
     assert not misses, misses
+
+
+def test_a_halved_perturbation_moves_every_threshold_out_of_its_claim(halved):
+    controller = halved[0]
+    figures, raw, misses = _judged(halved)
+    report(f"friction-threshold-{controller}-halved", dict(figures, misses=len(misses)), raw)
+    claims = [curve for (c, curve) in CLAIMS if c == controller]
+    assert len(misses) == 4 * len(claims), (misses, figures)
