@@ -119,6 +119,8 @@ def _judged(curves):
             if claim is not None and not claim[0] <= point[k] <= claim[1]:
                 misses.append((loc, curve, point[k], interval, claim))
         figures[f"arm {loc} coh_min at 0"] = float(coh[:, 0].mean())
+    for curve in ("phi", "coherence"):  # every arm's, for a range to be quoted from the report
+        figures[f"{curve} thresholds"] = [figures[f"arm {loc} {curve}"]["threshold"] for loc in per_arm]
     raw = {f"arm {loc} {k}": v for loc, (taus, phi, coh) in per_arm.items() for k, v in (("phi", phi), ("coh", coh))}
     return figures, dict(raw, taus=GRIDS[controller]), misses
 

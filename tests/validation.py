@@ -12,6 +12,7 @@ import json
 import os
 import pathlib
 import platform
+import re
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 REPORT = ROOT / "docs" / "validation.md"
@@ -37,18 +38,28 @@ def run_stamp() -> dict:
     )
 
 
-def _scalars(figures: dict) -> list[str]:
-    """The figure's top-level numbers and short lists, as ``name: value`` (bands and raw data left out)."""
-    out = []
+def _flat(figures: dict, prefix: str = ""):
+    """``(dotted name, value)`` of every leaf, nested figures (one per arm, per claim) included;
+    the bands, the raw data and the run left out."""
     for key, value in figures.items():
-        if key in ("raw", "run", "outside", "bands") or isinstance(value, dict):
+        if not prefix and key in ("raw", "run", "outside", "bands"):
             continue
+        if isinstance(value, dict):
+            yield from _flat(value, f"{prefix}{key}.")
+        else:
+            yield f"{prefix}{key}", value
+
+
+def _scalars(figures: dict) -> list[str]:
+    """The figure's numbers, words and short lists of numbers, as ``name value``."""
+    out = []
+    for key, value in _flat(figures):
         if isinstance(value, float):
             out.append(f"{key} {value:.4g}")
         elif isinstance(value, (int, str)) and not isinstance(value, bool):
             out.append(f"{key} {value}")
-        elif isinstance(value, list) and len(value) <= 12 and all(isinstance(v, (int, float)) for v in value):
-            out.append(f"{key} " + ", ".join(f"{v:.3g}" for v in value))
+        elif isinstance(value, list) and 0 < len(value) <= 12 and all(isinstance(v, (int, float)) for v in value):
+            out.append(f"{key} " + ", ".join(f"{v:.4g}" for v in value))
     return out
 
 
@@ -104,3 +115,31 @@ def _atomic(path: pathlib.Path, text: str) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(text)
     tmp.replace(path)
+
+
+def read(report: pathlib.Path = REPORT) -> dict[str, dict]:
+    """``{anchor: {"name", "outcome", "figures": {key: text}}}`` of a written report, keyed by each
+    figure's anchor in the site and on GitHub (its name lower-cased, dots dropped)."""
+    out, current = {}, None
+    for line in report.read_text().splitlines():
+        if line.startswith("## "):
+            name = line[3:].strip()
+            current = out[anchor(name)] = dict(name=name, outcome=None, figures={})
+        elif current is not None and line.startswith("`") and "`: " in line:
+            current["outcome"] = line.rsplit("`: ", 1)[1].rstrip(".")
+        elif current is not None and line.startswith("- "):
+            key, _, value = line[2:].rpartition(" ") if ", " not in line else _split_list(line[2:])
+            current["figures"][key] = value
+    return out
+
+
+def _split_list(text: str) -> tuple[str, str, str]:
+    """``name v1, v2, ...`` split after the name (the name has no comma)."""
+    head, _, rest = text.partition(", ")
+    key, _, first = head.rpartition(" ")
+    return key, " ", f"{first}, {rest}"
+
+
+def anchor(name: str) -> str:
+    """The heading's anchor as mkdocs and GitHub make it: lower case, only word characters and hyphens."""
+    return re.sub(r"[^\w-]", "", name.lower())
