@@ -344,3 +344,20 @@ def test_welch_segments_follow_the_record():
     for field in ("f", "Z", "coh_inputs"):
         np.testing.assert_array_equal(getattr(auto, field), getattr(explicit, field))
         np.testing.assert_array_equal(getattr(given, field), getattr(explicit, field))
+
+
+def test_a_sweeps_phase_error_skips_entries_whose_truth_is_zero():
+    """An arm without cross-coupling has off-diagonal impedances of zero, whose phase is undefined:
+    the sweep's phase error is the mean over the diagonal, here 10 degrees on each (a Z_hat that
+    is the truth turned by 10 degrees), not NaN."""
+    from armimp_jax.study.sweep.metrics import score
+
+    diagonal = dict(mass=np.diag([1.0, 2.0]), damping=np.diag([5.0, 6.0]), stiffness=np.diag([100.0, 200.0]))
+    arm = aj.Arm(**diagonal, endpoint=[0.0, 0.4])
+    f = np.linspace(0.5, 10.0, 20)
+    z = np.asarray(arm.impedance(f)) * np.exp(1j * np.radians(10.0))
+    ones = np.ones((len(f), 2))
+    names = ("coh_multiple_x", "coh_partial_x", "coh_multiple_fh", "coh_partial_fh", "coh_inputs")
+    coherences = dict.fromkeys(names, ones)
+    m = score(f, z, coherences, arm)
+    assert m["phase_error_deg"] == pytest.approx(10.0, rel=1e-12)

@@ -13,6 +13,7 @@ import pytest
 import armimp_jax as aj
 from armimp_jax import paper, study
 from armimp_jax._model.controllers import controller_kind
+from armimp_jax._model.controllers.base import CONTROLLER_KINDS
 from armimp_jax._model.friction import friction_kind
 
 
@@ -142,6 +143,28 @@ def test_the_toy_kinds_sweep_from_a_config(tmp_path):
     assert len(rows) == 2 and all(r["n"] == 1 and np.isfinite(r["stats"]["phi_T"]["mean"]) for r in rows)
     trial = study.Point.parse(pts[1]).trial
     np.testing.assert_array_equal(trial.controller.d, 30.0 * np.eye(2))
+
+
+def test_a_kind_defined_without_a_file_is_refused_as_a_duplicate_in_words():
+    """A class made by ``exec`` (a notebook, a docs example) has no source file: run again in the
+    same module it is redefined; one of the same kind from another module is refused in one line,
+    as any duplicate is, not by ``inspect``'s error."""
+    source = (
+        "class Twice(aj.AbstractController):\n"
+        "    kind: ClassVar[str] = 'toy_twice'\n"
+        "    UNITS: ClassVar[dict] = {}\n"
+        "    def init(self, x0):\n        return ()\n"
+        "    def step(self, memory, x, xd, fh, f_delta, x0, period):\n        return f_delta, memory\n"
+    )
+    try:
+        exec(source, dict(aj=aj, ClassVar=ClassVar, __name__="notebook"))
+        first = controller_kind("toy_twice")
+        exec(source, dict(aj=aj, ClassVar=ClassVar, __name__="notebook"))  # the cell run again: redefined
+        assert controller_kind("toy_twice") is not first and controller_kind("toy_twice").__name__ == "Twice"
+        with pytest.raises(TypeError, match="the controller kind 'toy_twice' is Twice's already"):
+            exec(source, dict(aj=aj, ClassVar=ClassVar, __name__="another_notebook"))
+    finally:  # the registry is the process's: leave it as the other tests know it
+        CONTROLLER_KINDS._kinds.pop("toy_twice", None)
 
 
 def test_kinds_are_found_by_name_and_unknown_or_duplicate_ones_refused():

@@ -43,8 +43,12 @@ def load_entry_points() -> list[str]:
 
 
 def _same_source(a: type, b: type) -> bool:
-    """Whether two classes are one definition loaded twice (the same name in the same file)."""
-    return a.__qualname__ == b.__qualname__ and inspect.getsourcefile(a) == inspect.getsourcefile(b)
+    """Whether two classes are one definition loaded twice (the same name in the same file); a
+    class with no file (defined by ``exec`` or in a session) is told by its name alone as new."""
+    try:
+        return a.__qualname__ == b.__qualname__ and inspect.getsourcefile(a) == inspect.getsourcefile(b)
+    except TypeError:  # inspect finds no file for it
+        return False
 
 
 class Parameter(NamedTuple):

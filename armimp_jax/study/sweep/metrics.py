@@ -36,10 +36,11 @@ def score(f, Z, coherences, arm: Arm, *, accuracy=None, input_coherence=None, lo
     ``phi_T`` [N/m]: the mean over bins of the largest singular value of the error;
     ``phi_ij`` (2, 2): the mean absolute error per entry (``accuracy``: these two as a batch
     computed them, else here); ``rel_error``: ``phi_T`` over the mean largest singular value
-    of the truth; ``phase_error_deg``: the mean absolute phase error [deg]. ``coherences``
-    maps the ``COHERENCES`` and ``coh_inputs`` to arrays ``(F, 2)``; each coherence gives its
-    minimum below and above ``low_band`` [Hz] (NaN where a band holds no bin) and its median;
-    each multiple coherence its minimum and median per output channel (``coh_x1_min``, ...);
+    of the truth; ``phase_error_deg``: the mean absolute phase error [deg] over the entries
+    whose truth is not zero. ``coherences`` maps the ``COHERENCES`` and ``coh_inputs`` to arrays
+    ``(F, 2)``; each coherence gives its minimum below and above ``low_band`` [Hz] (NaN where a
+    band holds no bin) and its median; each multiple coherence its minimum and median per output
+    channel (``coh_x1_min``, ...);
     ``coh_min`` the least of the multiple coherences (position and force); and
     ``input_coherence_max`` the largest input coherence (or ``input_coherence``, a batch's).
     """
@@ -51,7 +52,10 @@ def score(f, Z, coherences, arm: Arm, *, accuracy=None, input_coherence=None, lo
     else:
         phi_t, phi_ij = float(accuracy[0]), np.asarray(accuracy[1])
     scale = float(np.mean(np.asarray(largest_singular_value(zt))))
-    phase = np.degrees(np.abs(np.angle(Z / zt)))
+    # an entry whose truth is zero (an arm without cross-coupling) has no phase to miss
+    z, zt_b = np.asarray(Z), np.broadcast_to(zt, np.shape(Z))
+    defined = np.abs(zt_b) > 0
+    phase = np.degrees(np.abs(np.angle(z[defined] / zt_b[defined])))
     low, high = f < low_band, f >= low_band
     m = dict(phi_T=phi_t, phi_ij=np.asarray(phi_ij).tolist(), rel_error=phi_t / scale)
     m["phase_error_deg"] = float(np.mean(phase))
