@@ -4,7 +4,7 @@
              Coulomb torques free from a generic start (target: 30 s warm)
     pooled   eight 20 s recordings, two at each paper posture, an arm per posture and the
              torques shared (target: 3 min warm)
-    checked  issue 61's lab, 20 s: admittance through CoulombViscous(0.05), the self-check runs
+    checked  the new user's lab, 20 s: admittance through CoulombViscous(0.05), the self-check runs
              (target: 1.5 times 2.4.0's); three warm calls, their median
     linear   PD without friction, 20 s: nothing is checked (target: no slower than 2.4.0)
     reaches  40 reaches (reaches-lugre: through LuGre, target 2 min warm), on 1 then all devices

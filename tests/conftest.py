@@ -30,7 +30,7 @@ from helpers import global_state_unchanged, suite_state  # noqa: E402, F401
 
 # The suite runs file by file on two workers (``--dist loadfile``: a module's fixtures and
 # compiled programs are made once). Its heaviest files go first, so the last file a worker
-# takes is a short one: by worker seconds on a cold cache (docs/performance.md, version 1.1).
+# takes is a short one, by worker seconds on a cold cache (docs/performance.md, "The test suite").
 HEAVY_FIRST = (
     # the statistics tier (pytest -m stats), longest first
     "test_claims_matrix.py",

@@ -142,7 +142,7 @@ def test_spread_is_at_the_bound(monte_carlo):
 
 
 def test_predict_se_is_the_spread(monte_carlo):
-    """identification.md sections 4, 6 and 10: ``predict_se`` within 0.83-1.28 of the spread on
+    """identification.md sections 4 and 6: ``predict_se`` within 0.83-1.28 of the spread on
     the near-linear cases (0.78-1.32 through stick-slip), and within 0.9-1.1 over the diagonals:
     held as a point, the spread is the prediction (pooled, and each entry at its F band)."""
     pred = entries(aj.predict_se(monte_carlo["truth"], monte_carlo["f"], free=ARM, draws=PREDICT_DRAWS).se)
@@ -158,7 +158,7 @@ def test_predict_se_is_the_spread(monte_carlo):
     assert r["rms"] <= RESOLVES["diagonals"] and r["entry"] <= RESOLVES["entry"], r
 
 
-# identification.md section 6b (issue 50): per cell, over its six diagonals, coverage 0.92-0.98,
+# identification.md section 6b: per cell, over its six diagonals, coverage 0.92-0.98,
 # and per diagonal the SD of z 0.83-1.14 ("honest or errs wide"). Held: the intervals honest, the
 # pooled coverage and RMS of z and each diagonal's within their bands (``calibration_check``).
 ENTRY_CELLS = ("base", "friction-1")
@@ -166,7 +166,7 @@ ENTRY_CELLS = ("base", "friction-1")
 
 @pytest.mark.parametrize("cell", ENTRY_CELLS)
 def test_intervals_hold_entry_by_entry(cell):
-    """identification.md section 6b: the base case of issue 50 (IMBIC through 0.5 N m, a strong
+    """identification.md section 6b: the base case (IMBIC through 0.5 N m, a strong
     person's force, 10 s) and its 1 N m cell, 50 recordings each, as
     ``bench_identify_entries.py`` runs them."""
     from armimp_bench import entrywise, protocol

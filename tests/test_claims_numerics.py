@@ -1,6 +1,6 @@
 """Statistics tier (``pytest -m stats``): "converged at every friction 0-4 N m" (identify's and
 ``Numerics()``'s ``GradedARK4`` at 4 substeps: ``aj.solvers.IDENTIFY_NUMERICS``; docs/identification.md
-section 3 item 8, docs/performance.md issue 26) on the claim's own terms: PD and IMBIC at their
+section 3 item 8, docs/performance.md, "The integrators' convergence") on the claim's own terms: PD and IMBIC at their
 defaults, Coulomb torques 0, 1e-4, 1e-3, 1e-2, 0.1, 1 and 4 N m (stiction 1.5 times it), the
 paper's four arms, 50 s records at its level 1 (key 0), Table 4's Welch settings; against the
 same solver at 4 times the substeps, ``phi_T`` and the fitted stiffness within 1e-4 and no

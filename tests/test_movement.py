@@ -153,7 +153,7 @@ def test_a_reach_of_no_length_and_flat_profiles_is_the_still_arm_to_round_off():
 
 
 def _reference_pd(arm: aj.Arm, robot: aj.Robot, q0, kp, kv, f_delta, period=1e-3):
-    """The moving arm under PD without friction, from docs/model.md sections 3, 5, 7.1 and 11f
+    """The moving arm under PD without friction, from docs/model.md sections 3, 5, 7 and 19
     alone: NumPy, SciPy's DOP853 over each control period, from rest at ``q0`` [rad] (the path's
     start's inverse kinematics). Returns ``x`` and ``F_h`` ``(N, 2)``."""
     ls, le = float(robot.shoulder_link), float(robot.elbow_link)

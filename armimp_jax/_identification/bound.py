@@ -1,7 +1,7 @@
 """The Cramér-Rao bound of a planned experiment: ``fisher_information`` and ``crlb``.
 
 The precision any unbiased estimator can reach from one recording of a near-linear loop
-(docs/model.md section 11d). The recorded ``y = (x - x0, F_h)`` is the loop's deterministic
+(docs/model.md section 18). The recorded ``y = (x - x0, F_h)`` is the loop's deterministic
 response to the known perturbation plus the response to its noise (the person's force, the
 sensors' noise fed back through the controller, the encoders' steps), both from the loop
 linearised about rest (``linear.py``). The noise's Kalman filter (``kalman.py``) whitens it

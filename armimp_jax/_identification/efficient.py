@@ -43,7 +43,7 @@ SPECTRUM_NPERSEG = 1024  # Welch segments of the innovations' excess spectrum (~
 FIT_STEPS = 30  # Gauss-Newton steps of fit_linear at most
 # fit_linear stops when a step moves every parameter by less than this many SEs: the centre of the
 # statistic need only be near (indirect inference corrects the rest), and Gauss-Newton on this
-# cost converges linearly, so a tight tolerance costs many steps (docs/performance.md, version 2.1.0)
+# cost converges linearly, so a tight tolerance costs many steps (docs/performance.md, "The binding's draws")
 FIT_TOLERANCE = 0.2
 HALVINGS = 8
 # Eigenvalues of the unit-diagonal information below this fraction of the largest are directions

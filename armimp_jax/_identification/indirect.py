@@ -54,7 +54,7 @@ WEIGHT_DRAWS = 16
 # against 64 draws' are measured in docs/identification.md section 6b.
 CHORD_DRAWS = 8
 # Simulations in one call of the chord's bindings (``binding_means``): wider batches run each
-# simulation faster on XLA:CPU up to about this width, then slower (docs/performance.md 2.3.1).
+# simulation faster on XLA:CPU up to about this width, then slower (docs/performance.md, "The binding's draws").
 CHORD_BATCH = 112
 
 

@@ -14,10 +14,10 @@ FRICTIONS = ("lugre", "coulomb_viscous")
 MEASURED = {
     ("pd", "none"): "section 6",
     ("imbic", "none"): "section 6",
-    ("pd", "lugre"): "sections 6 and 10",
+    ("pd", "lugre"): "section 6",
     ("imbic", "lugre"): "sections 6 and 6b",
     ("admittance", "none"): "section 6c",
-    ("admittance", "coulomb_viscous"): "section 6c (0.05 N m, issue 61's lab)",
+    ("admittance", "coulomb_viscous"): "section 6c (0.05 N m)",
 }
 
 

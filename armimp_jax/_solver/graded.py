@@ -2,7 +2,7 @@
 each step's midpoint, with the last substep of each control period graded.
 
 Two measured facts shape it (``sweeps/bench_convergence.py``; the numbers are in
-docs/performance.md, issue 26):
+docs/performance.md, "The integrators' convergence"):
 
 1. **Where the error comes from at small Coulomb torques.** The recorded hand force is the
    plant's at the sample instant, and it contains the bristle damping ``sigma1 z'`` with

@@ -5,7 +5,7 @@
 - ``pooled``: eight recordings of 20 s (the paper's four postures, two trials at each, every
   recording its own perturbation), one arm per posture and the torques shared, from the same
   generic start; target 3 min warm;
-- ``checked``: issue 61's lab for 20 s (admittance through ``CoulombViscous(0.05)``, a non-paper
+- ``checked``: the new user's lab for 20 s (admittance through ``CoulombViscous(0.05)``, a non-paper
   arm at location 1's posture, the arm free from a generic start): the self-check runs; target
   1.5 times 2.4.0's; ``linear``: PD without friction at paper arm 2, 20 s, the same start: the
   loop is linear, nothing is checked; target no slower than 2.4.0. Each three warm calls
@@ -43,7 +43,7 @@ FREE = (*cov.ARM, "friction.tau_c")
 TARGETS_S = dict(single=30.0, pooled=180.0, script=60.0, checked=None, linear=None, reaches=None)
 TARGETS_S["reaches-lugre"] = 120.0
 REPEATS = 3  # warm calls of the checked and linear cases
-# issue 61's lab's subject (armimp_bench.matrix's OTHER_ARM): heavier along x, with off-diagonal terms
+# the new user's lab's subject (armimp_bench.matrix's OTHER_ARM): heavier along x, with off-diagonal terms
 LAB_ARM = dict(
     mass=[[1.6, 0.25], [0.2, 1.1]], damping=[[14.0, 3.0], [2.5, 10.0]], stiffness=[[260.0, 60.0], [45.0, 180.0]]
 )

@@ -9,7 +9,7 @@ the paper's level-1 perturbation (one signal per cell), the friction known, and 
 from a generic start (1 kg, 5 N s/m, 150 N/m on each diagonal, as a lab would guess). Even
 seeds record the paper's arm at location 2; odd seeds ``OTHER_ARM``, a non-paper arm with
 off-diagonal terms, at location 1's posture. ``<controller>-short`` cells are 8 s records
-through LuGre 0.3 N m. ``new-user`` is issue 61's lab: admittance through
+through LuGre 0.3 N m. ``new-user`` is the new user's lab: admittance through
 ``CoulombViscous(0.05)``, 25 s at location 1's posture, ``OTHER_ARM`` alone.
 
 A row is ``protocol.one``'s (values, SEs, truth, convergence, warnings); ``summary`` scores a

@@ -1,4 +1,4 @@
-"""Admittance control (docs/model.md section 11e): ``Admittance``, kind ``"admittance"``.
+"""Admittance control (docs/model.md section 9.3): ``Admittance``, kind ``"admittance"``.
 
 At each control instant ``k`` the controller reads the force the person exerts on the handle,
 ``F_m,k = -F_h,k`` (the transducer reads ``F_h``, the force on the hand), and integrates a

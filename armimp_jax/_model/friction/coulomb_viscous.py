@@ -1,4 +1,4 @@
-"""A static friction law (docs/model.md section 11e): ``CoulombViscous``, kind ``"coulomb_viscous"``.
+"""A static friction law (docs/model.md section 4b): ``CoulombViscous``, kind ``"coulomb_viscous"``.
 
 The torque on joint ``i`` is ``-tau_c tanh(qd / v_s) - viscous qd`` (KINARM's model, with
 ``tau_c`` about 0.06 N m, ``viscous`` about 0.0025 N m s/rad and ``v_s = 0.01`` rad/s), so the
