@@ -13,6 +13,7 @@ import os
 import pathlib
 import platform
 import re
+import subprocess
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 REPORT = ROOT / "docs" / "validation.md"
@@ -29,9 +30,12 @@ def run_stamp() -> dict:
 
     import armimp_jax
 
+    # the commit as well: an editable install's version is its metadata's, stale until reinstalled
+    git = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
     return dict(
         date=datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         armimp_jax=armimp_jax.__version__,
+        commit=git.stdout.strip() if git.returncode == 0 else None,
         jax=jax.__version__,
         host=f"{platform.machine()}, {os.cpu_count()} cores, {platform.processor() or platform.system()}",
         test=os.environ.get("PYTEST_CURRENT_TEST", "").rsplit(" ", 1)[0],
@@ -72,8 +76,8 @@ def render(folder: pathlib.Path, outcomes: dict[str, str]) -> str:
         "Written by the statistics tier from its own output: `python -m pytest -m stats` (hours on 2 cores;",
         "a part, such as `tests/test_claims_calibration.py`, updates its own figures). Each",
         "figure gives the run that measured it and the outcome of the test that asserted it; the bands are",
-        "the Monte Carlo's own (`tests/acceptance.py`). [performance.md](performance.md) keeps earlier",
-        "measurements.",
+        "the Monte Carlo's own (`tests/acceptance.py`). [performance.md](performance.md) keeps the runs",
+        "behind the other figures the docs print, with their dates, versions and hosts.",
         "",
     ]
     names = sorted(p.stem for p in folder.glob("*.json"))
@@ -84,7 +88,8 @@ def render(folder: pathlib.Path, outcomes: dict[str, str]) -> str:
     for name in names:
         run = saved[name].setdefault("run", {})
         run["outcome"] = outcomes.get(run.get("test"), run.get("outcome", "not recorded"))
-        cells = (run["outcome"], run.get("date", "?"), run.get("armimp_jax", "?"), run.get("host", "?"))
+        version = run.get("armimp_jax", "?") + (f" ({run['commit']})" if run.get("commit") else "")
+        cells = (run["outcome"], run.get("date", "?"), version, run.get("host", "?"))
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     for name in names:
         fig, run = saved[name], saved[name]["run"]
