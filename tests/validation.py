@@ -55,15 +55,15 @@ def _flat(figures: dict, prefix: str = ""):
 
 
 def _scalars(figures: dict) -> list[str]:
-    """The figure's numbers, words and short lists of numbers, as ``name value``."""
+    """The figure's numbers, words and short lists of numbers, as ``name: value``."""
     out = []
     for key, value in _flat(figures):
         if isinstance(value, float):
-            out.append(f"{key} {value:.4g}")
+            out.append(f"{key}: {value:.4g}")
         elif isinstance(value, (int, str)) and not isinstance(value, bool):
-            out.append(f"{key} {value}")
+            out.append(f"{key}: {value}")
         elif isinstance(value, list) and 0 < len(value) <= 12 and all(isinstance(v, (int, float)) for v in value):
-            out.append(f"{key} " + ", ".join(f"{v:.4g}" for v in value))
+            out.append(f"{key}: " + ", ".join(f"{v:.4g}" for v in value))
     return out
 
 
@@ -124,27 +124,24 @@ def _atomic(path: pathlib.Path, text: str) -> None:
 
 def read(report: pathlib.Path = REPORT) -> dict[str, dict]:
     """``{anchor: {"name", "outcome", "figures": {key: text}}}`` of a written report, keyed by each
-    figure's anchor in the site and on GitHub (its name lower-cased, dots dropped)."""
+    figure's anchor in the site and on GitHub; two figures with one anchor are refused."""
     out, current = {}, None
     for line in report.read_text().splitlines():
         if line.startswith("## "):
             name = line[3:].strip()
+            if anchor(name) in out:
+                raise ValueError(f"{report}: figures {out[anchor(name)]['name']!r} and {name!r} share an anchor")
             current = out[anchor(name)] = dict(name=name, outcome=None, figures={})
         elif current is not None and line.startswith("`") and "`: " in line:
             current["outcome"] = line.rsplit("`: ", 1)[1].rstrip(".")
-        elif current is not None and line.startswith("- "):
-            key, _, value = line[2:].rpartition(" ") if ", " not in line else _split_list(line[2:])
+        elif current is not None and line.startswith("- ") and ": " in line:
+            key, _, value = line[2:].partition(": ")
             current["figures"][key] = value
     return out
 
 
-def _split_list(text: str) -> tuple[str, str, str]:
-    """``name v1, v2, ...`` split after the name (the name has no comma)."""
-    head, _, rest = text.partition(", ")
-    key, _, first = head.rpartition(" ")
-    return key, " ", f"{first}, {rest}"
-
-
 def anchor(name: str) -> str:
-    """The heading's anchor as mkdocs and GitHub make it: lower case, only word characters and hyphens."""
-    return re.sub(r"[^\w-]", "", name.lower())
+    """The heading's anchor as mkdocs (Python-Markdown's ``toc``) makes it, and GitHub for the
+    names the tier writes: word characters, spaces and hyphens kept, lower case, runs of spaces
+    and hyphens one hyphen."""
+    return re.sub(r"[-\s]+", "-", re.sub(r"[^\w\s-]", "", name).strip().lower())

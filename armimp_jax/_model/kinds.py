@@ -47,7 +47,7 @@ def _same_source(a: type, b: type) -> bool:
     class with no file (defined by ``exec`` or in a session) is told by its name alone as new."""
     try:
         return a.__qualname__ == b.__qualname__ and inspect.getsourcefile(a) == inspect.getsourcefile(b)
-    except TypeError:  # inspect finds no file for it
+    except (TypeError, OSError):  # inspect finds no file for it (exec, __main__)
         return False
 
 
