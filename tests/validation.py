@@ -12,7 +12,6 @@ import json
 import os
 import pathlib
 import platform
-import re
 import subprocess
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
@@ -129,9 +128,10 @@ def read(report: pathlib.Path = REPORT) -> dict[str, dict]:
     for line in report.read_text().splitlines():
         if line.startswith("## "):
             name = line[3:].strip()
-            if anchor(name) in out:
-                raise ValueError(f"{report}: figures {out[anchor(name)]['name']!r} and {name!r} share an anchor")
-            current = out[anchor(name)] = dict(name=name, outcome=None, figures={})
+            key = anchor(name)
+            if key in out:
+                raise ValueError(f"{report}: figures {out[key]['name']!r} and {name!r} share an anchor")
+            current = out[key] = dict(name=name, outcome=None, figures={})
         elif current is not None and line.startswith("`") and "`: " in line:
             current["outcome"] = line.rsplit("`: ", 1)[1].rstrip(".")
         elif current is not None and line.startswith("- ") and ": " in line:
@@ -141,7 +141,8 @@ def read(report: pathlib.Path = REPORT) -> dict[str, dict]:
 
 
 def anchor(name: str) -> str:
-    """The heading's anchor as mkdocs (Python-Markdown's ``toc``) makes it, and GitHub for the
-    names the tier writes: word characters, spaces and hyphens kept, lower case, runs of spaces
-    and hyphens one hyphen."""
-    return re.sub(r"[-\s]+", "-", re.sub(r"[^\w\s-]", "", name).strip().lower())
+    """The heading's anchor as the site makes it: Python-Markdown's ``toc`` slug, mkdocs's default
+    (and GitHub's, for the names the tier writes)."""
+    from markdown.extensions.toc import slugify  # the site's own (the test extra installs mkdocs)
+
+    return slugify(name, "-")

@@ -20,8 +20,11 @@ _shown = warnings.showwarning
 def _from_examples(category, filename: str) -> bool:
     # a RuntimeWarning or UserWarning during the build comes from an example's computation, even
     # where it points into numpy or jax; deprecations count only from the examples and the library
-    computed = issubclass(category, (RuntimeWarning, UserWarning)) and not issubclass(category, DeprecationWarning)
-    return computed or filename.startswith("<code block") or "armimp_jax" in filename
+    return (
+        issubclass(category, (RuntimeWarning, UserWarning))
+        or filename.startswith("<code block")
+        or "armimp_jax" in filename
+    )
 
 
 def _show(message, category, filename, lineno, file=None, line=None):
